@@ -1,0 +1,22 @@
+"""sim_core: Baudet's parametrised hexahedral mass-spring system and its finite-element reference.
+
+Quick start::
+
+    from sim_core import HexMesh, Material, build_model, solve_static
+    mesh = HexMesh.block((10, 10, 10), spacing=0.01)           # 10 cm cube, 1 cm elements
+    model = build_model(mesh, Material(5e3, 0.45, 1060), gravity=(0, -9.81, 0))
+    control = model.new_control().impose(bottom_nodes, mesh.nodes[bottom_nodes])
+    equilibrium = solve_static(model, control)
+
+All quantities are SI: m, kg, s, Pa, N. Formulas follow shared/physics.md.
+"""
+
+from .material import Material
+from .mesh import HexMesh
+from .model import Control, Model, State, build_model
+from .static import StaticResult, solve_static, zero_energy_modes
+
+__all__ = [
+    "Control", "HexMesh", "Material", "Model", "State", "StaticResult", "build_model",
+    "solve_static", "zero_energy_modes",
+]

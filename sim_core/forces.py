@@ -1,0 +1,205 @@
+"""Forces of the mass-spring model and their Jacobian (vectorised over springs and elements).
+
+Sign conventions: ``forces`` are the forces acting on the nodes (N); ``stiffness`` matrices are
+K = -d(forces)/d(positions) (N/m) and damping matrices D = -d(forces)/d(velocities) (N s/m), so
+that both are positive semi-definite for plain springs. Equations cite shared/physics.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS
+from .model import Model
+
+
+@dataclass
+class SpringGeometry:
+    """Current spring directions ``unit`` (S, 3), lengths ``length`` (S,) m."""
+
+    unit: np.ndarray
+    length: np.ndarray
+
+
+def spring_geometry(model: Model, positions: np.ndarray) -> SpringGeometry:
+    a, b = model.springs[:, 0], model.springs[:, 1]
+    vector = positions[b] - positions[a]
+    length = np.sqrt(np.einsum("ij,ij->i", vector, vector))
+    return SpringGeometry(vector / length[:, None], length)
+
+
+def element_strains(model: Model, length: np.ndarray) -> np.ndarray:
+    """(M, 3) eps_m = mean current length of the element's m-edges / rest - 1 [3]."""
+    edges = length[model.edge_spring].reshape(-1, 3, 4).mean(axis=2)
+    return edges / model.axis_rest_length - 1.0
+
+
+def correction_pushes(model: Model, length: np.ndarray) -> np.ndarray:
+    """(M, 3) T_j: force (N) pushing apart the two ends of each of the element's j-edges [3]."""
+    return np.einsum("mjk,mk->mj", model.correction_matrix, element_strains(model, length))
+
+
+def volume_terms(model: Model, positions: np.ndarray, gradient: bool = False):
+    """Volume-conservation force per element node and, optionally, the volume gradient [4].
+
+    F_S = -kappa sign(dV) (dV / V0)^2 (A_S / A_H) N_S on each face S of hexahedron H, a quarter
+    on each of its nodes (restoring: a shrunken element pushes its faces outward).
+
+    Returns (forces (M, 8, 3) N, volume (M,) m^3, dphi (M,) N/m^3, face_force_direction h (M, 8, 3),
+    volume gradient (M, 8, 3) m^2 or None).
+    """
+    corners = positions[model.mesh.elements]  # (M, 8, 3)
+    jac = np.einsum("mna,pnb->mpab", corners, GAUSS_GRADIENTS)
+    det = np.linalg.det(jac)
+    volume = det.mean(axis=1)
+    face = corners[:, FACES]  # (M, 6, 4, 3)
+    area_vector = 0.5 * np.cross(face[:, :, 2] - face[:, :, 0], face[:, :, 3] - face[:, :, 1])
+    area = np.linalg.norm(area_vector, axis=2)
+    total_area = area.sum(axis=1)
+    direction = np.zeros_like(corners)  # h: sum over faces of a_S / (4 A_H) on the face's nodes
+    share = area_vector / (4.0 * total_area[:, None, None])
+    for corner in range(4):
+        np.add.at(direction, (slice(None), FACES[:, corner]), share)
+    change = volume - model.rest_volume
+    relative = change / model.rest_volume
+    phi = -model.volume_stiffness * relative * np.abs(relative)  # N
+    forces = phi[:, None, None] * direction
+    dphi = -2.0 * model.volume_stiffness * np.abs(relative) / model.rest_volume
+    grad = None
+    if gradient:
+        cofactor = det[..., None, None] * np.linalg.inv(jac).transpose(0, 1, 3, 2)
+        grad = np.einsum("mpab,pnb->mna", cofactor, GAUSS_GRADIENTS) / len(GAUSS_GRADIENTS)
+    return forces, volume, dphi, direction, grad
+
+
+def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) elastic + viscous spring forces, corrections and volume forces in N (no gravity)."""
+    geometry = spring_geometry(model, positions)
+    tension = model.stiffness * (geometry.length - model.rest_length)
+    if velocities is not None:
+        a, b = model.springs[:, 0], model.springs[:, 1]
+        relative_velocity = velocities[b] - velocities[a]
+        tension += model.damping * np.einsum("ij,ij->i", relative_velocity, geometry.unit)
+    forces = None
+    if model.correction_mode is not None:
+        push = correction_pushes(model, geometry.length)
+        if model.correction_mode == "projected":
+            edge_push = np.repeat(push, 4, axis=1)
+            tension -= np.bincount(model.edge_spring.ravel(), weights=edge_push.ravel(),
+                                   minlength=len(tension))
+        else:  # along the rest directions of the element edges
+            edge_force = np.repeat(push, 4, axis=1)[..., None] * model.rest_edge_direction
+            nodal = np.zeros((len(push), 8, 3))
+            np.add.at(nodal, (slice(None), EDGES[:, 1]), edge_force)
+            np.add.at(nodal, (slice(None), EDGES[:, 0]), -edge_force)
+            forces = model.element_scatter @ nodal.reshape(-1, 3)
+    total = model.incidence @ (tension[:, None] * geometry.unit)
+    if forces is not None:
+        total += forces
+    if model.has_volume_forces:
+        volume_force = volume_terms(model, positions)[0]
+        total += model.element_scatter @ volume_force.reshape(-1, 3)
+    return total
+
+
+def external_forces(model: Model, control=None) -> np.ndarray:
+    """(N, 3) gravity on the lumped masses plus the control's nodal forces, N."""
+    if control is None:
+        return model.gravity_force.copy()
+    return model.gravity_force + control.force
+
+
+def _axial_blocks(coefficient_uu, coefficient_perp, unit):
+    """(S, 3, 3) blocks c_uu u u^T + c_perp (I - u u^T)."""
+    outer = unit[:, :, None] * unit[:, None, :]
+    return (coefficient_uu - coefficient_perp)[:, None, None] * outer + coefficient_perp[:, None, None] * np.eye(3)
+
+
+def spring_block_data(model: Model, blocks: np.ndarray) -> np.ndarray:
+    """Assemble per-spring 3x3 blocks B into the pattern: +B on (a,a), (b,b); -B on (a,b), (b,a)."""
+    values = np.stack([blocks, blocks, -blocks, -blocks], axis=1)
+    return model.pattern.assemble(model.spring_positions, values)
+
+
+def element_block_data(model: Model, matrices: np.ndarray) -> np.ndarray:
+    """Assemble (M, 24, 24) element matrices (node-major dofs) into the pattern."""
+    blocks = matrices.reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
+    return model.pattern.assemble(model.element_positions, blocks)
+
+
+def correction_coupling(model: Model, positions: np.ndarray) -> np.ndarray:
+    """(M, 24, 24) -G W^ G^T: the non-symmetric stiffness of the corrections' strain coupling [3]."""
+    elements = model.mesh.elements
+    corners = positions[elements]
+    vector = corners[:, EDGES[:, 1]] - corners[:, EDGES[:, 0]]  # (M, 12, 3)
+    unit = vector / np.linalg.norm(vector, axis=2, keepdims=True)
+    n_elements = len(elements)
+
+    def pattern_matrix(directions):
+        g = np.zeros((n_elements, 8, 3, 12))
+        edges = np.arange(12)
+        g[:, EDGES[:, 1], :, edges] = directions.transpose(1, 0, 2)
+        g[:, EDGES[:, 0], :, edges] = -directions.transpose(1, 0, 2)
+        return g.reshape(n_elements, 24, 12)
+
+    g_right = pattern_matrix(unit)
+    g_left = g_right if model.correction_mode == "projected" else pattern_matrix(model.rest_edge_direction)
+    # W^[e, r] = W[axis(e), axis(r)] / (4 rest length of axis(r))
+    w_hat = model.correction_matrix[:, EDGE_AXIS][:, :, EDGE_AXIS] / (
+        4.0 * model.axis_rest_length[:, EDGE_AXIS][:, None, :]
+    )
+    return -np.einsum("mae,mer,mbr->mab", g_left, w_hat, g_right)
+
+
+def stiffness_data(
+    model: Model,
+    positions: np.ndarray,
+    *,
+    corrections: str = "full",
+    volume: bool = True,
+    clamp: bool = False,
+    stiffness_scale: float = 1.0,
+    damping_scale: float = 0.0,
+    mass_scale: float = 0.0,
+) -> np.ndarray:
+    """Values (pattern ``data``) of  mass_scale M + damping_scale D + stiffness_scale K.
+
+    Args:
+        positions: (N, 3) current positions in m.
+        corrections: "full" (exact, non-symmetric), "geometric" (only the corrections' push along
+            the current edges, symmetric) or "none".
+        volume: include the volume forces' dominant rank-one term 2 kappa |dV| / V0^2 h grad(V)^T.
+        clamp: drop negative geometric stiffness (compressed springs) so the matrix stays SPD,
+            as Baraff and Witkin's implicit Euler needs for conjugate gradient.
+    """
+    geometry = spring_geometry(model, positions)
+    tension = model.stiffness * (geometry.length - model.rest_length)
+    push = None
+    if model.correction_mode == "projected" and corrections != "none":
+        push = correction_pushes(model, geometry.length)
+        tension = tension - np.bincount(
+            model.edge_spring.ravel(), weights=np.repeat(push, 4, axis=1).ravel(), minlength=len(tension)
+        )
+    geometric = tension / geometry.length
+    if clamp:
+        geometric = np.maximum(geometric, 0.0)
+    blocks = _axial_blocks(
+        stiffness_scale * model.stiffness + damping_scale * model.damping,
+        stiffness_scale * geometric, geometry.unit,
+    )
+    data = spring_block_data(model, blocks)
+    element_matrices = None
+    if model.correction_mode is not None and corrections == "full":
+        element_matrices = stiffness_scale * correction_coupling(model, positions)
+    if volume and model.has_volume_forces:
+        _, _, dphi, direction, grad = volume_terms(model, positions, gradient=True)
+        rank_one = -dphi[:, None, None] * direction.reshape(-1, 24, 1) * grad.reshape(-1, 1, 24)
+        rank_one *= stiffness_scale
+        element_matrices = rank_one if element_matrices is None else element_matrices + rank_one
+    if element_matrices is not None:
+        data += element_block_data(model, element_matrices)
+    if mass_scale:
+        data += mass_scale * model.mass_data
+    return data

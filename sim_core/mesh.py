@@ -1,0 +1,253 @@
+"""Hexahedral meshes: the structured block of DESIGN.md and general 8-node hex meshes.
+
+Node order of a hexahedron is VTK's: 0 (0,0,0), 1 (1,0,0), 2 (1,1,0), 3 (0,1,0), 4 (0,0,1),
+5 (1,0,1), 6 (1,1,1), 7 (0,1,1) in local coordinates. Lengths are in metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._validate import finite_array
+
+#: Local corner coordinates of the VTK hexahedron, in {0, 1}^3.
+LOCAL_CORNERS = np.array(
+    [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
+    dtype=float,
+)
+#: The 12 edges, 4 per local axis, each oriented from local coordinate 0 to 1 along its axis.
+EDGES = np.array(
+    [[0, 1], [3, 2], [4, 5], [7, 6],  # along local x
+     [0, 3], [1, 2], [4, 7], [5, 6],  # along local y
+     [0, 4], [1, 5], [2, 6], [3, 7]],  # along local z
+)
+EDGE_AXIS = np.repeat(np.arange(3), 4)
+#: The 4 inner diagonals.
+DIAGONALS = np.array([[0, 6], [1, 7], [2, 4], [3, 5]])
+#: The 6 faces with outward orientation: 0.5 (x[f2] - x[f0]) x (x[f3] - x[f1]) is the outward
+#: vector area. Order: x=0, x=1, y=0, y=1, z=0, z=1.
+FACES = np.array(
+    [[0, 4, 7, 3], [1, 2, 6, 5], [0, 1, 5, 4], [3, 7, 6, 2], [0, 3, 2, 1], [4, 5, 6, 7]]
+)
+#: For corner c, its three neighbours along local x, y, z (used for corner Jacobians).
+CORNER_NEIGHBOURS = np.array(
+    [[1, 3, 4], [0, 2, 5], [3, 1, 6], [2, 0, 7], [5, 7, 0], [4, 6, 1], [7, 5, 2], [6, 4, 3]]
+)
+#: Orientation sign of each corner frame (+1 where the neighbours form a right-handed frame).
+CORNER_SIGN = np.array([1, -1, 1, -1, -1, 1, -1, 1], dtype=float)
+
+
+def _parse_spacing(spacing) -> np.ndarray:
+    spacing = finite_array("spacing", np.broadcast_to(np.asarray(spacing, dtype=float), (3,)))
+    if np.any(spacing <= 0):
+        raise ValueError(f"spacing must be > 0 m along every axis, got {spacing.tolist()}")
+    return spacing.copy()
+
+
+def _parse_shape(shape) -> tuple[int, int, int]:
+    try:
+        values = tuple(int(s) for s in shape)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"shape must be three positive integers (nx, ny, nz), got {shape!r}") from error
+    if len(values) != 3 or any(v < 1 for v in values) or any(float(s) != v for s, v in zip(shape, values)):
+        raise ValueError(f"shape must be three positive integers (nx, ny, nz), got {shape!r}")
+    return values
+
+
+@dataclass(frozen=True)
+class HexMesh:
+    """An unstructured mesh of trilinear hexahedra.
+
+    Args:
+        nodes: (N, 3) rest positions in m.
+        elements: (M, 8) node indices per hexahedron, VTK order.
+        shape: (nx, ny, nz) when the mesh is a structured block, else None.
+        spacing: (dx, dy, dz) in m when the mesh is a structured block, else None.
+
+    Raises ``ValueError`` for wrong shapes, out-of-range indices, repeated nodes in an element, and
+    degenerate or inverted elements (a corner Jacobian that is not positive).
+    """
+
+    nodes: np.ndarray
+    elements: np.ndarray
+    shape: tuple[int, int, int] | None = None
+    spacing: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
+        try:
+            elements = np.asarray(self.elements)
+        except (TypeError, ValueError) as error:
+            raise ValueError("elements must be an (M, 8) integer array") from error
+        if elements.ndim != 2 or elements.shape[1] != 8 or len(elements) == 0:
+            raise ValueError(f"elements must have shape (M, 8) with M >= 1, got {elements.shape}")
+        if not np.issubdtype(elements.dtype, np.integer):
+            if not np.all(np.equal(np.mod(elements, 1), 0)):
+                raise ValueError("elements must hold integer node indices")
+        elements = elements.astype(np.int64)
+        if elements.min() < 0 or elements.max() >= len(nodes):
+            raise ValueError(
+                f"element node indices must lie in [0, {len(nodes) - 1}], got "
+                f"[{elements.min()}, {elements.max()}]"
+            )
+        if np.any(np.diff(np.sort(elements, axis=1), axis=1) == 0):
+            bad = int(np.nonzero(np.any(np.diff(np.sort(elements, axis=1), axis=1) == 0, axis=1))[0][0])
+            raise ValueError(f"degenerate element {bad}: a node appears twice in {elements[bad].tolist()}")
+        nodes.setflags(write=False)
+        elements.setflags(write=False)
+        object.__setattr__(self, "nodes", nodes)
+        object.__setattr__(self, "elements", elements)
+        check_elements(nodes, elements)
+
+    # -- construction ----------------------------------------------------------------------
+    @classmethod
+    def block(cls, shape, spacing=0.1) -> "HexMesh":
+        """Structured block of ``shape = (nx, ny, nz)`` hexahedra with ``spacing`` metres.
+
+        Occupies [0, nx dx] x [0, ny dy] x [0, nz dz]; node (i, j, k) sits at (i dx, j dy, k dz)
+        and has index i + (nx + 1) (j + (ny + 1) k) (DESIGN.md).
+        """
+        nx, ny, nz = _parse_shape(shape)
+        spacing = _parse_spacing(spacing)
+        i, j, k = np.meshgrid(np.arange(nx + 1), np.arange(ny + 1), np.arange(nz + 1), indexing="ij")
+        grid = np.stack([i.ravel(order="F"), j.ravel(order="F"), k.ravel(order="F")], axis=1)
+        nodes = grid * spacing
+        ei, ej, ek = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
+        base = np.stack([ei.ravel(order="F"), ej.ravel(order="F"), ek.ravel(order="F")], axis=1)
+        corner = base[:, None, :] + LOCAL_CORNERS.astype(int)[None, :, :]
+        elements = corner[..., 0] + (nx + 1) * (corner[..., 1] + (ny + 1) * corner[..., 2])
+        return cls(nodes, elements, shape=(nx, ny, nz), spacing=spacing)
+
+    # -- geometry --------------------------------------------------------------------------
+    @property
+    def n_nodes(self) -> int:
+        return len(self.nodes)
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.elements)
+
+    @property
+    def size(self) -> np.ndarray:
+        """Extent of the bounding box in m."""
+        return self.nodes.max(axis=0) - self.nodes.min(axis=0)
+
+    def element_volumes(self, positions=None) -> np.ndarray:
+        """(M,) volumes in m^3 (exact for trilinear hexahedra: 2x2x2 Gauss on det J)."""
+        return hex_volumes(self.nodes if positions is None else positions, self.elements)
+
+    def surface_faces(self) -> np.ndarray:
+        """(F, 4) node indices of the boundary quads, outward oriented (faces used by one element)."""
+        faces = self.elements[:, FACES].reshape(-1, 4)
+        key = np.sort(faces, axis=1)
+        _, index, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+        return faces[np.sort(index[counts == 1])]
+
+    def surface_nodes(self) -> np.ndarray:
+        """Sorted indices of the nodes on the boundary surface."""
+        return np.unique(self.surface_faces())
+
+    def node_index(self, i, j, k):
+        """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
+        if self.shape is None:
+            raise ValueError("node_index needs a structured block mesh (HexMesh.block)")
+        nx, ny, _ = self.shape
+        return np.asarray(i) + (nx + 1) * (np.asarray(j) + (ny + 1) * np.asarray(k))
+
+    # -- files -----------------------------------------------------------------------------
+    def write(self, path, point_data: dict | None = None, positions=None) -> None:
+        """Write the mesh (optionally deformed ``positions`` and ``point_data``) with meshio.
+
+        The format follows the extension: .vtu, .msh (Gmsh 4.1, binary: meshio's ASCII reader
+        cannot read point data back), .vtk, .xdmf, ...
+        """
+        import meshio
+
+        points = self.nodes if positions is None else finite_array("positions", positions, (self.n_nodes, 3))
+        mesh = meshio.Mesh(points, [("hexahedron", self.elements)], point_data=point_data or {})
+        path = Path(path)
+        if path.suffix == ".msh":
+            meshio.write(path, mesh, file_format="gmsh", binary=True)
+        else:
+            meshio.write(path, mesh)
+
+    @classmethod
+    def read(cls, path) -> "HexMesh":
+        """Read the hexahedra of a mesh file with meshio (.msh, .vtu, .vtk, ...)."""
+        import meshio
+
+        mesh = meshio.read(path)
+        blocks = [cells.data for cells in mesh.cells if cells.type == "hexahedron"]
+        if not blocks:
+            raise ValueError(f"{path} contains no hexahedra")
+        return cls(np.asarray(mesh.points, dtype=float)[:, :3], np.concatenate(blocks))
+
+    def write_obj(self, path, positions=None) -> None:
+        """Export the boundary surface as a Wavefront .obj of quads (positions in m)."""
+        points = self.nodes if positions is None else np.asarray(positions, dtype=float)
+        faces = self.surface_faces()
+        used, inverse = np.unique(faces, return_inverse=True)
+        lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in points[used]]
+        lines += ["f " + " ".join(str(i + 1) for i in quad) for quad in inverse.reshape(-1, 4)]
+        Path(path).write_text("\n".join(lines) + "\n")
+
+
+# -- element geometry (vectorised over elements) ---------------------------------------------
+_GAUSS = np.array([0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0)])
+#: 2x2x2 Gauss points in the unit cube [0, 1]^3 (weights 1/8 each).
+GAUSS_POINTS = np.array([[a, b, c] for c in _GAUSS for b in _GAUSS for a in _GAUSS])
+
+
+def shape_gradients(points: np.ndarray) -> np.ndarray:
+    """(P, 8, 3) derivatives of the trilinear shape functions on [0, 1]^3 at ``points``."""
+    xi = points[:, None, :]
+    corner = LOCAL_CORNERS[None, :, :]
+    factors = corner * xi + (1 - corner) * (1 - xi)  # (P, 8, 3)
+    signs = 2 * corner - 1
+    grads = np.empty(factors.shape)
+    grads[..., 0] = signs[..., 0] * factors[..., 1] * factors[..., 2]
+    grads[..., 1] = factors[..., 0] * signs[..., 1] * factors[..., 2]
+    grads[..., 2] = factors[..., 0] * factors[..., 1] * signs[..., 2]
+    return grads
+
+
+GAUSS_GRADIENTS = shape_gradients(GAUSS_POINTS)
+
+
+def hex_jacobians(positions: np.ndarray, elements: np.ndarray, gradients=GAUSS_GRADIENTS) -> np.ndarray:
+    """(M, P, 3, 3) Jacobians dx/dxi at the given reference points (rows: x, columns: xi)."""
+    corners = positions[elements]  # (M, 8, 3)
+    return np.einsum("mna,pnb->mpab", corners, gradients)
+
+
+def hex_volumes(positions: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """(M,) exact volumes of trilinear hexahedra in m^3."""
+    return np.linalg.det(hex_jacobians(positions, elements)).mean(axis=1)
+
+
+def corner_jacobians(positions: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """(M, 8) signed volumes of the 8 corner tetrahedra frames (m^3); positive when valid."""
+    corners = positions[elements]
+    edges = corners[:, CORNER_NEIGHBOURS, :] - corners[:, :, None, :]  # (M, 8, 3, 3)
+    return CORNER_SIGN * np.linalg.det(edges)
+
+
+def check_elements(positions: np.ndarray, elements: np.ndarray, name: str = "element") -> None:
+    """Raise ``ValueError`` when an element is degenerate or inverted (corner Jacobian <= 0)."""
+    det = corner_jacobians(positions, elements)
+    scale = np.abs(det).max(axis=1)
+    if np.any(scale == 0):
+        bad = int(np.argmax(scale == 0))
+        raise ValueError(f"degenerate {name} {bad}: zero volume")
+    relative = det / scale[:, None]
+    tolerance = 1e-10
+    if np.any(relative <= tolerance):
+        bad = int(np.argmax(np.any(relative <= tolerance, axis=1)))
+        kind = "inverted" if np.any(relative[bad] < -tolerance) else "degenerate"
+        raise ValueError(
+            f"{kind} {name} {bad}: corner Jacobians {np.round(det[bad], 12).tolist()} must all be > 0 "
+            "(VTK node order: 0-1-2-3 counter-clockwise seen from 4-5-6-7)"
+        )

@@ -1,0 +1,346 @@
+"""Build an immutable Baudet mass-spring model from a hexahedral mesh and a material.
+
+Model / State / Control follow Warp's split (see shared/STYLE.md): the ``Model`` never changes
+during a run, a ``State`` is what an integrator steps, a ``Control`` is what the user imposes.
+Formulas cite ``shared/physics.md`` (sections in brackets). SI units throughout.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ._validate import finite_array
+from .material import Material
+from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
+from .sparse import BlockPattern
+
+#: Mass-spring model names accepted by ``build_model``.
+MSS_MODELS = ("baudet", "baudet-original", "uniform-springs")
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """Everything that stays fixed during a simulation (build with ``build_model``).
+
+    Attributes (S springs, M elements, N nodes):
+        mesh: the ``HexMesh``; ``rest_positions`` (N, 3) m.
+        name: physics variant ("baudet", "baudet-original", "uniform-springs").
+        mass: (N,) lumped node masses in kg [5].
+        springs: (S, 2) node pairs, each shared spring merged once.
+        rest_length: (S,) m.  stiffness: (S,) N/m (sum over the elements sharing it) [2].
+        damping: (S,) N s/m, ``damping_ratio * 2 sqrt(mu k)`` with mu the reduced mass
+            m_a m_b / (m_a + m_b) of the spring's two nodes (critical damping of that pair) [5].
+        edge_spring: (M, 12) the spring of each element edge (EDGES order).
+        axis_rest_length: (M, 3) mean rest length of the element's x-, y-, z-edges, m.
+        correction_matrix: (M, 3, 3) W with T_j = sum_m W_jm eps_m, the push (N) applied along
+            each of the element's four j-edges by the correction forces [3].
+        correction_mode: "projected" (along current edges), "fixed" (rest directions), or None.
+        rest_volume: (M,) m^3.  volume_stiffness: (M,) kappa in N, 0 where volume forces are off [4].
+        gravity: (3,) m/s^2.
+        young_modulus, poisson_ratio, density: (M,) per-element material.
+    """
+
+    mesh: HexMesh
+    name: str
+    mass: np.ndarray
+    springs: np.ndarray
+    rest_length: np.ndarray
+    stiffness: np.ndarray
+    damping: np.ndarray
+    edge_spring: np.ndarray
+    axis_rest_length: np.ndarray
+    correction_matrix: np.ndarray
+    correction_mode: str | None
+    rest_volume: np.ndarray
+    volume_stiffness: np.ndarray
+    gravity: np.ndarray
+    young_modulus: np.ndarray
+    poisson_ratio: np.ndarray
+    density: np.ndarray
+    options: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        n_nodes = self.mesh.n_nodes
+        a, b = self.springs[:, 0], self.springs[:, 1]
+        n_springs = len(self.springs)
+        columns = np.arange(n_springs)
+        # f = incidence @ (t u): +t u on node a, -t u on node b (t = tension, u from a to b).
+        incidence = sp.csr_matrix(
+            (np.r_[np.ones(n_springs), -np.ones(n_springs)], (np.r_[a, b], np.r_[columns, columns])),
+            shape=(n_nodes, n_springs),
+        )
+        elements = self.mesh.elements
+        element_scatter = sp.csr_matrix(
+            (np.ones(elements.size), (elements.ravel(), np.arange(elements.size))),
+            shape=(n_nodes, elements.size),
+        )
+        pattern = BlockPattern(n_nodes, elements)
+        spring_positions = np.stack(
+            [pattern.block_positions(a, a), pattern.block_positions(b, b),
+             pattern.block_positions(a, b), pattern.block_positions(b, a)], axis=1
+        )
+        element_positions = pattern.block_positions(
+            np.repeat(elements[:, :, None], 8, axis=2), np.repeat(elements[:, None, :], 8, axis=1)
+        )
+        mass_data = pattern.assemble(
+            pattern.diagonal_positions, np.repeat(self.mass, 3)
+        )
+        derived = dict(
+            incidence=incidence, element_scatter=element_scatter, pattern=pattern,
+            spring_positions=spring_positions, element_positions=element_positions,
+            mass_data=mass_data, gravity_force=self.mass[:, None] * self.gravity[None, :],
+            rest_edge_direction=_edge_directions(self.mesh.nodes, elements),
+        )
+        for key, value in derived.items():
+            object.__setattr__(self, key, value)
+
+    @property
+    def rest_positions(self) -> np.ndarray:
+        return self.mesh.nodes
+
+    @property
+    def n_nodes(self) -> int:
+        return self.mesh.n_nodes
+
+    @property
+    def has_volume_forces(self) -> bool:
+        return bool(np.any(self.volume_stiffness > 0))
+
+    def new_state(self) -> "State":
+        """A state at rest: positions = rest positions, zero velocities, time 0."""
+        return State(self.rest_positions.copy(), np.zeros_like(self.rest_positions))
+
+    def new_control(self) -> "Control":
+        """A control with no imposed displacement and no external nodal force."""
+        return Control.free(self.n_nodes)
+
+
+@dataclass
+class State:
+    """What changes every step: ``positions`` (N, 3) m, ``velocities`` (N, 3) m/s, ``time`` s."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    time: float = 0.0
+
+    def copy(self) -> "State":
+        return State(self.positions.copy(), self.velocities.copy(), self.time)
+
+
+@dataclass
+class Control:
+    """What the user imposes.
+
+    Attributes:
+        fixed: (N, 3) bool, True where a position component is imposed.
+        target: (N, 3) imposed positions in m (read where ``fixed``).
+        force: (N, 3) external nodal forces in N (added to gravity).
+    """
+
+    fixed: np.ndarray
+    target: np.ndarray
+    force: np.ndarray
+
+    @classmethod
+    def free(cls, n_nodes: int) -> "Control":
+        return cls(np.zeros((n_nodes, 3), bool), np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)))
+
+    def impose(self, nodes, positions, components=(0, 1, 2)) -> "Control":
+        """Impose ``positions`` (broadcast to (len(nodes), 3), m) on the given components."""
+        nodes = np.atleast_1d(np.asarray(nodes, dtype=int))
+        positions = finite_array("positions", np.broadcast_to(positions, (len(nodes), 3)))
+        components = list(np.atleast_1d(components))
+        index = np.ix_(nodes, components)
+        self.fixed[index] = True
+        self.target[index] = positions[:, components]
+        return self
+
+    def copy(self) -> "Control":
+        return Control(self.fixed.copy(), self.target.copy(), self.force.copy())
+
+
+def _edge_directions(positions, elements):
+    vectors = positions[elements[:, EDGES[:, 1]]] - positions[elements[:, EDGES[:, 0]]]
+    return vectors / np.linalg.norm(vectors, axis=2, keepdims=True)
+
+
+# -- stiffness formulas (physics.md section 2 and 3) -------------------------------------------
+def baudet_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio):
+    """Per-element spring stiffnesses (N/m) of Baudet's hexahedron [2].
+
+    Args:
+        axis_lengths: (M, 3) rest edge lengths x0, y0, z0 in m.
+        young_modulus, poisson_ratio: (M,) material.
+    Returns:
+        (edge (M, 3) stiffness of the x-, y-, z-edges, diagonal (M,) stiffness of the 4 diagonals).
+    """
+    x0, y0, z0 = axis_lengths.T
+    d2 = x0**2 + y0**2 + z0**2
+    nu = poisson_ratio
+    denominator = 24.0 * (1.0 + nu) * x0 * y0 * z0
+    diagonal = young_modulus * d2**2 / denominator
+    edge = np.empty_like(axis_lengths)
+    for axis in range(3):
+        i = axis_lengths[:, axis]
+        j = axis_lengths[:, (axis + 1) % 3]
+        k = axis_lengths[:, (axis + 2) % 3]
+        edge[:, axis] = young_modulus * (
+            6.0 * j**2 * k**2 * (1.0 + nu) + (nu * (j**2 + k**2) - i**2) * d2
+        ) / denominator
+    return edge, diagonal
+
+
+def correction_coefficients(axis_lengths: np.ndarray, poisson_ratio) -> np.ndarray:
+    """(M, 3, 3) C[i, j] of physics.md section 3 (zero on the diagonal); cube: -(4 nu - 1) / 2."""
+    nu = poisson_ratio
+    d2 = (axis_lengths**2).sum(axis=1)
+    coefficients = np.zeros((len(axis_lengths), 3, 3))
+    for i_axis in range(3):
+        for j_axis in range(3):
+            if i_axis == j_axis:
+                continue
+            k_axis = 3 - i_axis - j_axis
+            i, j, k = (axis_lengths[:, a] for a in (i_axis, j_axis, k_axis))
+            coefficients[:, i_axis, j_axis] = -(
+                d2 * (nu * (i**2 + k**2) - i**2) + 6.0 * nu * i**2 * k**2
+            ) / (6.0 * i * j * k**2)
+    return coefficients
+
+
+def correction_matrix(axis_lengths, young_modulus, poisson_ratio, *, stress_based=True, scale=1.0):
+    """(M, 3, 3) W mapping element strains eps_m to the push T_j on each j-edge (N) [3].
+
+    T_j = 1/4 sum_{i != j} C_ij F_i, F_i = A_i sigma_i (stress-based, A_i = V / i0) or
+    F_i = E A_i eps_i (strain-based, the published variant). ``scale`` multiplies everything
+    (0.5 reproduces the report's /48 form).
+    """
+    coefficients = correction_coefficients(axis_lengths, poisson_ratio)
+    volume = np.prod(axis_lengths, axis=1)
+    area = volume[:, None] / axis_lengths  # A_i, (M, 3)
+    nu = poisson_ratio
+    if stress_based:
+        lame = young_modulus * nu / ((1 + nu) * (1 - 2 * nu))
+        shear = young_modulus / (2 * (1 + nu))
+        stress = lame[:, None, None] * np.ones((1, 3, 3)) + 2 * shear[:, None, None] * np.eye(3)
+    else:
+        stress = young_modulus[:, None, None] * np.eye(3)[None]
+    # W_jm = 1/4 sum_i C_ij A_i S_im
+    return 0.25 * scale * np.einsum("mij,mi,mik->mjk", coefficients, area, stress)
+
+
+# -- builder -------------------------------------------------------------------------------------
+def build_model(
+    mesh: HexMesh,
+    material: Material,
+    *,
+    model: str = "baudet",
+    corrections: bool = True,
+    volume_conservation: bool | None = None,
+    volume_stiffness: float = 1.0,
+    nu_factor: bool = False,
+    damping_ratio: float = 1.0,
+    gravity=(0.0, 0.0, 0.0),
+) -> Model:
+    """Build a mass-spring ``Model`` once from geometry and material.
+
+    Args:
+        mesh: hexahedral mesh (rest positions in m).
+        material: ``Material`` (scalars or one value per element).
+        model: "baudet" (stress-based corrections projected on the deformed edges, volume
+            forces), "baudet-original" (the report's corrections as published: half size,
+            strain-based, along rest directions, no volume forces) or "uniform-springs" (every
+            spring k = E * element size / 4, no corrections: the naive baseline).
+        corrections: switch the correction forces off (False) for ablations.
+        volume_conservation: volume forces on/off; default on for "baudet" only.
+        volume_stiffness: multiplier of kappa = K V0^(2/3), K = E / (3 (1 - 2 nu)) [4].
+        nu_factor: "baudet-original" only: multiply the corrections by nu (report section 5.1).
+        damping_ratio: multiplier of the critical spring damping 2 sqrt(mu k); >= 0.
+        gravity: (3,) acceleration in m/s^2; y is up, so Earth is (0, -9.81, 0).
+    """
+    if model not in MSS_MODELS:
+        raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
+    damping_ratio = float(finite_array("damping_ratio", damping_ratio))
+    if damping_ratio < 0:
+        raise ValueError(f"damping_ratio must be >= 0, got {damping_ratio}")
+    volume_stiffness = float(finite_array("volume_stiffness", volume_stiffness))
+    if volume_stiffness < 0:
+        raise ValueError(f"volume_stiffness must be >= 0, got {volume_stiffness}")
+    gravity = finite_array("gravity", gravity, shape=(3,))
+    if nu_factor and model != "baudet-original":
+        raise ValueError("nu_factor only applies to model='baudet-original'")
+    if volume_conservation is None:
+        volume_conservation = model == "baudet"
+
+    elements = mesh.elements
+    n_elements = mesh.n_elements
+    props = material.per_element(n_elements)
+    young_modulus, poisson_ratio, density = props["young_modulus"], props["poisson_ratio"], props["density"]
+    nodes = mesh.nodes
+
+    edge_vectors = nodes[elements[:, EDGES[:, 1]]] - nodes[elements[:, EDGES[:, 0]]]
+    edge_lengths = np.linalg.norm(edge_vectors, axis=2)  # (M, 12)
+    axis_rest_length = edge_lengths.reshape(n_elements, 3, 4).mean(axis=2)
+
+    # Springs [2]: 12 edges + 4 inner diagonals per element, merged across elements.
+    if model == "uniform-springs":
+        size = axis_rest_length.mean(axis=1)
+        edge_k = np.repeat((young_modulus * size / 4.0)[:, None], 3, axis=1)
+        diagonal_k = young_modulus * size / 4.0
+    else:
+        edge_k, diagonal_k = baudet_stiffness(axis_rest_length, young_modulus, poisson_ratio)
+        if np.any(edge_k <= 0):
+            bad = int(np.argmax(np.any(edge_k <= 0, axis=1)))
+            raise ValueError(
+                f"poisson_ratio {poisson_ratio[bad]:g} with element {bad} of edge lengths "
+                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive edge "
+                "stiffness; use poisson_ratio > -0.25 and less elongated elements"
+            )
+    pairs = np.concatenate([elements[:, EDGES], elements[:, DIAGONALS]], axis=1)  # (M, 16, 2)
+    values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
+    sorted_pairs = np.sort(pairs.reshape(-1, 2), axis=1)
+    springs, inverse = np.unique(sorted_pairs, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(springs))
+    edge_spring = inverse.reshape(n_elements, 16)[:, :12].copy()
+    rest_length = np.linalg.norm(nodes[springs[:, 1]] - nodes[springs[:, 0]], axis=1)
+
+    # Lumped masses [5]: rho V / 8 to each node of each element.
+    rest_volume = mesh.element_volumes()
+    mass = np.bincount(
+        elements.ravel(), weights=np.repeat(density * rest_volume / 8.0, 8), minlength=mesh.n_nodes
+    )
+    reduced_mass = mass[springs[:, 0]] * mass[springs[:, 1]] / (mass[springs[:, 0]] + mass[springs[:, 1]])
+    damping = damping_ratio * 2.0 * np.sqrt(reduced_mass * stiffness)
+
+    # Corrections [3].
+    correction_mode = None
+    w = np.zeros((n_elements, 3, 3))
+    if corrections and model != "uniform-springs":
+        if model == "baudet":
+            w = correction_matrix(axis_rest_length, young_modulus, poisson_ratio)
+            correction_mode = "projected"
+        else:
+            scale = 0.5 * (poisson_ratio if nu_factor else 1.0)
+            w = correction_matrix(axis_rest_length, young_modulus, poisson_ratio, stress_based=False, scale=1.0)
+            w = w * (scale[:, None, None] if np.ndim(scale) else scale)
+            correction_mode = "fixed"
+
+    # Volume conservation [4]: kappa = K V0^(2/3).
+    kappa = np.zeros(n_elements)
+    if volume_conservation:
+        bulk = young_modulus / (3.0 * (1.0 - 2.0 * poisson_ratio))
+        kappa = volume_stiffness * bulk * rest_volume ** (2.0 / 3.0)
+
+    return Model(
+        mesh=mesh, name=model, mass=mass, springs=springs, rest_length=rest_length,
+        stiffness=stiffness, damping=damping, edge_spring=edge_spring,
+        axis_rest_length=axis_rest_length, correction_matrix=w, correction_mode=correction_mode,
+        rest_volume=rest_volume, volume_stiffness=kappa, gravity=gravity,
+        young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
+        options=dict(corrections=corrections, volume_conservation=bool(volume_conservation),
+                     volume_stiffness=volume_stiffness, nu_factor=nu_factor,
+                     damping_ratio=damping_ratio),
+    )

@@ -1,0 +1,184 @@
+"""Static equilibrium of the mass-spring model: damped Newton with line search and load stepping.
+
+Zero-energy modes (physics.md section 6): the 16-spring hexahedron has 3 non-rigid hourglass
+modes per block, so the tangent stiffness can be singular even when rigid motion is removed.
+The solver handles them with a Levenberg-Marquardt term ``mu diag(K)`` in the Newton system: the
+step is the regularised (near minimum-norm) one, so a mode that no force excites keeps its initial
+amplitude (zero from rest) instead of making the linear solve fail; mu grows only when a step does
+not reduce the residual. ``zero_energy_modes`` counts them (shift-invert Lanczos on the
+constrained tangent) so that experiments can report them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .forces import external_forces, internal_forces, stiffness_data
+from .mesh import corner_jacobians
+from .model import Control, Model, State
+
+
+@dataclass
+class StaticResult:
+    """Outcome of ``solve_static``.
+
+    Attributes:
+        state: equilibrium state (positions m, zero velocities).
+        converged: relative force residual below the tolerance.
+        residual: ||free-dof force residual|| / ||applied + reaction forces|| (dimensionless).
+        iterations: total Newton iterations over all load steps.
+        load_steps: number of load increments that were needed.
+        reaction: (N, 3) forces (N) the imposed displacements exert on the nodes (0 where free).
+        message: why it stopped.
+    """
+
+    state: State
+    converged: bool
+    residual: float
+    iterations: int
+    load_steps: int
+    reaction: np.ndarray
+    message: str = ""
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.state.positions
+
+
+def _free_dofs(control: Control) -> np.ndarray:
+    return np.flatnonzero(~control.fixed.ravel())
+
+
+def _residual(model, positions, applied):
+    return internal_forces(model, positions) + applied
+
+
+def _relative(force, free, applied):
+    scale = max(np.linalg.norm(force - applied), np.linalg.norm(applied), 1e-300)
+    return np.linalg.norm(force.ravel()[free]) / scale
+
+
+def solve_static(
+    model: Model,
+    control: Control | None = None,
+    *,
+    initial: np.ndarray | None = None,
+    tolerance: float = 1e-8,
+    max_iterations: int = 40,
+    load_steps: int = 1,
+    max_load_steps: int = 256,
+) -> StaticResult:
+    """Find positions where internal + external forces vanish on every free component.
+
+    Args:
+        model: the mass-spring model (gravity from ``model.gravity``).
+        control: imposed positions (``fixed``, ``target`` m) and nodal forces (``force`` N).
+        initial: (N, 3) starting positions in m (default: rest); imposed components and loads are
+            ramped linearly from there in load steps, halved when Newton fails.
+        tolerance: relative force residual to reach.
+        max_iterations: Newton iterations per load step before the step is subdivided.
+        load_steps: initial number of load increments.
+        max_load_steps: give up (converged=False) past this many increments.
+    """
+    control = model.new_control() if control is None else control
+    start = model.rest_positions.copy() if initial is None else np.array(initial, dtype=float)
+    if start.shape != (model.n_nodes, 3) or not np.all(np.isfinite(start)):
+        raise ValueError(f"initial must be a finite ({model.n_nodes}, 3) array")
+    free = _free_dofs(control)
+    fixed = control.fixed
+    full_load = external_forces(model, control)
+    positions = start.copy()
+    done, step = 0.0, 1.0 / max(int(load_steps), 1)
+    iterations, increments = 0, 0
+    residual = np.inf
+    message = ""
+    while done < 1.0 - 1e-12:
+        level = min(done + step, 1.0)
+        trial = positions.copy()
+        trial[fixed] = start[fixed] + level * (control.target[fixed] - start[fixed])
+        ok, trial, residual, used = _newton(model, trial, free, level * full_load, tolerance, max_iterations)
+        iterations += used
+        if ok:
+            positions, done = trial, level
+            increments += 1
+            step = min(step * 2.0, 1.0 - done) if used <= 6 else step
+        else:
+            step /= 2.0
+            if step < 1.0 / max_load_steps:
+                message = f"Newton did not converge at load level {level:.4f} (residual {residual:.2e})"
+                break
+    converged = done >= 1.0 - 1e-12
+    force = _residual(model, positions, full_load)
+    if converged:
+        residual = _relative(force, free, full_load)
+        message = "converged"
+    reaction = np.where(fixed, -force, 0.0)
+    return StaticResult(State(positions, np.zeros_like(positions)), converged, float(residual),
+                        iterations, increments, reaction, message)
+
+
+def _newton(model, positions, free, applied, tolerance, max_iterations):
+    force = _residual(model, positions, applied)
+    residual = _relative(force, free, applied)
+    norm = np.linalg.norm(force.ravel()[free])
+    damping = 1e-10
+    for iteration in range(1, max_iterations + 1):
+        if residual < tolerance:
+            return True, positions, residual, iteration - 1
+        stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
+        diagonal = np.abs(stiffness.diagonal())
+        accepted = False
+        while damping < 1.0 and not accepted:
+            matrix = (stiffness + sp.diags(damping * diagonal)).tocsc()
+            try:
+                step = spla.splu(matrix).solve(force.ravel()[free])
+            except RuntimeError:
+                damping *= 100.0
+                continue
+            scale = 1.0
+            for _ in range(12):
+                trial = positions.copy()
+                trial.ravel()[free] += scale * step
+                if np.all(np.isfinite(trial)) and np.all(corner_jacobians(trial, model.mesh.elements) > 0):
+                    trial_force = _residual(model, trial, applied)
+                    trial_norm = np.linalg.norm(trial_force.ravel()[free])
+                    if trial_norm < (1.0 - 1e-4 * scale) * norm or trial_norm == 0:
+                        accepted = True
+                        break
+                scale *= 0.5
+            if not accepted:
+                damping *= 100.0
+        if not accepted:
+            return False, positions, residual, iteration
+        positions, force, norm = trial, trial_force, trial_norm
+        residual = _relative(force, free, applied)
+        damping = max(damping / 100.0, 1e-10)
+    return residual < tolerance, positions, residual, max_iterations
+
+
+def zero_energy_modes(model: Model, control: Control | None = None, positions=None, relative_tolerance=1e-8):
+    """Count the zero-energy modes of the constrained tangent stiffness (physics.md section 6).
+
+    Args:
+        control: which components are imposed (rigid motions left free count as modes too).
+        positions: (N, 3) where to linearise, m (default: rest).
+        relative_tolerance: eigenvalues below this times the mean diagonal count as zero.
+    Returns:
+        (count, eigenvalues (N/m) of the smallest modes, mode shapes (n_free, k)).
+    """
+    control = model.new_control() if control is None else control
+    positions = model.rest_positions if positions is None else positions
+    free = _free_dofs(control)
+    stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
+    symmetric = 0.5 * (stiffness + stiffness.T)
+    scale = float(np.mean(np.abs(symmetric.diagonal())))
+    n_modes = min(16, len(free) - 2)
+    values, vectors = spla.eigsh(symmetric.tocsc(), k=n_modes, sigma=-1e-3 * scale, which="LM")
+    order = np.argsort(values)
+    values, vectors = values[order], vectors[:, order]
+    count = int(np.sum(values < relative_tolerance * scale))
+    return count, values, vectors
