@@ -296,7 +296,10 @@ def build_model(
             raise ValueError(
                 f"poisson_ratio {poisson_ratio[bad]:g} with element {bad} of edge lengths "
                 f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive edge "
-                "stiffness; use poisson_ratio > -0.25 and less elongated elements"
+                f"stiffness {np.round(edge_k[bad], 6).tolist()} N/m, which makes the element "
+                "unstable (negative-energy modes). Baudet's formula needs "
+                "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
+                "poisson_ratio > -0.25 and near-cubic elements (1:1:1.2 works for nu >= 0)"
             )
     pairs = np.concatenate([elements[:, EDGES], elements[:, DIAGONALS]], axis=1)  # (M, 16, 2)
     values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
@@ -313,7 +316,7 @@ def build_model(
         elements.ravel(), weights=np.repeat(density * rest_volume / 8.0, 8), minlength=mesh.n_nodes
     )
     reduced_mass = mass[springs[:, 0]] * mass[springs[:, 1]] / (mass[springs[:, 0]] + mass[springs[:, 1]])
-    damping = damping_ratio * 2.0 * np.sqrt(reduced_mass * stiffness)
+    damping = damping_ratio * 2.0 * np.sqrt(reduced_mass * np.abs(stiffness))
 
     # Corrections [3].
     correction_mode = None
