@@ -101,6 +101,8 @@ def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray 
     if model.has_volume_forces:
         volume_force = volume_terms(model, positions)[0]
         total += model.element_scatter @ volume_force.reshape(-1, 3)
+    if model.hourglass is not None:
+        total -= (model.hourglass @ (positions - model.rest_positions).ravel()).reshape(-1, 3)
     return total
 
 
@@ -200,6 +202,8 @@ def stiffness_data(
         element_matrices = rank_one if element_matrices is None else element_matrices + rank_one
     if element_matrices is not None:
         data += element_block_data(model, element_matrices)
+    if model.hourglass is not None and stiffness_scale:
+        data += stiffness_scale * model.hourglass.data
     if mass_scale:
         data += mass_scale * model.mass_data
     return data

@@ -41,6 +41,8 @@ class Model:
         rest_volume: (M,) m^3.  volume_stiffness: (M,) kappa in N, 0 where volume forces are off [4].
         gravity: (3,) m/s^2.
         young_modulus, poisson_ratio, density: (M,) per-element material.
+        hourglass: (3N, 3N) constant CSR stiffness K_hg (N/m) of the hourglass control, or None;
+            it adds f = -K_hg (x - X), which vanishes for every affine displacement [6].
     """
 
     mesh: HexMesh
@@ -60,6 +62,7 @@ class Model:
     young_modulus: np.ndarray
     poisson_ratio: np.ndarray
     density: np.ndarray
+    hourglass: sp.csr_matrix | None = None
     options: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -243,6 +246,7 @@ def build_model(
     nu_factor: bool = False,
     damping_ratio: float = 1.0,
     gravity=(0.0, 0.0, 0.0),
+    hourglass_control: float = 0.0,
 ) -> Model:
     """Build a mass-spring ``Model`` once from geometry and material.
 
@@ -259,6 +263,10 @@ def build_model(
         nu_factor: "baudet-original" only: multiply the corrections by nu (report section 5.1).
         damping_ratio: multiplier of the critical spring damping 2 sqrt(mu k); >= 0.
         gravity: (3,) acceleration in m/s^2; y is up, so Earth is (0, -9.81, 0).
+        hourglass_control: alpha >= 0. Adds alpha times the linear FEM element stiffness projected
+            on the element's hourglass space (the displacements orthogonal to every affine field),
+            a constant matrix that leaves uniform strain, hence measured E, nu and G, untouched,
+            and removes the zero-energy modes that buckle under compression [6].
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
@@ -269,6 +277,9 @@ def build_model(
     if volume_stiffness < 0:
         raise ValueError(f"volume_stiffness must be >= 0, got {volume_stiffness}")
     gravity = finite_array("gravity", gravity, shape=(3,))
+    hourglass_control = float(finite_array("hourglass_control", hourglass_control))
+    if hourglass_control < 0:
+        raise ValueError(f"hourglass_control must be >= 0, got {hourglass_control}")
     if nu_factor and model != "baudet-original":
         raise ValueError("nu_factor only applies to model='baudet-original'")
     if volume_conservation is None:
@@ -337,13 +348,43 @@ def build_model(
         bulk = young_modulus / (3.0 * (1.0 - 2.0 * poisson_ratio))
         kappa = volume_stiffness * bulk * rest_volume ** (2.0 / 3.0)
 
+    hourglass = None
+    if hourglass_control > 0:
+        hourglass = hourglass_matrix(mesh, young_modulus, poisson_ratio, hourglass_control)
+
     return Model(
-        mesh=mesh, name=model, mass=mass, springs=springs, rest_length=rest_length,
+        mesh=mesh, name=model, hourglass=hourglass, mass=mass, springs=springs, rest_length=rest_length,
         stiffness=stiffness, damping=damping, edge_spring=edge_spring,
         axis_rest_length=axis_rest_length, correction_matrix=w, correction_mode=correction_mode,
         rest_volume=rest_volume, volume_stiffness=kappa, gravity=gravity,
         young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
         options=dict(corrections=corrections, volume_conservation=bool(volume_conservation),
                      volume_stiffness=volume_stiffness, nu_factor=nu_factor,
-                     damping_ratio=damping_ratio),
+                     damping_ratio=damping_ratio, hourglass_control=hourglass_control),
     )
+
+
+def hourglass_projectors(nodes: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """(M, 8, 8) orthogonal projectors on each element's hourglass space: the nodal fields
+    orthogonal to 1, X, Y, Z of its rest corners (4-dimensional for any valid hexahedron)."""
+    corners = nodes[elements]  # (M, 8, 3)
+    affine = np.concatenate([np.ones((len(elements), 8, 1)), corners - corners.mean(axis=1, keepdims=True)], axis=2)
+    q, _ = np.linalg.qr(affine)  # (M, 8, 4) orthonormal basis of the affine fields
+    return np.eye(8)[None] - q @ q.transpose(0, 2, 1)
+
+
+def hourglass_matrix(mesh: HexMesh, young_modulus, poisson_ratio, alpha: float) -> sp.csr_matrix:
+    """alpha sum_e (P_e x I3) K_e^FEM (P_e x I3): FEM stiffness restricted to hourglass modes (N/m)."""
+    from .fem import element_stiffness  # fem builds on this module's Control
+
+    projector = hourglass_projectors(mesh.nodes, mesh.elements)
+    full = np.einsum("mab,ij->maibj", projector, np.eye(3)).reshape(-1, 24, 24)
+    stiffness = element_stiffness(mesh.nodes, mesh.elements, young_modulus, poisson_ratio)
+    matrices = alpha * full @ stiffness @ full
+    pattern = BlockPattern(mesh.n_nodes, mesh.elements)
+    elements = mesh.elements
+    positions = pattern.block_positions(
+        np.repeat(elements[:, :, None], 8, axis=2), np.repeat(elements[:, None, :], 8, axis=1)
+    )
+    blocks = matrices.reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
+    return pattern.matrix(pattern.assemble(positions, blocks))

@@ -34,6 +34,9 @@ class StaticResult:
         load_steps: number of load increments that were needed.
         reaction: (N, 3) forces (N) the imposed displacements exert on the nodes (0 where free).
         message: why it stopped.
+        lowest_eigenvalue: smallest eigenvalue (N/m) of the symmetric part of the constrained
+            tangent stiffness at the solution, when asked for (``check_stability=True``); negative
+            means an unstable equilibrium (a saddle: the structure buckles under that load).
     """
 
     state: State
@@ -43,6 +46,14 @@ class StaticResult:
     load_steps: int
     reaction: np.ndarray
     message: str = ""
+    lowest_eigenvalue: float | None = None
+
+    @property
+    def stable(self) -> bool | None:
+        """True/False when the stability was checked, None otherwise."""
+        if self.lowest_eigenvalue is None:
+            return None
+        return self.lowest_eigenvalue >= 0.0
 
     @property
     def positions(self) -> np.ndarray:
@@ -71,6 +82,7 @@ def solve_static(
     max_iterations: int = 40,
     load_steps: int = 1,
     max_load_steps: int = 256,
+    check_stability: bool = False,
 ) -> StaticResult:
     """Find positions where internal + external forces vanish on every free component.
 
@@ -83,6 +95,8 @@ def solve_static(
         max_iterations: Newton iterations per load step before the step is subdivided.
         load_steps: initial number of load increments.
         max_load_steps: give up (converged=False) past this many increments.
+        check_stability: compute the lowest eigenvalue of the tangent at the solution (a saddle
+            point, e.g. hourglass buckling under compression, is an equilibrium too).
     """
     control = model.new_control() if control is None else control
     start = model.rest_positions.copy() if initial is None else np.array(initial, dtype=float)
@@ -117,8 +131,11 @@ def solve_static(
         residual = _relative(force, free, full_load)
         message = "converged"
     reaction = np.where(fixed, -force, 0.0)
+    lowest = None
+    if check_stability:
+        lowest = lowest_eigenvalue(model, control, positions)
     return StaticResult(State(positions, np.zeros_like(positions)), converged, float(residual),
-                        iterations, increments, reaction, message)
+                        iterations, increments, reaction, message, lowest)
 
 
 def _newton(model, positions, free, applied, tolerance, max_iterations):
@@ -160,13 +177,15 @@ def _newton(model, positions, free, applied, tolerance, max_iterations):
     return residual < tolerance, positions, residual, max_iterations
 
 
-def zero_energy_modes(model: Model, control: Control | None = None, positions=None, relative_tolerance=1e-8):
+def zero_energy_modes(model: Model, control: Control | None = None, positions=None, relative_tolerance=1e-8,
+                      n_modes: int = 16):
     """Count the zero-energy modes of the constrained tangent stiffness (physics.md section 6).
 
     Args:
         control: which components are imposed (rigid motions left free count as modes too).
         positions: (N, 3) where to linearise, m (default: rest).
         relative_tolerance: eigenvalues below this times the mean diagonal count as zero.
+        n_modes: how many of the lowest eigenpairs to compute.
     Returns:
         (count, eigenvalues (N/m) of the smallest modes, mode shapes (n_free, k)).
     """
@@ -176,9 +195,19 @@ def zero_energy_modes(model: Model, control: Control | None = None, positions=No
     stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
     symmetric = 0.5 * (stiffness + stiffness.T)
     scale = float(np.mean(np.abs(symmetric.diagonal())))
-    n_modes = min(16, len(free) - 2)
+    n_modes = min(n_modes, len(free) - 2)
     values, vectors = spla.eigsh(symmetric.tocsc(), k=n_modes, sigma=-1e-3 * scale, which="LM")
     order = np.argsort(values)
     values, vectors = values[order], vectors[:, order]
-    count = int(np.sum(values < relative_tolerance * scale))
+    count = int(np.sum(np.abs(values) < relative_tolerance * scale))
     return count, values, vectors
+
+
+def lowest_eigenvalue(model: Model, control: Control, positions: np.ndarray) -> float:
+    """Smallest eigenvalue (N/m) of the symmetric part of the constrained tangent stiffness
+    (Lanczos, smallest algebraic); values within 1e-8 of the largest diagonal entry count as 0."""
+    free = _free_dofs(control)
+    stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
+    symmetric = 0.5 * (stiffness + stiffness.T)
+    value = float(spla.eigsh(symmetric, k=1, which="SA", tol=1e-6, maxiter=50 * len(free))[0][0])
+    return 0.0 if abs(value) < 1e-8 * float(np.abs(symmetric.diagonal()).max()) else value
