@@ -1,0 +1,179 @@
+"""Force Jacobians, time-step estimate, explicit/implicit stability and divergence detection."""
+
+import numpy as np
+import pytest
+
+from sim_core import HexMesh, Material, build_model, solve_static
+from sim_core.forces import external_forces, internal_forces, stiffness_data
+from sim_core.integrators import ImplicitEuler, SymplecticEuler, make_integrator, run, stable_time_step
+
+
+def finite_difference_stiffness(model, positions, step=1e-7):
+    n = positions.size
+    jacobian = np.zeros((n, n))
+    for column in range(n):
+        plus, minus = positions.ravel().copy(), positions.ravel().copy()
+        plus[column] += step
+        minus[column] -= step
+        jacobian[:, column] = -(internal_forces(model, plus.reshape(-1, 3)) -
+                                internal_forces(model, minus.reshape(-1, 3))).ravel() / (2 * step)
+    return jacobian
+
+
+@pytest.mark.parametrize("name", ["baudet", "baudet-original", "uniform-springs"])
+def test_tangent_stiffness_matches_finite_differences(name):
+    """Springs + corrections (+ hourglass) tangent is exact: 1e-7 relative to finite differences."""
+    mesh = HexMesh.block((2, 2, 1), (0.1, 0.11, 0.12))
+    model = build_model(mesh, Material(1e4, 0.4, 1000), model=name, volume_conservation=False,
+                        hourglass_control=0.3)
+    positions = mesh.nodes + 0.005 * np.random.default_rng(1).standard_normal(mesh.nodes.shape)
+    exact = model.pattern.matrix(stiffness_data(model, positions)).toarray()
+    numeric = finite_difference_stiffness(model, positions)
+    assert np.abs(exact - numeric).max() < 1e-7 * np.abs(numeric).max()
+
+
+def test_volume_force_tangent_is_close():
+    """Volume forces: the rank-one tangent is exact to O(dV / V0) (here < 1e-3)."""
+    mesh = HexMesh.block((2, 2, 1), 0.1)
+    model = build_model(mesh, Material(1e4, 0.4, 1000))
+    positions = mesh.nodes + 0.003 * np.random.default_rng(2).standard_normal(mesh.nodes.shape)
+    exact = model.pattern.matrix(stiffness_data(model, positions)).toarray()
+    numeric = finite_difference_stiffness(model, positions)
+    assert np.abs(exact - numeric).max() < 1e-3 * np.abs(numeric).max()
+
+
+def test_forces_vanish_at_rest_and_under_rigid_motion():
+    mesh = HexMesh.block((3, 2, 2), 0.05)
+    model = build_model(mesh, Material(1e4, 0.45, 1000), hourglass_control=0.5)
+    assert np.abs(internal_forces(model, mesh.nodes)).max() < 1e-12
+    angle = 0.3
+    rotation = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    moved = mesh.nodes @ rotation.T + [0.1, -0.2, 0.3]
+    scale = model.stiffness.max() * 0.05
+    assert np.abs(internal_forces(model, moved)).max() < 1e-9 * scale
+
+
+def test_volume_force_is_restoring():
+    """A uniformly shrunken element is pushed outward, an expanded one inward (physics.md 4)."""
+    mesh = HexMesh.block((1, 1, 1), 0.1)
+    model = build_model(mesh, Material(1e4, 0.3, 1000), corrections=False)
+    springs_only = build_model(mesh, Material(1e4, 0.3, 1000), corrections=False, volume_conservation=False)
+    centre = mesh.nodes.mean(axis=0)
+    for factor, sign in ((0.9, 1.0), (1.1, -1.0)):
+        positions = centre + factor * (mesh.nodes - centre)
+        volume_force = internal_forces(model, positions) - internal_forces(springs_only, positions)
+        outward = ((positions - centre) * volume_force).sum(axis=1)
+        assert np.all(sign * outward > 0)
+
+
+def test_time_step_estimate_matches_physics_md():
+    """10x10x10 block of 0.1 m cubes, rho 1500, nu 0.3, E 1e4: 0.034 s springs only, 0.032 s
+    with corrections (undamped); Gershgorin is a safe lower bound; dt scales as 1/sqrt(E)."""
+    mesh = HexMesh.block((10, 10, 10), 0.1)
+    springs = build_model(mesh, Material(1e4, 0.3, 1500), corrections=False, volume_conservation=False)
+    full = build_model(mesh, Material(1e4, 0.3, 1500), volume_conservation=False)
+    assert stable_time_step(springs, damping=False) == pytest.approx(0.034, rel=0.03)
+    assert stable_time_step(full, damping=False) == pytest.approx(0.032, rel=0.03)
+    assert stable_time_step(full, method="gershgorin", damping=False) < stable_time_step(full, damping=False)
+    stiff = build_model(mesh, Material(4e4, 0.3, 1500), volume_conservation=False)
+    assert stable_time_step(stiff, damping=False) == pytest.approx(stable_time_step(full, damping=False) / 2, rel=1e-3)
+    # damping lowers the limit
+    assert stable_time_step(full) < stable_time_step(full, damping=False)
+
+
+def _loaded_block(damping_ratio=1.0, nu=0.45, hourglass=0.5):
+    mesh = HexMesh.block((4, 4, 4), 0.02)
+    model = build_model(mesh, Material(5e3, nu, 1060), gravity=(0, -9.81, 0), damping_ratio=damping_ratio,
+                        hourglass_control=hourglass)
+    control = model.new_control()
+    bottom = np.flatnonzero(mesh.nodes[:, 1] == 0)
+    control.impose(bottom, mesh.nodes[bottom])
+    state = model.new_state()
+    state.velocities += 1e-3 * np.random.default_rng(0).standard_normal(state.velocities.shape)
+    state.velocities[control.fixed] = 0
+    return model, control, state
+
+
+@pytest.mark.parametrize("damping_ratio", [0.0, 1.0])
+def test_explicit_stable_below_limit_and_divergence_detected_above(damping_ratio):
+    """0.9x the estimated limit: bounded over 2000 steps; 2x: divergence detected with a reason."""
+    model, control, state = _loaded_block(damping_ratio)
+    limit = stable_time_step(model, control)
+    below = state.copy()
+    report = run(model, below, SymplecticEuler(), 0.9 * limit, 2000, control)
+    assert not report.unstable
+    assert np.abs(below.positions - model.rest_positions).max() < 0.01  # sag of a few mm
+    above = state.copy()
+    report = run(model, above, SymplecticEuler(), 2.0 * limit, 2000, control)
+    assert report.unstable and report.unstable_step < 2000
+    assert isinstance(report.unstable_reason, str) and report.unstable_reason
+
+
+@pytest.mark.parametrize("corrections", ["implicit", "explicit"])
+def test_implicit_bounded_at_ten_times_the_explicit_limit(corrections):
+    model, control, state = _loaded_block(nu=0.3)
+    limit = stable_time_step(model, control)
+    report = run(model, state, ImplicitEuler(corrections=corrections), 10 * limit, 300, control)
+    assert not report.unstable
+    assert np.abs(state.positions - model.rest_positions).max() < 0.01
+
+
+def test_implicit_corrections_beat_explicit_corrections_at_high_nu():
+    """nu = 0.45, 10x the limit: explicit corrections diverge (detected), implicit ones do not."""
+    model, control, state = _loaded_block(nu=0.45)
+    limit = stable_time_step(model, control)
+    stable = run(model, state.copy(), ImplicitEuler(corrections="implicit"), 10 * limit, 300, control)
+    assert not stable.unstable
+    unstable = run(model, state.copy(), ImplicitEuler(corrections="explicit"), 10 * limit, 300, control)
+    assert unstable.unstable and unstable.unstable_reason
+
+
+@pytest.mark.parametrize("name, dt_factor, steps", [("explicit", 0.9, 6000), ("implicit", 10.0, 600)])
+def test_dynamics_settle_on_the_static_equilibrium(name, dt_factor, steps):
+    """Damped dynamics end where solve_static ends: within 2% of the sag."""
+    model, control, state = _loaded_block()
+    equilibrium = solve_static(model, control)
+    limit = stable_time_step(model, control)
+    report = run(model, state, make_integrator(name), dt_factor * limit, steps, control)
+    assert not report.unstable
+    sag = np.abs(equilibrium.positions - model.rest_positions).max()
+    assert np.abs(state.positions - equilibrium.positions).max() < 0.02 * sag
+
+
+def test_imposed_motion_is_followed():
+    model, control, state = _loaded_block()
+    top = np.flatnonzero(model.rest_positions[:, 1] == model.rest_positions[:, 1].max())
+    control.impose(top, model.rest_positions[top] + [0.002, 0, 0])
+    integrator = ImplicitEuler()
+    out = state.copy()
+    report = integrator.simulate(model, state, out, 0.01, control)
+    assert not report.unstable and report.iterations > 0
+    assert np.allclose(out.positions[top], model.rest_positions[top] + [0.002, 0, 0])
+    assert out.time == pytest.approx(0.01)
+
+
+@pytest.mark.parametrize("dt", [0.0, -1.0, float("nan"), float("inf")])
+def test_bad_time_step_is_rejected(dt):
+    model, control, state = _loaded_block()
+    with pytest.raises(ValueError, match="dt"):
+        SymplecticEuler().simulate(model, state, state.copy(), dt, control)
+
+
+def test_bad_integrator_options():
+    with pytest.raises(ValueError, match="integrator must be one of"):
+        make_integrator("rk4")
+    with pytest.raises(ValueError, match="corrections"):
+        ImplicitEuler(corrections="maybe")
+    with pytest.raises(ValueError, match="max_iterations"):
+        ImplicitEuler(max_iterations=0)
+    with pytest.raises(ValueError, match="damping_ratio"):
+        build_model(HexMesh.block((1, 1, 1), 0.1), Material(), damping_ratio=-1)
+    with pytest.raises(ValueError, match="gravity"):
+        build_model(HexMesh.block((1, 1, 1), 0.1), Material(), gravity=(0, float("nan"), 0))
+
+
+def test_external_forces_include_gravity_on_lumped_masses():
+    model, control, _ = _loaded_block()
+    control.force[0] = [1.0, 2.0, 3.0]
+    total = external_forces(model, control).sum(axis=0)
+    assert total == pytest.approx([1.0, 2.0 - 9.81 * model.mass.sum(), 3.0])
