@@ -2,7 +2,8 @@
 
 Each experiment builds the block, imposes its boundary conditions, solves for static equilibrium
 with the physics named by ``model`` and measures moduli the way a materials lab would. Mass-spring
-models: "baudet", "baudet-original", "uniform-springs"; finite elements: "fem-linear".
+models: "baudet", "baudet-original", "uniform-springs"; finite elements: "fem-linear" and
+"fem-neohookean" (``hyperelastic.NeoHookeanFEM``, the large-deformation reference).
 SI units: m, Pa, N, kg/m^3, m/s^2.
 """
 
@@ -16,12 +17,13 @@ import numpy as np
 
 from ._validate import finite_array
 from .fem import LinearFEM
+from .hyperelastic import NeoHookeanFEM
 from .material import Material
 from .mesh import HexMesh
 from .model import MSS_MODELS, Control, build_model
 from .static import solve_static, zero_energy_modes
 
-FEM_MODELS = ("fem-linear",)
+FEM_MODELS = ("fem-linear", "fem-neohookean")
 MODELS = MSS_MODELS + FEM_MODELS
 _SOLVER_OPTIONS = ("tolerance", "max_iterations", "load_steps", "max_load_steps")
 
@@ -101,6 +103,11 @@ def _solve(mesh, material, control, model, gravity, options):
     count_modes = options.pop("count_modes", False)
     solver = {k: options.pop(k) for k in _SOLVER_OPTIONS if k in options}
     gravity_vector = (0.0, -gravity, 0.0)
+    if model == "fem-neohookean":
+        if options:
+            raise ValueError(f"unknown options for {model}: {sorted(options)}")
+        fem = NeoHookeanFEM(mesh, material).solve(control, gravity_vector, **solver)
+        return fem.positions, fem.reaction, fem.converged, fem.residual, None
     if model in FEM_MODELS:
         if options or solver:
             raise ValueError(f"unknown options for {model}: {sorted({**options, **solver})}")

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS
 from .model import Model
 
@@ -74,8 +75,62 @@ def volume_terms(model: Model, positions: np.ndarray, gradient: bool = False):
     return forces, volume, dphi, direction, grad
 
 
-def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None) -> np.ndarray:
-    """(N, 3) elastic + viscous spring forces, corrections and volume forces in N (no gravity)."""
+@dataclass
+class SpringState:
+    """Per-spring quantities of one force evaluation: ``length`` (S,) m, ``unit`` (S, 3),
+    ``tension`` (S,) N (elastic, corrections included, damping excluded)."""
+
+    length: np.ndarray
+    unit: np.ndarray
+    tension: np.ndarray
+
+
+def spring_state(model: Model, positions: np.ndarray) -> tuple[SpringState, np.ndarray | None]:
+    """Compiled spring and correction pass. Returns (SpringState, pushes (M, 3) N or None)."""
+    n_springs = len(model.springs)
+    state = SpringState(np.empty(n_springs), np.empty((n_springs, 3)), np.empty(n_springs))
+    kernels.spring_pass(positions, model.springs, model.stiffness, model.rest_length,
+                        state.length, state.unit, state.tension)
+    push = None
+    if model.correction_mode is not None:
+        push = np.empty((model.mesh.n_elements, 3))
+        kernels.correction_pass(state.length, model.edge_spring, model.correction_matrix,
+                                model.axis_rest_length, push)
+        if model.correction_mode == "projected":
+            kernels.subtract_pushes(model.edge_spring, push, state.tension)
+    return state, push
+
+
+def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None,
+                    springs: SpringState | None = None, push: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) elastic + viscous spring forces, corrections, volume and hourglass forces in N
+    (no gravity). Compiled kernels; ``internal_forces_reference`` is the numpy formulation.
+
+    Args:
+        positions: (N, 3) m.  velocities: (N, 3) m/s, or None for no damping.
+        springs, push: a ``spring_state`` of these positions, to avoid recomputing it.
+    """
+    positions = np.ascontiguousarray(positions, dtype=float)
+    if springs is None:
+        springs, push = spring_state(model, positions)
+    forces = np.zeros_like(positions)
+    use_velocity = velocities is not None
+    velocity_array = np.ascontiguousarray(velocities, dtype=float) if use_velocity else positions
+    kernels.scatter_springs(model.springs, springs.unit, springs.tension, model.damping, velocity_array,
+                            use_velocity, forces)
+    if model.correction_mode == "fixed":
+        kernels.fixed_direction_corrections(model.mesh.elements, push, model.rest_edge_direction, forces)
+    if model.has_volume_forces:
+        kernels.volume_pass(positions, model.mesh.elements, model.rest_volume, model.volume_stiffness, forces)
+    if model.hourglass is not None:
+        indptr, indices, data = model.hourglass_arrays
+        kernels.csr_matvec_add(indptr, indices, data, (positions - model.rest_positions).ravel(), -1.0,
+                               forces.reshape(-1))
+    return forces
+
+
+def internal_forces_reference(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None) -> np.ndarray:
+    """Numpy formulation of ``internal_forces`` (reference for the compiled kernels)."""
     geometry = spring_geometry(model, positions)
     tension = model.stiffness * (geometry.length - model.rest_length)
     if velocities is not None:

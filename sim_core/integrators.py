@@ -14,7 +14,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .forces import correction_coupling, element_block_data, external_forces, internal_forces, stiffness_data
+from . import kernels
+from .forces import external_forces, internal_forces, spring_state, stiffness_data
 from .mesh import corner_jacobians
 from .model import Control, Model, State
 
@@ -157,93 +158,58 @@ class ImplicitEuler(SymplecticEuler):
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None) -> StepReport:
         dt = _check_dt(dt)
         control = model.new_control() if control is None else control
-        x0, v0 = state_in.positions, state_in.velocities
-        forces = internal_forces(model, x0, v0) + external_forces(model, control)
-        data = stiffness_data(model, x0, corrections="geometric", volume=False, clamp=True,
-                              stiffness_scale=dt * dt, damping_scale=dt, mass_scale=1.0)
-        stiffness_only = stiffness_data(model, x0, corrections="geometric", volume=False, clamp=True)
-        if self.corrections == "implicit" and model.correction_mode is not None:
-            coupling = element_block_data(model, correction_coupling(model, x0))
-            data = data + dt * dt * coupling
-            stiffness_only = stiffness_only + coupling
-        matrix = model.pattern.matrix(data)
-        rhs = dt * (forces.ravel() - dt * (model.pattern.matrix(stiffness_only) @ v0.ravel()))
+        x0 = np.ascontiguousarray(state_in.positions, dtype=float)
+        v0 = np.ascontiguousarray(state_in.velocities, dtype=float)
+        springs, push = spring_state(model, x0)
+        forces = internal_forces(model, x0, v0, springs=springs, push=push) + external_forces(model, control)
+        n_blocks = len(model.node_indices)
+        system = np.empty((n_blocks, 3, 3))
+        stiffness = np.empty((n_blocks, 3, 3))
+        zero_mass = np.zeros_like(model.mass)
+        kernels.assemble_implicit(model.block_of_spring, n_blocks, model.diagonal_block, springs.unit,
+                                  springs.length, springs.tension, model.stiffness, model.damping, model.mass,
+                                  dt, True, system)
+        kernels.assemble_implicit(model.block_of_spring, n_blocks, model.diagonal_block, springs.unit,
+                                  springs.length, springs.tension, model.stiffness, model.damping * 0.0,
+                                  zero_mass, 1.0, True, stiffness)
+        coupled = self.corrections == "implicit" and model.correction_mode is not None
+        edge_unit = np.empty((model.mesh.n_elements, 12, 3))
+        if coupled:
+            kernels.edge_units(x0, model.mesh.elements, edge_unit)
+        hg_indptr, hg_indices, hg_data = model.hourglass_arrays
+        has_hourglass = model.hourglass is not None
+        ones = np.ones(x0.size)
+
+        def apply(blocks, scale, vector, mask):
+            out = np.empty(x0.size)
+            kernels._operator(model.node_indptr, model.node_indices, blocks, hg_indptr, hg_indices, hg_data,
+                              scale if has_hourglass else 0.0, model.mesh.elements, edge_unit,
+                              model.correction_matrix, model.axis_rest_length, scale if coupled else 0.0,
+                              mask, vector, out)
+            return out
+
+        rhs = dt * (forces.ravel() - dt * apply(stiffness, 1.0, v0.ravel(), ones))
         free = ~control.fixed.ravel()
         known = np.zeros(rhs.size)
         if not free.all():
             target_velocity = (control.target - x0) / dt
             known[~free] = (target_velocity - v0).ravel()[~free]
-            rhs = rhs - matrix @ known
-        rhs[~free] = 0.0
+            rhs = rhs - apply(system, dt * dt, known, ones)
+        mask = free.astype(float)
         guess = self._warm if self._warm is not None and self._warm.shape == rhs.shape else np.zeros_like(rhs)
-        guess = np.where(free, guess, 0.0)
-        if self.corrections == "implicit" and model.correction_mode is not None:
-            dv, iterations, residual = _bicgstab(matrix, rhs, free, guess, self.tolerance, self.max_iterations)
-        else:
-            dv, iterations, residual = conjugate_gradient(matrix, rhs, free, guess, self.tolerance, self.max_iterations)
+        dv, iterations, residual = kernels.solve_implicit(
+            model.node_indptr, model.node_indices, system, model.diagonal_block, hg_indptr, hg_indices, hg_data,
+            dt * dt if has_hourglass else 0.0, model.mesh.elements, edge_unit, model.correction_matrix,
+            model.axis_rest_length, dt * dt if coupled else 0.0, mask, rhs * mask, guess,
+            self.tolerance, self.max_iterations, not coupled,
+        )
         self._warm = dv.copy()
         dv = np.where(free, dv, known)
         velocities = v0 + dv.reshape(-1, 3)
         positions = x0 + dt * velocities
         _impose(control, state_in, positions, velocities, dt)
         state_out.positions, state_out.velocities, state_out.time = positions, velocities, state_in.time + dt
-        return StepReport(iterations, residual, self._check(model, state_out))
-
-
-def conjugate_gradient(matrix: sp.csr_matrix, rhs: np.ndarray, free: np.ndarray, guess: np.ndarray,
-                       tolerance: float, max_iterations: int):
-    """Jacobi-preconditioned CG on the free components (constrained rows and columns masked).
-
-    Returns (solution, iterations, relative residual).
-    """
-    mask = free.astype(float)
-    diagonal = matrix.diagonal()
-    inverse_diagonal = np.where(free, 1.0 / np.where(diagonal > 0, diagonal, 1.0), 0.0)
-    x = guess * mask
-    r = rhs - mask * (matrix @ x)
-    norm_b = np.linalg.norm(rhs)
-    if norm_b == 0:
-        return np.zeros_like(rhs), 0, 0.0
-    z = inverse_diagonal * r
-    p = z.copy()
-    rz = r @ z
-    iterations = 0
-    residual = np.linalg.norm(r) / norm_b
-    while residual > tolerance and iterations < max_iterations:
-        ap = mask * (matrix @ p)
-        curvature = p @ ap
-        if curvature <= 0:
-            break
-        alpha = rz / curvature
-        x += alpha * p
-        r -= alpha * ap
-        z = inverse_diagonal * r
-        rz_new = r @ z
-        p = z + (rz_new / rz) * p
-        rz = rz_new
-        iterations += 1
-        residual = np.linalg.norm(r) / norm_b
-    return x, iterations, float(residual)
-
-
-def _bicgstab(matrix, rhs, free, guess, tolerance, max_iterations):
-    mask = free.astype(float)
-    diagonal = matrix.diagonal()
-    inverse_diagonal = np.where(free, 1.0 / np.where(diagonal != 0, diagonal, 1.0), 1.0)
-    operator = spla.LinearOperator(matrix.shape, matvec=lambda v: mask * (matrix @ (mask * v)) + (1 - mask) * v)
-    preconditioner = spla.LinearOperator(matrix.shape, matvec=lambda v: inverse_diagonal * v)
-    count = [0]
-
-    def callback(_):
-        count[0] += 1
-
-    norm_b = np.linalg.norm(rhs)
-    if norm_b == 0:
-        return np.zeros_like(rhs), 0, 0.0
-    x, _ = spla.bicgstab(operator, rhs, x0=guess, rtol=tolerance, atol=0.0, maxiter=max_iterations,
-                         M=preconditioner, callback=callback)
-    residual = np.linalg.norm(rhs - operator @ x) / norm_b
-    return x, count[0], float(residual)
+        return StepReport(int(iterations), float(residual), self._check(model, state_out))
 
 
 INTEGRATORS = {"explicit": SymplecticEuler, "implicit": ImplicitEuler}

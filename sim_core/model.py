@@ -91,7 +91,27 @@ class Model:
         mass_data = pattern.assemble(
             pattern.diagonal_positions, np.repeat(self.mass, 3)
         )
+        # node-pair blocks of the spring graph (block CSR) for the compiled implicit solver
+        pairs = np.concatenate([np.stack([np.arange(n_nodes)] * 2, axis=1), self.springs, self.springs[:, ::-1]])
+        order = np.lexsort((pairs[:, 1], pairs[:, 0]))
+        sorted_pairs = pairs[order]
+        block_index = np.empty(len(pairs), dtype=np.int64)
+        block_index[order] = np.arange(len(pairs))
+        node_indptr = np.searchsorted(sorted_pairs[:, 0], np.arange(n_nodes + 1)).astype(np.int64)
+        diagonal_block = block_index[:n_nodes]
+        block_of_spring = np.stack(
+            [diagonal_block[a], diagonal_block[b], block_index[n_nodes + columns],
+             block_index[n_nodes + n_springs + columns]], axis=1,
+        )
+        hourglass = self.hourglass
         derived = dict(
+            node_indptr=node_indptr, node_indices=np.ascontiguousarray(sorted_pairs[:, 1]).astype(np.int64),
+            diagonal_block=diagonal_block, block_of_spring=np.ascontiguousarray(block_of_spring),
+            hourglass_arrays=(
+                (hourglass.indptr.astype(np.int64), hourglass.indices.astype(np.int64), hourglass.data)
+                if hourglass is not None else
+                (np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0))
+            ),
             incidence=incidence, element_scatter=element_scatter, pattern=pattern,
             spring_positions=spring_positions, element_positions=element_positions,
             mass_data=mass_data, gravity_force=self.mass[:, None] * self.gravity[None, :],

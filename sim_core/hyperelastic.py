@@ -1,0 +1,288 @@
+"""Compressible neo-Hookean finite elements: the large-deformation reference ("fem-neohookean").
+
+Total-Lagrangian formulation on the same trilinear hexahedra as ``fem.LinearFEM`` (2x2x2 Gauss
+points, derivatives taken in the rest configuration), with the strain-energy density
+(Bonet & Wood, *Nonlinear Continuum Mechanics for Finite Element Analysis*, 2nd ed., eq. 6.28)
+
+    W(F) = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2,    I1 = tr(F^T F),  J = det F,
+
+whose first Piola-Kirchhoff stress and material tangent are
+
+    P = mu (F - F^-T) + lambda ln J F^-T,
+    dP_aB/dF_cD = mu d_ac d_BD + (mu - lambda ln J) F^-1_Bc F^-1_Da + lambda F^-1_Ba F^-1_Dc.
+
+mu = G = E / (2 (1 + nu)) and lambda = E nu / ((1 + nu)(1 - 2 nu)) (physics.md notation), so the
+law reduces to linear isotropic elasticity with the same E and nu at small strain. Everything is
+vectorised over elements and Gauss points (einsum); the tangent is assembled into the fixed CSR
+pattern of ``sparse.BlockPattern`` and the equilibrium is found by Newton's method with a
+backtracking line search and adaptive load stepping. SI units: m, Pa, N, kg/m^3, m/s^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from .material import Material
+from .mesh import GAUSS_GRADIENTS, HexMesh
+from .model import Control
+from .sparse import BlockPattern
+
+
+# -- constitutive law (pointwise, vectorised over any leading axes) ----------------------------
+def lame_parameters(young_modulus, poisson_ratio):
+    """(mu, lambda) in Pa from E (Pa) and nu (physics.md notation)."""
+    young_modulus, nu = np.asarray(young_modulus, float), np.asarray(poisson_ratio, float)
+    return young_modulus / (2 * (1 + nu)), young_modulus * nu / ((1 + nu) * (1 - 2 * nu))
+
+
+def strain_energy_density(deformation_gradient, mu, lam):
+    """W(F) in J/m^3 (Pa) of the compressible neo-Hookean law; F (..., 3, 3), mu and lam broadcast
+    against F's leading axes. Returns +inf where det F <= 0."""
+    f = np.asarray(deformation_gradient, float)
+    det = np.linalg.det(f)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        log_j = np.log(det)
+    energy = 0.5 * mu * (np.einsum("...ab,...ab->...", f, f) - 3.0) - mu * log_j + 0.5 * lam * log_j**2
+    return np.where(det > 0, energy, np.inf)
+
+
+def first_piola_stress(deformation_gradient, mu, lam):
+    """P(F) = mu (F - F^-T) + lambda ln J F^-T in Pa; F (..., 3, 3)."""
+    f = np.asarray(deformation_gradient, float)
+    inverse_t = np.linalg.inv(f).swapaxes(-1, -2)
+    log_j = np.log(np.linalg.det(f))
+    mu, lam = np.asarray(mu)[..., None, None], np.asarray(lam)[..., None, None]
+    return mu * (f - inverse_t) + lam * log_j[..., None, None] * inverse_t
+
+
+def material_tangent(deformation_gradient, mu, lam):
+    """(..., 3, 3, 3, 3) A_aBcD = dP_aB / dF_cD in Pa (see the module docstring)."""
+    f = np.asarray(deformation_gradient, float)
+    inverse = np.linalg.inv(f)
+    log_j = np.log(np.linalg.det(f))
+    mu, lam = np.asarray(mu, float), np.asarray(lam, float)
+    mu, lam = np.broadcast_to(mu, log_j.shape), np.broadcast_to(lam, log_j.shape)
+    eye = np.eye(3)
+    identity_part = np.einsum("ac,BD->aBcD", eye, eye)
+    tangent = mu[..., None, None, None, None] * identity_part
+    tangent = tangent + (mu - lam * log_j)[..., None, None, None, None] * np.einsum("...Bc,...Da->...aBcD", inverse, inverse)
+    tangent = tangent + lam[..., None, None, None, None] * np.einsum("...Ba,...Dc->...aBcD", inverse, inverse)
+    return tangent
+
+
+# -- the finite-element model ------------------------------------------------------------------
+@dataclass
+class NeoHookeanResult:
+    """Outcome of ``NeoHookeanFEM.solve``.
+
+    Attributes:
+        positions: (N, 3) equilibrium positions, m.
+        reaction: (N, 3) forces (N) the imposed components exert on the nodes (0 where free),
+            the same convention as ``fem.LinearFEM.solve`` and ``static.solve_static``.
+        converged: relative force residual below the tolerance at the full load.
+        residual: ||free-dof force residual|| / max(||internal forces||, ||applied loads||).
+        iterations: total Newton iterations.  load_steps: accepted load increments.
+        message: why it stopped.
+    """
+
+    positions: np.ndarray
+    reaction: np.ndarray
+    converged: bool
+    residual: float
+    iterations: int
+    load_steps: int
+    message: str = ""
+
+
+class NeoHookeanFEM:
+    """Total-Lagrangian neo-Hookean FEM of a hex mesh (module docstring for the law).
+
+    Args:
+        mesh: ``HexMesh`` of trilinear hexahedra (rest positions in m).
+        material: ``Material`` (E in Pa, nu, rho in kg/m^3; scalars or one value per element).
+
+    Lumped masses are rho V / 8 per element node (physics.md section 5), so gravity on them equals
+    the consistent body load of the trilinear elements.
+    """
+
+    def __init__(self, mesh: HexMesh, material: Material):
+        self.mesh = mesh
+        self.material = material
+        props = material.per_element(mesh.n_elements)
+        self.mu, self.lam = lame_parameters(props["young_modulus"], props["poisson_ratio"])
+        elements = mesh.elements
+        corners = mesh.nodes[elements]  # (M, 8, 3)
+        jacobian = np.einsum("mna,pnb->mpab", corners, GAUSS_GRADIENTS)  # dX/dxi
+        det = np.linalg.det(jacobian)
+        if np.any(det <= 0):
+            raise ValueError("inverted or degenerate element: non-positive Jacobian at a Gauss point")
+        #: (M, P, 8, 3) shape-function gradients dN/dX at the Gauss points, 1/m.
+        self.gradients = np.einsum("pnb,mpba->mpna", GAUSS_GRADIENTS, np.linalg.inv(jacobian))
+        #: (M, P) Gauss weights times rest Jacobian determinant: the rest volume per point, m^3.
+        self.weights = det / GAUSS_GRADIENTS.shape[0]
+        self.pattern = BlockPattern(mesh.n_nodes, elements)
+        self._element_positions = self.pattern.block_positions(
+            np.repeat(elements[:, :, None], 8, axis=2), np.repeat(elements[:, None, :], 8, axis=1)
+        )
+        volume = self.weights.sum(axis=1)
+        self.mass = np.bincount(elements.ravel(), weights=np.repeat(props["density"] * volume / 8, 8),
+                                minlength=mesh.n_nodes)
+
+    # -- kinematics and element quantities -----------------------------------------------------
+    def deformation_gradients(self, positions: np.ndarray) -> np.ndarray:
+        """(M, P, 3, 3) F = dx/dX at the Gauss points: F_aB = sum_n x_na dN_n/dX_B."""
+        corners = np.asarray(positions, float)[self.mesh.elements]
+        return np.einsum("mna,mpnb->mpab", corners, self.gradients, optimize=True)
+
+    def _point_parameters(self):
+        return self.mu[:, None], self.lam[:, None]
+
+    def energy(self, positions: np.ndarray) -> float:
+        """Total strain energy sum_e sum_p w W(F) in J (+inf if an element is inverted)."""
+        mu, lam = self._point_parameters()
+        return float(np.sum(self.weights * strain_energy_density(self.deformation_gradients(positions), mu, lam)))
+
+    def internal_forces(self, positions: np.ndarray) -> np.ndarray:
+        """(N, 3) dE/dx in N: f_na = sum_e sum_p w P_aB dN_n/dX_B (minus the force on the nodes)."""
+        mu, lam = self._point_parameters()
+        stress = first_piola_stress(self.deformation_gradients(positions), mu, lam)
+        element = np.einsum("mp,mpab,mpnb->mna", self.weights, stress, self.gradients, optimize=True)
+        forces = np.zeros((self.mesh.n_nodes, 3))
+        np.add.at(forces, self.mesh.elements, element)
+        return forces
+
+    def element_tangents(self, positions: np.ndarray) -> np.ndarray:
+        """(M, 24, 24) consistent tangents d(f_e)/d(x_e) in N/m (node-major dofs)."""
+        mu, lam = self._point_parameters()
+        tangent = material_tangent(self.deformation_gradients(positions), mu, lam)  # (M, P, 3,3,3,3)
+        matrices = np.einsum("mp,mpnB,mpaBcD,mpkD->mnakc", self.weights, self.gradients, tangent,
+                             self.gradients, optimize=True)
+        return matrices.reshape(-1, 24, 24)
+
+    def tangent_stiffness(self, positions: np.ndarray):
+        """(3N, 3N) CSR consistent tangent K = d(internal_forces)/dx in N/m (symmetric)."""
+        blocks = self.element_tangents(positions).reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
+        return self.pattern.matrix(self.pattern.assemble(self._element_positions, blocks))
+
+    def min_jacobian(self, positions: np.ndarray) -> float:
+        """Smallest det F over all Gauss points (must stay > 0)."""
+        return float(np.linalg.det(self.deformation_gradients(positions)).min())
+
+    # -- static equilibrium ----------------------------------------------------------------------
+    def solve(self, control: Control, gravity=(0.0, 0.0, 0.0), *, tolerance: float = 1e-8,
+              max_iterations: int = 25, load_steps: int = 1, max_load_steps: int = 1024,
+              initial: np.ndarray | None = None) -> NeoHookeanResult:
+        """Static equilibrium under imposed components, nodal forces and gravity.
+
+        Loads and imposed displacements are ramped together from ``initial`` (default: rest) in
+        load increments; an increment starts with a Newton step that carries the imposed
+        displacement increment into the free nodes through the tangent (so the boundary layer of
+        elements is not distorted), then iterates Newton with a backtracking line search on the
+        residual norm that also rejects any step making det F <= 0 at a Gauss point. A failed
+        increment is halved (up to ``max_load_steps`` increments in total); a quick one doubles
+        the next.
+
+        Args:
+            control: ``fixed`` (N, 3) bool, ``target`` (N, 3) m imposed positions, ``force``
+                (N, 3) N nodal forces.
+            gravity: (3,) acceleration in m/s^2 acting on the lumped masses rho V / 8.
+            tolerance: relative force residual to reach (see ``NeoHookeanResult.residual``).
+            max_iterations: Newton iterations per increment before it is halved.
+            load_steps: initial number of increments.
+            max_load_steps: give up (converged=False) when an increment would be smaller than
+                1 / max_load_steps of the full load.
+            initial: (N, 3) starting positions in m (default rest).
+        Returns:
+            ``NeoHookeanResult``.
+        """
+        nodes = self.mesh.nodes
+        start = nodes.copy() if initial is None else np.array(initial, dtype=float)
+        if start.shape != nodes.shape or not np.all(np.isfinite(start)):
+            raise ValueError(f"initial must be a finite ({len(nodes)}, 3) array")
+        if self.min_jacobian(start) <= 0:
+            raise ValueError("initial positions invert an element (det F <= 0)")
+        load = control.force + self.mass[:, None] * np.asarray(gravity, float)[None, :]
+        fixed = control.fixed.ravel()
+        free = np.flatnonzero(~fixed)
+        imposed = np.flatnonzero(fixed)
+        target = control.target.ravel()
+        positions = start.ravel().copy()
+        done, step = 0.0, 1.0 / max(int(load_steps), 1)
+        iterations = increments = 0
+        residual, message = np.inf, ""
+        while done < 1.0 - 1e-12:
+            level = min(done + step, 1.0)
+            boundary = start.ravel()[imposed] + level * (target[imposed] - start.ravel()[imposed])
+            ok, trial, residual, used = self._increment(positions, boundary, free, imposed, level * load.ravel(),
+                                                        tolerance, max_iterations)
+            iterations += used
+            if ok:
+                positions, done = trial, level
+                increments += 1
+                step = min(2.0 * step if used <= 4 else step, 1.0 - done) if done < 1.0 else step
+            else:
+                step /= 2.0
+                if step < 1.0 / max_load_steps:
+                    message = f"Newton did not converge at load level {level:.4f} (residual {residual:.2e})"
+                    break
+        converged = done >= 1.0 - 1e-12
+        internal = self.internal_forces(positions.reshape(-1, 3)).ravel()
+        if converged:
+            residual = _relative(internal, load.ravel(), free)
+            message = "converged"
+        reaction = np.where(fixed, internal - load.ravel(), 0.0).reshape(-1, 3)
+        return NeoHookeanResult(positions.reshape(-1, 3), reaction, converged, float(residual), iterations,
+                                increments, message)
+
+    def _increment(self, positions, boundary, free, imposed, load, tolerance, max_iterations):
+        """Newton on one load level. Returns (ok, positions, residual, iterations)."""
+        x = positions.copy()
+        boundary_step = np.zeros_like(x)
+        boundary_step[imposed] = boundary - x[imposed]
+        internal = self.internal_forces(x.reshape(-1, 3)).ravel()
+        for iteration in range(1, max_iterations + 1):
+            out_of_balance = internal - load
+            residual = _relative(internal, load, free)
+            if residual < tolerance and not boundary_step.any():
+                return True, x, residual, iteration - 1
+            stiffness = self.tangent_stiffness(x.reshape(-1, 3)).tocsr()
+            rhs = -out_of_balance[free]
+            if boundary_step.any():
+                rhs = rhs - stiffness[free][:, imposed] @ boundary_step[imposed]
+            try:
+                solution = spla.splu(stiffness[free][:, free].tocsc()).solve(rhs)
+            except RuntimeError:  # singular tangent (e.g. a buckling point): smaller increment
+                return False, positions, residual, iteration
+            direction = boundary_step.copy()
+            direction[free] = solution
+            norm = np.linalg.norm(out_of_balance[free])
+            scale, accepted = 1.0, False
+            for _ in range(20):
+                trial = x + scale * direction
+                if self.min_jacobian(trial.reshape(-1, 3)) > 0:
+                    trial_internal = self.internal_forces(trial.reshape(-1, 3)).ravel()
+                    trial_norm = np.linalg.norm((trial_internal - load)[free])
+                    # the first step also moves the boundary: accept it whole if elements stay valid
+                    if boundary_step.any() and scale == 1.0:
+                        accepted = np.all(np.isfinite(trial_internal))
+                    else:
+                        accepted = trial_norm <= (1.0 - 1e-4 * scale) * norm or trial_norm == 0
+                    if accepted:
+                        break
+                if boundary_step.any():
+                    return False, positions, residual, iteration  # boundary increment too large
+                scale *= 0.5
+            if not accepted:
+                return False, positions, residual, iteration
+            x, internal = trial, trial_internal
+            boundary_step[:] = 0.0
+        residual = _relative(internal, load, free)
+        return residual < tolerance, x, residual, max_iterations
+
+
+def _relative(internal, load, free):
+    scale = max(np.linalg.norm(internal), np.linalg.norm(load), 1e-300)
+    return float(np.linalg.norm((internal - load)[free]) / scale)
