@@ -207,7 +207,7 @@ def correction_coupling(model: Model, positions: np.ndarray) -> np.ndarray:
     w_hat = model.correction_matrix[:, EDGE_AXIS][:, :, EDGE_AXIS] / (
         4.0 * model.axis_rest_length[:, EDGE_AXIS][:, None, :]
     )
-    return -np.einsum("mae,mer,mbr->mab", g_left, w_hat, g_right)
+    return -(g_left @ w_hat) @ g_right.transpose(0, 2, 1)
 
 
 def stiffness_data(

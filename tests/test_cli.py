@@ -1,0 +1,54 @@
+"""tissue-sim: JSON on stdout, one-line errors with exit code 2, --save writes a mesh."""
+
+import json
+import subprocess
+import sys
+
+import meshio
+import pytest
+
+from sim_core.cli import main
+
+
+def run_cli(*args):
+    process = subprocess.run([sys.executable, "-m", "sim_core.cli", *args], capture_output=True, text=True)
+    return process.returncode, process.stdout, process.stderr
+
+
+def test_elongation_json(capsys):
+    assert main(["elongation", "--shape", "4", "4", "4", "--strain", "0.01", "--poisson-ratio", "0.4", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["converged"] is True and result["residual"] < 1e-8
+    assert result["young_modulus"] == pytest.approx(1e4, rel=0.01)
+    assert result["poisson_ratio"] == pytest.approx(0.4, abs=0.01)
+
+
+def test_shear_compare_and_save(tmp_path, capsys):
+    path = tmp_path / "sheared.vtu"
+    assert main(["shear", "--shape", "4", "4", "4", "--angle-deg", "3", "--compare", "fem-linear",
+                 "--save", str(path), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["compare"]["e_dm_percent"] < 2.0
+    assert result["shear_modulus"] > 0
+    mesh = meshio.read(path)
+    assert mesh.points.shape == (125, 3) and "displacement" in mesh.point_data
+
+
+def test_flexion_json(capsys):
+    assert main(["flexion", "--shape", "6", "3", "2", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["tip_deflection"] < 0
+
+
+@pytest.mark.parametrize("args, word", [
+    (["elongation", "--poisson-ratio", "0.7"], "poisson_ratio"),
+    (["elongation", "--shape", "4", "3", "4"], "even ny and nz"),
+    (["elongation", "--young-modulus", "-1"], "young_modulus"),
+    (["shear", "--model", "magic"], "invalid choice"),
+    (["elongation", "--strain", "0.01", "--force", "2"], "not allowed with"),
+    (["bend"], "invalid choice"),
+])
+def test_bad_arguments_exit_2_with_one_line(args, word):
+    code, out, err = run_cli(*args)
+    assert code == 2
+    assert word in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
