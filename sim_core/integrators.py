@@ -16,7 +16,7 @@ import scipy.sparse.linalg as spla
 
 from . import kernels
 from .forces import external_forces, internal_forces, spring_state, stiffness_data
-from .mesh import corner_jacobians
+from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
 
@@ -72,16 +72,17 @@ class DivergenceMonitor:
 
     def check(self, state: State, force_inversion_check: bool = False) -> str | None:
         self.count += 1
-        positions, velocities = state.positions, state.velocities
-        if not (np.isfinite(positions).all() and np.isfinite(velocities).all()):
+        positions = np.ascontiguousarray(state.positions, dtype=float)
+        velocities = np.ascontiguousarray(state.velocities, dtype=float)
+        finite, speed, inside = kernels.health(positions, velocities, self.low, self.high)
+        if not finite:
             return "non-finite positions or velocities"
-        speed = float(np.sqrt(np.max(np.einsum("ij,ij->i", velocities, velocities))))
         if speed > self.max_speed:
             return f"node speed {speed:.3g} m/s exceeds {self.max_speed:.3g} m/s (100x the elastic wave speed)"
-        if np.any(positions < self.low) or np.any(positions > self.high):
+        if not inside:
             return "a node left the region of 10 block sizes around the rest mesh"
         if force_inversion_check or self.count % self.inversion_every == 0:
-            if np.any(corner_jacobians(positions, self.model.mesh.elements) <= 0):
+            if kernels.any_inverted(positions, self.model.mesh.elements, CORNER_NEIGHBOURS, CORNER_SIGN):
                 return "inverted element (non-positive corner Jacobian)"
         return None
 

@@ -83,18 +83,12 @@ def fixed_direction_corrections(elements, push, rest_direction, forces):
                 forces[p, c] -= t * rest_direction[m, e, c]
 
 
-def _edge_weights():
-    """(8, 3, 4) weights of the 4 edges of each axis in dx/dxi_axis at each Gauss point: the
-    derivative of a trilinear map along an axis interpolates that axis' 4 edge vectors."""
-    weights = np.empty((8, 3, 4))
-    for g, (xi, eta, zeta) in enumerate(GAUSS_POINTS):
-        weights[g, 0] = [(1 - eta) * (1 - zeta), eta * (1 - zeta), (1 - eta) * zeta, eta * zeta]
-        weights[g, 1] = [(1 - xi) * (1 - zeta), xi * (1 - zeta), (1 - xi) * zeta, xi * zeta]
-        weights[g, 2] = [(1 - xi) * (1 - eta), xi * (1 - eta), xi * eta, (1 - xi) * eta]
-    return weights
-
-
-_EDGE_WEIGHTS = _edge_weights()
+_G0, _G1 = 0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0)
+#: (2, 2, 4) weights of an axis' 4 edges (EDGES order) in dx/dxi_axis at the Gauss abscissae
+#: (s, t) of the two other axes: the derivative of a trilinear map along an axis interpolates
+#: that axis' 4 edge vectors bilinearly.
+_PAIR_WEIGHTS = np.array([[[(1 - s) * (1 - t), s * (1 - t), (1 - s) * t, s * t] for t in (_G0, _G1)]
+                          for s in (_G0, _G1)])
 
 
 @njit(cache=True)
@@ -102,7 +96,7 @@ def volume_pass(positions, elements, rest_volume, kappa, forces):
     """Volume-conservation forces (physics.md 4); volumes by 2x2x2 Gauss (exact for trilinear)."""
     corner = np.empty((8, 3))
     edge = np.empty((12, 3))
-    jac = np.empty((3, 3))
+    tangent = np.empty((3, 2, 2, 3))  # [axis, first other abscissa, second other abscissa, component]
     area = np.empty((6, 3))
     for m in range(elements.shape[0]):
         if kappa[m] == 0.0:
@@ -113,17 +107,29 @@ def volume_pass(positions, elements, rest_volume, kappa, forces):
         for e in range(12):
             for c in range(3):
                 edge[e, c] = corner[_EDGES[e, 1], c] - corner[_EDGES[e, 0], c]
+        # x-edges are ordered by (eta, zeta), y-edges by (xi, zeta), z-edges by (xi, eta) with the
+        # z-edge order (0,0), (1,0), (1,1), (0,1): remap it to the bilinear order below.
+        for axis in range(3):
+            for a in range(2):
+                for b in range(2):
+                    w = _PAIR_WEIGHTS[a, b]
+                    for c in range(3):
+                        if axis < 2:
+                            tangent[axis, a, b, c] = (w[0] * edge[4 * axis, c] + w[1] * edge[4 * axis + 1, c]
+                                                      + w[2] * edge[4 * axis + 2, c] + w[3] * edge[4 * axis + 3, c])
+                        else:
+                            tangent[axis, a, b, c] = (w[0] * edge[8, c] + w[1] * edge[9, c]
+                                                      + w[2] * edge[11, c] + w[3] * edge[10, c])
         volume = 0.0
-        for g in range(8):
-            for axis in range(3):
-                for c in range(3):
-                    jac[c, axis] = (_EDGE_WEIGHTS[g, axis, 0] * edge[4 * axis, c]
-                                    + _EDGE_WEIGHTS[g, axis, 1] * edge[4 * axis + 1, c]
-                                    + _EDGE_WEIGHTS[g, axis, 2] * edge[4 * axis + 2, c]
-                                    + _EDGE_WEIGHTS[g, axis, 3] * edge[4 * axis + 3, c])
-            volume += (jac[0, 0] * (jac[1, 1] * jac[2, 2] - jac[1, 2] * jac[2, 1])
-                       - jac[0, 1] * (jac[1, 0] * jac[2, 2] - jac[1, 2] * jac[2, 0])
-                       + jac[0, 2] * (jac[1, 0] * jac[2, 1] - jac[1, 1] * jac[2, 0]))
+        for i in range(2):  # xi
+            for j in range(2):  # eta
+                for k in range(2):  # zeta
+                    ax = tangent[0, j, k]
+                    ay = tangent[1, i, k]
+                    az = tangent[2, i, j]
+                    volume += (ax[0] * (ay[1] * az[2] - ay[2] * az[1])
+                               - ay[0] * (ax[1] * az[2] - ax[2] * az[1])
+                               + az[0] * (ax[1] * ay[2] - ax[2] * ay[1]))
         volume *= 0.125
         relative = (volume - rest_volume[m]) / rest_volume[m]
         phi = -kappa[m] * relative * abs(relative)
@@ -339,3 +345,40 @@ def edge_units(positions, elements, out):
             out[m, e, 0] = dx / norm
             out[m, e, 1] = dy / norm
             out[m, e, 2] = dz / norm
+
+
+@njit(cache=True)
+def health(positions, velocities, low, high):
+    """(all finite, max speed in m/s, all nodes inside [low, high]) in one pass."""
+    finite = True
+    inside = True
+    max_speed_squared = 0.0
+    for node in range(positions.shape[0]):
+        speed_squared = 0.0
+        for c in range(3):
+            x = positions[node, c]
+            v = velocities[node, c]
+            if not (np.isfinite(x) and np.isfinite(v)):
+                finite = False
+            if x < low[c] or x > high[c]:
+                inside = False
+            speed_squared += v * v
+        if speed_squared > max_speed_squared:
+            max_speed_squared = speed_squared
+    return finite, np.sqrt(max_speed_squared), inside
+
+
+@njit(cache=True)
+def any_inverted(positions, elements, neighbours, signs):
+    """True when a corner Jacobian (signed corner frame volume) of any element is <= 0."""
+    for m in range(elements.shape[0]):
+        for corner in range(8):
+            o = elements[m, corner]
+            a, b, c = elements[m, neighbours[corner, 0]], elements[m, neighbours[corner, 1]], elements[m, neighbours[corner, 2]]
+            ax, ay, az = positions[a, 0] - positions[o, 0], positions[a, 1] - positions[o, 1], positions[a, 2] - positions[o, 2]
+            bx, by, bz = positions[b, 0] - positions[o, 0], positions[b, 1] - positions[o, 1], positions[b, 2] - positions[o, 2]
+            cx, cy, cz = positions[c, 0] - positions[o, 0], positions[c, 1] - positions[o, 1], positions[c, 2] - positions[o, 2]
+            det = ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+            if signs[corner] * det <= 0.0:
+                return True
+    return False

@@ -193,3 +193,24 @@ def test_compiled_forces_match_numpy_reference(options):
     compiled = internal_forces(model, positions, velocities)
     reference = internal_forces_reference(model, positions, velocities)
     assert np.abs(compiled - reference).max() < 1e-12 * np.abs(reference).max()
+
+
+def test_divergence_monitor_reasons():
+    from sim_core.integrators import DivergenceMonitor
+    from sim_core.model import State
+
+    model = build_model(HexMesh.block((2, 2, 2), 0.1), Material(1e4, 0.3, 1000))
+    monitor = DivergenceMonitor(model)
+    rest = model.new_state()
+    assert monitor.check(rest, force_inversion_check=True) is None
+    inverted = rest.copy()
+    inverted.positions[model.mesh.node_index(1, 1, 1)] = [0.05, 0.05, -0.3]  # centre node pushed through
+    assert "inverted" in monitor.check(inverted, force_inversion_check=True)
+    nan = rest.copy()
+    nan.velocities[3, 1] = np.nan
+    assert "non-finite" in monitor.check(nan)
+    fast = rest.copy()
+    fast.velocities[0] = [1e4, 0, 0]
+    assert "speed" in monitor.check(fast)
+    far = State(rest.positions + [100.0, 0, 0], rest.velocities)
+    assert "left the region" in monitor.check(far)

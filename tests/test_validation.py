@@ -153,3 +153,12 @@ def test_position_errors_definition():
     assert e_max == pytest.approx(0.2 / 2 * 100)
     with pytest.raises(ValueError, match="o_max"):
         position_errors(rest, rest, rest)
+
+
+@pytest.mark.parametrize("nu", [0.49, 0.499])
+def test_nearly_incompressible_elongation(nu):
+    """nu -> 0.5: stiff corrections, still E within 1% and nu within 0.01 at 1% strain."""
+    result = elongation(**BLOCK, poisson_ratio=nu, strain=0.01)
+    assert result.converged
+    assert result.young_modulus == pytest.approx(1e4, rel=0.01)
+    assert result.poisson_ratio == pytest.approx(nu, abs=0.01)
