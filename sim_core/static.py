@@ -139,42 +139,58 @@ def solve_static(
 
 
 def _newton(model, positions, free, applied, tolerance, max_iterations):
+    """Damped Newton with line search. The factorised tangent is reused (chord steps) while it
+    keeps contracting the residual by 4x per step, and rebuilt otherwise: one LU often serves a
+    whole nearly linear solve."""
     force = _residual(model, positions, applied)
     residual = _relative(force, free, applied)
     norm = np.linalg.norm(force.ravel()[free])
     damping = 1e-10
+    factor, fresh = None, False
     for iteration in range(1, max_iterations + 1):
         if residual < tolerance:
             return True, positions, residual, iteration - 1
-        stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
-        diagonal = np.abs(stiffness.diagonal())
         accepted = False
-        while damping < 1.0 and not accepted:
-            matrix = (stiffness + sp.diags(damping * diagonal)).tocsc()
-            try:
-                step = spla.splu(matrix).solve(force.ravel()[free])
-            except RuntimeError:
-                damping *= 100.0
-                continue
-            scale = 1.0
-            for _ in range(12):
-                trial = positions.copy()
-                trial.ravel()[free] += scale * step
-                if np.all(np.isfinite(trial)) and np.all(corner_jacobians(trial, model.mesh.elements) > 0):
-                    trial_force = _residual(model, trial, applied)
-                    trial_norm = np.linalg.norm(trial_force.ravel()[free])
-                    if trial_norm < (1.0 - 1e-4 * scale) * norm or trial_norm == 0:
-                        accepted = True
-                        break
-                scale *= 0.5
+        while not accepted and damping < 1.0:
+            if factor is None:
+                stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
+                matrix = (stiffness + sp.diags(damping * np.abs(stiffness.diagonal()))).tocsc()
+                try:
+                    factor = spla.splu(matrix, permc_spec="MMD_AT_PLUS_A")
+                except RuntimeError:  # exactly singular: regularise more
+                    damping *= 100.0
+                    continue
+                fresh = True
+            step = factor.solve(force.ravel()[free])
+            accepted, trial, trial_force, trial_norm = _line_search(model, positions, free, applied, step, norm)
             if not accepted:
-                damping *= 100.0
+                if fresh:
+                    damping *= 100.0
+                factor = None
         if not accepted:
             return False, positions, residual, iteration
+        if trial_norm > 0.25 * norm:
+            factor = None  # slow contraction: refresh the tangent next time
+        fresh = False
         positions, force, norm = trial, trial_force, trial_norm
         residual = _relative(force, free, applied)
         damping = max(damping / 100.0, 1e-10)
     return residual < tolerance, positions, residual, max_iterations
+
+
+def _line_search(model, positions, free, applied, step, norm):
+    """Backtracking on the residual norm; rejects non-finite or inverted configurations."""
+    scale = 1.0
+    for _ in range(12):
+        trial = positions.copy()
+        trial.ravel()[free] += scale * step
+        if np.all(np.isfinite(trial)) and np.all(corner_jacobians(trial, model.mesh.elements) > 0):
+            trial_force = _residual(model, trial, applied)
+            trial_norm = np.linalg.norm(trial_force.ravel()[free])
+            if trial_norm < (1.0 - 1e-4 * scale) * norm or trial_norm == 0:
+                return True, trial, trial_force, trial_norm
+        scale *= 0.5
+    return False, positions, None, norm
 
 
 def zero_energy_modes(model: Model, control: Control | None = None, positions=None, relative_tolerance=1e-8,
