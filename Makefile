@@ -23,6 +23,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/step_speed.py
+	$(PY) benchmarks/env_speed.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

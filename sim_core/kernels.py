@@ -17,7 +17,7 @@ _FACES = np.ascontiguousarray(FACES)
 _GRADIENTS = np.ascontiguousarray(GAUSS_GRADIENTS)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def spring_pass(positions, springs, stiffness, rest_length, length, unit, tension):
     """Lengths (m), unit vectors and elastic tension k (L - L0) (N) of every spring."""
     for s in range(springs.shape[0]):
@@ -33,7 +33,7 @@ def spring_pass(positions, springs, stiffness, rest_length, length, unit, tensio
         tension[s] = stiffness[s] * (current - rest_length[s])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def correction_pass(length, edge_spring, correction_matrix, axis_rest_length, push):
     """T_j per element (physics.md 3): push[m, j] = sum_k W[m, j, k] eps_k."""
     eps = np.empty(3)
@@ -48,7 +48,7 @@ def correction_pass(length, edge_spring, correction_matrix, axis_rest_length, pu
                           + correction_matrix[m, j, 2] * eps[2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def subtract_pushes(edge_spring, push, tension):
     """Projected corrections act along the current edge: a push T lowers the edge's tension by T."""
     for m in range(edge_spring.shape[0]):
@@ -56,7 +56,7 @@ def subtract_pushes(edge_spring, push, tension):
             tension[edge_spring[m, e]] -= push[m, e // 4]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def scatter_springs(springs, unit, tension, damping, velocities, use_velocity, forces):
     """forces += t u on node a and -t u on node b, with t = tension + damping * (dv . u)."""
     for s in range(springs.shape[0]):
@@ -71,7 +71,7 @@ def scatter_springs(springs, unit, tension, damping, velocities, use_velocity, f
             forces[b, c] -= t * unit[s, c]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def fixed_direction_corrections(elements, push, rest_direction, forces):
     """The published variant: corrections along the rest directions of the element edges."""
     for m in range(elements.shape[0]):
@@ -91,7 +91,7 @@ _PAIR_WEIGHTS = np.array([[[(1 - s) * (1 - t), s * (1 - t), (1 - s) * t, s * t] 
                           for s in (_G0, _G1)])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def volume_pass(positions, elements, rest_volume, kappa, forces):
     """Volume-conservation forces (physics.md 4); volumes by 2x2x2 Gauss (exact for trilinear)."""
     corner = np.empty((8, 3))
@@ -154,7 +154,7 @@ def volume_pass(positions, elements, rest_volume, kappa, forces):
                     forces[node, c] += scale * area[f, c]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def csr_matvec_add(indptr, indices, data, vector, scale, out):
     """out += scale * A @ vector for a CSR matrix (flat dof vectors)."""
     for row in range(indptr.shape[0] - 1):
@@ -165,7 +165,7 @@ def csr_matvec_add(indptr, indices, data, vector, scale, out):
 
 
 # -- implicit Euler -----------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def assemble_implicit(block_of_spring, n_blocks, diagonal_block, unit, length, tension, stiffness,
                       damping, mass, dt, clamp, blocks):
     """Blocks (3x3 per node pair) of M + dt D + dt^2 K for the springs (geometric term clamped)."""
@@ -190,7 +190,7 @@ def assemble_implicit(block_of_spring, n_blocks, diagonal_block, unit, length, t
                 blocks[block_of_spring[s, 3], r, c] -= value
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _block_matvec(node_indptr, node_indices, blocks, vector, out):
     for node in range(node_indptr.shape[0] - 1):
         x0 = 0.0
@@ -207,7 +207,7 @@ def _block_matvec(node_indptr, node_indices, blocks, vector, out):
         out[3 * node + 2] = x2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_length, vector, scale, out):
     """out += scale * K_c vector, K_c = -G W^ G^T the corrections' strain coupling (matrix-free:
     per element 12 edge elongation rates -> 3 axis strains -> 3 pushes -> 12 edge forces)."""
@@ -233,7 +233,7 @@ def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_lengt
                 out[3 * p + c] += scale * push * edge_unit[m, e, c]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale,
               elements, edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, vector, out):
     _block_matvec(node_indptr, node_indices, blocks, vector, out)
@@ -245,7 +245,7 @@ def _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data,
         out[i] *= mask[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr, hg_indices, hg_data, hg_scale,
                    elements, edge_unit, correction_matrix, axis_rest_length, coupling_scale,
                    mask, rhs, guess, tolerance, max_iterations, symmetric):
@@ -332,7 +332,7 @@ def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr,
     return x, iterations, residual
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def edge_units(positions, elements, out):
     """(M, 12, 3) current unit vectors of every element edge (local orientation)."""
     for m in range(elements.shape[0]):
@@ -347,7 +347,7 @@ def edge_units(positions, elements, out):
             out[m, e, 2] = dz / norm
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def health(positions, velocities, low, high):
     """(all finite, max speed in m/s, all nodes inside [low, high]) in one pass."""
     finite = True
@@ -368,7 +368,7 @@ def health(positions, velocities, low, high):
     return finite, np.sqrt(max_speed_squared), inside
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def any_inverted(positions, elements, neighbours, signs):
     """True when a corner Jacobian (signed corner frame volume) of any element is <= 0."""
     for m in range(elements.shape[0]):

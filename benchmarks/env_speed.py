@@ -1,0 +1,74 @@
+"""Env steps per second of every tissue_env task at its defaults, and the time split.
+
+Usage: python benchmarks/env_speed.py [--steps 300]. Random actions, resets included in the total
+rate; the split (physics = integrator substeps and contact, observation = measurements and
+features, reward = reward terms and success) is from the step calls alone. One process, one core.
+"""
+
+import argparse
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import tissue_env
+
+
+def timed(function, bucket, key):
+    def wrapper(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            bucket[key] += time.perf_counter() - start
+    return wrapper
+
+
+def measure(env_id, steps, seed=0):
+    env = gym.make(env_id)
+    unwrapped = env.unwrapped
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    for _ in range(5):  # warm up (compiled kernels, caches)
+        env.step(env.action_space.sample())
+    split = dict(physics=0.0, observation=0.0, reward=0.0)
+    unwrapped._advance = timed(unwrapped._advance, split, "physics")
+    unwrapped._measure = timed(unwrapped._measure, split, "observation")
+    unwrapped._observation = timed(unwrapped._observation, split, "observation")
+    unwrapped._reward_terms = timed(unwrapped._reward_terms, split, "reward")
+    unwrapped._is_success = timed(unwrapped._is_success, split, "reward")
+    env.reset(seed=seed)
+    step_time, start = 0.0, time.perf_counter()
+    for _ in range(steps):
+        tick = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        step_time += time.perf_counter() - tick
+        if terminated or truncated:
+            env.reset()
+    total = time.perf_counter() - start
+    env.close()
+    render_env = gym.make(env_id, render_mode="rgb_array")
+    render_env.reset(seed=seed)
+    render_env.render()
+    tick = time.perf_counter()
+    for _ in range(10):
+        render_env.render()
+    fps = 10 / (time.perf_counter() - tick)
+    render_env.close()
+    return dict(env_id=env_id, steps_per_s=steps / total, step_only_per_s=steps / step_time,
+                render_fps=fps, **{f"{k}_ms": 1e3 * v / steps for k, v in split.items()})
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=300)
+    args = parser.parse_args()
+    print(f"{'env id':34s} {'steps/s':>8s} {'(no reset)':>10s} {'physics':>8s} {'obs':>6s} {'reward':>6s} {'render':>7s}")
+    for env_id in sorted(tissue_env.ENV_IDS):
+        r = measure(env_id, args.steps)
+        print(f"{env_id:34s} {r['steps_per_s']:8.0f} {r['step_only_per_s']:10.0f} {r['physics_ms']:6.2f}ms "
+              f"{r['observation_ms']:4.2f}ms {r['reward_ms']:4.2f}ms {r['render_fps']:5.1f}fps")
+
+
+if __name__ == "__main__":
+    main()

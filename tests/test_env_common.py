@@ -1,0 +1,160 @@
+"""Contracts every tissue_env task keeps (DESIGN.md, issue 4): checkers, vector envs, determinism,
+action and constructor validation, divergence handling, info keys, rendering."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env as gym_check_env
+
+import tissue_env
+
+ENV_IDS = sorted(tissue_env.ENV_IDS)
+INFO_KEYS = ("relative_volume_change", "unstable", "unstable_reason", "is_success")
+
+
+def run(env_id, seed, actions, **kwargs):
+    env = gym.make(env_id, **kwargs)
+    obs, info = env.reset(seed=seed)
+    trajectory = [obs]
+    rewards = []
+    for action in actions:
+        obs, reward, terminated, truncated, info = env.step(action)
+        trajectory.append(obs)
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    env.close()
+    return np.array(trajectory), np.array(rewards)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_gymnasium_check_env_without_warnings(env_id):
+    env = gym.make(env_id).unwrapped
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gym_check_env(env, skip_render_check=True)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("observation_type", ["state", "dict"])
+def test_sb3_check_env_without_warnings(env_id, observation_type):
+    sb3_env_checker = pytest.importorskip("stable_baselines3.common.env_checker")
+    env = gym.make(env_id, observation_type=observation_type)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sb3_env_checker.check_env(env, warn=True)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_make_vec(env_id, mode):
+    envs = gym.make_vec(env_id, num_envs=4, vectorization_mode=mode)
+    try:
+        obs, info = envs.reset(seed=0)
+        assert obs.shape == (4,) + envs.single_observation_space.shape
+        for _ in range(2):
+            obs, reward, terminated, truncated, info = envs.step(envs.action_space.sample())
+        assert np.all(np.isfinite(obs)) and reward.shape == (4,)
+        assert "relative_volume_change" in info
+    finally:
+        envs.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_same_seed_same_trajectory_different_seed_different_episode(env_id):
+    actions = np.random.default_rng(1).uniform(-1, 1, (4, 3)).astype(np.float32)
+    first, rewards_first = run(env_id, 3, actions)
+    second, rewards_second = run(env_id, 3, actions)
+    other, _ = run(env_id, 4, actions)
+    np.testing.assert_array_equal(first, second)
+    np.testing.assert_array_equal(rewards_first, rewards_second)
+    assert not np.array_equal(first[0], other[0])
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_info_keys_fresh_arrays_and_observation_types(env_id):
+    for observation_type in ("state", "deformation", "dict"):
+        env = gym.make(env_id, observation_type=observation_type)
+        obs, info = env.reset(seed=0)
+        assert env.observation_space.contains(obs)
+        for key in INFO_KEYS:
+            assert key in info
+        reward_keys = [key for key in info if key.startswith("reward_")]
+        assert reward_keys
+        obs2, reward, terminated, truncated, info2 = env.step(np.zeros(3, np.float32))
+        assert env.observation_space.contains(obs2)
+        for key in INFO_KEYS + tuple(reward_keys):
+            assert key in info2
+        assert np.isclose(reward, sum(info2[key] for key in reward_keys))
+        if observation_type != "dict":
+            assert obs2 is not obs and not np.shares_memory(obs, obs2)
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_action_raises(env_id, bad):
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([0.0, bad, 0.0], np.float32))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_out_of_range_action_is_clipped(env_id):
+    clipped, rewards_clipped = run(env_id, 0, [np.array([5.0, -7.0, 3.0])])
+    unit, rewards_unit = run(env_id, 0, [np.array([1.0, -1.0, 1.0])])
+    np.testing.assert_array_equal(clipped, unit)
+    np.testing.assert_array_equal(rewards_clipped, rewards_unit)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("keyword, value", [
+    ("poisson_ratio", 0.6), ("young_modulus", -1.0), ("young_modulus", float("nan")), ("density", 0.0),
+    ("shape", (0, 2, 2)), ("shape", (2.5, 2, 2)), ("shape", "abc"), ("size", -0.05), ("dt", 0.0),
+    ("integrator", "rk4"), ("observation_type", "pixels"), ("max_step", -1e-3), ("substeps", 0),
+    ("young_modulus_range", (5e3, 1e3)), ("poisson_ratio_range", (0.3, 0.7)), ("render_mode", "ascii"),
+])
+def test_invalid_constructor_value_names_keyword(env_id, keyword, value):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # gymnasium itself warns about an unknown render_mode first
+        with pytest.raises(ValueError, match=keyword):
+            gym.make(env_id, **{keyword: value})
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_explicit_integrator_past_its_limit_ends_episode_as_unstable(env_id):
+    # The explicit limit of the default block is about 1 ms; 50 ms is far past it.
+    env = gym.make(env_id, integrator="explicit", dt=0.05, instability_penalty=7.0)
+    env.reset(seed=0)
+    for step in range(30):
+        obs, reward, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
+        assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+        if terminated:
+            break
+    assert terminated and info["unstable"] and isinstance(info["unstable_reason"], str)
+    assert not info["is_success"] and reward == -7.0 and info["reward_instability"] == -7.0
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_render_rgb_array_frames_have_stable_shape(env_id):
+    env = gym.make(env_id, render_mode="rgb_array")
+    env.reset(seed=0)
+    first = env.render()
+    env.step(env.action_space.sample())
+    second = env.render()
+    assert first.dtype == np.uint8 and first.ndim == 3 and first.shape[2] == 3
+    assert second.shape == first.shape
+    assert first.std() > 0
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_domain_randomisation_changes_material(env_id):
+    env = gym.make(env_id, young_modulus_range=(3e3, 8e3), poisson_ratio_range=(0.4, 0.45))
+    env.reset(seed=0)
+    first = env.unwrapped.episode_young_modulus
+    env.reset(seed=1)
+    assert 3e3 <= first <= 8e3 and env.unwrapped.episode_young_modulus != first

@@ -1,0 +1,488 @@
+"""The shared scene of every task: a block of soft tissue built with sim_core, a tool, observations,
+reward plumbing, divergence handling and rendering.
+
+A task subclasses ``TissueEnv`` and fills in a few hooks (which nodes are fixed, how the tool
+imposes positions, the task features, the reward terms, the reset distribution); see
+``tumor_positioning.py`` for the smallest example. SI units throughout (m, kg, s, Pa, N).
+
+Physics per env step (measured, see ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
+Euler steps of ``dt`` s (``sim_core.integrators.ImplicitEuler``). It is stable far past the explicit
+limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one 20 ms substep per env step is enough,
+and with the springs' critical damping the block settles to the quasi-static equilibrium within a
+few steps of a slow tool (checked against ``solve_static`` in tests/test_env_tumor_positioning.py).
+A full ``solve_static`` per env step was measured about 10 times slower (a sparse LU factorisation
+per Newton iteration), so it is used only at reset (initial sag under gravity, goal generation).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from sim_core import HexMesh, Material, build_model, solve_static
+from sim_core.forces import external_forces, internal_forces
+from sim_core.integrators import make_integrator
+from sim_core.model import State
+
+#: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
+#: by a healthy simulation, that keeps every observation inside the observation space.
+OBS_LIMIT = 100.0
+OBSERVATION_TYPES = ("state", "deformation", "dict")
+INTEGRATORS = ("implicit", "explicit")
+MODEL_CACHE_SIZE = 16
+
+
+# -- argument checks (ValueError naming the keyword) -------------------------------------------
+def positive_scalar(name, value, unit=""):
+    try:
+        value = float(value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a number{unit and ' in ' + unit}, got {value!r}") from error
+    if not np.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} must be a finite number > 0{unit and ' ' + unit}, got {value!r}")
+    return value
+
+
+def nonnegative_scalar(name, value):
+    try:
+        value = float(value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a number, got {value!r}") from error
+    if not np.isfinite(value) or value < 0:
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+    return value
+
+
+def check_poisson_ratio(name, value):
+    try:
+        value = float(value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a number, got {value!r}") from error
+    if not (-0.25 < value < 0.5):
+        raise ValueError(f"{name} must lie in (-0.25, 0.5) for the mass-spring model, got {value!r}")
+    return value
+
+
+def check_range(name, value, check):
+    """None or a (low, high) pair whose ends pass ``check`` and low <= high."""
+    if value is None:
+        return None
+    try:
+        low, high = value
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be None or a (low, high) pair, got {value!r}") from error
+    low, high = check(name, low), check(name, high)
+    if low > high:
+        raise ValueError(f"{name} must have low <= high, got {value!r}")
+    return (low, high)
+
+
+def check_vector(name, value, unit="m"):
+    """A positive scalar (broadcast) or three positive numbers."""
+    try:
+        array = np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a number or three numbers in {unit}, got {value!r}") from error
+    if not np.all(np.isfinite(array)) or np.any(array <= 0):
+        raise ValueError(f"{name} must be finite and > 0 {unit} along every axis, got {value!r}")
+    return array
+
+
+def check_shape(name, value, minimum):
+    try:
+        shape = tuple(int(s) for s in value)
+        exact = all(float(s) == v for s, v in zip(value, shape))
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be three integers (nx, ny, nz), got {value!r}") from error
+    if len(shape) != 3 or not exact or any(s < m for s, m in zip(shape, minimum)):
+        raise ValueError(f"{name} must be three integers (nx, ny, nz) >= {tuple(minimum)}, got {value!r}")
+    return shape
+
+
+# -- the base environment --------------------------------------------------------------------
+class TissueEnv(gym.Env):
+    """Base class: a sim_core tissue block, a tool moved by displacement increments, observations,
+    rewards and divergence handling. Not registered itself; see the task classes.
+
+    Constructor keywords shared by every task (SI units):
+        young_modulus: E in Pa (default 5e3, liver-like).
+        poisson_ratio: nu in (-0.25, 0.5) (default 0.45).
+        density: kg/m^3 (default 1060).
+        shape: (nx, ny, nz) hexahedra of the block.
+        size: (Lx, Ly, Lz) block extent in m (a float gives a cube).
+        integrator: "implicit" (default, linearised implicit Euler) or "explicit" (symplectic Euler,
+            needs dt below about 1 ms; for experiments on stability).
+        dt: physics time step in s (default 0.02); substeps: physics steps per env step (default 1).
+        max_step: tool displacement in m per env step for an action component of 1.
+        hourglass_control: sim_core's hourglass stabilisation alpha (default 0.5).
+        gravity: m/s^2 along -y (default 9.81).
+        observation_type: "state" (default), "deformation" (adds the displacement of the surface
+            nodes) or "dict" (the "deformation" features as a Dict space).
+        young_modulus_range, poisson_ratio_range: None or (low, high): domain randomisation, a new
+            value drawn at every reset (the model is rebuilt, about 0.1 s).
+        volume_weight: weight of the |relative volume change| penalty.
+        strain_threshold, strain_weight: penalty strain_weight * max(0, max spring strain - threshold)
+            (a damage proxy).
+        instability_penalty: reward (negated) of the step where the simulation diverges.
+        solver_tolerance: relative residual of the implicit integrator's linear solve (default 1e-4:
+            measured 1.5x faster than 1e-6, positions within 0.01 mm of the 1e-6 run).
+        render_mode: None, "rgb_array" or "human".
+    """
+
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
+
+    #: Defaults a task may override.
+    default_shape = (6, 4, 6)
+    default_size = (0.06, 0.04, 0.06)
+    default_max_step = 0.002
+    min_shape = (2, 2, 2)
+    #: Observation units: lengths in cm, forces in units of 0.1 N, strains and volume change in %.
+    length_scale = 0.01
+    force_scale = 0.1
+    #: End the episode when the task succeeds.
+    terminate_on_success = True
+    #: Names of the reward terms (each also in info as ``reward_<name>``).
+    reward_names: tuple = ()
+
+    def __init__(self, *, young_modulus=5.0e3, poisson_ratio=0.45, density=1060.0, shape=None, size=None,
+                 integrator="implicit", dt=0.02, substeps=1, max_step=None, hourglass_control=0.5,
+                 gravity=9.81, observation_type="state", young_modulus_range=None,
+                 poisson_ratio_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
+                 instability_penalty=10.0, solver_tolerance=1e-4, render_mode=None):
+        self.young_modulus = positive_scalar("young_modulus", young_modulus, "Pa")
+        self.poisson_ratio = check_poisson_ratio("poisson_ratio", poisson_ratio)
+        self.density = positive_scalar("density", density, "kg/m^3")
+        self.shape = check_shape("shape", self.default_shape if shape is None else shape, self.min_shape)
+        self.size = check_vector("size", self.default_size if size is None else size)
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        self.integrator_name = integrator
+        self.dt = positive_scalar("dt", dt, "s")
+        if isinstance(substeps, bool) or not float(substeps).is_integer() or int(substeps) < 1:
+            raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
+        self.substeps = int(substeps)
+        self.max_step = positive_scalar("max_step", self.default_max_step if max_step is None else max_step, "m")
+        self.hourglass_control = nonnegative_scalar("hourglass_control", hourglass_control)
+        self.gravity = nonnegative_scalar("gravity", gravity)
+        if observation_type not in OBSERVATION_TYPES:
+            raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")
+        self.observation_type = observation_type
+        self.young_modulus_range = check_range(
+            "young_modulus_range", young_modulus_range, lambda n, v: positive_scalar(n, v, "Pa"))
+        self.poisson_ratio_range = check_range("poisson_ratio_range", poisson_ratio_range, check_poisson_ratio)
+        self.volume_weight = nonnegative_scalar("volume_weight", volume_weight)
+        self.strain_threshold = nonnegative_scalar("strain_threshold", strain_threshold)
+        self.strain_weight = nonnegative_scalar("strain_weight", strain_weight)
+        self.instability_penalty = nonnegative_scalar("instability_penalty", instability_penalty)
+        self.solver_tolerance = positive_scalar("solver_tolerance", solver_tolerance)
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.render_mode = render_mode
+
+        self.spacing = self.size / np.asarray(self.shape)
+        self.mesh = HexMesh.block(self.shape, self.spacing)
+        nodes = self.mesh.nodes
+        self.centre = 0.5 * (nodes.min(axis=0) + nodes.max(axis=0))
+        self.surface_nodes = self.mesh.surface_nodes()
+        self._surface_faces = self.mesh.surface_faces()
+        self._model_cache: OrderedDict = OrderedDict()
+        self._setup_scene()
+        # Build the default model now: it validates material and geometry together (Baudet's edge
+        # stiffness must stay positive) and raises ValueError at construction, not at reset.
+        try:
+            self.model = self._model(self.young_modulus, self.poisson_ratio, self._default_task_key())
+        except ValueError as error:
+            raise ValueError(f"shape/size/poisson_ratio give an invalid model: {error}") from error
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self._feature_sizes = OrderedDict(
+            tool_position=3, tool_displacement=3, reaction_force=3, relative_volume_change=1, max_strain=1)
+        self._feature_sizes.update(self._task_feature_sizes())
+        if observation_type != "state":
+            self._feature_sizes["surface_displacement"] = 3 * len(self.surface_nodes)
+        if observation_type == "dict":
+            self.observation_space = spaces.Dict({
+                name: spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(n,), dtype=np.float32)
+                for name, n in self._feature_sizes.items()})
+        else:
+            total = sum(self._feature_sizes.values())
+            self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(total,), dtype=np.float32)
+        self._renderer = None
+        self.state = None
+
+    # -- hooks a task implements -------------------------------------------------------------
+    def _setup_scene(self):
+        """Set ``self.fixed_nodes`` (nodes attached to the body) and ``self.tool_nodes``."""
+        raise NotImplementedError
+
+    def _task_feature_sizes(self) -> dict:
+        return {}
+
+    def _task_features(self, positions) -> dict:
+        return {}
+
+    def _default_task_key(self):
+        """Key of the task's material layout (e.g. the inclusion cell), None when homogeneous."""
+        return None
+
+    def _material(self, young_modulus, poisson_ratio, task_key) -> Material:
+        return Material(young_modulus, poisson_ratio, self.density)
+
+    def _reset_task(self, options):
+        """Draw the episode (goal, target, ...) from ``self.np_random``; set ``self.task_key``."""
+
+    def _control(self):
+        """The sim_core Control for the current tool position; also sets ``self.tool_mask``
+        ((N, 3) bool, the dofs the tool imposes)."""
+        control = self.base_control.copy()
+        positions = self.tool_rest + self.tool_offset
+        control.impose(self.tool_nodes, positions)
+        self.tool_mask = np.zeros((self.mesh.n_nodes, 3), bool)
+        self.tool_mask[self.tool_nodes] = True
+        return control
+
+    def _after_substep(self, state):
+        """Contact projection and the like, applied to the state after each physics step."""
+
+    def _initial_positions(self, model, control):
+        """Start positions: the static equilibrium under gravity with the tool at rest."""
+        result = solve_static(model, control, tolerance=1e-6)
+        return result.positions if result.converged else model.rest_positions.copy()
+
+    def _reward_terms(self, measures) -> dict:
+        raise NotImplementedError
+
+    def _is_success(self, measures) -> bool:
+        raise NotImplementedError
+
+    def scripted_action(self) -> np.ndarray:
+        """A hand-written controller's action for the current state (a baseline)."""
+        raise NotImplementedError
+
+    # -- model building --------------------------------------------------------------------------
+    def _model(self, young_modulus, poisson_ratio, task_key):
+        key = (float(young_modulus), float(poisson_ratio), task_key)
+        model = self._model_cache.get(key)
+        if model is None:
+            model = build_model(
+                self.mesh, self._material(young_modulus, poisson_ratio, task_key),
+                gravity=(0.0, -self.gravity, 0.0), hourglass_control=self.hourglass_control)
+            self._model_cache[key] = model
+            if len(self._model_cache) > MODEL_CACHE_SIZE:
+                self._model_cache.popitem(last=False)
+        else:
+            self._model_cache.move_to_end(key)
+        return model
+
+    def _start_positions(self, model):
+        cache = getattr(model, "_tissue_env_start", None)
+        if cache is not None:
+            return cache.copy()
+        positions = self._initial_positions(model, self._control())
+        # The start depends only on the model (the tool starts at rest), so it is computed once per
+        # model; Model is a frozen dataclass and this model is private to this env.
+        object.__setattr__(model, "_tissue_env_start", positions)
+        return positions.copy()
+
+    # -- Gymnasium API -----------------------------------------------------------------------------
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.state = None
+        young_modulus, poisson_ratio = self.young_modulus, self.poisson_ratio
+        if self.young_modulus_range is not None:
+            young_modulus = float(self.np_random.uniform(*self.young_modulus_range))
+        if self.poisson_ratio_range is not None:
+            poisson_ratio = float(self.np_random.uniform(*self.poisson_ratio_range))
+        self.episode_young_modulus, self.episode_poisson_ratio = young_modulus, poisson_ratio
+        self.tool_offset = np.zeros(3)
+        self.task_key = self._default_task_key()
+        self._reset_task(options)
+        self.model = self._model(young_modulus, poisson_ratio, self.task_key)
+        self.rest_volume = float(self.model.rest_volume.sum())
+        options = dict(tolerance=self.solver_tolerance) if self.integrator_name == "implicit" else {}
+        self.integrator = make_integrator(self.integrator_name, **options)
+        positions = self._start_positions(self.model)
+        self.state = State(positions, np.zeros_like(positions))
+        self._scratch = self.state.copy()
+        self.control = self._control()
+        self._start_hook()
+        self.elapsed_steps = 0
+        self.measures = self._measure(self.state)
+        info = self._info(self.measures, self._zero_rewards(), unstable_reason=None)
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(self.measures), info
+
+    def _start_hook(self):
+        """Called at the end of reset, after the state exists (task bookkeeping)."""
+
+    def step(self, action):
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (3,):
+            raise ValueError(f"action must have shape (3,), got {action.shape}")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action must be finite (no NaN or infinity), got {action.tolist()}")
+        if self.state is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.clip(action, -1.0, 1.0)
+        self.tool_offset = np.clip(self.tool_offset + self.max_step * action, self.workspace_low, self.workspace_high)
+        self.control = self._control()
+        reason = self._advance(self.control)
+        self.elapsed_steps += 1
+        self.measures = self._measure(self.state)
+        if reason is None:
+            rewards = self._reward_terms(self.measures)
+            success = bool(self._is_success(self.measures))
+        else:
+            rewards = self._zero_rewards()
+            rewards["instability"] = -self.instability_penalty
+            success = False
+        reward = float(sum(rewards.values()))
+        terminated = reason is not None or (success and self.terminate_on_success)
+        info = self._info(self.measures, rewards, reason, success)
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(self.measures), reward, bool(terminated), False, info
+
+    def _advance(self, control):
+        """Run the substeps; on divergence keep the last healthy state and return the reason."""
+        state = self.state
+        for _ in range(self.substeps):
+            scratch = self._scratch
+            try:
+                with np.errstate(all="ignore"):
+                    report = self.integrator.simulate(self.model, state, scratch, self.dt, control)
+                reason = report.unstable_reason
+            except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as error:
+                reason = f"physics error: {error}"
+            if reason is None and not (np.all(np.isfinite(scratch.positions)) and np.all(np.isfinite(scratch.velocities))):
+                reason = "non-finite positions or velocities"
+            if reason is None:
+                self._after_substep(scratch)
+                # sim_core's compiled force kernels raise ZeroDivisionError on a zero-length spring,
+                # which a diverging explicit run (or the floor projection of one) can produce.
+                a, b = self.model.springs[:, 0], self.model.springs[:, 1]
+                length = np.linalg.norm(scratch.positions[b] - scratch.positions[a], axis=1)
+                if not np.all(length > 1e-6 * self.model.rest_length):
+                    reason = "collapsed spring (zero length)"
+            if reason is not None:
+                self._scratch = state.copy()
+                return reason
+            self.state, self._scratch = scratch, state
+            state = scratch
+        return None
+
+    # -- measurements, observation, info -----------------------------------------------------------
+    def _measure(self, state) -> dict:
+        positions = state.positions
+        model = self.model
+        try:
+            with np.errstate(all="ignore"):
+                forces = internal_forces(model, positions, state.velocities) + external_forces(model, self.control)
+        except ArithmeticError:  # a degenerate (last healthy) state: report no force rather than crash
+            forces = np.zeros_like(positions)
+        reaction = np.where(self.tool_mask, -forces, 0.0).sum(axis=0)
+        a, b = model.springs[:, 0], model.springs[:, 1]
+        length = np.linalg.norm(positions[b] - positions[a], axis=1)
+        strain = float(np.max(np.abs(length / model.rest_length - 1.0)))
+        volume = float(self.mesh.element_volumes(positions).sum())
+        measures = dict(
+            positions=positions, reaction_force=reaction, max_strain=strain,
+            relative_volume_change=(volume - self.rest_volume) / self.rest_volume,
+        )
+        measures.update(self._task_measures(positions))
+        return measures
+
+    def _task_measures(self, positions) -> dict:
+        return {}
+
+    def _tool_position(self, positions):
+        """Tool position in m (default: mean of the grasped nodes)."""
+        return positions[self.tool_nodes].mean(axis=0)
+
+    def _features(self, measures) -> dict:
+        positions = measures["positions"]
+        tool = self._tool_position(positions)
+        features = dict(
+            tool_position=(tool - self.centre) / self.length_scale,
+            tool_displacement=self.tool_offset / self.length_scale,
+            reaction_force=measures["reaction_force"] / self.force_scale,
+            relative_volume_change=[100.0 * measures["relative_volume_change"]],
+            max_strain=[100.0 * measures["max_strain"]],
+        )
+        features.update(self._task_features(measures))
+        if self.observation_type != "state":
+            displacement = positions[self.surface_nodes] - self.mesh.nodes[self.surface_nodes]
+            features["surface_displacement"] = displacement.ravel() / self.length_scale
+        return features
+
+    def _observation(self, measures):
+        features = self._features(measures)
+        arrays = OrderedDict()
+        for name in self._feature_sizes:
+            value = np.asarray(features[name], dtype=np.float64).ravel()
+            value = np.clip(np.nan_to_num(value, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT), -OBS_LIMIT, OBS_LIMIT)
+            arrays[name] = value.astype(np.float32)
+        if self.observation_type == "dict":
+            return dict(arrays)
+        return np.concatenate(list(arrays.values()))
+
+    def _zero_rewards(self) -> dict:
+        return {name: 0.0 for name in self.reward_names + ("instability",)}
+
+    def _info(self, measures, rewards, unstable_reason, success=None) -> dict:
+        if success is None:
+            success = bool(self._is_success(measures)) if unstable_reason is None else False
+        info = dict(
+            relative_volume_change=float(measures["relative_volume_change"]),
+            max_strain=float(measures["max_strain"]),
+            reaction_force=np.array(measures["reaction_force"], dtype=float),
+            unstable=unstable_reason is not None,
+            unstable_reason=unstable_reason,
+            is_success=bool(success),
+        )
+        for name in self.reward_names + ("instability",):
+            info[f"reward_{name}"] = float(rewards.get(name, 0.0))
+        info.update(self._task_info(measures))
+        return info
+
+    def _task_info(self, measures) -> dict:
+        return {}
+
+    # -- shared reward terms -------------------------------------------------------------------
+    def _damage_terms(self, measures) -> dict:
+        return dict(
+            volume=-self.volume_weight * abs(measures["relative_volume_change"]),
+            strain=-self.strain_weight * max(0.0, measures["max_strain"] - self.strain_threshold),
+        )
+
+    # -- rendering -----------------------------------------------------------------------------------
+    def _markers(self) -> dict:
+        """Named points (m) to draw: tool, target, goal ..."""
+        return {}
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
+            return None
+        from .rendering import Renderer
+
+        if self._renderer is None:
+            self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
+                                      human=self.render_mode == "human", fps=self.metadata["render_fps"])
+        positions = self.state.positions if self.state is not None else self.mesh.nodes
+        displacement = np.linalg.norm(positions - self.mesh.nodes, axis=1)
+        frame = self._renderer.draw(positions, displacement, self._markers(), self._extra_drawing())
+        return frame if self.render_mode == "rgb_array" else None
+
+    def _extra_drawing(self):
+        """Optional (kind, data) items the renderer draws (floor, target region ...)."""
+        return []
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None

@@ -1,0 +1,212 @@
+"""Retraction-v0: lift and pull back a flap of tissue to expose a target region under it."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim_core.model import Control
+
+from .base import TissueEnv, nonnegative_scalar, positive_scalar
+
+#: Local corners of the bottom (y = 0) and top (y = 1) faces of a VTK hexahedron, in cyclic order.
+_BOTTOM, _TOP = [0, 1, 5, 4], [3, 2, 6, 7]
+
+
+def covered(points, quads):
+    """(P,) True where a 2D point lies inside at least one convex quad (Q, 4, 2) of either orientation."""
+    edge = np.roll(quads, -1, axis=1) - quads  # (Q, 4, 2)
+    relative = points[:, None, None, :] - quads[None]  # (P, Q, 4, 2)
+    cross = edge[None, ..., 0] * relative[..., 1] - edge[None, ..., 1] * relative[..., 0]
+    inside = np.all(cross >= 0, axis=2) | np.all(cross <= 0, axis=2)
+    return inside.any(axis=1)
+
+
+class RetractionEnv(TissueEnv):
+    """
+    ## Description
+
+    A flap of tissue (6 x 0.8 x 3 cm, 6 x 1 x 3 hexahedra, Baudet mass-spring model of ``sim_core``,
+    gravity on) lies on a rigid floor (y = 0, projection contact: a node below the floor is put back
+    on it and loses its downward velocity) and stays attached to the body along its edge x = 0. A
+    target region on the floor, under the flap near its free end, must be exposed: the tool grasps
+    the free edge (every node of the face x = 6 cm, all components imposed), lifts it and pulls it
+    back, as a surgeon retracts a liver lobe or a peritoneal flap to expose what lies under it,
+    while keeping the tension (the force on the tool) under ``force_limit``.
+
+    Physics: one implicit Euler step of ``dt`` = 20 ms per env step, then the floor projection.
+
+    ## Action Space
+
+    ``Box(-1, 1, (3,), float32)``: displacement increment of the grasped edge, scaled by ``max_step``
+    (default 5 mm), clipped to the workspace (x from -6 to +1 cm, y from 0 to 6 cm, z +-1 cm around
+    the rest position of the edge).
+
+    | Num | Action                     | Min | Max | Unit         |
+    |-----|----------------------------|-----|-----|--------------|
+    | 0   | tool increment along x     | -1  | 1   | max_step (m) |
+    | 1   | tool increment along y     | -1  | 1   | max_step (m) |
+    | 2   | tool increment along z     | -1  | 1   | max_step (m) |
+
+    ## Observation Space
+
+    ``observation_type="state"``: ``Box(-100, 100, (17,), float32)``.
+
+    | Index | Observation                                         | Unit (normalised)     |
+    |-------|-----------------------------------------------------|-----------------------|
+    | 0-2   | tool position (mean of the grasped nodes)           | cm from block centre  |
+    | 3-5   | tool displacement from its start                    | cm                    |
+    | 6-8   | force the tool exerts on the tissue                 | 0.1 N                 |
+    | 9     | relative volume change (V - V0) / V0                | %                     |
+    | 10    | maximum spring strain abs(L - L0) / L0              | %                     |
+    | 11-12 | target region x range (start, end)                  | cm from block centre  |
+    | 13    | exposed fraction of the target                      | 0-1                   |
+    | 14    | tension: magnitude of the tool force / force_limit  | 1                     |
+    | 15-16 | flap footprint x range (min, max over its nodes)    | cm from block centre  |
+
+    ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
+    as a ``Dict`` keyed by name.
+
+    ## Rewards
+
+    ``r = reward_exposure + reward_tension + reward_success + reward_volume + reward_strain
+    (+ reward_instability)``:
+
+    - ``reward_exposure = exposed fraction`` of the target (points of a 4 x 3 grid on the target
+      rectangle not under the flap seen from above)
+    - ``reward_tension = -tension_weight * max(0, |F| - force_limit) / force_limit`` (defaults 1,
+      0.5 N)
+    - ``reward_success = success_bonus`` (default 5) on success
+    - ``reward_volume``, ``reward_strain`` as in every task, ``reward_instability`` on divergence.
+
+    ## Starting State
+
+    The flap flat on the floor at rest; the target rectangle spans 1.5 cm in x starting at a
+    distance drawn uniformly in ``target_start_range`` (default 3-4 cm) from the attached edge, and
+    the middle half of the flap's width in z.
+
+    ## Episode End
+
+    Terminated on success (exposed fraction >= ``success_exposure`` = 0.95 with |F| <=
+    ``force_limit``) or on divergence (``info["unstable"]``). Truncated after 60 steps.
+
+    ## Arguments
+
+    ```python
+    import gymnasium as gym
+    import tissue_env
+    env = gym.make("tissue_env/Retraction-v0", force_limit=0.5, max_step=0.005)
+    ```
+
+    Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N),
+    ``tension_weight``, ``success_exposure``, ``success_bonus``; shared keywords in
+    ``tissue_env.base.TissueEnv``.
+
+    ## Version History
+
+    - v0: initial version.
+    """
+
+    default_shape = (6, 1, 3)
+    default_size = (0.06, 0.008, 0.03)
+    default_max_step = 0.005
+    min_shape = (2, 1, 1)
+    reward_names = ("exposure", "tension", "success", "volume", "strain")
+
+    def __init__(self, *, target_start_range=(0.03, 0.04), target_length=0.015, force_limit=0.5,
+                 tension_weight=1.0, success_exposure=0.95, success_bonus=5.0, **kwargs):
+        try:
+            low, high = (positive_scalar("target_start_range", v, "m") for v in target_start_range)
+        except TypeError as error:
+            raise ValueError(f"target_start_range must be a (low, high) pair in m, got {target_start_range!r}") from error
+        if low > high:
+            raise ValueError(f"target_start_range must have low <= high, got {target_start_range!r}")
+        self.target_start_range = (low, high)
+        self.target_length = positive_scalar("target_length", target_length, "m")
+        self.force_limit = positive_scalar("force_limit", force_limit, "N")
+        self.tension_weight = nonnegative_scalar("tension_weight", tension_weight)
+        self.success_exposure = positive_scalar("success_exposure", success_exposure)
+        if self.success_exposure > 1:
+            raise ValueError(f"success_exposure must lie in (0, 1], got {success_exposure!r}")
+        self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
+        super().__init__(**kwargs)
+
+    # -- scene ---------------------------------------------------------------------------------------
+    def _setup_scene(self):
+        nodes = self.mesh.nodes
+        self.fixed_nodes = np.flatnonzero(np.isclose(nodes[:, 0], 0.0))
+        self.tool_nodes = np.flatnonzero(np.isclose(nodes[:, 0], self.size[0]))
+        self.tool_rest = nodes[self.tool_nodes]
+        self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
+        self.workspace_low = np.array([-self.size[0], 0.0, -0.01])
+        self.workspace_high = np.array([0.01, 0.06, 0.01])
+        elements = self.mesh.elements
+        self._footprint = np.concatenate([elements[:, _BOTTOM], elements[:, _TOP]])  # (2M, 4) quads
+
+    def _initial_positions(self, model, control):
+        return model.rest_positions.copy()  # flat on the floor; the contact holds it there
+
+    def _after_substep(self, state):
+        below = state.positions[:, 1] < 0.0
+        if np.any(below):
+            state.positions[below, 1] = 0.0
+            state.velocities[below, 1] = np.maximum(state.velocities[below, 1], 0.0)
+
+    def _task_feature_sizes(self):
+        return dict(target_range=2, exposed_fraction=1, tension=1, footprint_range=2)
+
+    # -- episode -------------------------------------------------------------------------------------
+    def _reset_task(self, options):
+        start = float(self.np_random.uniform(*self.target_start_range))
+        self.target_x = np.array([start, min(start + self.target_length, self.size[0])])
+        width = self.size[2]
+        x = np.linspace(self.target_x[0], self.target_x[1], 4)
+        z = np.linspace(0.25 * width, 0.75 * width, 3)
+        self.target_points = np.stack(np.meshgrid(x, z, indexing="ij"), axis=-1).reshape(-1, 2)
+
+    def _task_measures(self, positions):
+        quads = positions[self._footprint][..., [0, 2]]
+        exposed = 1.0 - float(np.mean(covered(self.target_points, quads)))
+        return dict(exposed_fraction=exposed, footprint=(positions[:, 0].min(), positions[:, 0].max()))
+
+    def _task_features(self, measures):
+        scale, centre_x = self.length_scale, self.centre[0]
+        return dict(
+            target_range=(self.target_x - centre_x) / scale, exposed_fraction=[measures["exposed_fraction"]],
+            tension=[np.linalg.norm(measures["reaction_force"]) / self.force_limit],
+            footprint_range=(np.asarray(measures["footprint"]) - centre_x) / scale,
+        )
+
+    def _task_info(self, measures):
+        return dict(exposed_fraction=measures["exposed_fraction"], tension=float(np.linalg.norm(measures["reaction_force"])))
+
+    def _is_success(self, measures):
+        return (measures["exposed_fraction"] >= self.success_exposure
+                and np.linalg.norm(measures["reaction_force"]) <= self.force_limit)
+
+    def _reward_terms(self, measures):
+        tension = float(np.linalg.norm(measures["reaction_force"]))
+        terms = dict(
+            exposure=measures["exposed_fraction"],
+            tension=-self.tension_weight * max(0.0, tension - self.force_limit) / self.force_limit,
+            success=self.success_bonus if self._is_success(measures) else 0.0,
+        )
+        terms.update(self._damage_terms(measures))
+        return terms
+
+    def scripted_action(self, lift_height=0.04, hold=(0.005, 0.05)):
+        """Lift and pull: raise the free edge to ``lift_height`` m, then bring it over the attached
+        edge to (x, y) = ``hold`` m, keeping z."""
+        tool = self.tool_rest.mean(axis=0) + self.tool_offset
+        if tool[1] < lift_height - 1e-6 and tool[0] > hold[0] + 0.02:
+            goal = np.array([tool[0], lift_height, tool[2]])
+        else:
+            goal = np.array([hold[0], hold[1], self.tool_rest[:, 2].mean()])
+        return np.clip((goal - tool) / self.max_step, -1.0, 1.0).astype(np.float32)
+
+    def _markers(self):
+        return dict(tool=self.state.positions[self.tool_nodes].mean(axis=0),
+                    target=np.array([self.target_x.mean(), 0.0, 0.5 * self.size[2]]))
+
+    def _extra_drawing(self):
+        width = self.size[2]
+        return [("rectangle", (self.target_x[0], self.target_x[1], 0.25 * width, 0.75 * width, 0.0))]

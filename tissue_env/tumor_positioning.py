@@ -1,0 +1,233 @@
+"""TumorPositioning-v0: bring a tumour inside the tissue to a goal by moving a grasped surface patch."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim_core import solve_static
+from sim_core.mesh import LOCAL_CORNERS
+from sim_core.model import Control
+
+from .base import TissueEnv, check_vector, nonnegative_scalar, positive_scalar
+
+
+def trilinear_weights(local):
+    """(8,) weights of the VTK corners of a hexahedron at local coordinates ``local`` in [0, 1]^3."""
+    local = np.asarray(local, dtype=float)
+    return np.prod(LOCAL_CORNERS * local + (1.0 - LOCAL_CORNERS) * (1.0 - local), axis=1)
+
+
+class TumorPositioningEnv(TissueEnv):
+    """
+    ## Description
+
+    A block of liver-like tissue (5 x 5 x 5 cm, 4 x 4 x 4 hexahedra of 1.25 cm, Baudet mass-spring model of
+    ``sim_core``) rests with its bottom face (y = 0) attached to the body. A tool grasps a patch of
+    top-surface nodes (the 3 x 3 nodes around the centre of the top face, all components imposed).
+    A tumour is a material point inside the block (followed by trilinear interpolation of its
+    element's nodes). The agent moves the grasped patch so that the tumour reaches a goal position:
+    indirect positioning, as when an organ is pushed or pulled to bring a lesion into a radiation
+    field or onto a needle path. Goals are reachable by construction: a goal is the tumour's
+    equilibrium position (``solve_static``) for a random tool displacement in the workspace.
+
+    Physics: one implicit Euler step of ``dt`` = 20 ms per env step (``substeps`` keyword), gravity
+    on, hourglass control 0.5. Measured at the defaults on one core: see the README / the
+    ``benchmarks/env_speed.py`` output; a ``solve_static`` per step was about 10x slower. After a
+    tool move the tumour settles to the static equilibrium within a few steps (tested).
+
+    ## Action Space
+
+    ``Box(-1, 1, (3,), float32)``: the tool displacement increment, scaled by ``max_step``
+    (default 2 mm) and clipped to the workspace (``workspace`` m around the grasp point, default
+    +-20 mm per axis). Out-of-range actions are clipped; NaN or infinite actions raise ValueError.
+
+    | Num | Action                    | Min | Max | Unit          |
+    |-----|---------------------------|-----|-----|---------------|
+    | 0   | tool increment along x    | -1  | 1   | max_step (m)  |
+    | 1   | tool increment along y    | -1  | 1   | max_step (m)  |
+    | 2   | tool increment along z    | -1  | 1   | max_step (m)  |
+
+    ## Observation Space
+
+    ``observation_type="state"`` (default): ``Box(-100, 100, (24,), float32)``. Positions are
+    relative to the centre of the undeformed block. Values are clipped to +-100 (never reached).
+
+    | Index | Observation                                   | Unit (normalised)        |
+    |-------|-----------------------------------------------|--------------------------|
+    | 0-2   | tool position (mean of grasped nodes)         | cm from block centre     |
+    | 3-5   | tool displacement from its start              | cm                       |
+    | 6-8   | force the tool exerts on the tissue           | 0.1 N                    |
+    | 9     | relative volume change (V - V0) / V0          | %                        |
+    | 10    | maximum spring strain abs(L - L0) / L0        | %                        |
+    | 11-13 | tumour position                               | cm from block centre     |
+    | 14-16 | goal position                                 | cm from block centre     |
+    | 17-19 | goal - tumour                                 | cm                       |
+    | 20    | distance tumour-goal                          | cm                       |
+    | 21-23 | tumour displacement from its start            | cm                       |
+
+    ``"deformation"`` appends the displacement of every surface node (cm, node order of
+    ``mesh.surface_nodes()``); ``"dict"`` gives the same features as a ``Dict`` of ``Box`` es keyed
+    by name (``tool_position``, ..., ``surface_displacement``).
+
+    ## Rewards
+
+    ``r = reward_distance + reward_success + reward_volume + reward_strain (+ reward_instability)``:
+
+    - ``reward_distance = -||tumour - goal|| / 1 cm``
+    - ``reward_success = success_bonus`` (default 5) on the step the tumour is within
+      ``success_distance`` (default 2 mm) of the goal, else 0
+    - ``reward_volume = -volume_weight * |(V - V0) / V0|`` (default weight 1)
+    - ``reward_strain = -strain_weight * max(0, max spring strain - strain_threshold)``
+      (defaults 1 and 0.3: a damage proxy)
+    - ``reward_instability = -instability_penalty`` (default 10) on a diverging step, else 0.
+
+    Every term is also in ``info`` as ``reward_<name>``.
+
+    ## Starting State
+
+    The block at static equilibrium under gravity with the tool holding the patch at rest. The
+    tumour's rest position is uniform in ``tumor_region`` (fractions of the block, default the
+    central half along every axis); the goal is the tumour's static equilibrium for a tool displacement in a random
+    direction, of 0.5-1 times ``goal_displacement`` (default 12 mm) along its largest axis,
+    scaled up (within the workspace) until the goal is at least 2 ``success_distance`` (4 mm) away.
+
+    ## Episode End
+
+    Terminated when the tumour is within ``success_distance`` of the goal (``info["is_success"]``)
+    or when the simulation diverges (``info["unstable"] = True`` with ``info["unstable_reason"]``).
+    Truncated after 50 steps (registered ``max_episode_steps``).
+
+    ## Arguments
+
+    ```python
+    import gymnasium as gym
+    import tissue_env
+    env = gym.make("tissue_env/TumorPositioning-v0", young_modulus=5e3, poisson_ratio=0.45,
+                   max_step=0.002, observation_type="state", render_mode="rgb_array")
+    ```
+
+    Task keywords: ``workspace`` (m, per axis), ``goal_displacement`` (m), ``tumor_region``
+    (``((x0, y0, z0), (x1, y1, z1))`` fractions of the block), ``success_distance`` (m),
+    ``success_bonus``; shared keywords are listed in ``tissue_env.base.TissueEnv``
+    (``young_modulus``, ``poisson_ratio``, ``density``, ``shape``, ``size``, ``integrator``, ``dt``,
+    ``substeps``, ``young_modulus_range``, ``poisson_ratio_range``, ``render_mode``, ...).
+
+    ## Version History
+
+    - v0: initial version.
+    """
+
+    default_shape = (4, 4, 4)
+    default_size = (0.05, 0.05, 0.05)
+    reward_names = ("distance", "success", "volume", "strain")
+
+    def __init__(self, *, workspace=0.02, goal_displacement=0.012, tumor_region=((0.25, 0.25, 0.25), (0.75, 0.75, 0.75)),
+                 success_distance=0.002, success_bonus=5.0, **kwargs):
+        self.workspace = check_vector("workspace", workspace)
+        self.goal_displacement = check_vector("goal_displacement", goal_displacement)
+        try:
+            region = np.asarray(tumor_region, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"tumor_region must be ((x0, y0, z0), (x1, y1, z1)) fractions, got {tumor_region!r}") from error
+        if region.shape != (2, 3) or not np.all(np.isfinite(region)) or np.any(region < 0) or np.any(region > 1) \
+                or np.any(region[0] > region[1]):
+            raise ValueError(f"tumor_region must be ((x0, y0, z0), (x1, y1, z1)) fractions in [0, 1] with low <= high, got {tumor_region!r}")
+        self.tumor_region = region
+        self.success_distance = positive_scalar("success_distance", success_distance, "m")
+        self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
+        super().__init__(**kwargs)
+
+    # -- scene ---------------------------------------------------------------------------------------
+    def _setup_scene(self):
+        nodes = self.mesh.nodes
+        self.fixed_nodes = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
+        top = np.flatnonzero(np.isclose(nodes[:, 1], self.size[1]))
+        horizontal = np.linalg.norm(nodes[top][:, [0, 2]] - self.centre[[0, 2]], axis=1)
+        self.tool_nodes = top[horizontal <= 1.5 * min(self.spacing[0], self.spacing[2])]
+        self.tool_rest = nodes[self.tool_nodes]
+        self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
+        self.workspace_low, self.workspace_high = -self.workspace, self.workspace
+
+    def _task_feature_sizes(self):
+        return dict(tumor_position=3, goal_position=3, goal_error=3, goal_distance=1, tumor_displacement=3)
+
+    # -- episode -------------------------------------------------------------------------------------
+    def _reset_task(self, options):
+        low, high = self.tumor_region * self.size
+        rest = self.np_random.uniform(low, high)
+        cell = np.minimum((rest // self.spacing).astype(int), np.asarray(self.shape) - 1)
+        element = int(cell[0] + self.shape[0] * (cell[1] + self.shape[1] * cell[2]))
+        self.tumor_nodes = self.mesh.elements[element]
+        self.tumor_weights = trilinear_weights(rest / self.spacing - cell)
+        self._pending_goal = True
+
+    def _start_hook(self):
+        start = self.state.positions
+        self.tumor_start = self.tumor_weights @ start[self.tumor_nodes]
+        # Reachable goal: the tumour's equilibrium for a random admissible tool displacement.
+        # A random direction and a length of 0.5-1 goal_displacement (along its largest axis); when
+        # the tumour moves less than the minimum goal distance, the displacement is scaled up
+        # (the response is nearly linear) and solved again from the previous equilibrium.
+        direction = self.np_random.normal(size=3)
+        direction /= max(np.abs(direction).max(), 1e-12)
+        displacement = self.np_random.uniform(0.5, 1.0) * direction * self.goal_displacement
+        positions, minimum = start, 2.0 * self.success_distance
+        for _ in range(3):
+            control = self.base_control.copy().impose(self.tool_nodes, self.tool_rest + displacement)
+            result = solve_static(self.model, control, initial=positions, tolerance=1e-5)
+            if not result.converged:
+                break
+            positions = result.positions
+            goal = self.tumor_weights @ positions[self.tumor_nodes]
+            moved = np.linalg.norm(goal - self.tumor_start)
+            if moved >= minimum:
+                break
+            bigger = np.clip(displacement * 1.2 * minimum / max(moved, 1e-6), self.workspace_low, self.workspace_high)
+            if np.allclose(bigger, displacement):
+                break
+            displacement = bigger
+        if not result.converged:  # keep the last converged goal (or the start) rather than a bad one
+            goal = self.tumor_weights @ positions[self.tumor_nodes]
+            displacement = np.zeros(3) if positions is start else displacement
+        self.goal = goal
+        self.goal_tool_displacement = displacement
+        self.measures = None
+
+    def _task_measures(self, positions):
+        tumor = self.tumor_weights @ positions[self.tumor_nodes]
+        return dict(tumor=tumor, distance=float(np.linalg.norm(self.goal - tumor)))
+
+    def _task_features(self, measures):
+        tumor, scale = measures["tumor"], self.length_scale
+        return dict(
+            tumor_position=(tumor - self.centre) / scale, goal_position=(self.goal - self.centre) / scale,
+            goal_error=(self.goal - tumor) / scale, goal_distance=[measures["distance"] / scale],
+            tumor_displacement=(tumor - self.tumor_start) / scale,
+        )
+
+    def _task_info(self, measures):
+        return dict(distance=measures["distance"], tumor_position=measures["tumor"].copy(), goal=self.goal.copy())
+
+    def _is_success(self, measures):
+        return measures["distance"] < self.success_distance
+
+    def _reward_terms(self, measures):
+        terms = dict(
+            distance=-measures["distance"] / self.length_scale,
+            success=self.success_bonus if self._is_success(measures) else 0.0,
+        )
+        terms.update(self._damage_terms(measures))
+        return terms
+
+    def scripted_action(self, gain=1.5):
+        """Proportional control on the observed error: tool increment = gain * (goal - tumour).
+
+        The tool position integrates the error, so it converges to the tool displacement that
+        produced the goal (the tumour moves less than the tool: gain > 1 speeds this up).
+        """
+        error = self.goal - self.measures["tumor"]
+        return np.clip(gain * error / self.max_step, -1.0, 1.0).astype(np.float32)
+
+    def _markers(self):
+        positions = self.state.positions
+        return dict(tool=positions[self.tool_nodes].mean(axis=0), tumor=self.measures["tumor"], goal=self.goal)

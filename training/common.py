@@ -1,0 +1,72 @@
+"""Shared plumbing of the training scripts: argument errors, env ids, run folders, atomic writes."""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+
+ALGORITHMS = ("ppo", "sac", "td3")
+HYPERPARAMS = Path(__file__).parent / "hyperparams"
+
+
+class UsageError(Exception):
+    """Bad command-line input: reported on one line with exit code 2."""
+
+
+def fail(program: str, message: str) -> None:
+    sys.stderr.write(f"{program}: error: {message}\n")
+    raise SystemExit(2)
+
+
+def check_env_id(env_id: str) -> str:
+    import tissue_env  # noqa: F401  (registers the tasks)
+
+    if env_id not in gym.registry:
+        tissue = sorted(k for k in gym.registry if k.startswith("tissue_env/"))
+        raise UsageError(f"unknown environment id {env_id!r}; registered tissue tasks: {', '.join(tissue)}")
+    return env_id
+
+
+def check_algo(algo: str) -> str:
+    if algo not in ALGORITHMS:
+        raise UsageError(f"unknown algorithm {algo!r}; choose one of {', '.join(ALGORITHMS)}")
+    return algo
+
+
+def algorithm_class(algo: str):
+    from stable_baselines3 import PPO, SAC, TD3
+
+    return {"ppo": PPO, "sac": SAC, "td3": TD3}[check_algo(algo)]
+
+
+def load_hyperparams(algo: str, env_id: str, config: str | None = None) -> dict:
+    """Hyperparameters for (algo, env id): the env's entry of hyperparams/<algo>.yml (or of
+    ``config``) on top of its ``default`` entry."""
+    import yaml
+
+    path = Path(config) if config else HYPERPARAMS / f"{algo}.yml"
+    if not path.is_file():
+        raise UsageError(f"hyperparameter file {path} does not exist")
+    table = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(table, dict):
+        raise UsageError(f"{path} must map environment ids to hyperparameters")
+    merged = dict(table.get("default", {}))
+    merged.update(table.get(env_id, {}))
+    return merged
+
+
+def run_name(env_id: str) -> str:
+    return env_id.replace("/", "_")
+
+
+def write_json(path: Path, data) -> None:
+    """Write JSON atomically: a crash never leaves half a file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(data, indent=2, default=str) + "\n")
+    os.replace(temporary, path)

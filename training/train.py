@@ -1,0 +1,214 @@
+"""Train a stable-baselines3 agent on a registered environment.
+
+    python -m training.train --env tissue_env/TumorPositioning-v0 --algo ppo --timesteps 50000 --seed 0 [--n-envs 4]
+        [--config FILE] [--resume RUN_DIR] [--runs-dir runs] [--vec-env dummy|subproc] [--threads 1]
+
+The run folder runs/<env>/<algo>/seed<S>-<timestamp>/ holds config.json, model.zip,
+vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation), checkpoints/
+(model and normaliser, so an interrupted run resumes without loss with --resume), tb/ (tensorboard)
+and result.json. The folder's path is printed as the last line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import time
+from datetime import datetime
+from pathlib import Path
+
+from .common import UsageError, algorithm_class, check_algo, check_env_id, fail, load_hyperparams, run_name, write_json
+
+PROGRAM = "training.train"
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        fail(PROGRAM, message)
+
+
+def parse_args(argv=None):
+    parser = _Parser(prog=f"python -m {PROGRAM}", description="Train an SB3 agent on a tissue_env task.")
+    parser.add_argument("--env", help="environment id, e.g. tissue_env/TumorPositioning-v0")
+    parser.add_argument("--algo", default="ppo", help="ppo | sac | td3")
+    parser.add_argument("--timesteps", type=int, help="total environment steps")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: from config)")
+    parser.add_argument("--config", default=None, help="YAML file of hyperparameters keyed by env id")
+    parser.add_argument("--resume", default=None, metavar="RUN_DIR",
+                        help="continue an interrupted run from its latest checkpoint (--timesteps: new total)")
+    parser.add_argument("--runs-dir", default="runs")
+    parser.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
+                        help="DummyVecEnv (measured faster here for cheap steps) or SubprocVecEnv")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1: PPO ran 20x slower with 2)")
+    parser.add_argument("--eval-freq", type=int, default=None, help="env steps between evaluations")
+    parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument("--checkpoint-freq", type=int, default=None, help="env steps between checkpoints")
+    parser.add_argument("--env-kwargs", default="{}", help="JSON dict of environment constructor keywords")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return parser.parse_args(argv)
+
+
+def _validated(args):
+    if args.resume:
+        run_dir = Path(args.resume)
+        config_path = run_dir / "config.json"
+        if not config_path.is_file():
+            raise UsageError(f"cannot resume: {config_path} does not exist")
+        config = json.loads(config_path.read_text())
+        check_env_id(config["env"])
+        if args.timesteps is not None:
+            if args.timesteps <= 0:
+                raise UsageError(f"--timesteps must be a positive integer, got {args.timesteps}")
+            config["timesteps"] = args.timesteps  # extend (or finish) the interrupted run
+            write_json(config_path, config)
+        return run_dir, config
+    if not args.env:
+        raise UsageError("--env is required (or --resume RUN_DIR)")
+    check_env_id(args.env)
+    check_algo(args.algo)
+    if args.timesteps is None or args.timesteps <= 0:
+        raise UsageError(f"--timesteps must be a positive integer, got {args.timesteps}")
+    if args.n_envs is not None and args.n_envs <= 0:
+        raise UsageError(f"--n-envs must be positive, got {args.n_envs}")
+    if args.threads <= 0:
+        raise UsageError(f"--threads must be positive, got {args.threads}")
+    try:
+        env_kwargs = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as error:
+        raise UsageError(f"--env-kwargs must be a JSON object: {error}") from error
+    if not isinstance(env_kwargs, dict):
+        raise UsageError("--env-kwargs must be a JSON object")
+    hyperparams = load_hyperparams(args.algo, args.env, args.config)
+    n_envs = args.n_envs or int(hyperparams.pop("n_envs", 1))
+    hyperparams.pop("n_envs", None)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    run_dir = Path(args.runs_dir) / run_name(args.env) / args.algo / f"seed{args.seed}-{stamp}"
+    suffix = 1
+    while run_dir.exists():
+        run_dir = run_dir.with_name(f"seed{args.seed}-{stamp}-{suffix}")
+        suffix += 1
+    config = dict(env=args.env, algo=args.algo, timesteps=args.timesteps, seed=args.seed, n_envs=n_envs,
+                  vec_env=args.vec_env, threads=args.threads, env_kwargs=env_kwargs, hyperparams=hyperparams,
+                  eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq)
+    return run_dir, config
+
+
+def _make_envs(config, run_dir, seed_offset=0, resume=False):
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    vec_cls = SubprocVecEnv if config["vec_env"] == "subproc" else DummyVecEnv
+    monitor_dir = str(run_dir / "monitor")
+    train_env = make_vec_env(config["env"], n_envs=config["n_envs"], seed=config["seed"] + seed_offset,
+                             vec_env_cls=vec_cls, monitor_dir=monitor_dir, env_kwargs=config["env_kwargs"],
+                             monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
+    eval_env = make_vec_env(config["env"], n_envs=1, seed=config["seed"] + 10_000, vec_env_cls=DummyVecEnv,
+                            env_kwargs=config["env_kwargs"])
+    return train_env, eval_env
+
+
+def _normalise(train_env, eval_env, run_dir, normalize, resume_stats=None):
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if not normalize:
+        return train_env, eval_env
+    options = dict(gamma=0.99) if normalize is True else dict(normalize)
+    if resume_stats is not None:
+        train_env = VecNormalize.load(str(resume_stats), train_env)
+    else:
+        train_env = VecNormalize(train_env, **options)
+    eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in options.items()
+                                                                            if k not in ("norm_reward",)})
+    return train_env, eval_env
+
+
+def _latest_checkpoint(run_dir: Path):
+    best = None
+    for path in (run_dir / "checkpoints").glob("model_*_steps.zip"):
+        steps = int(re.search(r"model_(\d+)_steps", path.name).group(1))
+        if best is None or steps > best[0]:
+            best = (steps, path)
+    return best
+
+
+def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = True) -> Path:
+    import numpy as np
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    torch.set_num_threads(int(config["threads"]))
+    run_dir.mkdir(parents=True, exist_ok=True)
+    hyperparams = dict(config["hyperparams"])
+    normalize = hyperparams.pop("normalize", False)
+    noise_std = hyperparams.pop("action_noise_std", None)
+    policy = hyperparams.pop("policy", "MlpPolicy")
+    algo_cls = algorithm_class(config["algo"])
+
+    checkpoint = _latest_checkpoint(run_dir) if resume else None
+    stats = None
+    if checkpoint is not None:
+        candidate = run_dir / "checkpoints" / f"model_vecnormalize_{checkpoint[0]}_steps.pkl"
+        stats = candidate if candidate.is_file() else None
+    train_env, eval_env = _make_envs(config, run_dir, seed_offset=checkpoint[0] if checkpoint else 0,
+                                     resume=checkpoint is not None)
+    train_env, eval_env = _normalise(train_env, eval_env, run_dir, normalize, stats)
+
+    if checkpoint is not None:
+        model = algo_cls.load(str(checkpoint[1]), env=train_env, tensorboard_log=str(run_dir / "tb"))
+        done = model.num_timesteps
+    else:
+        if noise_std is not None:
+            n_actions = train_env.action_space.shape[0]
+            hyperparams["action_noise"] = NormalActionNoise(np.zeros(n_actions), noise_std * np.ones(n_actions))
+        model = algo_cls(policy, train_env, seed=config["seed"], verbose=0, tensorboard_log=str(run_dir / "tb"),
+                         **hyperparams)
+        done = 0
+        write_json(run_dir / "config.json", config)
+
+    n_envs = config["n_envs"]
+    total = int(config["timesteps"])
+    eval_freq = config.get("eval_freq") or max(total // 10, 1)
+    checkpoint_freq = config.get("checkpoint_freq") or max(total // 10, 1)
+    callbacks = CallbackList([
+        CheckpointCallback(save_freq=max(checkpoint_freq // n_envs, 1), save_path=str(run_dir / "checkpoints"),
+                           name_prefix="model", save_vecnormalize=True),
+        EvalCallback(eval_env, n_eval_episodes=int(config.get("eval_episodes", 5)),
+                     eval_freq=max(eval_freq // n_envs, 1), log_path=str(run_dir), best_model_save_path=None,
+                     deterministic=True, verbose=0),
+    ])
+    start = time.perf_counter()
+    remaining = total - done
+    if remaining > 0:
+        model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=checkpoint is None,
+                    progress_bar=progress, tb_log_name="run")
+    wall = time.perf_counter() - start
+    model.save(str(run_dir / "model.zip"))
+    if normalize:
+        train_env.save(str(run_dir / "vecnormalize.pkl"))
+    previous = {}
+    if (run_dir / "result.json").is_file():
+        previous = json.loads((run_dir / "result.json").read_text())
+    write_json(run_dir / "result.json", dict(
+        timesteps=int(model.num_timesteps), wall_clock_s=wall + previous.get("wall_clock_s", 0.0),
+        resumed_from=checkpoint[0] if checkpoint else None))
+    train_env.close()
+    eval_env.close()
+    return run_dir
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        run_dir, config = _validated(args)
+    except UsageError as error:
+        fail(PROGRAM, str(error))
+    run_dir = train(config, run_dir, resume=bool(args.resume), progress=not args.no_progress)
+    print(run_dir)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
