@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
-from .mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS
+from .mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS, hex_jacobians
 from .model import Model
 
 
@@ -52,7 +52,7 @@ def volume_terms(model: Model, positions: np.ndarray, gradient: bool = False):
     volume gradient (M, 8, 3) m^2 or None).
     """
     corners = positions[model.mesh.elements]  # (M, 8, 3)
-    jac = np.einsum("mna,pnb->mpab", corners, GAUSS_GRADIENTS)
+    jac = hex_jacobians(positions, model.mesh.elements)
     det = np.linalg.det(jac)
     volume = det.mean(axis=1)
     face = corners[:, FACES]  # (M, 6, 4, 3)
@@ -70,8 +70,12 @@ def volume_terms(model: Model, positions: np.ndarray, gradient: bool = False):
     dphi = -2.0 * model.volume_stiffness * np.abs(relative) / model.rest_volume
     grad = None
     if gradient:
-        cofactor = det[..., None, None] * np.linalg.inv(jac).transpose(0, 1, 3, 2)
-        grad = np.einsum("mpab,pnb->mna", cofactor, GAUSS_GRADIENTS) / len(GAUSS_GRADIENTS)
+        cofactor = det[..., None, None] * np.linalg.inv(jac).transpose(0, 1, 3, 2)  # (M, P, a, b)
+        # grad[m, n, a] = sum_{p, b} cofactor[m, p, a, b] G[p, n, b] / P, as one batched matmul
+        n_points = len(GAUSS_GRADIENTS)
+        flat = cofactor.transpose(0, 2, 1, 3).reshape(-1, 3, n_points * 3)
+        grad = (flat @ GAUSS_GRADIENTS.reshape(n_points * 8, 3).reshape(n_points, 8, 3)
+                .transpose(0, 2, 1).reshape(n_points * 3, 8)).transpose(0, 2, 1) / n_points
     return forces, volume, dphi, direction, grad
 
 

@@ -220,7 +220,10 @@ GAUSS_GRADIENTS = shape_gradients(GAUSS_POINTS)
 def hex_jacobians(positions: np.ndarray, elements: np.ndarray, gradients=GAUSS_GRADIENTS) -> np.ndarray:
     """(M, P, 3, 3) Jacobians dx/dxi at the given reference points (rows: x, columns: xi)."""
     corners = positions[elements]  # (M, 8, 3)
-    return np.einsum("mna,pnb->mpab", corners, gradients)
+    n_points = gradients.shape[0]
+    # J[m, p, a, b] = sum_n corners[m, n, a] gradients[p, n, b], as one batched matmul
+    flat = gradients.transpose(1, 0, 2).reshape(8, n_points * 3)
+    return (corners.transpose(0, 2, 1) @ flat).reshape(-1, 3, n_points, 3).transpose(0, 2, 1, 3)
 
 
 def hex_volumes(positions: np.ndarray, elements: np.ndarray) -> np.ndarray:

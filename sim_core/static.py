@@ -89,8 +89,11 @@ def solve_static(
     Args:
         model: the mass-spring model (gravity from ``model.gravity``).
         control: imposed positions (``fixed``, ``target`` m) and nodal forces (``force`` N).
-        initial: (N, 3) starting positions in m (default: rest); imposed components and loads are
-            ramped linearly from there in load steps, halved when Newton fails.
+        initial: (N, 3) starting positions in m (default: rest). Imposed components are ramped
+            linearly from there in load steps (halved when Newton fails), each step starting from a
+            linear predictor that moves the free nodes with the imposed ones. Loads (gravity, nodal
+            forces) are ramped from zero when starting from rest, and applied in full from
+            ``initial`` (typically a previous equilibrium under the same loads).
         tolerance: relative force residual to reach.
         max_iterations: Newton iterations per load step before the step is subdivided.
         load_steps: initial number of load increments.
@@ -110,11 +113,13 @@ def solve_static(
     iterations, increments = 0, 0
     residual = np.inf
     message = ""
+    ramp_loads = initial is None
     while done < 1.0 - 1e-12:
         level = min(done + step, 1.0)
-        trial = positions.copy()
-        trial[fixed] = start[fixed] + level * (control.target[fixed] - start[fixed])
-        ok, trial, residual, used = _newton(model, trial, free, level * full_load, tolerance, max_iterations)
+        applied = level * full_load if ramp_loads else full_load
+        target = start[fixed] + level * (control.target[fixed] - start[fixed])
+        trial, factor = _predict(model, positions, free, fixed, target, applied)
+        ok, trial, residual, used = _newton(model, trial, free, applied, tolerance, max_iterations, factor)
         iterations += used
         if ok:
             positions, done = trial, level
@@ -138,25 +143,51 @@ def solve_static(
                         iterations, increments, reaction, message, lowest)
 
 
-def _newton(model, positions, free, applied, tolerance, max_iterations):
+def _factorise(model, positions, free, damping):
+    stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()
+    reduced = stiffness[free][:, free]
+    matrix = (reduced + sp.diags(damping * np.abs(reduced.diagonal()))).tocsc()
+    return stiffness, spla.splu(matrix, permc_spec="MMD_AT_PLUS_A")
+
+
+def _predict(model, positions, free, fixed, target, applied):
+    """Linear predictor for a new load level: imposed components jump to ``target`` and the free
+    ones follow by K_ff dx_f = r_f - K_fc dx_c. Returns (trial positions, LU of K_ff or None)."""
+    trial = positions.copy()
+    delta = np.zeros(positions.size)
+    delta[fixed.ravel()] = target - positions[fixed]
+    trial[fixed] = target
+    if not np.any(delta):
+        return trial, None
+    try:
+        stiffness, factor = _factorise(model, positions, free, 1e-10)
+    except RuntimeError:
+        return trial, None
+    force = _residual(model, positions, applied).ravel()
+    predicted = trial.copy()
+    predicted.ravel()[free] += factor.solve(force[free] - stiffness[free] @ delta)
+    if np.all(np.isfinite(predicted)) and np.all(corner_jacobians(predicted, model.mesh.elements) > 0):
+        return predicted, factor
+    return trial, None
+
+
+def _newton(model, positions, free, applied, tolerance, max_iterations, factor=None):
     """Damped Newton with line search. The factorised tangent is reused (chord steps) while it
     keeps contracting the residual by 4x per step, and rebuilt otherwise: one LU often serves a
-    whole nearly linear solve."""
+    whole nearly linear solve (``factor``: an LU to start with, e.g. the predictor's)."""
     force = _residual(model, positions, applied)
     residual = _relative(force, free, applied)
     norm = np.linalg.norm(force.ravel()[free])
     damping = 1e-10
-    factor, fresh = None, False
+    fresh = False
     for iteration in range(1, max_iterations + 1):
         if residual < tolerance:
             return True, positions, residual, iteration - 1
         accepted = False
         while not accepted and damping < 1.0:
             if factor is None:
-                stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
-                matrix = (stiffness + sp.diags(damping * np.abs(stiffness.diagonal()))).tocsc()
                 try:
-                    factor = spla.splu(matrix, permc_spec="MMD_AT_PLUS_A")
+                    factor = _factorise(model, positions, free, damping)[1]
                 except RuntimeError:  # exactly singular: regularise more
                     damping *= 100.0
                     continue

@@ -88,7 +88,8 @@ def test_flexion_against_fem(hourglass):
 
 
 def test_volume_forces_reduce_volume_loss_under_compression():
-    """Physics.md 4: 20% compression, nu = 0.45: |dV/V0| drops with volume forces, E unchanged."""
+    """Physics.md 4: 20% compression, nu = 0.45: |dV/V0| drops by > 20% with volume forces
+    (kappa = 100 K V0^(2/3)), small-strain E unchanged within 0.2%."""
     mesh = HexMesh.block((6, 6, 6), 1 / 60)
     rest = mesh.element_volumes().sum()
 
@@ -98,11 +99,11 @@ def test_volume_forces_reduce_volume_loss_under_compression():
         return mesh.element_volumes(result.positions).sum() / rest - 1
 
     without = volume_change(volume_conservation=False)
-    with_forces = volume_change()
+    with_forces = volume_change(volume_stiffness=100.0)
     assert abs(with_forces) < 0.8 * abs(without)
-    small = [elongation((6, 6, 6), 1 / 60, 1e4, 0.45, strain=0.01, volume_conservation=v).young_modulus
+    small = [elongation((6, 6, 6), 1 / 60, 1e4, 0.45, strain=0.01, volume_conservation=v, volume_stiffness=100.0)
              for v in (False, True)]
-    assert small[1] == pytest.approx(small[0], rel=1e-3)
+    assert small[1].young_modulus == pytest.approx(small[0].young_modulus, rel=2e-3)
 
 
 def test_compressed_block_buckles_without_hourglass_control():
