@@ -3,7 +3,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo validate test bench clean
 
 setup: $(STAMP)
 
@@ -16,7 +16,11 @@ $(STAMP): pyproject.toml Makefile
 	touch $(STAMP)
 
 demo: $(STAMP)
+	$(PY) -m training.demo
+
+validate: $(STAMP)
 	$(PY) -m sim_core.demo
+	$(PY) benchmarks/validation.py
 
 test: $(STAMP)
 	$(PY) -m pytest -q
@@ -24,6 +28,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/step_speed.py
 	$(PY) benchmarks/env_speed.py
+	$(PY) benchmarks/stability.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,587 @@
+"""Validation lab (issue 3): the report's Fig. 12-17 reproduced, our model beside them, FEM as truth.
+
+    python benchmarks/validation.py            # every figure (about 5-8 minutes on 2 cores)
+    python benchmarks/validation.py --only 1 4 # a subset
+
+Writes docs/figures/validation_*.png (matplotlib, Agg), one CSV per figure in benchmarks/results/
+and benchmarks/results/validation_summary.json (the number that sums up each figure, quoted in
+docs/validation.md). Material everywhere: E = 1e4 Pa, rho = 1500 kg/m^3 (physics.md section 7).
+
+Grids chosen to keep the run short (each is said in the figure's title and in docs/validation.md):
+- Elongation (Fig. 1, 5): a 4x4x4 block. With these boundary conditions the exact solution of every
+  model is a homogeneous deformation, so any block size measures the same E, nu and volume change
+  on that branch (the script checks 4x4x4 against 10x10x10 at 10% strain); whether a large block
+  leaves that branch under compression is Fig. 6's subject.
+- Position errors in elongation (Fig. 2): 6x6x6 block (the node set changes the rms slightly).
+- Shear (Fig. 3): the report's 10x10x10 block; flexion (Fig. 4): the report's 10x5x4 cantilever.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from sim_core import HexMesh, Material, build_model  # noqa: E402
+from sim_core.experiments import elongation, flexion, position_errors, shear  # noqa: E402
+from sim_core.model import baudet_stiffness  # noqa: E402
+from sim_core.static import solve_static, zero_energy_modes  # noqa: E402
+
+FIGURES = ROOT / "docs" / "figures"
+RESULTS = ROOT / "benchmarks" / "results"
+E0 = 1e4  # Pa
+RHO = 1500.0  # kg/m^3
+NUS = (0.1, 0.2, 0.3, 0.4, 0.45)
+#: label -> experiment keywords of each mass-spring variant
+MSS = {
+    "baudet-original": dict(model="baudet-original"),
+    "baudet-original + nu factor": dict(model="baudet-original", nu_factor=True),
+    "baudet": dict(model="baudet"),
+}
+FEM = ("fem-linear", "fem-neohookean")
+STYLE = {
+    "baudet-original": dict(color="tab:orange", marker="v", linestyle="--"),
+    "baudet-original + nu factor": dict(color="tab:red", marker="^", linestyle="--"),
+    "baudet": dict(color="tab:blue", marker="o", linestyle="-"),
+    "fem-linear": dict(color="0.35", marker="", linestyle=":"),
+    "fem-neohookean": dict(color="black", marker="", linestyle="-"),
+}
+SUMMARY: dict = {}
+
+
+def run_model(experiment, label, **kwargs):
+    """Run ``experiment`` with the model named by ``label`` (an MSS variant or an FEM law)."""
+    options = dict(MSS[label]) if label in MSS else dict(model=label)
+    if experiment is elongation and kwargs.get("strain", 0) < 0 and label != "fem-linear":
+        # Ramp compression in 4 increments: moving the loaded face by a whole element in one
+        # go can put two nodes on top of each other before Newton starts.
+        kwargs.setdefault("load_steps", 4)
+    return experiment(**kwargs, **options)
+
+
+def write_csv(name, rows):
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    with open(RESULTS / f"{name}.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def save(fig, name):
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    fig.savefig(FIGURES / f"{name}.png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+
+# -- Fig. 1: measured E and nu against strain ------------------------------------------------
+ELONGATION_STRAINS = (-0.30, -0.25, -0.20, -0.15, -0.10, -0.05, -0.02, -0.01,
+                      0.01, 0.02, 0.05, 0.10, 0.15, 0.20, 0.25, 0.30)
+
+
+def figure_moduli():
+    rows = []
+    for nu in NUS:
+        for label in (*MSS, *FEM):
+            for strain in ELONGATION_STRAINS:
+                r = run_model(elongation, label, shape=(4, 4, 4), spacing=0.1, young_modulus=E0,
+                              poisson_ratio=nu, strain=strain)
+                rows.append(dict(nu=nu, model=label, strain=strain, young_modulus=r.young_modulus,
+                                 poisson_ratio=r.poisson_ratio, converged=r.converged))
+    write_csv("validation_1_moduli", rows)
+    # the homogeneous branch does not depend on the block size: check against the report's block
+    check = []
+    for label in ("baudet", "fem-neohookean"):
+        small = run_model(elongation, label, shape=(4, 4, 4), spacing=0.1, young_modulus=E0, poisson_ratio=0.3, strain=0.1)
+        large = run_model(elongation, label, shape=(10, 10, 10), spacing=0.1, young_modulus=E0, poisson_ratio=0.3, strain=0.1)
+        check.append(max(abs(small.young_modulus / large.young_modulus - 1), abs(small.poisson_ratio - large.poisson_ratio)))
+
+    fig, axes = plt.subplots(2, len(NUS), figsize=(4.0 * len(NUS), 7.5), sharex=True)
+    for column, nu in enumerate(NUS):
+        for label in (*MSS, *FEM):
+            data = [r for r in rows if r["nu"] == nu and r["model"] == label]
+            strain = np.array([r["strain"] for r in data]) * 100
+            for row, key, scale in ((0, "young_modulus", E0), (1, "poisson_ratio", 1.0)):
+                values = np.array([r[key] for r in data]) / scale
+                for side in (strain < 0, strain > 0):
+                    axes[row, column].plot(strain[side], values[side], markersize=4, **STYLE[label],
+                                           label=label if side[-1] else None)
+        axes[0, column].axhline(1.0, color="green", linewidth=0.8)
+        axes[1, column].axhline(nu, color="green", linewidth=0.8)
+        axes[0, column].set_title(f"nu = {nu}")
+        axes[1, column].set_xlabel("imposed strain (%)")
+    axes[0, 0].set_ylabel("measured E / E")
+    axes[1, 0].set_ylabel("measured nu")
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle("Fig. 1 - elongation/compression of a block (4x4x4; homogeneous branch): measured E and nu "
+                 "(green: imposed)")
+    save(fig, "validation_1_moduli")
+
+    def worst(label, limit, key):
+        data = [r for r in rows if r["model"] == label and abs(r["strain"]) <= limit + 1e-12]
+        if key == "young_modulus":
+            return max(abs(r[key] / E0 - 1) for r in data)
+        return max(abs(r[key] - r["nu"]) for r in data)
+
+    table = {label: {f"{int(limit * 100)}%": dict(E_rel_err=worst(label, limit, "young_modulus"),
+                                                   nu_abs_err=worst(label, limit, "poisson_ratio"))
+                     for limit in (0.01, 0.05, 0.10, 0.30)} for label in (*MSS, *FEM)}
+    at = {label: next(r["poisson_ratio"] for r in rows if r["model"] == label and r["nu"] == 0.4 and r["strain"] == 0.01)
+          for label in MSS}
+    SUMMARY["1_moduli"] = dict(
+        headline="nu = 0.4 at 1% strain measures " + ", ".join(f"{k}: {v:.3f}" for k, v in at.items()),
+        worst_over_nu_and_strain_up_to=table, block_size_check_max_difference=max(check))
+
+
+# -- Fig. 2: position errors in elongation ------------------------------------------------------
+def figure_elongation_errors():
+    strains = (-0.20, -0.10, -0.05, -0.01, 0.01, 0.05, 0.10, 0.20, 0.30)
+    nu = 0.3
+    rows = []
+    for strain in strains:
+        runs = {label: run_model(elongation, label, shape=(6, 6, 6), spacing=1 / 6, young_modulus=E0,
+                                 poisson_ratio=nu, strain=strain) for label in (*MSS, *FEM)}
+        for label in (*MSS, "fem-linear"):
+            for reference in FEM:
+                if label == reference:
+                    continue
+                e_dm, e_max = position_errors(runs[label], runs[reference])
+                rows.append(dict(strain=strain, model=label, reference=reference, e_dm=e_dm, e_max=e_max))
+    write_csv("validation_2_elongation_errors", rows)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    for ax, reference in zip(axes, FEM):
+        for label in (*MSS, "fem-linear"):
+            data = [r for r in rows if r["model"] == label and r["reference"] == reference]
+            if not data:
+                continue
+            x = np.array([r["strain"] for r in data]) * 100
+            ax.plot(x, [r["e_dm"] for r in data], markersize=4, **STYLE[label], label=f"{label} %e_dm")
+            ax.plot(x, [r["e_max"] for r in data], markersize=4, color=STYLE[label]["color"], marker="x",
+                    linestyle="none", label=f"{label} %e_max")
+        ax.set_title(f"against {reference}")
+        ax.set_xlabel("imposed strain (%)")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("position error (% of largest FEM displacement)")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"Fig. 2 - elongation position errors, 6x6x6 block, nu = {nu} (report Fig. 14)")
+    save(fig, "validation_2_elongation_errors")
+    pick = {(r["model"], r["reference"]): r for r in rows if r["strain"] == 0.10}
+    SUMMARY["2_elongation_errors"] = dict(
+        headline=(f"10% strain, %e_dm against fem-neohookean: baudet {pick[('baudet', 'fem-neohookean')]['e_dm']:.2f}, "
+                  f"baudet-original {pick[('baudet-original', 'fem-neohookean')]['e_dm']:.2f}, "
+                  f"fem-linear {pick[('fem-linear', 'fem-neohookean')]['e_dm']:.2f}"),
+        at_10_percent={f"{m} vs {ref}": dict(e_dm=r["e_dm"], e_max=r["e_max"]) for (m, ref), r in pick.items()})
+
+
+# -- Fig. 3: shear -------------------------------------------------------------------------------
+SHEAR_ANGLES = (1.0, 2.0, 5.0, 10.0, 15.0, 20.0)
+
+
+def figure_shear():
+    nu = 0.3
+    g0 = E0 / (2 * (1 + nu))
+    rows = []
+    for angle in SHEAR_ANGLES:
+        runs = {label: run_model(shear, label, shape=(10, 10, 10), spacing=0.1, young_modulus=E0,
+                                 poisson_ratio=nu, angle_deg=angle) for label in (*MSS, *FEM)}
+        for label, result in runs.items():
+            row = dict(angle_deg=angle, model=label, shear_modulus=result.shear_modulus, converged=result.converged)
+            for reference in FEM:
+                e_dm, e_max = position_errors(result, runs[reference]) if label != reference else (0.0, 0.0)
+                row[f"e_dm_vs_{reference}"], row[f"e_max_vs_{reference}"] = e_dm, e_max
+            rows.append(row)
+    write_csv("validation_3_shear", rows)
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
+    for label in (*MSS, *FEM):
+        data = [r for r in rows if r["model"] == label]
+        angle = [r["angle_deg"] for r in data]
+        axes[0].plot(angle, [r["shear_modulus"] / g0 for r in data], markersize=4, **STYLE[label], label=label)
+        for ax, reference in zip(axes[1:], FEM):
+            if label == reference:
+                continue
+            ax.plot(angle, [r[f"e_dm_vs_{reference}"] for r in data], markersize=4, **STYLE[label], label=f"{label} %e_dm")
+            ax.plot(angle, [r[f"e_max_vs_{reference}"] for r in data], color=STYLE[label]["color"], marker="x",
+                    linestyle="none", label=f"{label} %e_max")
+    axes[0].axhline(1.0, color="green", linewidth=0.8)
+    axes[0].set_ylabel("measured G / G")
+    axes[0].legend(fontsize=7)
+    for ax, reference in zip(axes[1:], FEM):
+        ax.set_title(f"position error against {reference}")
+        ax.axhspan(0, 2, color="green", alpha=0.06)
+        ax.set_yscale("log")
+    axes[1].legend(fontsize=6)
+    for ax in axes:
+        ax.set_xlabel("shear angle (deg)")
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Fig. 3 - simple shear of the 10x10x10 block, nu = {nu} (report Fig. 15); green band: floor 2%")
+    save(fig, "validation_3_shear")
+    baudet = [r for r in rows if r["model"] == "baudet"]
+    within = [r for r in baudet if 2 <= r["angle_deg"] <= 10]
+    SUMMARY["3_shear"] = dict(
+        headline=(f"baudet, 2-10 deg: worst %e_dm {max(r['e_dm_vs_fem-linear'] for r in within):.2f} "
+                  f"(fem-linear), {max(r['e_dm_vs_fem-neohookean'] for r in within):.2f} (fem-neohookean); "
+                  f"G/G0 at 20 deg {baudet[-1]['shear_modulus'] / g0:.3f} vs neo-Hookean "
+                  f"{[r for r in rows if r['model'] == 'fem-neohookean'][-1]['shear_modulus'] / g0:.3f}"),
+        rows=[{k: r[k] for k in ("angle_deg", "model", "shear_modulus", "e_dm_vs_fem-linear", "e_dm_vs_fem-neohookean",
+                                 "e_max_vs_fem-neohookean")} for r in rows])
+
+
+# -- Fig. 4: flexion -----------------------------------------------------------------------------
+CANTILEVER = dict(shape=(10, 5, 4), spacing=0.1, young_modulus=E0, poisson_ratio=0.3, density=RHO)
+GRAVITIES = (0.01, 0.02, 0.04, 0.08, 0.15, 0.25, 0.35, 0.45, 0.55)
+
+
+def figure_flexion():
+    rows, kept = [], {}
+    for gravity in GRAVITIES:
+        runs = {label: run_model(flexion, label, gravity=gravity, **CANTILEVER) for label in (*MSS, *FEM)}
+        kept[gravity] = runs
+        for label, result in runs.items():
+            row = dict(gravity=gravity, model=label, tip_deflection=result.tip_deflection, converged=result.converged,
+                       neo_tip_over_length=-runs["fem-neohookean"].tip_deflection / 1.0)
+            for reference in FEM:
+                e_dm, e_max = position_errors(result, runs[reference]) if label != reference else (0.0, 0.0)
+                row[f"e_dm_vs_{reference}"], row[f"e_max_vs_{reference}"] = e_dm, e_max
+            rows.append(row)
+    write_csv("validation_4_flexion", rows)
+    fig = plt.figure(figsize=(16, 9))
+    grid = fig.add_gridspec(2, 2)
+    for column, gravity in enumerate((0.04, 0.45)):
+        ax = fig.add_subplot(grid[0, column])
+        runs = kept[gravity]
+        rest = runs["baudet"].rest_positions
+        front = np.isclose(rest[:, 2], 0.0)  # the z = 0 side face, seen along z
+        ax.plot(rest[front, 0], rest[front, 1], ".", color="0.8", label="rest")
+        ax.plot(*runs["fem-neohookean"].positions[front, :2].T, "o", color="gold", markersize=7, label="fem-neohookean")
+        ax.plot(*runs["fem-linear"].positions[front, :2].T, "s", mfc="none", color="0.5", markersize=5, label="fem-linear")
+        ax.plot(*runs["baudet"].positions[front, :2].T, ".", color="red", markersize=5, label="baudet")
+        e_dm = position_errors(runs["baudet"], runs["fem-neohookean"])[0]
+        ax.set_title(f"g = {gravity} m/s^2: neo-Hookean tip {-runs['fem-neohookean'].tip_deflection * 100:.1f}% of L, "
+                     f"baudet %e_dm {e_dm:.2f}")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.legend(fontsize=7, loc="lower left")
+    for column, reference in enumerate(FEM):
+        ax = fig.add_subplot(grid[1, column])
+        for label in (*MSS, "fem-linear"):
+            if label == reference:
+                continue
+            data = [r for r in rows if r["model"] == label]
+            x = [r["neo_tip_over_length"] * 100 for r in data]
+            ax.plot(x, [r[f"e_dm_vs_{reference}"] for r in data], markersize=4, **STYLE[label], label=f"{label} %e_dm")
+            ax.plot(x, [r[f"e_max_vs_{reference}"] for r in data], color=STYLE[label]["color"], marker="x",
+                    linestyle="none", label=f"{label} %e_max")
+        ax.axvline(5, color="green", linewidth=0.8)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("neo-Hookean tip deflection (% of the 1 m length)")
+        ax.set_ylabel(f"position error against {reference} (%)")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=6)
+    fig.suptitle("Fig. 4 - 10x5x4 cantilever of 0.1 m cubes under gravity (E = 10 kPa, nu = 0.3, rho = 1500) "
+                 "(report Fig. 16-17); green: 5% of L")
+    save(fig, "validation_4_flexion")
+    baudet = [r for r in rows if r["model"] == "baudet"]
+    linear_regime = [r for r in baudet if r["neo_tip_over_length"] < 0.05]
+    SUMMARY["4_flexion"] = dict(
+        headline=(f"baudet against fem-neohookean: %e_dm <= {max(r['e_dm_vs_fem-neohookean'] for r in linear_regime):.2f} "
+                  f"below 5% tip deflection, {baudet[-2]['e_dm_vs_fem-neohookean']:.2f} at "
+                  f"{baudet[-2]['neo_tip_over_length'] * 100:.0f}% (g = {baudet[-2]['gravity']}), "
+                  f"{baudet[-1]['e_dm_vs_fem-neohookean']:.2f} at {baudet[-1]['neo_tip_over_length'] * 100:.0f}%"),
+        rows=[{k: r[k] for k in ("gravity", "model", "tip_deflection", "neo_tip_over_length", "e_dm_vs_fem-neohookean",
+                                 "e_max_vs_fem-neohookean", "e_dm_vs_fem-linear", "converged")} for r in rows])
+
+
+# -- Fig. 5: volume under compression ----------------------------------------------------------
+def figure_volume():
+    strains = (-0.05, -0.10, -0.15, -0.20, -0.25, -0.30)
+    mesh = HexMesh.block((4, 4, 4), 0.1)
+    rest = mesh.element_volumes().sum()
+    variants = {"baudet, no volume forces": dict(model="baudet", volume_conservation=False),
+                "baudet (volume forces)": dict(model="baudet"),
+                "baudet, volume_stiffness = 10": dict(model="baudet", volume_stiffness=10.0),
+                "baudet, volume_stiffness = 100": dict(model="baudet", volume_stiffness=100.0),
+                "baudet-original": dict(model="baudet-original"),
+                "fem-neohookean": dict(model="fem-neohookean")}
+    rows = []
+    for nu in (0.3, 0.45, 0.49):
+        for label, options in variants.items():
+            for strain in strains:
+                r = elongation((4, 4, 4), 0.1, E0, nu, strain=strain, load_steps=4, **options)
+                rows.append(dict(nu=nu, model=label, strain=strain, converged=r.converged, young_modulus=r.young_modulus,
+                                 relative_volume_change=mesh.element_volumes(r.positions).sum() / rest - 1))
+    small = {v: elongation((4, 4, 4), 0.1, E0, 0.45, strain=0.01, volume_conservation=v).young_modulus for v in (False, True)}
+    small[100] = elongation((4, 4, 4), 0.1, E0, 0.45, strain=0.01, volume_stiffness=100.0).young_modulus
+    write_csv("validation_5_volume", rows)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), sharey=True)
+    colors = {"baudet, no volume forces": "tab:cyan", "baudet (volume forces)": "tab:blue", "baudet-original": "tab:orange",
+              "baudet, volume_stiffness = 10": "tab:purple", "baudet, volume_stiffness = 100": "tab:green",
+              "fem-neohookean": "black"}
+    for ax, nu in zip(axes, (0.3, 0.45, 0.49)):
+        for label in variants:
+            data = [r for r in rows if r["nu"] == nu and r["model"] == label]
+            ax.plot([-r["strain"] * 100 for r in data], [r["relative_volume_change"] * 100 for r in data], "o-",
+                    color=colors[label], markersize=4, label=label)
+        ax.set_title(f"nu = {nu}")
+        ax.set_xlabel("compression (%)")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("relative volume change dV/V0 (%)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Fig. 5 - volume change under uniaxial compression (4x4x4 block, lateral faces free)")
+    save(fig, "validation_5_volume")
+    pick = {r["model"]: r["relative_volume_change"] for r in rows if r["nu"] == 0.45 and r["strain"] == -0.2}
+    SUMMARY["5_volume"] = dict(
+        headline=(f"nu = 0.45, 20% compression: dV/V0 = {pick['baudet, no volume forces'] * 100:.2f}% without volume "
+                  f"forces, {pick['baudet (volume forces)'] * 100:.2f}% with (x100 stiffness: "
+                  f"{pick['baudet, volume_stiffness = 100'] * 100:.2f}%), neo-Hookean {pick['fem-neohookean'] * 100:.2f}%; "
+                  f"E at 1% changes by {abs(small[True] / small[False] - 1) * 100:.3f}% with them, "
+                  f"{abs(small[100] / small[False] - 1) * 100:.3f}% at x100"),
+        at_20_percent={f"nu={r['nu']} {r['model']}": r["relative_volume_change"] for r in rows if r["strain"] == -0.2})
+
+
+# -- Fig. 6: zero-energy modes and hourglass control --------------------------------------------
+def rigid_modes(nodes):
+    """(3N, 6) the 3 translations and 3 infinitesimal rotations of a node set."""
+    centred = nodes - nodes.mean(axis=0)
+    modes = []
+    for axis in range(3):
+        translation = np.zeros_like(nodes)
+        translation[:, axis] = 1.0
+        modes.append(translation.ravel())
+        rotation = np.cross(np.eye(3)[axis], centred)
+        modes.append(rotation.ravel())
+    return np.array(modes).T
+
+
+def hourglass_shapes(mesh):
+    """Count and shapes of the non-rigid zero-energy modes of a free block (baudet, nu = 0.3)."""
+    model = build_model(mesh, Material(E0, 0.3, RHO))
+    count, values, vectors = zero_energy_modes(model, n_modes=16)
+    zero = vectors[:, :count]
+    basis, _ = np.linalg.qr(rigid_modes(mesh.nodes))
+    non_rigid = zero - basis @ (basis.T @ zero)
+    u, s, _ = np.linalg.svd(non_rigid, full_matrices=False)
+    n_hourglass = int(np.sum(s > 1e-6 * s[0]))
+    return count, n_hourglass, u[:, :n_hourglass]
+
+
+def compression_with_stability(strain, alpha, shape=(6, 6, 6), nu=0.45):
+    """experiments.elongation's boundary conditions on a 1 m block of ``shape`` (4 load steps),
+    solved with the stability check. Returns (apparent E in Pa, converged, lowest eigenvalue N/m)."""
+    mesh = HexMesh.block(shape, 1.0 / shape[0])
+    model = build_model(mesh, Material(E0, nu, RHO), hourglass_control=alpha)
+    nodes, control = mesh.nodes, model.new_control()
+    left, right = np.flatnonzero(np.isclose(nodes[:, 0], 0)), np.flatnonzero(np.isclose(nodes[:, 0], 1))
+    control.impose(left, nodes[left], components=0)
+    centre, top = mesh.node_index(0, shape[1] // 2, shape[2] // 2), mesh.node_index(0, shape[1] // 2, shape[2])
+    control.impose([centre], nodes[centre], components=[1, 2]).impose([top], nodes[top], components=1)
+    control.impose(right, nodes[right] + [strain, 0, 0], components=0)
+    result = solve_static(model, control, load_steps=4, check_stability=True)
+    return float(result.reaction[right, 0].sum() / strain), result.converged, result.lowest_eigenvalue
+
+
+def figure_zero_energy_modes():
+    alphas = (0.0, 0.5, 1.0)
+    mesh = HexMesh.block((2, 2, 2), 0.1)
+    count, n_hourglass, shapes = hourglass_shapes(mesh)
+    counts = dict(free_2x2x2=count, free_2x2x2_non_rigid=n_hourglass)
+    for alpha in alphas:
+        counts[f"elongation_10x10x10_alpha={alpha}"] = elongation(
+            (10, 10, 10), 0.1, E0, 0.3, strain=0.01, count_modes=True, hourglass_control=alpha).zero_energy_modes
+        counts[f"flexion_10x5x4_alpha={alpha}"] = flexion(
+            **CANTILEVER, gravity=0.04, count_modes=True, hourglass_control=alpha).zero_energy_modes
+    counts["shear_6x6x6_alpha=0.0"] = shear((6, 6, 6), 0.1, E0, 0.3, angle_deg=5, count_modes=True).zero_energy_modes
+    # the effect of alpha on the curves
+    rows = []
+    for alpha in alphas:
+        for angle in (2.0, 10.0, 20.0):
+            options = dict(hourglass_control=alpha)
+            mss = shear((10, 10, 10), 0.1, E0, 0.3, angle_deg=angle, **options)
+            fem = shear((10, 10, 10), 0.1, E0, 0.3, angle_deg=angle, model="fem-neohookean")
+            rows.append(dict(alpha=alpha, experiment="shear", load=angle, e_dm=position_errors(mss, fem)[0],
+                             measured=mss.shear_modulus, converged=mss.converged, lowest_eigenvalue=None))
+        for gravity in (0.04, 0.15, 0.25, 0.45):
+            # same cantilever as experiments.flexion, solved here to also get the stability check
+            beam = HexMesh.block(CANTILEVER["shape"], CANTILEVER["spacing"])
+            model = build_model(beam, Material(E0, 0.3, RHO), gravity=(0, -gravity, 0), hourglass_control=alpha)
+            control = model.new_control()
+            clamp = np.flatnonzero(beam.nodes[:, 0] == 0)
+            control.impose(clamp, beam.nodes[clamp])
+            mss = solve_static(model, control, check_stability=True)
+            fem = flexion(**CANTILEVER, gravity=gravity, model="fem-neohookean")
+            rows.append(dict(alpha=alpha, experiment="flexion", load=gravity,
+                             e_dm=position_errors(mss.positions, fem.positions, beam.nodes)[0],
+                             measured=float((mss.positions - beam.nodes)[beam.nodes[:, 0] == 1.0, 1].mean()),
+                             converged=mss.converged, lowest_eigenvalue=mss.lowest_eigenvalue))
+        for strain in (-0.10, -0.20, -0.25, -0.30):
+            young_modulus, converged, lowest = compression_with_stability(strain, alpha)
+            rows.append(dict(alpha=alpha, experiment="compression", load=strain, e_dm=float("nan"),
+                             measured=young_modulus, converged=converged, lowest_eigenvalue=lowest))
+    write_csv("validation_6_zero_energy_modes", rows)
+    fig = plt.figure(figsize=(17, 9))
+    grid = fig.add_gridspec(2, 3)
+    edges = np.unique(np.sort(mesh.elements[:, np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7],
+                                                         [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])].reshape(-1, 2),
+                              axis=1), axis=0)
+    for index in range(min(n_hourglass, 3)):
+        ax = fig.add_subplot(grid[0, index], projection="3d")
+        mode = shapes[:, index].reshape(-1, 3)
+        moved = mesh.nodes + 0.04 * mode / np.abs(mode).max()
+        for a, b in edges:
+            ax.plot(*mesh.nodes[[a, b]].T, color="0.8", linewidth=0.8)
+            ax.plot(*moved[[a, b]].T, color="tab:red", linewidth=1.2)
+        ax.set_title(f"zero-energy mode {index + 1} of a free 2x2x2 block")
+        ax.set_axis_off()
+    panels = (("shear", "shear angle (deg)", "%e_dm vs fem-neohookean"),
+              ("flexion", "gravity (m/s^2)", "%e_dm vs fem-neohookean"),
+              ("compression", "imposed strain", "apparent E / E, compression of a 6x6x6 block, nu = 0.45"))
+    for column, (experiment, xlabel, ylabel) in enumerate(panels):
+        ax = fig.add_subplot(grid[1, column])
+        for alpha, color in zip(alphas, ("tab:blue", "tab:purple", "tab:green")):
+            data = [r for r in rows if r["alpha"] == alpha and r["experiment"] == experiment]
+            y = [r["measured"] / E0 if experiment == "compression" else r["e_dm"] for r in data]
+            ax.plot([r["load"] for r in data], y, "o-", color=color, label=f"alpha = {alpha}")
+            for r, value in zip(data, y):
+                if not r["converged"]:
+                    ax.plot(r["load"], value, "kx", markersize=10)
+                if r["lowest_eigenvalue"] is not None and r["lowest_eigenvalue"] < 0:
+                    ax.plot(r["load"], value, "o", mfc="none", color="red", markersize=12)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"Fig. 6 - zero-energy modes: {n_hourglass} non-rigid modes per free block; effect of hourglass "
+                 "control alpha (x: not converged; red ring: unstable equilibrium, a saddle)")
+    save(fig, "validation_6_zero_energy_modes")
+    compression = {r["alpha"]: (round(r["measured"] / E0, 3), "stable" if r["lowest_eigenvalue"] >= 0 else "unstable")
+                   for r in rows if r["experiment"] == "compression" and r["load"] == -0.30}
+    unstable = {alpha: [r["load"] for r in rows if r["alpha"] == alpha and r["experiment"] == "flexion"
+                        and r["lowest_eigenvalue"] < 0] for alpha in alphas}
+    SUMMARY["6_zero_energy_modes"] = dict(
+        headline=(f"{n_hourglass} non-rigid zero-energy modes per free 2x2x2 block ({count} with the rigid ones), "
+                  f"{counts['elongation_10x10x10_alpha=0.0']} under the elongation conditions, 0 with alpha > 0; "
+                  "apparent E/E0 at -30% (6x6x6, nu = 0.45): "
+                  + ", ".join(f"alpha {a}: {v[0]} ({v[1]})" for a, v in compression.items())
+                  + "; cantilever loads (m/s^2) with an unstable equilibrium: "
+                  + ", ".join(f"alpha {a}: {v}" for a, v in unstable.items())),
+        counts=counts, rows=rows)
+
+
+# -- Fig. 7: non-cubic elements ----------------------------------------------------------------
+def admissible(aspect, nu):
+    """True when every Baudet edge stiffness of an element (1, 1, aspect) is positive (physics.md 2)."""
+    edge, _ = baudet_stiffness(np.array([[1.0, 1.0, aspect]]), np.array([1.0]), np.array([nu]))
+    return bool(np.all(edge > 0))
+
+
+def figure_non_cubic():
+    aspects = np.geomspace(0.25, 4.0, 161)
+    nus = np.linspace(-0.24, 0.499, 149)
+    ok = np.array([[admissible(a, nu) for a in aspects] for nu in nus])
+    limits = []
+    for nu in (0.0, 0.1, 0.2, 0.3, 0.4, 0.45, 0.49, 0.499):
+        fine = np.geomspace(0.2, 5.0, 4001)
+        good = np.array([admissible(a, nu) for a in fine])
+        limits.append(dict(nu=nu, min_aspect=float(fine[good].min()), max_aspect=float(fine[good].max())))
+    nu = 0.45
+    g0 = E0 / (2 * (1 + nu))
+    rows = []
+    for aspect in (0.5, 0.75, 1.0, 1.25, 1.5, 1.6):
+        for orientation, spacing in (("short/long axis along z", (0.1, 0.1, 0.1 * aspect)),
+                                     ("along x", (0.1 * aspect, 0.1, 0.1))):
+            if not admissible(aspect, nu):
+                continue
+            mss = shear((6, 6, 6), spacing, E0, nu, angle_deg=5)
+            fem = shear((6, 6, 6), spacing, E0, nu, angle_deg=5, model="fem-linear")
+            pull = elongation((6, 6, 6), spacing, E0, nu, strain=0.001)
+            x, y, z = spacing
+            predicted = (x * x + y * y + z * z) / (3 * z * z)  # physics.md 2: shear in the plane normal to z
+            rows.append(dict(aspect=aspect, orientation=orientation, shear_ratio=mss.shear_modulus / g0,
+                             shear_ratio_to_fem=mss.shear_modulus / fem.shear_modulus,
+                             fem_shear_ratio=fem.shear_modulus / g0, predicted_shear_ratio=predicted,
+                             shear_e_dm=position_errors(mss, fem)[0], shear_e_max=position_errors(mss, fem)[1],
+                             elongation_E_ratio=pull.young_modulus / E0, elongation_nu=pull.poisson_ratio))
+    write_csv("validation_7_non_cubic", rows)
+    write_csv("validation_7_admissible_aspect", limits)
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
+    axes[0].contourf(aspects, nus, ok.astype(float), levels=[-0.5, 0.5, 1.5], colors=["#f4cccc", "#d9ead3"])
+    for aspect, name in ((2.0, "1:1:2"), (4.0, "1:1:4"), (0.5, "2:2:1"), (0.25, "4:4:1")):
+        axes[0].axvline(aspect, color="0.4", linewidth=0.8, linestyle=":")
+        axes[0].text(aspect, 0.47, name, rotation=90, fontsize=8, ha="right", va="top")
+    axes[0].set_xscale("log")
+    axes[0].set_xticks([0.25, 0.5, 1, 2, 4], ["1/4", "1/2", "1", "2", "4"])
+    axes[0].minorticks_off()
+    axes[0].set_xlabel("aspect a of an element (1, 1, a)")
+    axes[0].set_ylabel("Poisson's ratio")
+    axes[0].set_title("build_model accepts (green) / rejects (red: an edge k <= 0)")
+    for orientation, marker in (("short/long axis along z", "o"), ("along x", "s")):
+        data = [r for r in rows if r["orientation"] == orientation]
+        a = [r["aspect"] for r in data]
+        axes[1].plot(a, [r["shear_ratio_to_fem"] for r in data], marker + "-", label=f"baudet / fem-linear, odd axis {orientation}")
+        axes[1].plot(a, [r["predicted_shear_ratio"] for r in data], "k" + marker, mfc="none", markersize=9,
+                     label=f"element G_xy / G = D^2 / (3 z^2) (physics.md 2), {orientation}")
+        axes[2].plot(a, [r["shear_e_dm"] for r in data], marker + "-", label=f"shear %e_dm, odd axis {orientation}")
+        axes[2].plot(a, [abs(r["elongation_E_ratio"] - 1) * 100 for r in data], marker + "--",
+                     label=f"elongation at 0.1%: |E/E0 - 1| (%), {orientation}")
+    axes[1].axhline(1.0, color="green", linewidth=0.8)
+    axes[1].set_xlabel("aspect a")
+    axes[1].set_ylabel("G_xy measured by the MSS / by fem-linear (6x6x6, 5 deg)")
+    axes[1].legend(fontsize=7)
+    axes[2].set_xlabel("aspect a")
+    axes[2].set_ylabel("error (%) against fem-linear / imposed E")
+    axes[2].set_yscale("log")
+    axes[2].legend(fontsize=7)
+    for ax in axes[1:]:
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Fig. 7 - non-cubic elements (1, 1, a), nu = {nu}: where Baudet's stiffness is admissible, "
+                 "and shear/elongation errors where it is")
+    save(fig, "validation_7_non_cubic")
+    worst = max((r for r in rows if r["aspect"] != 1.0), key=lambda r: r["shear_e_dm"])
+    SUMMARY["7_non_cubic"] = dict(
+        headline=(f"1:1:2 and 1:1:4 are rejected for every nu (aspect limit a < {limits[-1]['max_aspect']:.3f} even at "
+                  f"nu = 0.499); accepted elements keep E, nu exact at small strain (worst |E/E0 - 1| at 0.1% "
+                  f"{max(abs(r['elongation_E_ratio'] - 1) for r in rows) * 100:.3f}%) but shear is off: "
+                  f"G_MSS/G_FEM = {worst['shear_ratio_to_fem']:.2f} and %e_dm {worst['shear_e_dm']:.1f} at a = {worst['aspect']} "
+                  f"({worst['orientation']})"),
+        limits=limits, rows=rows)
+
+
+FIGURE_FUNCTIONS = {1: figure_moduli, 2: figure_elongation_errors, 3: figure_shear, 4: figure_flexion,
+                    5: figure_volume, 6: figure_zero_energy_modes, 7: figure_non_cubic}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", type=int, nargs="+", choices=sorted(FIGURE_FUNCTIONS), help="figures to make")
+    args = parser.parse_args(argv)
+    summary_path = RESULTS / "validation_summary.json"
+    if args.only and summary_path.exists():
+        SUMMARY.update(json.loads(summary_path.read_text()))
+    timings = SUMMARY.setdefault("wall_time_s", {})
+    for number in args.only or sorted(FIGURE_FUNCTIONS):
+        start = time.perf_counter()
+        FIGURE_FUNCTIONS[number]()
+        timings[str(number)] = round(time.perf_counter() - start, 1)
+        key = next(k for k in SUMMARY if k.startswith(f"{number}_"))
+        print(f"Fig. {number} ({timings[str(number)]} s): {SUMMARY[key]['headline']}", flush=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    summary_path.write_text(json.dumps(SUMMARY, indent=1, default=lambda v: v.item() if hasattr(v, "item") else str(v)))
+
+
+if __name__ == "__main__":
+    main()

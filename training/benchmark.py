@@ -1,0 +1,98 @@
+"""Train PPO and SAC with several seeds on every task and tabulate them against random and scripted.
+
+    python -m training.benchmark [--envs ID ...] [--algos ppo sac] [--seeds 0 1 2] [--episodes 20]
+
+Each (env, algo, seed) run goes to runs/benchmark/...; a finished run (result.json present) is not
+trained again, an interrupted one resumes from its checkpoint, so the script can be stopped and
+restarted without losing work. Writes benchmarks/results/training.json (atomically) and
+docs/figures/learning_<task>.png, and prints a markdown table for the README.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .common import check_env_id, load_hyperparams, run_name, write_json
+from .evaluate import evaluate
+from .plot import plot
+from .train import train
+
+ROOT = Path(__file__).resolve().parents[1]
+#: Training budget (env steps) per task and algorithm, chosen from pilot runs.
+BUDGET = {
+    "tissue_env/TumorPositioning-v0": {"ppo": 15000, "sac": 6000},
+    "tissue_env/Palpation-v0": {"ppo": 30000, "sac": 10000},
+    "tissue_env/Retraction-v0": {"ppo": 30000, "sac": 10000},
+}
+
+
+def run_one(env_id: str, algo: str, seed: int, runs: Path) -> Path:
+    run_dir = runs / run_name(env_id) / algo / f"seed{seed}"
+    if (run_dir / "result.json").is_file() and (run_dir / "model.zip").is_file():
+        return run_dir
+    hyperparams = load_hyperparams(algo, env_id)
+    n_envs = int(hyperparams.pop("n_envs", 1))
+    timesteps = BUDGET.get(env_id, {}).get(algo, 20000)
+    config = dict(env=env_id, algo=algo, timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env="dummy",
+                  threads=1, env_kwargs={}, hyperparams=hyperparams, eval_freq=max(timesteps // 10, 1),
+                  eval_episodes=10, checkpoint_freq=max(timesteps // 5, 1))
+    resume = (run_dir / "config.json").is_file()
+    print(f"{'resuming' if resume else 'training'} {env_id} {algo} seed {seed} ({timesteps} steps)", flush=True)
+    return train(config, run_dir, resume=resume, progress=False)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--envs", nargs="+", default=list(BUDGET))
+    parser.add_argument("--algos", nargs="+", default=["ppo", "sac"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--runs-dir", default=str(ROOT / "runs" / "benchmark"))
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "training.json"))
+    args = parser.parse_args(argv)
+    runs = Path(args.runs_dir)
+    out = Path(args.out)
+    summary = json.loads(out.read_text()) if out.is_file() else {}
+    for env_id in args.envs:
+        check_env_id(env_id)
+        for algo in args.algos:
+            dirs, evaluations, walls = [], [], []
+            for seed in args.seeds:
+                start = time.perf_counter()
+                run_dir = run_one(env_id, algo, seed, runs)
+                dirs.append(run_dir)
+                evaluations.append(evaluate(run_dir, args.episodes, seed=1000))
+                walls.append(json.loads((run_dir / "result.json").read_text())["wall_clock_s"])
+                print(f"  seed {seed}: success {evaluations[-1]['agent']['success_rate']:.0%} "
+                      f"({time.perf_counter() - start:.0f} s)", flush=True)
+            task = env_id.split("/")[-1]
+            plot(dirs, ROOT / "docs" / "figures" / f"learning_{task}_{algo}.png")
+            key = f"{env_id} {algo}"
+            summary[key] = dict(
+                env=env_id, algo=algo, seeds=args.seeds, timesteps=json.loads((dirs[0] / "config.json").read_text())["timesteps"],
+                train_wall_clock_s=float(np.mean(walls)),
+                agent_success=[e["agent"]["success_rate"] for e in evaluations],
+                agent_return=[e["agent"]["mean_return"] for e in evaluations],
+                random=evaluations[0]["random"], scripted=evaluations[0]["scripted"],
+                command=f"python -m training.benchmark --envs {env_id} --algos {algo} --seeds "
+                        + " ".join(map(str, args.seeds)),
+            )
+            write_json(out, summary)
+    print("\n| task | algo | success (mean over seeds) | return | random success / return | scripted success / return | train wall-clock |")
+    print("|---|---|---|---|---|---|---|")
+    for entry in summary.values():
+        print(f"| {entry['env'].split('/')[-1]} | {entry['algo'].upper()} | {np.mean(entry['agent_success']):.0%} "
+              f"({', '.join(f'{s:.0%}' for s in entry['agent_success'])}) | {np.mean(entry['agent_return']):.2f} | "
+              f"{entry['random']['success_rate']:.0%} / {entry['random']['mean_return']:.2f} | "
+              f"{entry['scripted']['success_rate']:.0%} / {entry['scripted']['mean_return']:.2f} | "
+              f"{entry['train_wall_clock_s']:.0f} s |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
