@@ -255,12 +255,18 @@ def stable_time_step(model: Model, control: Control | None = None, *, method: st
     if method != "eigen":
         raise ValueError(f"method must be 'eigen' or 'gershgorin', got {method!r}")
     operator = sp.diags(inverse_mass) @ stiffness
-    values, vectors = spla.eigs(operator, k=1, which="LM", tol=1e-6)
-    omega = float(np.sqrt(abs(values[0].real)))
-    mode = vectors[:, 0].real
-    mass_norm = mode @ (mode / inverse_mass)
-    zeta = float(mode @ (damping_matrix @ mode) / (2.0 * omega * mass_norm)) if damping else 0.0
-    return float(_damped_limit(omega, max(zeta, 0.0)))
+    # The most restrictive mode is not always the stiffest one when damping ratios differ, so take
+    # the smallest damped limit over the highest few modes.
+    n_modes = min(8, len(free) - 2)
+    values, vectors = spla.eigs(operator, k=n_modes, which="LM", tol=1e-6)
+    limits = []
+    for value, vector in zip(values, vectors.T):
+        omega = float(np.sqrt(abs(value.real)))
+        mode = vector.real if np.linalg.norm(vector.real) >= np.linalg.norm(vector.imag) else vector.imag
+        mass_norm = mode @ (mode / inverse_mass)
+        zeta = float(mode @ (damping_matrix @ mode) / (2.0 * omega * mass_norm)) if damping else 0.0
+        limits.append(_damped_limit(omega, max(zeta, 0.0)))
+    return float(min(limits))
 
 
 @dataclass
