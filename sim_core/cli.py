@@ -3,6 +3,7 @@
     tissue-sim elongation --shape 10 10 10 --spacing 0.1 --young-modulus 1e4 --poisson-ratio 0.3 --strain 0.01 --json
     tissue-sim shear --angle-deg 5 --compare fem-linear --json
     tissue-sim flexion --shape 10 5 4 --density 1500 --gravity 0.04 --save bent.vtu
+    tissue-sim bench --shape 10 10 10 --json
 
 Bad arguments end with exit code 2 and a one-line message.
 """
@@ -52,7 +53,26 @@ def _parser() -> argparse.ArgumentParser:
             sub.add_argument("--angle-deg", type=float, default=5.0)
         else:
             sub.add_argument("--gravity", type=float, default=0.04, help="m/s^2, acts along -y")
+    bench = commands.add_parser("bench", help="step speed of the full model and of a bare spring lattice")
+    bench.add_argument("--shape", type=int, nargs=3, default=[10, 10, 10], metavar=("NX", "NY", "NZ"))
+    bench.add_argument("--repeats", type=int, default=100)
+    bench.add_argument("--json", action="store_true", help="one JSON object on stdout")
     return parser
+
+
+def _bench(args) -> int:
+    from .bench import measure
+
+    if min(args.shape) < 1 or args.repeats < 1:
+        sys.stderr.write("tissue-sim: error: --shape needs positive integers and --repeats >= 1\n")
+        return 2
+    results = measure(args.shape, args.repeats)
+    if args.json:
+        print(json.dumps(results, default=_jsonable))
+    else:
+        for key, value in results.items():
+            print(f"{key:>45}: {value}")
+    return 0
 
 
 def _run(args, model):
@@ -71,6 +91,8 @@ def _run(args, model):
 
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
+    if args.experiment == "bench":
+        return _bench(args)
     try:
         result = _run(args, args.model)
         summary = result.summary()

@@ -52,3 +52,11 @@ def test_bad_arguments_exit_2_with_one_line(args, word):
     assert code == 2
     assert word in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_bench_json(capsys):
+    assert main(["bench", "--shape", "2", "2", "2", "--repeats", "3", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    for key in ("explicit_step_ms", "implicit_step_ms", "cg_iterations", "static_solve_ms", "machine"):
+        assert key in result
+    assert result["explicit_step_ms"] > 0 and result["static_solve_converged"] is True
