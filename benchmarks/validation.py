@@ -14,6 +14,9 @@ Grids chosen to keep the run short (each is said in the figure's title and in do
   leaves that branch under compression is Fig. 6's subject.
 - Position errors in elongation (Fig. 2): 6x6x6 block (the node set changes the rms slightly).
 - Shear (Fig. 3): the report's 10x10x10 block; flexion (Fig. 4): the report's 10x5x4 cantilever.
+- Tool loading (Fig. 5 bottom, Fig. 6 rows 3-4): a 6x6x6 block of 0.1 m cubes, bottom face fixed, the
+  3x3 central nodes of the top face (a 0.2 m square tool) pressed (frictionless: only u_y imposed),
+  lifted or dragged (glued: all components imposed), by a fraction of the 0.6 m height.
 """
 
 from __future__ import annotations
@@ -37,7 +40,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from sim_core import HexMesh, Material, build_model  # noqa: E402
-from sim_core.experiments import elongation, flexion, position_errors, shear  # noqa: E402
+from sim_core.experiments import (  # noqa: E402
+    elongation, flexion, hourglass_content, indentation, position_errors, settle, shear, tool_patch, tool_patch_nodes)
 from sim_core.model import baudet_stiffness  # noqa: E402
 from sim_core.static import solve_static, zero_energy_modes  # noqa: E402
 
@@ -307,9 +311,18 @@ def figure_flexion():
                                  "e_max_vs_fem-neohookean", "e_dm_vs_fem-linear", "converged")} for r in rows])
 
 
-# -- Fig. 5: volume under compression ----------------------------------------------------------
+# -- Fig. 5: volume under compression and indentation ------------------------------------------
+#: the indentation block of Fig. 5 and 6: 6x6x6 cubes of 0.1 m, bottom fixed, 3x3-node tool patch
+#: (0.2 m square, a third of the width) at the centre of the top face
+INDENTER = dict(shape=(6, 6, 6), spacing=0.1, young_modulus=E0, patch=3)
+INDENT_DEPTHS = (0.05, 0.10, 0.15, 0.20, 0.25, 0.30)
+#: hourglass control of every mass-spring curve of the indentation panels (the environments' default)
+INDENT_ALPHA = 0.5
+
+
 def figure_volume():
     strains = (-0.05, -0.10, -0.15, -0.20, -0.25, -0.30)
+    nus = (0.3, 0.45, 0.49)
     mesh = HexMesh.block((4, 4, 4), 0.1)
     rest = mesh.element_volumes().sum()
     variants = {"baudet, no volume forces": dict(model="baudet", volume_conservation=False),
@@ -319,39 +332,82 @@ def figure_volume():
                 "baudet-original": dict(model="baudet-original"),
                 "fem-neohookean": dict(model="fem-neohookean")}
     rows = []
-    for nu in (0.3, 0.45, 0.49):
+    for nu in nus:
         for label, options in variants.items():
             for strain in strains:
                 r = elongation((4, 4, 4), 0.1, E0, nu, strain=strain, load_steps=4, **options)
-                rows.append(dict(nu=nu, model=label, strain=strain, converged=r.converged, young_modulus=r.young_modulus,
+                rows.append(dict(case="compression", nu=nu, model=label, load=strain, converged=r.converged,
+                                 young_modulus=r.young_modulus, lowest_eigenvalue=None,
                                  relative_volume_change=mesh.element_volumes(r.positions).sum() / rest - 1))
     small = {v: elongation((4, 4, 4), 0.1, E0, 0.45, strain=0.01, volume_conservation=v).young_modulus for v in (False, True)}
     small[100] = elongation((4, 4, 4), 0.1, E0, 0.45, strain=0.01, volume_stiffness=100.0).young_modulus
+    # indentation by a frictionless flat tool (only the vertical component of the patch imposed)
+    indent_variants = {label: options for label, options in variants.items() if label != "baudet, volume_stiffness = 10"}
+    for nu in nus:
+        for label, options in indent_variants.items():
+            extra = {} if label == "fem-neohookean" else dict(hourglass_control=INDENT_ALPHA)
+            for depth in INDENT_DEPTHS:
+                r = indentation(**INDENTER, poisson_ratio=nu, depth=depth, check_stability=True, **options, **extra)
+                rows.append(dict(case="indentation", nu=nu, model=label, load=depth, converged=r.converged,
+                                 young_modulus=None, lowest_eigenvalue=r.lowest_eigenvalue,
+                                 relative_volume_change=r.relative_volume_change))
     write_csv("validation_5_volume", rows)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.5), sharey=True)
+    fig, axes = plt.subplots(2, 3, figsize=(15, 9.5), sharey="row")
     colors = {"baudet, no volume forces": "tab:cyan", "baudet (volume forces)": "tab:blue", "baudet-original": "tab:orange",
               "baudet, volume_stiffness = 10": "tab:purple", "baudet, volume_stiffness = 100": "tab:green",
               "fem-neohookean": "black"}
-    for ax, nu in zip(axes, (0.3, 0.45, 0.49)):
-        for label in variants:
-            data = [r for r in rows if r["nu"] == nu and r["model"] == label]
-            ax.plot([-r["strain"] * 100 for r in data], [r["relative_volume_change"] * 100 for r in data], "o-",
-                    color=colors[label], markersize=4, label=label)
-        ax.set_title(f"nu = {nu}")
-        ax.set_xlabel("compression (%)")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("relative volume change dV/V0 (%)")
-    axes[0].legend(fontsize=8)
-    fig.suptitle("Fig. 5 - volume change under uniaxial compression (4x4x4 block, lateral faces free)")
+    for row, case in enumerate(("compression", "indentation")):
+        for ax, nu in zip(axes[row], nus):
+            for label in variants:
+                data = [r for r in rows if r["case"] == case and r["nu"] == nu and r["model"] == label]
+                if not data:
+                    continue
+                x = [abs(r["load"]) * 100 for r in data]
+                y = [r["relative_volume_change"] * 100 for r in data]
+                ax.plot(x, y, "o-", color=colors[label], markersize=4, label=label)
+                for r, xi, yi in zip(data, x, y):
+                    if r["lowest_eigenvalue"] is not None and r["lowest_eigenvalue"] < 0:
+                        ax.plot(xi, yi, "o", mfc="none", color="red", markersize=10)
+                    if not r["converged"]:
+                        ax.plot(xi, yi, "kx", markersize=10)
+            ax.set_title(f"{case}, nu = {nu}")
+            ax.set_xlabel("compression (%)" if case == "compression" else "indentation depth (% of block height)")
+            ax.grid(alpha=0.3)
+        axes[row, 0].set_ylabel("relative volume change dV/V0 (%)")
+    axes[0, 0].legend(fontsize=8)
+    axes[1, 0].plot([], [], "o", mfc="none", color="red", label="unstable equilibrium (saddle)")
+    axes[1, 0].legend(fontsize=8)
+    fig.suptitle("Fig. 5 - volume change. Top: uniaxial compression (4x4x4 block, lateral faces free). Bottom: "
+                 f"frictionless 3x3-node tool pressed into a 6x6x6 block, bottom fixed; mass-spring curves with "
+                 f"hourglass_control = {INDENT_ALPHA}")
     save(fig, "validation_5_volume")
-    pick = {r["model"]: r["relative_volume_change"] for r in rows if r["nu"] == 0.45 and r["strain"] == -0.2}
+    pick = {r["model"]: r["relative_volume_change"] for r in rows
+            if r["case"] == "compression" and r["nu"] == 0.45 and r["load"] == -0.2}
+    dent = {r["model"]: r for r in rows if r["case"] == "indentation" and r["nu"] == 0.45 and r["load"] == 0.2}
+    stable_to = {nu: max([0.0] + [r["load"] for r in rows if r["case"] == "indentation" and r["nu"] == nu
+                                  and r["model"] == "baudet (volume forces)" and r["lowest_eigenvalue"] >= 0])
+                 for nu in nus}
+    stable_to_100 = {nu: max([0.0] + [r["load"] for r in rows if r["case"] == "indentation" and r["nu"] == nu
+                                      and r["model"] == "baudet, volume_stiffness = 100" and r["lowest_eigenvalue"] >= 0])
+                     for nu in nus}
     SUMMARY["5_volume"] = dict(
         headline=(f"nu = 0.45, 20% compression: dV/V0 = {pick['baudet, no volume forces'] * 100:.2f}% without volume "
                   f"forces, {pick['baudet (volume forces)'] * 100:.2f}% with (x100 stiffness: "
                   f"{pick['baudet, volume_stiffness = 100'] * 100:.2f}%), neo-Hookean {pick['fem-neohookean'] * 100:.2f}%; "
+                  f"20% indentation (alpha = {INDENT_ALPHA}): "
+                  f"{dent['baudet, no volume forces']['relative_volume_change'] * 100:.2f}% without, "
+                  f"{dent['baudet (volume forces)']['relative_volume_change'] * 100:.2f}% with, "
+                  f"{dent['baudet, volume_stiffness = 100']['relative_volume_change'] * 100:.2f}% at x100, neo-Hookean "
+                  f"{dent['fem-neohookean']['relative_volume_change'] * 100:.2f}%; "
                   f"E at 1% changes by {abs(small[True] / small[False] - 1) * 100:.3f}% with them, "
                   f"{abs(small[100] / small[False] - 1) * 100:.3f}% at x100"),
-        at_20_percent={f"nu={r['nu']} {r['model']}": r["relative_volume_change"] for r in rows if r["strain"] == -0.2})
+        at_20_percent={f"nu={r['nu']} {r['model']}": r["relative_volume_change"] for r in rows
+                       if r["case"] == "compression" and r["load"] == -0.2},
+        indentation_at_20_percent={f"nu={r['nu']} {r['model']}": dict(relative_volume_change=r["relative_volume_change"],
+                                                                     lowest_eigenvalue=r["lowest_eigenvalue"])
+                                   for r in rows if r["case"] == "indentation" and r["load"] == 0.2},
+        indentation_stable_up_to_depth={"default kappa": stable_to, "kappa x100": stable_to_100},
+        small_strain_E_change={"default kappa": abs(small[True] / small[False] - 1), "kappa x100": abs(small[100] / small[False] - 1)})
 
 
 # -- Fig. 6: zero-energy modes and hourglass control --------------------------------------------
@@ -395,6 +451,165 @@ def compression_with_stability(strain, alpha, shape=(6, 6, 6), nu=0.45):
     return float(result.reaction[right, 0].sum() / strain), result.converged, result.lowest_eigenvalue
 
 
+# -- Fig. 6 (continued): does a tool excite the zero-energy modes? ------------------------------
+TOOL_NU = 0.45
+TOOL_DEPTHS = (0.01, 0.02, 0.05, 0.10, 0.15, 0.20, 0.30)
+#: glued tool moves as a fraction of the block height: lifted (y) or dragged sideways (x)
+TOOL_PULLS = (("lift", 1, 0.05), ("lift", 1, 0.10), ("lift", 1, 0.20),
+              ("drag", 0, 0.05), ("drag", 0, 0.10), ("drag", 0, 0.20))
+
+
+def tool_row(case, load, alpha, mss, fem):
+    """One CSV row: the static equilibrium and, for a saddle, where the dynamics settles."""
+    row = dict(case=case, load=load, alpha=alpha, converged=mss.converged, lowest_eigenvalue=mss.lowest_eigenvalue,
+               hourglass_ratio=mss.hourglass_content / fem.hourglass_content, e_dm=position_errors(mss, fem)[0],
+               relative_volume_change=mss.relative_volume_change, tool_force=float(np.linalg.norm(mss.tool_force)),
+               fem_tool_force=float(np.linalg.norm(fem.tool_force)), fem_lowest_eigenvalue=fem.lowest_eigenvalue,
+               fem_hourglass_content=fem.hourglass_content, settled=None, settled_converged=None,
+               settled_lowest_eigenvalue=None, settled_hourglass_ratio=None, settled_e_dm=None,
+               settled_tool_force=None, settle_failure=mss.settle_failure)
+    if mss.settled is not None:
+        s = mss.settled
+        row.update(settled=True, settled_converged=s.converged, settled_lowest_eigenvalue=s.lowest_eigenvalue,
+                   settled_hourglass_ratio=s.hourglass_content / fem.hourglass_content,
+                   settled_e_dm=position_errors(s, fem)[0], settled_tool_force=float(np.linalg.norm(s.tool_force)))
+    elif mss.settle_failure is not None:
+        row["settled"] = False
+    return row
+
+
+def stability_onset(alpha, nu, glued, limit=0.30, iterations=7):
+    """Smallest indentation depth (fraction of the height) whose static equilibrium is a saddle,
+    by bisection on [0, limit] (resolution limit / 2^iterations); inf when ``limit`` is stable."""
+    def stable(depth):
+        r = indentation(**INDENTER, poisson_ratio=nu, depth=depth, glued=glued, hourglass_control=alpha,
+                        check_stability=True)
+        return r.converged and r.stable
+
+    if stable(limit):
+        return math.inf
+    low, high = 0.0, limit
+    for _ in range(iterations):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if stable(middle) else (low, middle)
+    return high
+
+
+def tool_loading(alphas):
+    """Rows for the indentation and pull sweeps, the stability onsets, and the side-view data."""
+    rows, views = [], {}
+    height = INDENTER["shape"][1] * INDENTER["spacing"]
+    for depth in TOOL_DEPTHS:
+        fem = indentation(**INDENTER, poisson_ratio=TOOL_NU, depth=depth, model="fem-neohookean", check_stability=True)
+        for alpha in alphas:
+            mss = indentation(**INDENTER, poisson_ratio=TOOL_NU, depth=depth, hourglass_control=alpha,
+                              check_stability=True, settle_if_unstable=True)
+            rows.append(tool_row("indentation", depth, alpha, mss, fem))
+            if depth == 0.05:
+                views[alpha] = mss
+        if depth == 0.05:
+            views["fem"] = fem
+    for kind, axis, fraction in TOOL_PULLS:
+        move = np.zeros(3)
+        move[axis] = fraction * height
+        fem = tool_patch(**INDENTER, poisson_ratio=TOOL_NU, displacement=move, model="fem-neohookean", check_stability=True)
+        for alpha in alphas:
+            mss = tool_patch(**INDENTER, poisson_ratio=TOOL_NU, displacement=move, hourglass_control=alpha,
+                             check_stability=True, settle_if_unstable=True)
+            rows.append(tool_row(kind, fraction, alpha, mss, fem))
+    onsets = []
+    for nu, glued in ((0.3, False), (0.45, False), (0.49, False), (0.45, True)):
+        for alpha in alphas:
+            onsets.append(dict(nu=nu, contact="glued" if glued else "frictionless", alpha=alpha,
+                               unstable_from_depth=stability_onset(alpha, nu, glued)))
+    return rows, onsets, views
+
+
+def plot_tool_loading(fig, grid, rows, onsets, views, alphas):
+    colors = dict(zip(alphas, ("tab:blue", "tab:purple", "tab:green")))
+    # side view of the mid-plane z = Lz/2 at 5% indentation: FEM, pure model after settling, alpha = 0.5
+    ax = fig.add_subplot(grid[2, 0])
+    fem = views["fem"]
+    rest = fem.rest_positions
+    mid = np.isclose(rest[:, 2], rest[:, 2].max() / 2)
+    magnify = 3.0
+    shown = (("fem-neohookean", fem.positions, "black", "-"),
+             ("alpha = 0, settled", (views[0.0].settled or views[0.0]).positions, colors[0.0], "-"),
+             ("alpha = 0.5", views[0.5].positions, colors[0.5], "--"))
+    nx, ny = INDENTER["shape"][0], INDENTER["shape"][1]
+    index = np.flatnonzero(mid).reshape(ny + 1, nx + 1)  # rows: j (y), columns: i (x)
+    for label, positions, color, style in shown:
+        drawn = rest + magnify * (positions - rest)
+        for line in list(index) + list(index.T):
+            ax.plot(drawn[line, 0], drawn[line, 1], style, color=color, linewidth=1.0)
+        ax.plot([], [], style, color=color, label=label)
+    ax.set_aspect("equal")
+    ax.set_title(f"5% frictionless indentation, nu = {TOOL_NU}: mid-plane z = Lz/2, displacements x{magnify:g}",
+                 fontsize=9)
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_axis_off()
+    for column, (key, settled_key, ylabel) in enumerate(
+            (("e_dm", "settled_e_dm", "%e_dm vs fem-neohookean"),
+             ("hourglass_ratio", "settled_hourglass_ratio", "hourglass content / fem-neohookean's"))):
+        ax = fig.add_subplot(grid[2, column + 1])
+        for alpha in alphas:
+            data = [r for r in rows if r["case"] == "indentation" and r["alpha"] == alpha]
+            x = [r["load"] * 100 for r in data]
+            ax.plot(x, [r[key] for r in data], "o-", color=colors[alpha], label=f"alpha = {alpha}: static solve")
+            for r, xi in zip(data, x):
+                if r["lowest_eigenvalue"] < 0:
+                    ax.plot(xi, r[key], "o", mfc="none", color="red", markersize=12)
+            moved = [(xi, r[settled_key]) for r, xi in zip(data, x) if r["settled"]]
+            if moved:
+                ax.plot(*zip(*moved), "s:", color=colors[alpha], mfc="white", label=f"alpha = {alpha}: after settling")
+            for r, xi in zip(data, x):
+                if r["settled"] is False:
+                    ax.plot(xi, r[key], "kx", markersize=10)
+        ax.set_xscale("log")
+        ax.set_xticks([1, 2, 5, 10, 20, 30], ["1", "2", "5", "10", "20", "30"])
+        ax.set_xlabel("frictionless indentation depth (% of block height)")
+        ax.set_ylabel(ylabel)
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    # tool pulls: grouped markers per case
+    cases = [(kind, fraction) for kind, _, fraction in TOOL_PULLS]
+    for column, (key, settled_key, ylabel) in enumerate(
+            (("e_dm", "settled_e_dm", "%e_dm vs fem-neohookean"),
+             ("hourglass_ratio", "settled_hourglass_ratio", "hourglass content / fem-neohookean's"))):
+        ax = fig.add_subplot(grid[3, column])
+        for offset, alpha in zip((-0.2, 0.0, 0.2), alphas):
+            for position, (kind, fraction) in enumerate(cases):
+                r = next(r for r in rows if r["case"] == kind and r["load"] == fraction and r["alpha"] == alpha)
+                ax.plot(position + offset, r[key], "o", color=colors[alpha],
+                        label=f"alpha = {alpha}" if position == 0 else None)
+                if r["lowest_eigenvalue"] < 0:
+                    ax.plot(position + offset, r[key], "o", mfc="none", color="red", markersize=12)
+                if r["settled"]:
+                    ax.plot(position + offset, r[settled_key], "s", color=colors[alpha], mfc="white")
+                    ax.plot([position + offset] * 2, [r[key], r[settled_key]], ":", color=colors[alpha])
+        ax.set_xticks(range(len(cases)), [f"{kind} {fraction * 100:g}%" for kind, fraction in cases])
+        ax.set_ylabel(ylabel)
+        ax.set_title("glued tool lifted (y) or dragged sideways (x) by a % of the block height", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    ax = fig.add_subplot(grid[3, 2])
+    groups = [(nu, contact) for nu, contact in dict.fromkeys((o["nu"], o["contact"]) for o in onsets)]
+    for offset, alpha in zip((-0.25, 0.0, 0.25), alphas):
+        values = [next(o["unstable_from_depth"] for o in onsets if (o["nu"], o["contact"], o["alpha"]) == (nu, contact, alpha))
+                  for nu, contact in groups]
+        shown_values = [min(v, 0.32) * 100 for v in values]
+        ax.bar(np.arange(len(groups)) + offset, shown_values, width=0.25, color=colors[alpha], label=f"alpha = {alpha}")
+        for position, value in enumerate(values):
+            ax.text(position + offset, min(value, 0.32) * 100 + 0.3, ">30" if math.isinf(value) else f"{value * 100:.1f}",
+                    ha="center", fontsize=7)
+    ax.set_xticks(range(len(groups)), [f"nu = {nu}\n{contact}" for nu, contact in groups])
+    ax.set_ylabel("indentation depth (% of height) from which\nthe static equilibrium is a saddle")
+    ax.set_title("stability limit of the indentation (bisection, 6x6x6 block)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3, axis="y")
+
+
 def figure_zero_energy_modes():
     alphas = (0.0, 0.5, 1.0)
     mesh = HexMesh.block((2, 2, 2), 0.1)
@@ -433,8 +648,11 @@ def figure_zero_energy_modes():
             rows.append(dict(alpha=alpha, experiment="compression", load=strain, e_dm=float("nan"),
                              measured=young_modulus, converged=converged, lowest_eigenvalue=lowest))
     write_csv("validation_6_zero_energy_modes", rows)
-    fig = plt.figure(figsize=(17, 9))
-    grid = fig.add_gridspec(2, 3)
+    tool_rows, onsets, views = tool_loading(alphas)
+    write_csv("validation_6_tool_loading", tool_rows)
+    write_csv("validation_6_stability_onset", onsets)
+    fig = plt.figure(figsize=(17, 19))
+    grid = fig.add_gridspec(4, 3, hspace=0.3)
     edges = np.unique(np.sort(mesh.elements[:, np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7],
                                                          [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])].reshape(-1, 2),
                               axis=1), axis=0)
@@ -465,15 +683,30 @@ def figure_zero_energy_modes():
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    plot_tool_loading(fig, grid, tool_rows, onsets, views, alphas)
     fig.suptitle(f"Fig. 6 - zero-energy modes: {n_hourglass} non-rigid modes per free block; effect of hourglass "
-                 "control alpha (x: not converged; red ring: unstable equilibrium, a saddle)")
+                 "control alpha (x: not converged, or the dynamics inverts an element; red ring: unstable\n"
+                 "equilibrium, a saddle; white squares: where damped dynamics settles from it). Rows 3-4: a 3x3-node "
+                 f"tool on a 6x6x6 block of 0.1 m cubes, bottom fixed, nu = {TOOL_NU}", y=0.995)
     save(fig, "validation_6_zero_energy_modes")
     compression = {r["alpha"]: (round(r["measured"] / E0, 3), "stable" if r["lowest_eigenvalue"] >= 0 else "unstable")
                    for r in rows if r["experiment"] == "compression" and r["load"] == -0.30}
     unstable = {alpha: [r["load"] for r in rows if r["alpha"] == alpha and r["experiment"] == "flexion"
                         and r["lowest_eigenvalue"] < 0] for alpha in alphas}
+    at5 = {r["alpha"]: r for r in tool_rows if r["case"] == "indentation" and r["load"] == 0.05}
+    pure = at5[0.0]
+    onset = {o["alpha"]: o["unstable_from_depth"] for o in onsets if o["nu"] == TOOL_NU and o["contact"] == "frictionless"}
+    tool_headline = (
+        f"5% indentation, nu = {TOOL_NU}: pure model {'unstable' if pure['lowest_eigenvalue'] < 0 else 'stable'}, "
+        + (f"settles with {pure['settled_hourglass_ratio']:.1f}x the FEM's hourglass content and %e_dm "
+           f"{pure['settled_e_dm']:.1f} (static saddle {pure['e_dm']:.1f}); " if pure["settled"] else "")
+        + f"alpha = 0.5: {'stable' if at5[0.5]['lowest_eigenvalue'] >= 0 else 'unstable'}, hourglass ratio "
+        f"{at5[0.5]['hourglass_ratio']:.2f}, %e_dm {at5[0.5]['e_dm']:.1f}; frictionless indentation is a saddle from "
+        + ", ".join(f"alpha {a}: {'>30' if math.isinf(v) else f'{v * 100:.1f}'}%" for a, v in onset.items()))
     SUMMARY["6_zero_energy_modes"] = dict(
-        headline=(f"{n_hourglass} non-rigid zero-energy modes per free 2x2x2 block ({count} with the rigid ones), "
+        tool_headline=tool_headline, tool_rows=tool_rows, stability_onset=onsets,
+        headline=(tool_headline + "; "
+                  f"{n_hourglass} non-rigid zero-energy modes per free 2x2x2 block ({count} with the rigid ones), "
                   f"{counts['elongation_10x10x10_alpha=0.0']} under the elongation conditions, 0 with alpha > 0; "
                   "apparent E/E0 at -30% (6x6x6, nu = 0.45): "
                   + ", ".join(f"alpha {a}: {v[0]} ({v[1]})" for a, v in compression.items())

@@ -4,6 +4,10 @@ Each experiment builds the block, imposes its boundary conditions, solves for st
 with the physics named by ``model`` and measures moduli the way a materials lab would. Mass-spring
 models: "baudet", "baudet-original", "uniform-springs"; finite elements: "fem-linear" and
 "fem-neohookean" (``hyperelastic.NeoHookeanFEM``, the large-deformation reference).
+Tool experiments (``indentation``, ``tool_patch``): a patch of top-face nodes of a block with its
+bottom fixed is pressed, lifted or dragged; they report the volume change, the hourglass content of
+the displacement (``hourglass_content``), the stability of the equilibrium and, for a saddle, where
+the dynamics settles (``settle``).
 SI units: m, Pa, N, kg/m^3, m/s^2.
 """
 
@@ -262,3 +266,221 @@ def flexion(shape, spacing, young_modulus, poisson_ratio, *, density, gravity=9.
         parameters=dict(shape=list(mesh.shape), spacing=mesh.spacing.tolist(), imposed_young_modulus=young_modulus,
                         imposed_poisson_ratio=poisson_ratio, density=density, gravity=gravity),
     )
+
+
+# -- tool loading: indentation and pull by a patch of top-face nodes (issue 3, Fig. 5 and 6) ----
+def hourglass_content(rest_positions, elements, positions) -> float:
+    """Share of a displacement field that lies in the elements' hourglass spaces (physics.md 6).
+
+    Each element's nodal displacements u_e (8, 3) are projected on its hourglass space
+    (``model.hourglass_projectors``: the nodal fields orthogonal to every affine one); the result
+    is sqrt(sum_e |P_e u_e|^2 / sum_e |u_e|^2), between 0 (piecewise affine field) and 1. A smooth
+    trilinear FEM field has some (bending and indentation use these fields); the ratio of a
+    mass-spring field's content to the FEM's on the same mesh says whether its zero-energy modes
+    are excited.
+    """
+    from .model import hourglass_projectors
+
+    rest = np.asarray(rest_positions, float)
+    displacement = (np.asarray(positions, float) - rest)[elements]  # (M, 8, 3)
+    total = float(np.sum(displacement**2))
+    if total == 0:
+        return 0.0
+    projected = np.einsum("mab,mbi->mai", hourglass_projectors(rest, elements), displacement)
+    return float(np.sqrt(np.sum(projected**2) / total))
+
+
+def tool_patch_nodes(mesh: HexMesh, patch: int) -> np.ndarray:
+    """Indices of the ``patch`` x ``patch`` central nodes of the top face y = Ly of a block.
+
+    The patch is centred when nx + 1 - patch and nz + 1 - patch are even (e.g. 3x3 nodes on a
+    6x6 face of elements); otherwise it sits half an element towards the origin.
+    """
+    nx, ny, nz = mesh.shape
+    patch = int(patch)
+    if not 1 <= patch <= min(nx, nz) + 1:
+        raise ValueError(f"patch must be between 1 and {min(nx, nz) + 1} nodes, got {patch}")
+    i0, k0 = (nx + 1 - patch) // 2, (nz + 1 - patch) // 2
+    i, k = np.meshgrid(np.arange(i0, i0 + patch), np.arange(k0, k0 + patch), indexing="ij")
+    return np.asarray(mesh.node_index(i.ravel(), ny, k.ravel()), dtype=int)
+
+
+def _fem_lowest_eigenvalue(fem: NeoHookeanFEM, control: Control, positions) -> float:
+    """Smallest eigenvalue (N/m) of the neo-Hookean tangent on the free components."""
+    import scipy.sparse.linalg as spla
+
+    free = np.flatnonzero(~control.fixed.ravel())
+    stiffness = fem.tangent_stiffness(positions).tocsr()[free][:, free]
+    return float(spla.eigsh(stiffness, k=1, which="SA", tol=1e-6, maxiter=50 * len(free))[0][0])
+
+
+def settle(model, control: Control, positions, *, amplitude: float = 0.02, dt: float = 0.01,
+           max_steps: int = 2000, rest_speed: float = 1e-5):
+    """Follow the dynamics away from an unstable equilibrium: where a simulation really ends up.
+
+    A static solver can converge to a saddle (hourglass buckling under compression, physics.md 6);
+    any disturbance moves a dynamic simulation off it. This perturbs ``positions`` along the
+    eigenvector of the lowest eigenvalue of the constrained tangent (largest nodal displacement
+    ``amplitude`` times the smallest element edge), runs damped implicit Euler (``dt`` s) until
+    every node is slower than ``rest_speed`` times the elastic wave speed sqrt(E / rho) (or for
+    ``max_steps``), and polishes the result with ``solve_static`` from there.
+
+    Returns ``(static.StaticResult with lowest_eigenvalue, steps run, unstable_reason or None)``.
+    """
+    import scipy.sparse.linalg as spla
+
+    from .forces import stiffness_data
+    from .integrators import ImplicitEuler
+    from .model import State
+
+    free = np.flatnonzero(~control.fixed.ravel())
+    stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
+    _, vectors = spla.eigsh(0.5 * (stiffness + stiffness.T), k=1, which="SA", tol=1e-6, maxiter=50 * len(free))
+    mode = vectors[:, 0] / np.abs(vectors[:, 0]).max()
+    start = np.array(positions, dtype=float)
+    start.ravel()[free] += amplitude * float(model.axis_rest_length.min()) * mode
+    state, scratch = State(start, np.zeros_like(start)), State(start.copy(), np.zeros_like(start))
+    integrator = ImplicitEuler()
+    limit = rest_speed * float(np.sqrt(np.max(model.young_modulus / model.density)))
+    reason, steps = None, 0
+    for steps in range(1, int(max_steps) + 1):
+        report = integrator.simulate(model, state, scratch, dt, control)
+        state, scratch = scratch, state
+        if report.unstable:
+            reason = report.unstable_reason
+            break
+        if steps > 20 and np.abs(state.velocities).max() < limit:
+            break
+    if reason is not None:
+        return None, steps, reason
+    return solve_static(model, control, initial=state.positions, check_stability=True), steps, None
+
+
+@dataclass
+class ToolResult(ExperimentResult):
+    """``ExperimentResult`` of a tool experiment, plus:
+
+    Attributes:
+        tool_force: (3,) total force (N) the block exerts on the tool patch (on its imposed
+            components; minus the reaction).
+        relative_volume_change: (V - V0) / V0 of the whole block.
+        hourglass_content: share of the displacement field in the element hourglass spaces
+            (``hourglass_content``).
+        lowest_eigenvalue: smallest eigenvalue of the constrained tangent (N/m) at the
+            equilibrium, with ``check_stability=True`` (mass-spring models, fem-neohookean);
+            negative means a saddle (unstable equilibrium).
+        settled: with ``settle_if_unstable=True`` and a saddle, where the dynamics goes from it
+            (``settle``): a ``ToolResult`` of the polished equilibrium, or None when that run
+            diverged (then ``settle_failure`` says why, e.g. an inverted element).
+    """
+
+    tool_force: np.ndarray | None = None
+    relative_volume_change: float | None = None
+    hourglass_content: float | None = None
+    lowest_eigenvalue: float | None = None
+    settled: "ToolResult | None" = None
+    settle_failure: str | None = None
+
+    @property
+    def stable(self) -> bool | None:
+        return None if self.lowest_eigenvalue is None else self.lowest_eigenvalue >= 0.0
+
+    def summary(self) -> dict:
+        """JSON-ready scalars (no node arrays; ``settled`` summarised the same way)."""
+        skip = ("positions", "rest_positions", "settled")
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in skip}
+        out["tool_force"] = None if self.tool_force is None else [float(v) for v in self.tool_force]
+        out["settled"] = None if self.settled is None else self.settled.summary()
+        return {k: (float(v) if isinstance(v, np.floating) else v) for k, v in out.items()}
+
+
+def tool_patch(shape, spacing, young_modulus, poisson_ratio, *, displacement, patch=3, glued=True,
+               model="baudet", density=1000.0, check_stability=False, settle_if_unstable=False,
+               **options) -> ToolResult:
+    """A tool moves a patch of the top face of a block whose bottom face y = 0 is fixed.
+
+    Args:
+        shape, spacing, young_modulus, poisson_ratio, density: the block (as ``elongation``).
+        displacement: (3,) tool displacement in m (y is up: (0, -d, 0) presses, (0, d, 0) pulls,
+            (d, 0, 0) drags sideways).
+        patch: the tool covers the ``patch`` x ``patch`` central nodes of face y = Ly
+            (``tool_patch_nodes``).
+        glued: True imposes all three components of the patch nodes (the tissue sticks to the
+            tool); False imposes only the y component (a frictionless flat probe: the patch nodes
+            slide freely in x and z).
+        model: physics name.  check_stability: also compute the lowest tangent eigenvalue.
+        settle_if_unstable: mass-spring models with ``check_stability``: when the equilibrium is a
+            saddle, also follow the dynamics off it (``settle``) into ``result.settled``.
+        **options: model and solver options as in ``elongation`` (default ``load_steps=4``).
+    Returns:
+        ``ToolResult`` (``reaction`` is the y component of ``tool_force``).
+    """
+    displacement = finite_array("displacement", displacement, shape=(3,))
+    if not np.any(displacement):
+        raise ValueError("displacement must be non-zero (m)")
+    mesh, material = _setup(shape, spacing, young_modulus, poisson_ratio, density, model)
+    nodes = mesh.nodes
+    bottom, tool = _face(mesh, 1, False), tool_patch_nodes(mesh, patch)
+    if not glued and (displacement[0] or displacement[2]):
+        raise ValueError("a frictionless probe (glued=False) only moves along y")
+    control = Control.free(mesh.n_nodes)
+    control.impose(bottom, nodes[bottom])
+    control.impose(tool, nodes[tool] + displacement, components=(0, 1, 2) if glued else 1)
+    options = dict(options)
+    options.setdefault("load_steps", 4)
+    start = time.perf_counter()
+    lowest = None
+    if model in MSS_MODELS:
+        count_modes = options.pop("count_modes", False)
+        solver = {k: options.pop(k) for k in _SOLVER_OPTIONS if k in options}
+        mss = build_model(mesh, material, model=model, **options)
+        solved = solve_static(mss, control, check_stability=check_stability, **solver)
+        positions, reaction, converged, residual = solved.positions, solved.reaction, solved.converged, solved.residual
+        lowest = solved.lowest_eigenvalue
+        modes = zero_energy_modes(mss, control)[0] if count_modes else None
+        settled = failure = None
+        if settle_if_unstable and lowest is not None and lowest < 0:
+            polished, steps, failure = settle(mss, control, positions)
+            if polished is not None:
+                settled = _tool_result(mesh, tool, polished.positions, polished.reaction, polished.converged,
+                                       polished.residual, polished.lowest_eigenvalue, model, {"settle_steps": steps})
+    else:
+        if model == "fem-linear":
+            options.pop("load_steps")
+        positions, reaction, converged, residual, modes = _solve(mesh, material, control, model, 0.0, options)
+        if check_stability and model == "fem-neohookean":
+            lowest = _fem_lowest_eigenvalue(NeoHookeanFEM(mesh, material), control, positions)
+        settled = failure = None
+    wall = time.perf_counter() - start
+    result = _tool_result(mesh, tool, positions, reaction, converged, residual, lowest, model,
+                          dict(shape=list(mesh.shape), spacing=mesh.spacing.tolist(),
+                               imposed_young_modulus=young_modulus, imposed_poisson_ratio=poisson_ratio,
+                               displacement=displacement.tolist(), patch=int(patch), glued=bool(glued)))
+    result.zero_energy_modes, result.wall_time = modes, wall
+    result.settled, result.settle_failure = settled, failure
+    return result
+
+
+def _tool_result(mesh, tool, positions, reaction, converged, residual, lowest, model, parameters) -> ToolResult:
+    nodes = mesh.nodes
+    return ToolResult(
+        "tool_patch", model, positions, nodes.copy(), converged, residual, reaction=float(reaction[tool, 1].sum()),
+        parameters=parameters, tool_force=-reaction[tool].sum(axis=0),
+        relative_volume_change=float(mesh.element_volumes(positions).sum() / mesh.element_volumes().sum() - 1),
+        hourglass_content=hourglass_content(nodes, mesh.elements, positions), lowest_eigenvalue=lowest,
+    )
+
+
+def indentation(shape, spacing, young_modulus, poisson_ratio, *, depth, patch=3, glued=False, **options) -> ToolResult:
+    """Press the central ``patch`` x ``patch`` top-face nodes down by ``depth`` times the block
+    height Ly (0 < depth < 1), bottom face fixed; frictionless probe unless ``glued``. Same
+    keywords and result as ``tool_patch``."""
+    depth = float(finite_array("depth", depth))
+    if not 0 < depth < 1:
+        raise ValueError(f"depth must be a fraction of the block height in (0, 1), got {depth}")
+    height = float(HexMesh.block(shape, spacing).size[1])
+    result = tool_patch(shape, spacing, young_modulus, poisson_ratio, displacement=(0.0, -depth * height, 0.0),
+                        patch=patch, glued=glued, **options)
+    result.experiment = "indentation"
+    result.parameters["depth"] = depth
+    return result
