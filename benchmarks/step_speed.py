@@ -2,10 +2,9 @@
 
     python benchmarks/step_speed.py [--shape 10 10 10] [--repeats 200]
 
-Scene: a block of 0.1 m cubes (E = 1e4 Pa, nu = 0.3, rho = 1500 kg/m^3) with its bottom face fixed,
-sagging under gravity (so springs, corrections and volume forces are all active). Reports medians
-of repeated steps (ms), CG/BiCGSTAB iterations, a static elongation solve (s), and ratios to the
-bare lattice (same springs, no corrections or volume forces). Writes
+Scene and measurements: ``sim_core.bench`` (a block of 0.1 m cubes sagging under a reduced
+gravity). Reports medians of repeated steps (ms), CG/BiCGSTAB iterations, a static shear solve
+(ms), and ratios to the bare lattice (same springs, no corrections or volume forces). Writes
 benchmarks/results/step_speed.json. Timing is never asserted in tests: machines are shared.
 """
 

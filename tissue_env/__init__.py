@@ -9,14 +9,19 @@ Importing the package registers the tasks (gymnasium >= 1.0 has no plugin entry 
 Each task's class docstring documents its action and observation spaces, rewards, starting state,
 episode end and keywords. Every task has a hand-written baseline controller,
 ``env.unwrapped.scripted_action()``.
+
+Every task also has a batched vector env (``tissue_env.vector``), registered as its
+``vector_entry_point``: ``gym.make_vec(id, num_envs=16, vectorization_mode="vector_entry_point")``
+steps all copies in one batched physics step (benchmarks/vector_env_speed.py).
 """
 
 import gymnasium
 
 from .base import TissueEnv
-from .palpation import PalpationEnv
-from .retraction import RetractionEnv
-from .tumor_positioning import TumorPositioningEnv
+from .palpation import PalpationEnv, PalpationVectorEnv
+from .retraction import RetractionEnv, RetractionVectorEnv
+from .tumor_positioning import TumorPositioningEnv, TumorPositioningVectorEnv
+from .vector import TissueVectorEnv
 
 #: Registered ids and their episode lengths (env steps).
 ENV_IDS = {
@@ -24,9 +29,17 @@ ENV_IDS = {
     "tissue_env/Palpation-v0": ("tissue_env.palpation:PalpationEnv", 100),
     "tissue_env/Retraction-v0": ("tissue_env.retraction:RetractionEnv", 60),
 }
+#: Batched vector environments (``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``).
+VECTOR_ENTRY_POINTS = {
+    "tissue_env/TumorPositioning-v0": "tissue_env.tumor_positioning:TumorPositioningVectorEnv",
+    "tissue_env/Palpation-v0": "tissue_env.palpation:PalpationVectorEnv",
+    "tissue_env/Retraction-v0": "tissue_env.retraction:RetractionVectorEnv",
+}
 
 for _env_id, (_entry_point, _max_steps) in ENV_IDS.items():
     if _env_id not in gymnasium.registry:
-        gymnasium.register(id=_env_id, entry_point=_entry_point, max_episode_steps=_max_steps)
+        gymnasium.register(id=_env_id, entry_point=_entry_point, max_episode_steps=_max_steps,
+                           vector_entry_point=VECTOR_ENTRY_POINTS.get(_env_id))
 
-__all__ = ["ENV_IDS", "PalpationEnv", "RetractionEnv", "TissueEnv", "TumorPositioningEnv"]
+__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "PalpationEnv", "PalpationVectorEnv", "RetractionEnv",
+           "RetractionVectorEnv", "TissueEnv", "TissueVectorEnv", "TumorPositioningEnv", "TumorPositioningVectorEnv"]

@@ -311,6 +311,7 @@ class TissueEnv(gym.Env):
         self._start_hook()
         self.elapsed_steps = 0
         self.measures = self._measure(self.state)
+        self._record(self.measures)
         info = self._info(self.measures, self._zero_rewards(), unstable_reason=None)
         if self.render_mode == "human":
             self.render()
@@ -333,6 +334,7 @@ class TissueEnv(gym.Env):
         reason = self._advance(self.control)
         self.elapsed_steps += 1
         self.measures = self._measure(self.state)
+        self._record(self.measures)
         if reason is None:
             rewards = self._reward_terms(self.measures)
             success = bool(self._is_success(self.measures))
@@ -398,6 +400,11 @@ class TissueEnv(gym.Env):
 
     def _task_measures(self, positions) -> dict:
         return {}
+
+    def _record(self, measures):
+        """Episode bookkeeping once per reset and per step, after the measurements (e.g. how long
+        a condition has held); may add entries to ``measures``. ``_measure`` itself has no side
+        effects, so it can be called again (rendering, vector envs)."""
 
     def _tool_position(self, positions):
         """Tool position in m (default: mean of the grasped nodes)."""

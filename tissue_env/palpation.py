@@ -7,7 +7,20 @@ import numpy as np
 from sim_core import Material
 from sim_core.model import Control
 
-from .base import TissueEnv, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, check_range, nonnegative_scalar, positive_scalar
+from .vector import TissueVectorEnv
+
+
+def check_region(name, value):
+    """((x0, z0), (x1, z1)) fractions in [0, 1] with low <= high, as a (2, 2) array."""
+    try:
+        region = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be ((x0, z0), (x1, z1)) fractions of the top face, got {value!r}") from error
+    if region.shape != (2, 2) or not np.all(np.isfinite(region)) or np.any(region < 0) or np.any(region > 1) \
+            or np.any(region[0] > region[1]):
+        raise ValueError(f"{name} must be ((x0, z0), (x1, z1)) fractions in [0, 1] with low <= high, got {value!r}")
+    return region
 
 
 class PalpationEnv(TissueEnv):
@@ -21,8 +34,13 @@ class PalpationEnv(TissueEnv):
     radius ``probe_radius`` (default 0.75 element) indents the top surface: every top-surface node
     under the probe that would lie above its tip is held at the tip height (frictionless projection
     contact, only the vertical component is imposed). The agent sees the probe position and the
-    reaction force and must press at least 5 mm deep within 1 cm (horizontally) of the inclusion:
-    what a surgeon does when palpating a liver for a tumour.
+    reaction force and must press at least 5 mm deep within 1 cm (horizontally) of the inclusion
+    and hold that press for ``hold_steps`` (default 3) consecutive steps: what a surgeon does when
+    palpating a liver for a tumour. The probe starts at a random place at least ``start_distance``
+    (default 2 cm) away from the inclusion, so the agent has to search; holding the press is what
+    tells a deliberate press apart from one a random walk passes through (measured over 20 seeds:
+    random actions succeed in about 5% of episodes, the scripted sweep in 100%; see
+    tests/test_env_palpation.py).
 
     Physics: one implicit Euler step of ``dt`` = 20 ms per env step (see ``tissue_env.base``).
 
@@ -30,7 +48,8 @@ class PalpationEnv(TissueEnv):
 
     ``Box(-1, 1, (3,), float32)``: probe displacement increment, scaled by ``max_step`` (default
     4 mm) and clipped to the workspace (the probe axis stays over the central 80 % of the top face;
-    the tip between 10 mm above and ``max_depth`` (default 8 mm) below the undeformed surface).
+    the tip between 10 mm above and ``max_depth`` (default 8 mm) below the undeformed surface; the
+    workspace is fixed in space, whatever the start).
 
     | Num | Action                     | Min | Max | Unit         |
     |-----|----------------------------|-----|-----|--------------|
@@ -40,18 +59,19 @@ class PalpationEnv(TissueEnv):
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (14,), float32)``.
+    ``observation_type="state"``: ``Box(-100, 100, (15,), float32)``.
 
     | Index | Observation                                        | Unit (normalised)     |
     |-------|----------------------------------------------------|-----------------------|
     | 0-2   | probe tip position                                 | cm from block centre  |
-    | 3-5   | probe displacement from its start                  | cm                    |
+    | 3-5   | probe displacement from its (random) start         | cm                    |
     | 6-8   | force the probe exerts on the tissue               | 0.1 N                 |
     | 9     | relative volume change (V - V0) / V0               | %                     |
     | 10    | maximum spring strain abs(L - L0) / L0             | %                     |
     | 11    | indentation depth below the undeformed surface     | cm (negative above)   |
     | 12    | number of surface nodes in contact                 | count                 |
     | 13    | indentation stiffness, vertical force / depth      | N/m / 100 (0 if none) |
+    | 14    | steps the success press has been held / hold_steps | 1 (0 when not pressing) |
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
@@ -69,15 +89,20 @@ class PalpationEnv(TissueEnv):
 
     ## Starting State
 
-    The slab at static equilibrium under gravity; the probe tip 2 mm above the undeformed surface
-    over the centre of the top face. The inclusion is one of the interior elements of the layer
-    under the top layer, drawn uniformly (9 positions at the defaults).
+    The slab at static equilibrium under gravity. The inclusion is one of the elements of the layer
+    under the top layer whose centre lies in ``inclusion_region`` (default: the interior elements,
+    9 positions at the defaults), drawn uniformly; its stiffness ratio is ``inclusion_ratio`` or,
+    with ``inclusion_ratio_range``, drawn uniformly in that range. The probe tip
+    starts 2 mm above the undeformed surface, over a point drawn uniformly in the workspace among
+    those at least ``start_distance`` (default 2 cm) horizontally from the inclusion centre (the
+    farthest of 32 draws when none is that far, which only happens for a custom geometry).
 
     ## Episode End
 
-    Terminated on success (tip at least ``success_depth`` = 5 mm below the undeformed surface with
-    its axis within ``success_radius`` = 1 cm of the inclusion centre) or on divergence
-    (``info["unstable"]``). Truncated after 100 steps.
+    Terminated on success or on divergence (``info["unstable"]``); truncated after 100 steps.
+    Success: for ``hold_steps`` (default 3) consecutive steps, the tip at least ``success_depth``
+    = 5 mm below the undeformed surface with its axis within ``success_radius`` = 1 cm of the
+    inclusion centre (horizontally); ``info["press_steps"]`` counts the steps held so far.
 
     ## Arguments
 
@@ -87,14 +112,25 @@ class PalpationEnv(TissueEnv):
     env = gym.make("tissue_env/Palpation-v0", inclusion_ratio=10.0, max_step=0.004)
     ```
 
+    Vectorised: ``gym.make_vec("tissue_env/Palpation-v0", num_envs=16,
+    vectorization_mode="vector_entry_point")`` steps the copies together in one batched physics
+    step (``PalpationVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
+
     Task keywords: ``inclusion_ratio``, ``probe_radius`` (m, default 0.75 element width),
-    ``max_depth`` (m), ``success_depth`` (m), ``success_radius`` (m), ``success_bonus``,
+    ``inclusion_ratio_range`` (None or (low, high): a ratio drawn per reset, the model is rebuilt),
+    ``inclusion_region`` (None or ((x0, z0), (x1, z1)): fractions of the top face that hold the
+    candidate inclusion centres),
+    ``max_depth`` (m), ``success_depth`` (m), ``success_radius`` (m), ``hold_steps``,
+    ``start_distance`` (m), ``success_bonus``,
     ``time_penalty``, ``force_limit`` (N), ``force_weight``; shared keywords in
     ``tissue_env.base.TissueEnv``.
 
     ## Version History
 
-    - v0: initial version.
+    - v0: initial version (unreleased changes: random probe start away from the inclusion, the
+      success press must be held for ``hold_steps``, observation 14 is the hold progress,
+      ``inclusion_ratio_range`` and ``inclusion_region`` for domain randomisation, the batched
+      vector env).
     """
 
     default_shape = (5, 3, 5)
@@ -105,14 +141,20 @@ class PalpationEnv(TissueEnv):
     #: Start height of the probe tip above the undeformed surface, m.
     clearance = 0.002
 
-    def __init__(self, *, inclusion_ratio=10.0, probe_radius=None, max_depth=0.008, success_depth=0.005,
-                 success_radius=0.01, success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0,
-                 **kwargs):
+    def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=None,
+                 max_depth=0.008, success_depth=0.005, success_radius=0.01, hold_steps=3, start_distance=0.02,
+                 success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, **kwargs):
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
+        self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
+        self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region)
         self.probe_radius = None if probe_radius is None else positive_scalar("probe_radius", probe_radius, "m")
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
         self.success_depth = positive_scalar("success_depth", success_depth, "m")
         self.success_radius = positive_scalar("success_radius", success_radius, "m")
+        if isinstance(hold_steps, bool) or not float(hold_steps).is_integer() or int(hold_steps) < 1:
+            raise ValueError(f"hold_steps must be an integer >= 1, got {hold_steps!r}")
+        self.hold_steps = int(hold_steps)
+        self.start_distance = nonnegative_scalar("start_distance", start_distance)
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
         self.time_penalty = nonnegative_scalar("time_penalty", time_penalty)
         self.force_limit = positive_scalar("force_limit", force_limit, "N")
@@ -129,34 +171,69 @@ class PalpationEnv(TissueEnv):
         if self.probe_radius is None:
             self.probe_radius = 0.75 * float(min(self.spacing[0], self.spacing[2]))
         self.tool_nodes = np.zeros(0, dtype=int)
-        self.probe_start = np.array([self.centre[0], self.top_y + self.clearance, self.centre[2]])
         self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
+        # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
+        # surface, the axis over the central 80 % of the top face. ``workspace_low/high`` (what
+        # the base class clips ``tool_offset`` to) are relative to the episode's probe start.
         half = 0.4 * self.size
-        self.workspace_low = np.array([-half[0], -self.clearance - self.max_depth, -half[2]])
-        self.workspace_high = np.array([half[0], 0.01 - self.clearance, half[2]])
-        # Candidate inclusion cells: interior elements (i, k) of the layer under the top layer.
-        i, k = np.meshgrid(np.arange(1, nx - 1), np.arange(1, nz - 1), indexing="ij")
+        self.workspace_box = (
+            np.array([self.centre[0] - half[0], self.top_y - self.max_depth, self.centre[2] - half[2]]),
+            np.array([self.centre[0] + half[0], self.top_y + 0.01, self.centre[2] + half[2]]),
+        )
+        self._place_probe(np.array([self.centre[0], self.top_y + self.clearance, self.centre[2]]))
+        # Candidate inclusion cells: elements (i, k) of the layer under the top layer, the interior
+        # ones by default, else those whose centre lies in inclusion_region.
+        if self.inclusion_region is None:
+            i, k = np.meshgrid(np.arange(1, nx - 1), np.arange(1, nz - 1), indexing="ij")
+        else:
+            i, k = np.meshgrid(np.arange(nx), np.arange(nz), indexing="ij")
+            fraction = (np.stack([i.ravel(), k.ravel()], axis=1) + 0.5) / np.array([nx, nz])
+            low, high = self.inclusion_region
+            inside = np.all((fraction >= low - 1e-9) & (fraction <= high + 1e-9), axis=1)
+            if not inside.any():
+                raise ValueError(f"inclusion_region {self.inclusion_region.tolist()} holds no element centre of the "
+                                 f"{nx} x {nz} layer (centres at fractions (i + 0.5) / {nx}, (k + 0.5) / {nz})")
+            i, k = i.ravel()[inside], k.ravel()[inside]
         self.inclusion_cells = np.stack([i.ravel(), np.full(i.size, ny - 2), k.ravel()], axis=1)
 
+    def _place_probe(self, start):
+        self.probe_start = start
+        self.workspace_low = self.workspace_box[0] - start
+        self.workspace_high = self.workspace_box[1] - start
+
     def _default_task_key(self):
-        return tuple(int(c) for c in self.inclusion_cells[len(self.inclusion_cells) // 2])
+        # (i, j, k, stiffness ratio) of the inclusion: what the model depends on
+        return tuple(int(c) for c in self.inclusion_cells[len(self.inclusion_cells) // 2]) + (self.inclusion_ratio,)
 
     def _material(self, young_modulus, poisson_ratio, task_key):
         nx, ny, _ = self.shape
-        i, j, k = task_key
+        i, j, k, ratio = task_key
         young = np.full(self.mesh.n_elements, float(young_modulus))
-        young[i + nx * (j + ny * k)] *= self.inclusion_ratio
+        young[i + nx * (j + ny * k)] *= ratio
         return Material(young, poisson_ratio, self.density)
 
     def _task_feature_sizes(self):
-        return dict(depth=1, contact_nodes=1, indentation_stiffness=1)
+        return dict(depth=1, contact_nodes=1, indentation_stiffness=1, hold_progress=1)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
         cell = self.inclusion_cells[self.np_random.integers(len(self.inclusion_cells))]
-        self.task_key = tuple(int(c) for c in cell)
+        ratio = self.inclusion_ratio
+        if self.inclusion_ratio_range is not None:
+            ratio = float(self.np_random.uniform(*self.inclusion_ratio_range))
+        self.inclusion_cell, self.episode_inclusion_ratio = cell.copy(), ratio
+        self.task_key = tuple(int(c) for c in cell) + (ratio,)
         self.inclusion_centre = (np.asarray(cell) + 0.5) * self.spacing
+        # Probe start: uniform over the workspace among the points at least start_distance from
+        # the inclusion (32 draws at once: a fixed number of random numbers per reset).
+        low, high = self.workspace_box[0][[0, 2]], self.workspace_box[1][[0, 2]]
+        draws = self.np_random.uniform(low, high, size=(32, 2))
+        distance = np.hypot(*(draws - self.inclusion_centre[[0, 2]]).T)
+        far = np.flatnonzero(distance >= self.start_distance)
+        x, z = draws[far[0] if len(far) else int(np.argmax(distance))]
+        self._place_probe(np.array([x, self.top_y + self.clearance, z]))
         self.contact_nodes = np.zeros(0, dtype=int)
+        self.press_steps = 0
 
     def _start_hook(self):
         self._sweep = None
@@ -186,7 +263,14 @@ class PalpationEnv(TissueEnv):
     def _task_measures(self, positions):
         tip = self._tip()
         depth = self.top_y - tip[1]
-        return dict(depth=depth, horizontal_distance=float(np.hypot(*(tip - self.inclusion_centre)[[0, 2]])))
+        horizontal = float(np.hypot(*(tip - self.inclusion_centre)[[0, 2]]))
+        pressing = depth >= self.success_depth - 1e-9 and horizontal <= self.success_radius
+        return dict(depth=depth, horizontal_distance=horizontal, pressing=pressing)
+
+    def _record(self, measures):
+        # consecutive steps of a success press (once per reset and per step)
+        self.press_steps = self.press_steps + 1 if measures["pressing"] else 0
+        measures["press_steps"] = self.press_steps
 
     def _measure(self, state):
         measures = super()._measure(state)
@@ -197,14 +281,16 @@ class PalpationEnv(TissueEnv):
 
     def _task_features(self, measures):
         return dict(depth=[measures["depth"] / self.length_scale], contact_nodes=[len(self.contact_nodes)],
-                    indentation_stiffness=[measures["indentation_stiffness"] / 100.0])
+                    indentation_stiffness=[measures["indentation_stiffness"] / 100.0],
+                    hold_progress=[min(measures["press_steps"], self.hold_steps) / self.hold_steps])
 
     def _task_info(self, measures):
         return dict(depth=measures["depth"], horizontal_distance=measures["horizontal_distance"],
-                    inclusion_centre=self.inclusion_centre.copy(), indentation_stiffness=measures["indentation_stiffness"])
+                    press_steps=measures["press_steps"], inclusion_centre=self.inclusion_centre.copy(),
+                    indentation_stiffness=measures["indentation_stiffness"])
 
     def _is_success(self, measures):
-        return measures["depth"] >= self.success_depth - 1e-9 and measures["horizontal_distance"] <= self.success_radius
+        return measures["press_steps"] >= self.hold_steps
 
     def _reward_terms(self, measures):
         force = float(np.linalg.norm(measures["reaction_force"]))
@@ -218,23 +304,33 @@ class PalpationEnv(TissueEnv):
 
     # -- scripted sweep ------------------------------------------------------------------------------
     def scripted_action(self, probe_depth=0.003):
-        """A sweep: press ``probe_depth`` over each candidate cell centre, record the indentation
-        stiffness, then press ``success_depth`` + 1 mm over the stiffest one."""
+        """A sweep: press ``probe_depth`` over each candidate cell centre (a serpentine from the
+        end nearest the start), record the indentation stiffness, then press ``success_depth`` +
+        1 mm over the stiffest one and hold it there."""
         if self._sweep is None:
             centres = (self.inclusion_cells[:, [0, 2]] + 0.5) * self.spacing[[0, 2]]
-            self._sweep = dict(centres=centres, index=0, phase="move", stiffness=np.zeros(len(centres)))
+            rows = np.unique(centres[:, 0], return_inverse=True)[1]
+            order = np.concatenate([
+                np.flatnonzero(rows == r)[np.argsort(centres[rows == r, 1])[::-1 if r % 2 else 1]]
+                for r in range(rows.max() + 1)])
+            start = self._tip()[[0, 2]]
+            if np.hypot(*(centres[order[-1]] - start)) < np.hypot(*(centres[order[0]] - start)):
+                order = order[::-1]
+            # stiffness is kept in the order of inclusion_cells; ``order`` is the visiting order
+            self._sweep = dict(centres=centres, order=order, index=0, phase="move", stiffness=np.zeros(len(centres)))
         sweep = self._sweep
         tip = self._tip()
         surface = self.top_y
-        if sweep["index"] < len(sweep["centres"]):
-            goal_xz = sweep["centres"][sweep["index"]]
+        if sweep["index"] < len(sweep["order"]):
+            cell = sweep["order"][sweep["index"]]
+            goal_xz = sweep["centres"][cell]
             if sweep["phase"] == "move":
                 goal = np.array([goal_xz[0], surface, goal_xz[1]])
                 if np.allclose(tip[[0, 2]], goal_xz, atol=1e-6) and tip[1] >= surface - 1e-6:
                     sweep["phase"] = "press"
                     goal = np.array([goal_xz[0], surface - probe_depth, goal_xz[1]])
             else:  # pressed: record and go on
-                sweep["stiffness"][sweep["index"]] = self.measures["indentation_stiffness"]
+                sweep["stiffness"][cell] = self.measures["indentation_stiffness"]
                 sweep["index"] += 1
                 sweep["phase"] = "move"
                 goal = np.array([tip[0], surface, tip[2]])
@@ -245,3 +341,98 @@ class PalpationEnv(TissueEnv):
 
     def _markers(self):
         return dict(tool=self._tip(), inclusion=np.array([self.inclusion_centre[0], self.top_y, self.inclusion_centre[2]]))
+
+
+class PalpationVectorEnv(TissueVectorEnv):
+    """N copies of Palpation-v0 stepped together (``tissue_env.vector``): built by
+    ``gym.make_vec("tissue_env/Palpation-v0", num_envs=N, vectorization_mode="vector_entry_point")``.
+    Same keywords, spaces, rewards and infos as the single env (see ``PalpationEnv``)."""
+
+    env_class = PalpationEnv
+
+    def __init__(self, num_envs=1, **kwargs):
+        super().__init__(num_envs, **kwargs)
+        env, count = self.envs[0], self.num_envs
+        self.top_nodes, self.top_y, self.probe_radius = env.top_nodes, env.top_y, env.probe_radius
+        self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
+        self.probe_start = np.zeros((count, 3))
+        self.inclusion_centre = np.zeros((count, 3))
+        self.press_steps = np.zeros(count, dtype=int)
+        self.contact = np.zeros((count, len(self.top_nodes)), dtype=bool)
+        for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
+                     "force_weight", "length_scale"):
+            setattr(self, name, getattr(env, name))
+
+    def _load_task(self, index, env):
+        self.probe_start[index] = env.probe_start
+        self.inclusion_centre[index] = env.inclusion_centre
+        self.press_steps[index] = env.press_steps
+        self.contact[index] = np.isin(self.top_nodes, env.contact_nodes)
+
+    def _tips(self):
+        return self.probe_start + self.tool_offset
+
+    def _batch_control(self):
+        count = self.num_envs
+        tip = self._tips()
+        top = self.positions[:, self.top_nodes]  # the state before the step, as the single env
+        horizontal = np.hypot(top[..., 0] - tip[:, None, 0], top[..., 2] - tip[:, None, 2])
+        self.contact = (horizontal <= self.probe_radius) & (top[..., 1] >= tip[:, None, 1])
+        fixed = np.repeat(self._base_fixed[None], count, axis=0)
+        target = np.repeat(self._base_target[None], count, axis=0)
+        fixed[:, self.top_nodes, 1] |= self.contact
+        target[:, self.top_nodes, 1] = np.where(self.contact, tip[:, None, 1], target[:, self.top_nodes, 1])
+        tool_mask = np.zeros_like(fixed)
+        tool_mask[:, self.top_nodes, 1] = self.contact
+        return fixed, target, tool_mask
+
+    def _batch_tool_position(self, positions):
+        return self._tips()
+
+    def _batch_task_measures(self, positions):
+        tip = self._tips()
+        depth = self.top_y - tip[:, 1]
+        horizontal = np.hypot(tip[:, 0] - self.inclusion_centre[:, 0], tip[:, 2] - self.inclusion_centre[:, 2])
+        pressing = (depth >= self.success_depth - 1e-9) & (horizontal <= self.success_radius)
+        return dict(depth=depth, horizontal_distance=horizontal, pressing=pressing)
+
+    def _measure(self, tool_mask):
+        measures = super()._measure(tool_mask)
+        pushing, depth = -measures["reaction_force"][:, 1], measures["depth"]
+        touching = (depth > 1e-4) & self.contact.any(axis=1)
+        measures["indentation_stiffness"] = np.where(touching, pushing / np.where(touching, depth, 1.0), 0.0)
+        return measures
+
+    def _batch_record(self, measures, rows):
+        self.press_steps = np.where(rows, np.where(measures["pressing"], self.press_steps + 1, 0), self.press_steps)
+        measures["press_steps"] = self.press_steps.copy()
+
+    def _batch_task_features(self, measures):
+        return dict(depth=measures["depth"][:, None] / self.length_scale,
+                    contact_nodes=self.contact.sum(axis=1)[:, None],
+                    indentation_stiffness=measures["indentation_stiffness"][:, None] / 100.0,
+                    hold_progress=np.minimum(measures["press_steps"], self.hold_steps)[:, None] / self.hold_steps)
+
+    def _batch_task_info(self, measures):
+        return dict(depth=measures["depth"].copy(), horizontal_distance=measures["horizontal_distance"].copy(),
+                    press_steps=measures["press_steps"].copy(), inclusion_centre=self.inclusion_centre.copy(),
+                    indentation_stiffness=measures["indentation_stiffness"].copy())
+
+    def _batch_success(self, measures):
+        return measures["press_steps"] >= self.hold_steps
+
+    def _batch_reward_terms(self, measures):
+        force = np.linalg.norm(measures["reaction_force"], axis=1)
+        terms = dict(
+            success=np.where(self._batch_success(measures), self.success_bonus, 0.0),
+            time=np.full(self.num_envs, -self.time_penalty),
+            force=-self.force_weight * np.maximum(0.0, force - self.force_limit) / self.force_limit,
+        )
+        terms.update(self._damage_terms(measures))
+        return terms
+
+    def _write_back_task(self, index, env):
+        env.press_steps = int(self.press_steps[index])
+
+    def _write_back_measures(self, index, measures):
+        measures["press_steps"] = int(self.press_steps[index])

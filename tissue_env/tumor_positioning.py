@@ -8,7 +8,8 @@ from sim_core import solve_static
 from sim_core.mesh import LOCAL_CORNERS
 from sim_core.model import Control
 
-from .base import TissueEnv, check_vector, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, check_range, check_vector, nonnegative_scalar, positive_scalar
+from .vector import TissueVectorEnv
 
 
 def trilinear_weights(local):
@@ -87,8 +88,9 @@ class TumorPositioningEnv(TissueEnv):
 
     The block at static equilibrium under gravity with the tool holding the patch at rest. The
     tumour's rest position is uniform in ``tumor_region`` (fractions of the block, default the
-    central half along every axis); the goal is the tumour's static equilibrium for a tool displacement in a random
-    direction, of 0.5-1 times ``goal_displacement`` (default 12 mm) along its largest axis,
+    central half along every axis); the goal is the tumour's static equilibrium for a tool
+    displacement in a random direction, of ``goal_scale_range`` (default 0.5-1) times
+    ``goal_displacement`` (default 12 mm) along its largest axis (clipped to the workspace),
     scaled up (within the workspace) until the goal is at least 2 ``success_distance`` (4 mm) away.
 
     ## Episode End
@@ -106,25 +108,35 @@ class TumorPositioningEnv(TissueEnv):
                    max_step=0.002, observation_type="state", render_mode="rgb_array")
     ```
 
-    Task keywords: ``workspace`` (m, per axis), ``goal_displacement`` (m), ``tumor_region``
-    (``((x0, y0, z0), (x1, y1, z1))`` fractions of the block), ``success_distance`` (m),
+    Vectorised: ``gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=16,
+    vectorization_mode="vector_entry_point")`` steps the copies together in one batched physics
+    step (``TumorPositioningVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
+
+    Task keywords: ``workspace`` (m, per axis), ``goal_displacement`` (m), ``goal_scale_range``
+    ((low, high) > 0: the range of the goal's tool displacement, in units of
+    ``goal_displacement``), ``tumor_region`` (``((x0, y0, z0), (x1, y1, z1))`` fractions of the
+    block: the range of the tumour position), ``success_distance`` (m),
     ``success_bonus``; shared keywords are listed in ``tissue_env.base.TissueEnv``
     (``young_modulus``, ``poisson_ratio``, ``density``, ``shape``, ``size``, ``integrator``, ``dt``,
     ``substeps``, ``young_modulus_range``, ``poisson_ratio_range``, ``render_mode``, ...).
 
     ## Version History
 
-    - v0: initial version.
+    - v0: initial version (unreleased changes: ``goal_scale_range``; the batched vector env).
     """
 
     default_shape = (4, 4, 4)
     default_size = (0.05, 0.05, 0.05)
     reward_names = ("distance", "success", "volume", "strain")
 
-    def __init__(self, *, workspace=0.02, goal_displacement=0.012, tumor_region=((0.25, 0.25, 0.25), (0.75, 0.75, 0.75)),
+    def __init__(self, *, workspace=0.02, goal_displacement=0.012, goal_scale_range=(0.5, 1.0),
+                 tumor_region=((0.25, 0.25, 0.25), (0.75, 0.75, 0.75)),
                  success_distance=0.002, success_bonus=5.0, **kwargs):
         self.workspace = check_vector("workspace", workspace)
         self.goal_displacement = check_vector("goal_displacement", goal_displacement)
+        if goal_scale_range is None:
+            raise ValueError("goal_scale_range must be a (low, high) pair of positive numbers, got None")
+        self.goal_scale_range = check_range("goal_scale_range", goal_scale_range, positive_scalar)
         try:
             region = np.asarray(tumor_region, dtype=float)
         except (TypeError, ValueError) as error:
@@ -170,7 +182,8 @@ class TumorPositioningEnv(TissueEnv):
         # (the response is nearly linear) and solved again from the previous equilibrium.
         direction = self.np_random.normal(size=3)
         direction /= max(np.abs(direction).max(), 1e-12)
-        displacement = self.np_random.uniform(0.5, 1.0) * direction * self.goal_displacement
+        displacement = self.np_random.uniform(*self.goal_scale_range) * direction * self.goal_displacement
+        displacement = np.clip(displacement, self.workspace_low, self.workspace_high)
         positions, minimum = start, 2.0 * self.success_distance
         for _ in range(3):
             control = self.base_control.copy().impose(self.tool_nodes, self.tool_rest + displacement)
@@ -231,3 +244,71 @@ class TumorPositioningEnv(TissueEnv):
     def _markers(self):
         positions = self.state.positions
         return dict(tool=positions[self.tool_nodes].mean(axis=0), tumor=self.measures["tumor"], goal=self.goal)
+
+
+class TumorPositioningVectorEnv(TissueVectorEnv):
+    """N copies of TumorPositioning-v0 stepped together (``tissue_env.vector``): built by
+    ``gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=N, vectorization_mode="vector_entry_point")``.
+    Same keywords, spaces, rewards and infos as the single env (see ``TumorPositioningEnv``)."""
+
+    env_class = TumorPositioningEnv
+
+    def __init__(self, num_envs=1, **kwargs):
+        super().__init__(num_envs, **kwargs)
+        env, count = self.envs[0], self.num_envs
+        self.tool_nodes = env.tool_nodes
+        self.tool_rest = env.tool_rest
+        # the imposed dofs (attached bottom, grasped patch) do not change during an episode
+        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
+        tool_mask[self.tool_nodes] = True
+        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
+        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
+        self._base_target = env.base_control.target
+        self.tumor_nodes = np.zeros((count, 8), dtype=int)
+        self.tumor_weights = np.zeros((count, 8))
+        self.tumor_start = np.zeros((count, 3))
+        self.goal = np.zeros((count, 3))
+        self.success_distance, self.success_bonus = env.success_distance, env.success_bonus
+        self.centre, self.length_scale = env.centre, env.length_scale
+
+    def _load_task(self, index, env):
+        self.tumor_nodes[index] = env.tumor_nodes
+        self.tumor_weights[index] = env.tumor_weights
+        self.tumor_start[index] = env.tumor_start
+        self.goal[index] = env.goal
+
+    def _batch_control(self):
+        target = np.repeat(self._base_target[None], self.num_envs, axis=0)
+        target[:, self.tool_nodes] = self.tool_rest[None] + self.tool_offset[:, None, :]
+        return self._fixed, target, self._tool_mask
+
+    def _batch_tool_position(self, positions):
+        return positions[:, self.tool_nodes].mean(axis=1)
+
+    def _batch_task_measures(self, positions):
+        corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8, 3)
+        tumor = (self.tumor_weights[:, None, :] @ corners)[:, 0]
+        return dict(tumor=tumor, distance=np.linalg.norm(self.goal - tumor, axis=1))
+
+    def _batch_task_features(self, measures):
+        tumor, scale = measures["tumor"], self.length_scale
+        return dict(
+            tumor_position=(tumor - self.centre) / scale, goal_position=(self.goal - self.centre) / scale,
+            goal_error=(self.goal - tumor) / scale, goal_distance=measures["distance"][:, None] / scale,
+            tumor_displacement=(tumor - self.tumor_start) / scale,
+        )
+
+    def _batch_task_info(self, measures):
+        return dict(distance=measures["distance"].copy(), tumor_position=measures["tumor"].copy(),
+                    goal=self.goal.copy())
+
+    def _batch_success(self, measures):
+        return measures["distance"] < self.success_distance
+
+    def _batch_reward_terms(self, measures):
+        terms = dict(
+            distance=-measures["distance"] / self.length_scale,
+            success=np.where(self._batch_success(measures), self.success_bonus, 0.0),
+        )
+        terms.update(self._damage_terms(measures))
+        return terms

@@ -1,0 +1,98 @@
+"""Domain randomisation keywords of the tasks (issue 4): ranges are drawn from np_random at each
+reset, stay inside their ranges, and invalid ranges raise ValueError naming the keyword."""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import tissue_env  # noqa: F401  (registers the ids)
+
+PALPATION, POSITIONING, RETRACTION = ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0",
+                                      "tissue_env/Retraction-v0")
+
+
+def test_palpation_inclusion_ratio_range_sets_the_inclusion_stiffness():
+    env = gym.make(PALPATION, inclusion_ratio_range=(3.0, 12.0), young_modulus=4e3)
+    ratios = []
+    for seed in range(3):
+        env.reset(seed=seed)
+        unwrapped = env.unwrapped
+        ratio = unwrapped.episode_inclusion_ratio
+        young = unwrapped.model.young_modulus
+        assert 3.0 <= ratio <= 12.0
+        assert np.isclose(young.max(), 4e3 * ratio) and np.count_nonzero(young > 4e3) == 1
+        ratios.append(ratio)
+    assert len(set(ratios)) == 3
+
+
+def test_palpation_inclusion_region_restricts_the_candidate_cells():
+    # 5 x 5 layer: element centres at fractions 0.1, 0.3, 0.5, 0.7, 0.9
+    env = gym.make(PALPATION, inclusion_region=((0.0, 0.6), (0.4, 1.0)))
+    cells = env.unwrapped.inclusion_cells
+    assert sorted(map(tuple, cells[:, [0, 2]])) == [(0, 3), (0, 4), (1, 3), (1, 4)]
+    seen = set()
+    for seed in range(8):
+        _, info = env.reset(seed=seed)
+        seen.add(tuple(env.unwrapped.inclusion_cell[[0, 2]]))
+        assert info["horizontal_distance"] >= env.unwrapped.start_distance - 1e-12
+    assert seen <= {(0, 3), (0, 4), (1, 3), (1, 4)} and len(seen) > 1
+
+
+def test_tumor_positioning_goal_scale_range_sets_the_goal_tool_displacement():
+    env = gym.make(POSITIONING, goal_scale_range=(0.9, 1.0))
+    for seed in range(3):
+        env.reset(seed=seed)
+        unwrapped = env.unwrapped
+        largest = np.abs(unwrapped.goal_tool_displacement).max()
+        # the draw (0.9-1 x 12 mm), or more when the scale-up for the minimum goal distance kicked in
+        assert largest >= 0.9 * 0.012 - 1e-12
+        assert np.all(np.abs(unwrapped.goal_tool_displacement) <= unwrapped.workspace + 1e-12)
+
+
+def test_tumor_positioning_tumor_region_holds_the_tumour():
+    env = gym.make(POSITIONING, tumor_region=((0.3, 0.6, 0.3), (0.4, 0.7, 0.4)))
+    for seed in range(3):
+        env.reset(seed=seed)
+        unwrapped = env.unwrapped
+        rest = unwrapped.tumor_weights @ unwrapped.mesh.nodes[unwrapped.tumor_nodes]
+        assert np.all(rest >= np.array([0.3, 0.6, 0.3]) * 0.05 - 1e-12)
+        assert np.all(rest <= np.array([0.4, 0.7, 0.4]) * 0.05 + 1e-12)
+
+
+def test_retraction_target_start_range():
+    env = gym.make(RETRACTION, target_start_range=(0.035, 0.036))
+    for seed in range(3):
+        env.reset(seed=seed)
+        assert 0.035 <= env.unwrapped.target_x[0] <= 0.036
+
+
+@pytest.mark.parametrize("env_id, keyword, value", [
+    (PALPATION, "inclusion_ratio_range", (12.0, 3.0)),
+    (PALPATION, "inclusion_ratio_range", (0.0, 3.0)),
+    (PALPATION, "inclusion_ratio_range", 5.0),
+    (PALPATION, "inclusion_ratio_range", (3.0, float("nan"))),
+    (PALPATION, "inclusion_region", ((0.5, 0.5), (0.2, 0.9))),
+    (PALPATION, "inclusion_region", ((0.0, 0.0), (1.5, 1.0))),
+    (PALPATION, "inclusion_region", (0.2, 0.8)),
+    (PALPATION, "inclusion_region", ((0.41, 0.41), (0.49, 0.49))),  # no element centre inside
+    (PALPATION, "hold_steps", 0),
+    (PALPATION, "hold_steps", 2.5),
+    (PALPATION, "start_distance", -0.01),
+    (POSITIONING, "goal_scale_range", (1.0, 0.5)),
+    (POSITIONING, "goal_scale_range", (0.0, 1.0)),
+    (POSITIONING, "goal_scale_range", None),
+    (POSITIONING, "goal_scale_range", "wide"),
+    (POSITIONING, "tumor_region", ((0.7, 0.2, 0.2), (0.3, 0.8, 0.8))),
+    (POSITIONING, "tumor_region", ((0.2, 0.2), (0.8, 0.8))),
+    (RETRACTION, "target_start_range", (0.04, 0.03)),
+    (RETRACTION, "target_start_range", (0.03,)),
+    (RETRACTION, "target_start_range", (-0.01, 0.03)),
+    (RETRACTION, "target_start_range", None),
+])
+def test_invalid_randomisation_keyword_names_it(env_id, keyword, value):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ValueError, match=keyword):
+            gym.make(env_id, **{keyword: value})
