@@ -83,20 +83,51 @@ def fixed_direction_corrections(elements, push, rest_direction, forces):
                 forces[p, c] -= t * rest_direction[m, e, c]
 
 
-_G0, _G1 = 0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0)
-#: (2, 2, 4) weights of an axis' 4 edges (EDGES order) in dx/dxi_axis at the Gauss abscissae
-#: (s, t) of the two other axes: the derivative of a trilinear map along an axis interpolates
-#: that axis' 4 edge vectors bilinearly.
-_PAIR_WEIGHTS = np.array([[[(1 - s) * (1 - t), s * (1 - t), (1 - s) * t, s * t] for t in (_G0, _G1)]
-                          for s in (_G0, _G1)])
+#: VTK corner of each lexicographic corner a + 2 b + 4 c.
+_LEXICOGRAPHIC_TO_VTK = np.array([0, 1, 3, 2, 4, 5, 7, 6])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@njit(cache=True, error_model="numpy")
+def hex_volume(corner, d=None):
+    """Exact volume (m^3) of a trilinear hexahedron from its (8, 3) corners, VTK order.
+
+    The integral of det J is a cubic form in the corners; written with d_i = x_i - x_0 for the
+    corners in lexicographic order (i = a + 2 b + 4 c at local (a, b, c)) it is (1/12) sum of 15
+    triple products, grouped here into 9 cross products (coefficients fitted to, and tested
+    against, 2x2x2 Gauss quadrature, which is exact for this integrand).
+    """
+    if d is None:
+        d = np.empty((8, 3))  # scratch (pass one in hot loops: no allocation per element)
+    for n in range(8):
+        vtk = _LEXICOGRAPHIC_TO_VTK[n]
+        for c in range(3):
+            d[n, c] = corner[vtk, c] - corner[0, c]
+    a = _cross(d[2, 0], d[2, 1], d[2, 2], d[3, 0], d[3, 1], d[3, 2])
+    b = _cross(d[3, 0], d[3, 1], d[3, 2], d[5, 0] + d[7, 0], d[5, 1] + d[7, 1], d[5, 2] + d[7, 2])
+    e = _cross(d[5, 0], d[5, 1], d[5, 2], d[4, 0] - d[7, 0], d[4, 1] - d[7, 1], d[4, 2] - d[7, 2])
+    volume = d[1, 0] * (a[0] + b[0] + e[0]) + d[1, 1] * (a[1] + b[1] + e[1]) + d[1, 2] * (a[2] + b[2] + e[2])
+    a = _cross(d[3, 0], d[3, 1], d[3, 2], d[6, 0] + d[7, 0], d[6, 1] + d[7, 1], d[6, 2] + d[7, 2])
+    b = _cross(d[6, 0], d[6, 1], d[6, 2], d[7, 0] - d[4, 0], d[7, 1] - d[4, 1], d[7, 2] - d[4, 2])
+    volume += d[2, 0] * (b[0] - a[0]) + d[2, 1] * (b[1] - a[1]) + d[2, 2] * (b[2] - a[2])
+    a = _cross(d[6, 0] - d[5, 0], d[6, 1] - d[5, 1], d[6, 2] - d[5, 2], d[7, 0], d[7, 1], d[7, 2])
+    volume += d[3, 0] * a[0] + d[3, 1] * a[1] + d[3, 2] * a[2]
+    six_seven = _cross(d[6, 0], d[6, 1], d[6, 2], d[7, 0], d[7, 1], d[7, 2])
+    a = _cross(d[5, 0], d[5, 1], d[5, 2], d[6, 0] + d[7, 0], d[6, 1] + d[7, 1], d[6, 2] + d[7, 2])
+    volume += d[4, 0] * (a[0] - six_seven[0]) + d[4, 1] * (a[1] - six_seven[1]) + d[4, 2] * (a[2] - six_seven[2])
+    volume -= d[5, 0] * six_seven[0] + d[5, 1] * six_seven[1] + d[5, 2] * six_seven[2]
+    return volume / 12.0
 
 
 @njit(cache=True, error_model="numpy")
 def volume_pass(positions, elements, rest_volume, kappa, forces):
-    """Volume-conservation forces (physics.md 4); volumes by 2x2x2 Gauss (exact for trilinear)."""
+    """Volume-conservation forces (physics.md 4) with exact trilinear element volumes."""
     corner = np.empty((8, 3))
-    edge = np.empty((12, 3))
-    tangent = np.empty((3, 2, 2, 3))  # [axis, first other abscissa, second other abscissa, component]
+    scratch = np.empty((8, 3))
     area = np.empty((6, 3))
     for m in range(elements.shape[0]):
         if kappa[m] == 0.0:
@@ -104,33 +135,7 @@ def volume_pass(positions, elements, rest_volume, kappa, forces):
         for n in range(8):
             for c in range(3):
                 corner[n, c] = positions[elements[m, n], c]
-        for e in range(12):
-            for c in range(3):
-                edge[e, c] = corner[_EDGES[e, 1], c] - corner[_EDGES[e, 0], c]
-        # x-edges are ordered by (eta, zeta), y-edges by (xi, zeta), z-edges by (xi, eta) with the
-        # z-edge order (0,0), (1,0), (1,1), (0,1): remap it to the bilinear order below.
-        for axis in range(3):
-            for a in range(2):
-                for b in range(2):
-                    w = _PAIR_WEIGHTS[a, b]
-                    for c in range(3):
-                        if axis < 2:
-                            tangent[axis, a, b, c] = (w[0] * edge[4 * axis, c] + w[1] * edge[4 * axis + 1, c]
-                                                      + w[2] * edge[4 * axis + 2, c] + w[3] * edge[4 * axis + 3, c])
-                        else:
-                            tangent[axis, a, b, c] = (w[0] * edge[8, c] + w[1] * edge[9, c]
-                                                      + w[2] * edge[11, c] + w[3] * edge[10, c])
-        volume = 0.0
-        for i in range(2):  # xi
-            for j in range(2):  # eta
-                for k in range(2):  # zeta
-                    ax = tangent[0, j, k]
-                    ay = tangent[1, i, k]
-                    az = tangent[2, i, j]
-                    volume += (ax[0] * (ay[1] * az[2] - ay[2] * az[1])
-                               - ay[0] * (ax[1] * az[2] - ax[2] * az[1])
-                               + az[0] * (ax[1] * ay[2] - ax[2] * ay[1]))
-        volume *= 0.125
+        volume = hex_volume(corner, scratch)
         relative = (volume - rest_volume[m]) / rest_volume[m]
         phi = -kappa[m] * relative * abs(relative)
         total_area = 0.0
