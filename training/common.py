@@ -22,6 +22,13 @@ def fail(program: str, message: str) -> None:
     raise SystemExit(2)
 
 
+def make_env(env_id: str, **kwargs):
+    """gym.make that registers the tissue tasks first (SubprocVecEnv workers start fresh)."""
+    import tissue_env  # noqa: F401
+
+    return gym.make(env_id, **kwargs)
+
+
 def check_env_id(env_id: str) -> str:
     import tissue_env  # noqa: F401  (registers the tasks)
 

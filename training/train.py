@@ -12,13 +12,15 @@ and result.json. The folder's path is printed as the last line.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import re
 import time
 from datetime import datetime
 from pathlib import Path
 
-from .common import UsageError, algorithm_class, check_algo, check_env_id, fail, load_hyperparams, run_name, write_json
+from .common import (UsageError, algorithm_class, check_algo, check_env_id, fail, load_hyperparams, make_env,
+                     run_name, write_json)
 
 PROGRAM = "training.train"
 
@@ -101,10 +103,11 @@ def _make_envs(config, run_dir, seed_offset=0, resume=False):
 
     vec_cls = SubprocVecEnv if config["vec_env"] == "subproc" else DummyVecEnv
     monitor_dir = str(run_dir / "monitor")
-    train_env = make_vec_env(config["env"], n_envs=config["n_envs"], seed=config["seed"] + seed_offset,
+    factory = functools.partial(make_env, config["env"])
+    train_env = make_vec_env(factory, n_envs=config["n_envs"], seed=config["seed"] + seed_offset,
                              vec_env_cls=vec_cls, monitor_dir=monitor_dir, env_kwargs=config["env_kwargs"],
                              monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
-    eval_env = make_vec_env(config["env"], n_envs=1, seed=config["seed"] + 10_000, vec_env_cls=DummyVecEnv,
+    eval_env = make_vec_env(factory, n_envs=1, seed=config["seed"] + 10_000, vec_env_cls=DummyVecEnv,
                             env_kwargs=config["env_kwargs"])
     return train_env, eval_env
 
