@@ -29,6 +29,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/step_speed.py
 	$(PY) benchmarks/env_speed.py
 	$(PY) benchmarks/stability.py
+	$(PY) benchmarks/env_accuracy.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,97 @@
+"""choose_resolution (sim_core.resolution): a tiny indentation scene, fast (< 30 s)."""
+
+import numpy as np
+import pytest
+
+from sim_core.resolution import Scene, choose_resolution, reference_solutions, scene_errors, solve_scene
+
+MM = 1e-3
+
+
+def tiny_scene(**changes):
+    """A 2 cm cube, bottom fixed, the central quarter of the top pressed 0.5 and 1 mm (glued)."""
+    values = dict(size=0.02, young_modulus=5e3, poisson_ratio=0.3, density=1000.0, gravity=0.0,
+                  tool_low=(0.005, 0.02, 0.005), tool_high=(0.015, 0.02, 0.015),
+                  displacements=[[(0, -0.5 * MM, 0), (0, -1.0 * MM, 0)]], target=(0.01, 0.01, 0.01), name="tiny")
+    values.update(changes)
+    return Scene(**values)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    scene = tiny_scene()
+    references = reference_solutions(scene, reference_resolution=4)
+    return scene, references
+
+
+def test_chosen_resolution_meets_the_tolerance(setup):
+    scene, references = setup
+    choice = choose_resolution(scene, 0.2, resolutions=(2, 3, 4), hourglass_controls=(0.5,), volume_stiffnesses=(1.0,),
+                               references=references)
+    assert references[0][0].converged.all() and choice.reference_stable
+    assert choice.chosen is not None and choice.chosen.admissible and choice.chosen.stable
+    # recompute independently: the errors are really below the tolerance
+    solution = solve_scene(scene, choice.chosen.shape, hourglass_control=0.5, volume_stiffness=1.0)
+    errors = scene_errors(solution, references[0][0])
+    assert choice.chosen.resolution == 3  # n = 2 misses the force by 47%
+    assert all(errors[q] <= 0.2 for q in errors)
+    assert errors == pytest.approx(choice.chosen.errors)
+    assert all(s is True for s in solution.stable)
+
+
+def test_finer_tolerance_never_gives_a_coarser_answer(setup):
+    scene, references = setup
+    previous = 0
+    for tolerance in (0.5, 0.15, 0.05, 0.01, 1e-4):
+        choice = choose_resolution(scene, tolerance, resolutions=(2, 3, 4), hourglass_controls=(0.5,),
+                                   volume_stiffnesses=(1.0,), references=references)
+        resolution = np.inf if choice.chosen is None else choice.chosen.resolution
+        assert resolution >= previous
+        previous = resolution
+    assert choice.chosen is None and choice.best is not None  # 1e-4: out of reach, the closest is reported
+
+
+def test_reference_mesh_scores_its_own_solution_as_exact(setup):
+    scene, references = setup
+    errors = scene_errors(references[0][0], references[0][0])
+    assert all(v == 0.0 for v in errors.values())
+
+
+def test_shape_rule():
+    scene = tiny_scene(size=(0.06, 0.03, 0.06))
+    assert scene.shape(5) == (5, 3, 5) and scene.shape(2) == (2, 1, 2)
+    flap = tiny_scene(size=(0.06, 0.008, 0.03), tool_low=(0.06, 0, 0), tool_high=(0.06, 0.008, 0.03),
+                      target=(0.03, 0.004, 0.015), fixed_face="x-")
+    assert flap.shape(6) == (6, 1, 3)
+
+
+@pytest.mark.parametrize("keyword, value", [
+    ("size", -1.0), ("poisson_ratio", 0.6), ("young_modulus", 0.0), ("fixed_face", "bottom"),
+    ("displacements", [(0, 0, 0)]), ("displacements", "abc"), ("target", (0.5, 0.01, 0.01)),
+    ("tool_components", (3,)), ("tool_low", (0.02, 0.02, 0.02)),
+])
+def test_invalid_scene_raises_value_error_naming_the_argument(keyword, value):
+    with pytest.raises(ValueError, match=keyword):
+        tiny_scene(**{keyword: value})
+
+
+@pytest.mark.parametrize("keyword, value", [
+    ("tolerance", -0.1), ("tolerance", float("nan")), ("resolutions", (0, 2)), ("resolutions", (2.5,)),
+    ("hourglass_controls", (-1.0,)), ("volume_stiffnesses", ()), ("reference_resolution", 1),
+    ("quantities", ("pressure",)),
+])
+def test_invalid_choice_arguments_raise_value_error_naming_the_argument(setup, keyword, value):
+    scene, references = setup
+    with pytest.raises(ValueError, match=keyword):
+        choose_resolution(scene, **{keyword: value, **({} if keyword == "reference_resolution" else {"references": references})})
+
+
+def test_scene_argument_must_be_a_scene():
+    with pytest.raises(ValueError, match="scene"):
+        choose_resolution("a block", 0.05)
+
+
+def test_tool_selecting_no_node_is_rejected():
+    scene = tiny_scene(tool_low=(0.001, 0.02, 0.001), tool_high=(0.002, 0.02, 0.002))
+    with pytest.raises(ValueError, match="tool"):
+        scene.discretise((2, 2, 2))
