@@ -12,23 +12,10 @@ import gymnasium as gym
 import numpy as np
 
 import tissue_env
+from tissue_env.episodes import random_policy, run_episode, scripted_policy
 
 
-def episode(env, seed, policy):
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    total = 0.0
-    while True:
-        _, reward, terminated, truncated, info = env.step(policy(env))
-        total += reward
-        if terminated or truncated:
-            return total, bool(info["is_success"])
-
-
-POLICIES = {
-    "scripted": lambda env: env.unwrapped.scripted_action(),
-    "random": lambda env: env.action_space.sample(),
-}
+POLICIES = {"scripted": scripted_policy, "random": random_policy}
 
 
 def measure(env_id, seeds):
@@ -36,8 +23,9 @@ def measure(env_id, seeds):
     rows = {}
     for name, policy in POLICIES.items():
         start = time.perf_counter()
-        results = [episode(env, seed, policy) for seed in range(seeds)]
-        rows[name] = dict(success=np.mean([s for _, s in results]), mean_return=np.mean([r for r, _ in results]),
+        results = [run_episode(env, policy, seed) for seed in range(seeds)]
+        rows[name] = dict(success=np.mean([info["is_success"] for _, _, info in results]),
+                          mean_return=np.mean([r for r, _, _ in results]),
                           seconds=time.perf_counter() - start)
     env.close()
     return rows

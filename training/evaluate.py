@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tissue_env.episodes import run_episode
+
 from .common import UsageError, algorithm_class, check_env_id, fail
 
 PROGRAM = "training.evaluate"
@@ -27,25 +29,39 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _episodes(env, policy, seeds, frames=None):
-    """Run one episode per seed with ``policy(observation, env) -> action``; returns statistics."""
+    """Run one episode per seed with ``policy(observation, env) -> action``; returns statistics.
+    The observation is the one the policy's last step produced (tracked by a small wrapper)."""
     returns, lengths, successes = [], [], []
+    tracked = _ObservationTracker(env)
     for index, seed in enumerate(seeds):
-        observation, info = env.reset(seed=int(seed))
-        total, length, done = 0.0, 0, False
-        while not done:
-            action = policy(observation, env)
-            observation, reward, terminated, truncated, info = env.step(action)
-            total += float(reward)
-            length += 1
-            done = terminated or truncated
-            if frames is not None and index == 0:
-                frames.append(env.render())
+        total, length, info = run_episode(tracked, lambda e: policy(tracked.observation, e), seed,
+                                          frames if index == 0 else None)
         returns.append(total)
         lengths.append(length)
         successes.append(bool(info.get("is_success", False)))
     return dict(mean_return=float(np.mean(returns)), std_return=float(np.std(returns)),
                 success_rate=float(np.mean(successes)), mean_episode_length=float(np.mean(lengths)),
                 episodes=len(seeds))
+
+
+class _ObservationTracker:
+    """Forwards reset/step/render to ``env`` and remembers the latest observation."""
+
+    def __init__(self, env):
+        self.env, self.observation = env, None
+        self.unwrapped, self.action_space = env.unwrapped, env.action_space
+
+    def reset(self, **kwargs):
+        self.observation, info = self.env.reset(**kwargs)
+        return self.observation, info
+
+    def step(self, action):
+        result = self.env.step(action)
+        self.observation = result[0]
+        return result
+
+    def render(self):
+        return self.env.render()
 
 
 def _agent_policy(run_dir: Path, config: dict):
