@@ -106,13 +106,15 @@ def spring_state(model: Model, positions: np.ndarray) -> tuple[SpringState, np.n
 
 
 def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None,
-                    springs: SpringState | None = None, push: np.ndarray | None = None) -> np.ndarray:
+                    springs: SpringState | None = None, push: np.ndarray | None = None,
+                    hourglass: bool = True) -> np.ndarray:
     """(N, 3) elastic + viscous spring forces, corrections, volume and hourglass forces in N
     (no gravity). Compiled kernels; ``internal_forces_reference`` is the numpy formulation.
 
     Args:
         positions: (N, 3) m.  velocities: (N, 3) m/s, or None for no damping.
         springs, push: a ``spring_state`` of these positions, to avoid recomputing it.
+        hourglass: include the hourglass-control force (a caller may apply it its own way).
     """
     positions = np.ascontiguousarray(positions, dtype=float)
     if springs is None:
@@ -126,7 +128,7 @@ def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray 
         kernels.fixed_direction_corrections(model.mesh.elements, push, model.rest_edge_direction, forces)
     if model.has_volume_forces:
         kernels.volume_pass(positions, model.mesh.elements, model.rest_volume, model.volume_stiffness, forces)
-    if model.hourglass is not None:
+    if hourglass and model.hourglass is not None:
         indptr, indices, data = model.hourglass_arrays
         kernels.csr_matvec_add(indptr, indices, data, (positions - model.rest_positions).ravel(), -1.0,
                                forces.reshape(-1))

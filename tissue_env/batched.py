@@ -43,7 +43,7 @@ import scipy.sparse.linalg as spla
 
 from sim_core import HexMesh
 from sim_core import kernels
-from sim_core.forces import spring_state, stiffness_data
+from sim_core.forces import internal_forces, spring_state, stiffness_data
 from sim_core.integrators import DivergenceMonitor, SymplecticEuler
 from sim_core.model import Control, Model, State
 
@@ -149,20 +149,9 @@ class ModelStack:
 def stacked_internal_forces(stack: ModelStack, positions, velocities=None, springs=None, push=None):
     """(N * n, 3) ``sim_core.forces.internal_forces`` of the stacked model, with the hourglass term
     as one sparse product per group of equal copies (the stacked CSR product was measured 4x
-    slower). Same kernels and order as sim_core for the other terms."""
+    slower); the other terms are sim_core's."""
     model = stack.model
-    positions = np.ascontiguousarray(positions, dtype=float)
-    if springs is None:
-        springs, push = spring_state(model, positions)
-    forces = np.zeros_like(positions)
-    use_velocity = velocities is not None
-    velocity_array = np.ascontiguousarray(velocities, dtype=float) if use_velocity else positions
-    kernels.scatter_springs(model.springs, springs.unit, springs.tension, model.damping, velocity_array,
-                            use_velocity, forces)
-    if model.correction_mode == "fixed":
-        kernels.fixed_direction_corrections(model.mesh.elements, push, model.rest_edge_direction, forces)
-    if model.has_volume_forces:
-        kernels.volume_pass(positions, model.mesh.elements, model.rest_volume, model.volume_stiffness, forces)
+    forces = internal_forces(model, positions, velocities, springs=springs, push=push, hourglass=False)
     groups = stack.hourglass_groups()
     if groups:
         displacement = (positions - model.rest_positions).reshape(stack.count, -1)
