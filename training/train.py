@@ -41,8 +41,9 @@ def parse_args(argv=None):
     parser.add_argument("--resume", default=None, metavar="RUN_DIR",
                         help="continue an interrupted run from its latest checkpoint (--timesteps: new total)")
     parser.add_argument("--runs-dir", default="runs")
-    parser.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
-                        help="DummyVecEnv (measured faster here for cheap steps) or SubprocVecEnv")
+    parser.add_argument("--vec-env", choices=("auto", "dummy", "subproc"), default="auto",
+                        help="auto: SubprocVecEnv when --n-envs > 1 (PPO, 4 envs, 4096 steps on 2 idle "
+                             "cores: 9.5 s against 11.4 s with DummyVecEnv), else DummyVecEnv")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: PPO ran 20x slower with 2)")
     parser.add_argument("--eval-freq", type=int, default=None, help="env steps between evaluations")
     parser.add_argument("--eval-episodes", type=int, default=5)
@@ -91,8 +92,9 @@ def _validated(args):
     while run_dir.exists():
         run_dir = run_dir.with_name(f"seed{args.seed}-{stamp}-{suffix}")
         suffix += 1
+    vec_env = args.vec_env if args.vec_env != "auto" else ("subproc" if n_envs > 1 else "dummy")
     config = dict(env=args.env, algo=args.algo, timesteps=args.timesteps, seed=args.seed, n_envs=n_envs,
-                  vec_env=args.vec_env, threads=args.threads, env_kwargs=env_kwargs, hyperparams=hyperparams,
+                  vec_env=vec_env, threads=args.threads, env_kwargs=env_kwargs, hyperparams=hyperparams,
                   eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq)
     return run_dir, config
 
