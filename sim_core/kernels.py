@@ -123,6 +123,66 @@ def hex_volume(corner, d=None):
     return volume / 12.0
 
 
+#: The 15 (a, b, c, sign) of V = 1/12 sum sign d_a . (d_b x d_c), lexicographic corners.
+_VOLUME_TRIPLES = np.array([
+    [1, 2, 3, 1], [1, 3, 5, 1], [1, 3, 7, 1], [1, 4, 5, -1], [1, 5, 7, -1], [2, 3, 6, -1], [2, 3, 7, -1],
+    [2, 4, 6, 1], [2, 6, 7, 1], [3, 5, 7, -1], [3, 6, 7, 1], [4, 5, 6, 1], [4, 5, 7, 1], [4, 6, 7, -1],
+    [5, 6, 7, -1]])
+
+
+@njit(cache=True, error_model="numpy")
+def volume_jacobian_terms(positions, elements, rest_volume, kappa, coefficient, direction, gradient):
+    """Per element the volume forces' stiffness K_v = c h grad(V)^T (physics.md 4): the coefficient
+    c = 2 kappa |dV| / V0^2 (N/m^4... per m^3 of volume change), the force directions h (M, 8, 3),
+    a_S / (4 A_H) summed over the node's faces, and the volume gradient (M, 8, 3) in m^2."""
+    corner = np.empty((8, 3))
+    d = np.empty((8, 3))
+    grad_lex = np.empty((8, 3))
+    area = np.empty((6, 3))
+    for m in range(elements.shape[0]):
+        coefficient[m] = 0.0
+        if kappa[m] == 0.0:
+            continue
+        for n in range(8):
+            for c in range(3):
+                corner[n, c] = positions[elements[m, n], c]
+        volume = hex_volume(corner, d)  # also fills d (lexicographic differences)
+        coefficient[m] = 2.0 * kappa[m] * abs(volume - rest_volume[m]) / rest_volume[m] ** 2
+        grad_lex[:] = 0.0
+        for t in range(15):
+            a, b, cc, sign = _VOLUME_TRIPLES[t, 0], _VOLUME_TRIPLES[t, 1], _VOLUME_TRIPLES[t, 2], _VOLUME_TRIPLES[t, 3]
+            w = sign / 12.0
+            x = _cross(d[b, 0], d[b, 1], d[b, 2], d[cc, 0], d[cc, 1], d[cc, 2])
+            y = _cross(d[cc, 0], d[cc, 1], d[cc, 2], d[a, 0], d[a, 1], d[a, 2])
+            z = _cross(d[a, 0], d[a, 1], d[a, 2], d[b, 0], d[b, 1], d[b, 2])
+            for c in range(3):
+                grad_lex[a, c] += w * x[c]
+                grad_lex[b, c] += w * y[c]
+                grad_lex[cc, c] += w * z[c]
+        for c in range(3):
+            total = 0.0
+            for n in range(1, 8):
+                total += grad_lex[n, c]
+            grad_lex[0, c] = -total
+        for n in range(8):
+            vtk = _LEXICOGRAPHIC_TO_VTK[n]
+            for c in range(3):
+                gradient[m, vtk, c] = grad_lex[n, c]
+        total_area = 0.0
+        for f in range(6):
+            n0, n1, n2, n3 = _FACES[f, 0], _FACES[f, 1], _FACES[f, 2], _FACES[f, 3]
+            a0, a1, a2 = _cross(corner[n2, 0] - corner[n0, 0], corner[n2, 1] - corner[n0, 1],
+                                corner[n2, 2] - corner[n0, 2], corner[n3, 0] - corner[n1, 0],
+                                corner[n3, 1] - corner[n1, 1], corner[n3, 2] - corner[n1, 2])
+            area[f, 0], area[f, 1], area[f, 2] = 0.5 * a0, 0.5 * a1, 0.5 * a2
+            total_area += np.sqrt(area[f, 0] ** 2 + area[f, 1] ** 2 + area[f, 2] ** 2)
+        direction[m] = 0.0
+        for f in range(6):
+            for k in range(4):
+                for c in range(3):
+                    direction[m, _FACES[f, k], c] += area[f, c] / (4.0 * total_area)
+
+
 @njit(cache=True, error_model="numpy")
 def volume_pass(positions, elements, rest_volume, kappa, forces):
     """Volume-conservation forces (physics.md 4) with exact trilinear element volumes."""
@@ -239,13 +299,37 @@ def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_lengt
 
 
 @njit(cache=True, error_model="numpy")
+def _volume_matvec_add(elements, coefficient, direction, gradient, vector, scale, out):
+    """out += scale * K_v vector with K_v = sum_e c_e h_e grad(V_e)^T, the volume forces' rank-one
+    stiffness per element (physics.md 4; see forces.volume_terms)."""
+    for m in range(elements.shape[0]):
+        if coefficient[m] == 0.0:
+            continue
+        rate = 0.0
+        for n in range(8):
+            node = elements[m, n]
+            for c in range(3):
+                rate += gradient[m, n, c] * vector[3 * node + c]
+        rate *= scale * coefficient[m]
+        for n in range(8):
+            node = elements[m, n]
+            for c in range(3):
+                out[3 * node + c] += rate * direction[m, n, c]
+
+
+@njit(cache=True, error_model="numpy")
 def _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale,
-              elements, edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, vector, out):
+              elements, edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, vector, out,
+              volume_coefficient=None, volume_direction=None, volume_gradient=None, volume_scale=0.0):
     _block_matvec(node_indptr, node_indices, blocks, vector, out)
     if hg_scale != 0.0:
         csr_matvec_add(hg_indptr, hg_indices, hg_data, vector, hg_scale, out)
     if coupling_scale != 0.0:
         _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_length, vector, coupling_scale, out)
+    if volume_coefficient is not None:
+        if volume_scale != 0.0:
+            _volume_matvec_add(elements, volume_coefficient, volume_direction, volume_gradient, vector,
+                               volume_scale, out)
     for i in range(out.shape[0]):
         out[i] *= mask[i]
 
@@ -253,7 +337,8 @@ def _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data,
 @njit(cache=True, error_model="numpy")
 def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr, hg_indices, hg_data, hg_scale,
                    elements, edge_unit, correction_matrix, axis_rest_length, coupling_scale,
-                   mask, rhs, guess, tolerance, max_iterations, symmetric):
+                   mask, rhs, guess, tolerance, max_iterations, symmetric,
+                   volume_coefficient=None, volume_direction=None, volume_gradient=None, volume_scale=0.0):
     """Jacobi-preconditioned CG (symmetric) or BiCGSTAB on the masked system. Returns
     (solution, iterations, relative residual)."""
     n = rhs.shape[0]
@@ -270,7 +355,8 @@ def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr,
     x = guess * mask
     work = np.empty(n)
     _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements, edge_unit,
-              correction_matrix, axis_rest_length, coupling_scale, mask, x, work)
+              correction_matrix, axis_rest_length, coupling_scale, mask, x, work,
+              volume_coefficient, volume_direction, volume_gradient, volume_scale)
     r = rhs * mask - work
     norm_b = np.sqrt(np.dot(rhs, rhs))
     if norm_b == 0.0:
@@ -283,7 +369,8 @@ def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr,
         rz = np.dot(r, z)
         while residual > tolerance and iterations < max_iterations:
             _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements,
-                      edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, p, work)
+                      edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, p, work,
+                      volume_coefficient, volume_direction, volume_gradient, volume_scale)
             curvature = np.dot(p, work)
             if curvature <= 0.0:
                 break
@@ -314,7 +401,8 @@ def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr,
         p = r + beta * (p - omega * v)
         p_hat = inverse_diagonal * p
         _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements,
-                  edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, p_hat, v)
+                  edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, p_hat, v,
+                  volume_coefficient, volume_direction, volume_gradient, volume_scale)
         denominator = np.dot(r_hat, v)
         if denominator == 0.0:
             break
@@ -328,7 +416,8 @@ def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr,
             break
         s_hat = inverse_diagonal * s
         _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements,
-                  edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, s_hat, t)
+                  edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, s_hat, t,
+                  volume_coefficient, volume_direction, volume_gradient, volume_scale)
         tt = np.dot(t, t)
         omega = np.dot(t, s) / tt if tt > 0 else 0.0
         x += alpha * p_hat + omega * s_hat

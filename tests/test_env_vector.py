@@ -62,10 +62,12 @@ def test_make_vec_uses_the_vector_entry_point(env_id):
 
 @pytest.mark.parametrize("env_id", VECTOR_IDS)
 def test_same_trajectories_as_single_envs_with_the_same_seeds(env_id):
-    """With a tight solver tolerance the batched step equals N single steps to float32 rounding;
-    episodes are short so that truncation and the next-step autoreset are covered."""
+    """With a tight solver tolerance the batched step equals N single steps up to the solvers'
+    error (infos and rewards within 1e-5: with the volume forces' stiffness in the implicit
+    system, Retraction's crushed flap is conditioned so that a 1e-9 residual leaves 4e-6 in the
+    strain penalty); episodes are short so that truncation and the next-step autoreset are covered."""
     vector, sync = make_pair(env_id, 4, solver_tolerance=1e-9, max_episode_steps=12)
-    done = run_side_by_side(vector, sync, steps=30, seed=5, obs_atol=2e-4, reward_atol=1e-5, info_atol=1e-6)
+    done = run_side_by_side(vector, sync, steps=30, seed=5, obs_atol=2e-4, reward_atol=1e-5, info_atol=1e-5)
     assert done >= 8  # every copy truncated (and was autoreset) at least twice
     vector.close()
     sync.close()

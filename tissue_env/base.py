@@ -118,6 +118,9 @@ class TissueEnv(gym.Env):
         dt: physics time step in s (default 0.02); substeps: physics steps per env step (default 1).
         max_step: tool displacement in m per env step for an action component of 1.
         hourglass_control: sim_core's hourglass stabilisation alpha (default 0.5).
+        volume_stiffness: multiplier of sim_core's volume-force stiffness kappa = K V0^(2/3)
+            (default 1; x100 halves the volume error against neo-Hookean FEM in
+            benchmarks/env_accuracy.py and is stable with the implicit integrator).
         gravity: m/s^2 along -y (default 9.81).
         observation_type: "state" (default), "deformation" (adds the displacement of the surface
             nodes) or "dict" (the "deformation" features as a Dict space).
@@ -149,7 +152,7 @@ class TissueEnv(gym.Env):
 
     def __init__(self, *, young_modulus=5.0e3, poisson_ratio=0.45, density=1060.0, shape=None, size=None,
                  integrator="implicit", dt=0.02, substeps=1, max_step=None, hourglass_control=0.5,
-                 gravity=9.81, observation_type="state", young_modulus_range=None,
+                 volume_stiffness=1.0, gravity=9.81, observation_type="state", young_modulus_range=None,
                  poisson_ratio_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
                  instability_penalty=10.0, solver_tolerance=1e-4, render_mode=None):
         self.young_modulus = positive_scalar("young_modulus", young_modulus, "Pa")
@@ -166,6 +169,7 @@ class TissueEnv(gym.Env):
         self.substeps = int(substeps)
         self.max_step = positive_scalar("max_step", self.default_max_step if max_step is None else max_step, "m")
         self.hourglass_control = nonnegative_scalar("hourglass_control", hourglass_control)
+        self.volume_stiffness = nonnegative_scalar("volume_stiffness", volume_stiffness)
         self.gravity = nonnegative_scalar("gravity", gravity)
         if observation_type not in OBSERVATION_TYPES:
             raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")
@@ -269,7 +273,8 @@ class TissueEnv(gym.Env):
         if model is None:
             model = build_model(
                 self.mesh, self._material(young_modulus, poisson_ratio, task_key),
-                gravity=(0.0, -self.gravity, 0.0), hourglass_control=self.hourglass_control)
+                gravity=(0.0, -self.gravity, 0.0), hourglass_control=self.hourglass_control,
+                volume_stiffness=self.volume_stiffness)
             self._model_cache[key] = model
             if len(self._model_cache) > MODEL_CACHE_SIZE:
                 self._model_cache.popitem(last=False)

@@ -300,19 +300,27 @@ class BatchedImplicitEuler:
         edge_unit = np.zeros((model.mesh.n_elements, 12, 3))
         if coupled:
             kernels.edge_units(x0, model.mesh.elements, edge_unit)
+        # the volume forces' rank-one stiffness, implicit as in sim_core's ImplicitEuler
+        implicit_volume = model.has_volume_forces
+        n_elements = model.mesh.n_elements
+        volume_terms = (np.zeros(n_elements), np.zeros((n_elements, 8, 3)), np.zeros((n_elements, 8, 3)))
+        if implicit_volume:
+            kernels.volume_jacobian_terms(x0, model.mesh.elements, model.rest_volume, model.volume_stiffness,
+                                          *volume_terms)
         hg_indptr, hg_indices, hg_data = model.hourglass_arrays
         hourglass_groups = self.stack.hourglass_groups()
         dofs = x0.size
 
         def apply(blocks, scale, vector, mask):
-            """mask * (blocks + scale (K_hourglass + K_coupling)) @ vector (flat dof arrays). The
+            """mask * (blocks + scale (K_hourglass + K_coupling + K_volume)) @ vector (flat dof arrays). The
             hourglass term (a constant matrix) is one sparse product per group of copies with equal
             matrices, over all their vectors at once: 4x faster than the stacked matrix."""
             vector = np.ascontiguousarray(vector).reshape(-1)
             out = np.empty(dofs)
             kernels._operator(model.node_indptr, model.node_indices, blocks, hg_indptr, hg_indices, hg_data, 0.0,
                               model.mesh.elements, edge_unit, model.correction_matrix, model.axis_rest_length,
-                              scale if coupled else 0.0, mask, vector, out)
+                              scale if coupled else 0.0, mask, vector, out, *volume_terms,
+                              scale if implicit_volume else 0.0)
             vectors, rows, row_mask = vector.reshape(count, -1), out.reshape(count, -1), mask.reshape(count, -1)
             for matrix, copies in hourglass_groups:
                 if len(copies) == count:
@@ -338,7 +346,8 @@ class BatchedImplicitEuler:
 
         rhs = rhs.reshape(count, -1)
         if self.solver == "jacobi":
-            solution, iterations = self._solve_each(system, edge_unit, rhs, mask, active, dt, coupled)
+            solution, iterations = self._solve_each(system, edge_unit, rhs, mask, active, dt, coupled,
+                                                    volume_terms if implicit_volume else None)
             stalled = np.zeros(count, dtype=bool)
         else:
             solution, iterations, converged = self._solve(operator, rhs, mask, active, self.warm, self.first_pass)
@@ -372,7 +381,7 @@ class BatchedImplicitEuler:
                 self._refresh(worst, new_positions[worst], dt, fixed[worst])
         return new_positions, new_velocities
 
-    def _solve_each(self, system, edge_unit, rhs, mask, active, dt, coupled):
+    def _solve_each(self, system, edge_unit, rhs, mask, active, dt, coupled, volume_terms=None):
         """sim_core's own compiled solve (Jacobi-preconditioned BiCGSTAB, ``kernels.solve_implicit``)
         on each copy's slice of the stacked system: what its ``ImplicitEuler`` does, minus the
         per-step Python work, which the batch shares."""
@@ -389,7 +398,12 @@ class BatchedImplicitEuler:
                 model.node_indptr, model.node_indices, blocks, model.diagonal_block, hg_indptr, hg_indices, hg_data,
                 dt * dt if model.hourglass is not None else 0.0, model.mesh.elements, edge_unit[elements],
                 model.correction_matrix, model.axis_rest_length, dt * dt if coupled else 0.0, mask[index],
-                rhs[index] * mask[index], self.warm[index], self.tolerance, self.max_iterations, not coupled)
+                rhs[index] * mask[index], self.warm[index], self.tolerance, self.max_iterations,
+                not (coupled or volume_terms is not None),
+                *((term[elements] for term in volume_terms) if volume_terms is not None
+                  else (np.zeros(stack.n_elements), np.zeros((stack.n_elements, 8, 3)),
+                        np.zeros((stack.n_elements, 8, 3)))),
+                dt * dt if volume_terms is not None else 0.0)
         return solution, iterations
 
     def _solve(self, operator, rhs, mask, active, guess, max_iterations):
