@@ -16,6 +16,7 @@ per Newton iteration), so it is used only at reset (initial sag under gravity, g
 
 from __future__ import annotations
 
+import weakref
 from collections import OrderedDict
 
 import gymnasium as gym
@@ -193,6 +194,7 @@ class TissueEnv(gym.Env):
         self.surface_nodes = self.mesh.surface_nodes()
         self._surface_faces = self.mesh.surface_faces()
         self._model_cache: OrderedDict = OrderedDict()
+        self._start_cache: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> start positions
         self._setup_scene()
         # Build the default model now: it validates material and geometry together (Baudet's edge
         # stiffness must stay positive) and raises ValueError at construction, not at reset.
@@ -283,13 +285,12 @@ class TissueEnv(gym.Env):
         return model
 
     def _start_positions(self, model):
-        cache = getattr(model, "_tissue_env_start", None)
+        # The start depends only on the model (the tool starts at rest): computed once per model.
+        cache = self._start_cache.get(model)
         if cache is not None:
             return cache.copy()
         positions = self._initial_positions(model, self._control())
-        # The start depends only on the model (the tool starts at rest), so it is computed once per
-        # model; Model is a frozen dataclass and this model is private to this env.
-        object.__setattr__(model, "_tissue_env_start", positions)
+        self._start_cache[model] = positions
         return positions.copy()
 
     # -- Gymnasium API -----------------------------------------------------------------------------
@@ -369,8 +370,8 @@ class TissueEnv(gym.Env):
                 reason = "non-finite positions or velocities"
             if reason is None:
                 self._after_substep(scratch)
-                # sim_core's compiled force kernels raise ZeroDivisionError on a zero-length spring,
-                # which a diverging explicit run (or the floor projection of one) can produce.
+                # A zero-length spring (two nodes on top of each other, e.g. a diverging explicit run
+                # projected on the floor) has no direction: the state is no longer usable.
                 a, b = self.model.springs[:, 0], self.model.springs[:, 1]
                 length = np.linalg.norm(scratch.positions[b] - scratch.positions[a], axis=1)
                 if not np.all(length > 1e-6 * self.model.rest_length):
