@@ -37,31 +37,29 @@ MODEL_CACHE_SIZE = 16
 
 
 # -- argument checks (ValueError naming the keyword) -------------------------------------------
-def positive_scalar(name, value, unit=""):
+def _number(name, value, unit=""):
     try:
-        value = float(value)
+        return float(value)
     except (TypeError, ValueError) as error:
         raise ValueError(f"{name} must be a number{unit and ' in ' + unit}, got {value!r}") from error
+
+
+def positive_scalar(name, value, unit=""):
+    value = _number(name, value, unit)
     if not np.isfinite(value) or value <= 0:
         raise ValueError(f"{name} must be a finite number > 0{unit and ' ' + unit}, got {value!r}")
     return value
 
 
 def nonnegative_scalar(name, value):
-    try:
-        value = float(value)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a number, got {value!r}") from error
+    value = _number(name, value)
     if not np.isfinite(value) or value < 0:
         raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
     return value
 
 
 def check_poisson_ratio(name, value):
-    try:
-        value = float(value)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a number, got {value!r}") from error
+    value = _number(name, value)
     if not (-0.25 < value < 0.5):
         raise ValueError(f"{name} must lie in (-0.25, 0.5) for the mass-spring model, got {value!r}")
     return value
