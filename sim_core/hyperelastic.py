@@ -29,6 +29,7 @@ from .material import Material
 from .mesh import GAUSS_GRADIENTS, HexMesh
 from .model import Control
 from .sparse import BlockPattern
+from .static import ramp_load
 
 
 # -- constitutive law (pointwise, vectorised over any leading axes) ----------------------------
@@ -209,26 +210,20 @@ class NeoHookeanFEM:
         free = np.flatnonzero(~fixed)
         imposed = np.flatnonzero(fixed)
         target = control.target.ravel()
-        positions = start.ravel().copy()
-        done, step = 0.0, 1.0 / max(int(load_steps), 1)
-        iterations = increments = 0
-        residual, message = np.inf, ""
-        while done < 1.0 - 1e-12:
-            level = min(done + step, 1.0)
+        state = {"positions": start.ravel().copy()}
+
+        def advance(level):
+            positions = state["positions"]
             boundary = start.ravel()[imposed] + level * (target[imposed] - start.ravel()[imposed])
             ok, trial, residual, used = self._increment(positions, boundary, free, imposed, level * load.ravel(),
                                                         tolerance, max_iterations)
-            iterations += used
             if ok:
-                positions, done = trial, level
-                increments += 1
-                step = min(2.0 * step if used <= 4 else step, 1.0 - done) if done < 1.0 else step
-            else:
-                step /= 2.0
-                if step < 1.0 / max_load_steps:
-                    message = f"Newton did not converge at load level {level:.4f} (residual {residual:.2e})"
-                    break
-        converged = done >= 1.0 - 1e-12
+                state["positions"] = trial
+            return ok, residual, used
+
+        converged, iterations, increments, residual, message = ramp_load(advance, load_steps, max_load_steps,
+                                                                         fast_iterations=4)
+        positions = state["positions"]
         internal = self.internal_forces(positions.reshape(-1, 3)).ravel()
         if converged:
             residual = _relative(internal, load.ravel(), free)

@@ -108,29 +108,21 @@ def solve_static(
     free = _free_dofs(control)
     fixed = control.fixed
     full_load = external_forces(model, control)
-    positions = start.copy()
-    done, step = 0.0, 1.0 / max(int(load_steps), 1)
-    iterations, increments = 0, 0
-    residual = np.inf
-    message = ""
     ramp_loads = initial is None
-    while done < 1.0 - 1e-12:
-        level = min(done + step, 1.0)
+    state = {"positions": start.copy()}
+
+    def advance(level):
         applied = level * full_load if ramp_loads else full_load
         target = start[fixed] + level * (control.target[fixed] - start[fixed])
-        trial, factor = _predict(model, positions, free, fixed, target, applied)
+        trial, factor = _predict(model, state["positions"], free, fixed, target, applied)
         ok, trial, residual, used = _newton(model, trial, free, applied, tolerance, max_iterations, factor)
-        iterations += used
         if ok:
-            positions, done = trial, level
-            increments += 1
-            step = min(step * 2.0, 1.0 - done) if used <= 6 else step
-        else:
-            step /= 2.0
-            if step < 1.0 / max_load_steps:
-                message = f"Newton did not converge at load level {level:.4f} (residual {residual:.2e})"
-                break
-    converged = done >= 1.0 - 1e-12
+            state["positions"] = trial
+        return ok, residual, used
+
+    converged, iterations, increments, residual, message = ramp_load(advance, load_steps, max_load_steps,
+                                                                     fast_iterations=6)
+    positions = state["positions"]
     force = _residual(model, positions, full_load)
     if converged:
         residual = _relative(force, free, full_load)
@@ -141,6 +133,31 @@ def solve_static(
         lowest = lowest_eigenvalue(model, control, positions)
     return StaticResult(State(positions, np.zeros_like(positions)), converged, float(residual),
                         iterations, increments, reaction, message, lowest)
+
+
+def ramp_load(advance, load_steps: int, max_load_steps: int, fast_iterations: int):
+    """Adaptive load stepping from level 0 to 1: ``advance(level) -> (ok, residual, iterations)``
+    solves one level (keeping its state on success). A failed increment is halved, one that took at
+    most ``fast_iterations`` doubles the next; below 1 / ``max_load_steps`` it gives up.
+
+    Returns (reached level 1, total iterations, increments, last residual, message).
+    """
+    done, step = 0.0, 1.0 / max(int(load_steps), 1)
+    iterations, increments, residual, message = 0, 0, np.inf, ""
+    while done < 1.0 - 1e-12:
+        level = min(done + step, 1.0)
+        ok, residual, used = advance(level)
+        iterations += used
+        if ok:
+            done = level
+            increments += 1
+            step = min(step * 2.0 if used <= fast_iterations else step, 1.0 - done) if done < 1.0 else step
+        else:
+            step /= 2.0
+            if step < 1.0 / max_load_steps:
+                message = f"Newton did not converge at load level {level:.4f} (residual {residual:.2e})"
+                break
+    return done >= 1.0 - 1e-12, iterations, increments, residual, message
 
 
 def _factorise(model, positions, free, damping):
