@@ -199,6 +199,22 @@ class RetractionEnv(TissueEnv):
         terms.update(self._damage_terms(measures))
         return terms
 
+    def constrain_tool(self, offset):
+        """Keep the grasped edge where the coarse flap deforms without inverting elements: it
+        may come back towards the attached edge only as far as it is lifted (x offset >=
+        -max(dy, 2 dy - L/3), L the flap length) and move sideways only as far as it is lifted
+        (|dz| <= min(1 cm, dy / 2)). Measured (scripted straight moves to a grid of offsets, 40
+        steps each): flat pushes back of 1 cm or more and sideways moves at floor level buckle the
+        one-element-thick flap into inverted elements (an ``unstable`` episode end); every offset
+        inside this set stayed valid. Offsets in m, shape (..., 3)."""
+        offset = np.array(offset, dtype=np.float64, copy=True)
+        lift = np.maximum(offset[..., 1], 0.0)
+        back = np.maximum(lift, 2.0 * lift - self.size[0] / 3.0)
+        offset[..., 0] = np.maximum(offset[..., 0], -back)
+        side = np.minimum(0.01, 0.5 * lift)
+        offset[..., 2] = np.clip(offset[..., 2], -side, side)
+        return offset
+
     def scripted_action(self, lift_height=0.04, hold=(0.005, 0.05)):
         """Lift and pull: raise the free edge to ``lift_height`` m, then bring it over the attached
         edge to (x, y) = ``hold`` m, keeping z."""

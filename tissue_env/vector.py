@@ -218,7 +218,8 @@ class TissueVectorEnv(VectorEnv):
         clipped = np.clip(np.where(active[:, None], actions, 0.0), -1.0, 1.0)
         step = self.max_step * clipped
         self.tool_offset = np.where(
-            active[:, None], np.clip(self.tool_offset + step, self.workspace_low, self.workspace_high),
+            active[:, None],
+            self.envs[0].constrain_tool(np.clip(self.tool_offset + step, self.workspace_low, self.workspace_high)),
             self.tool_offset)
         fixed, target, tool_mask = self._batch_control()
         reasons = self._advance(fixed, target, active)
