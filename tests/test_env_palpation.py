@@ -60,3 +60,40 @@ def test_inclusion_is_stiffer_under_the_probe():
     cells = unwrapped.inclusion_cells
     inclusion = int(np.flatnonzero((cells == unwrapped.inclusion_cell).all(axis=1))[0])
     assert np.argmax(stiffness) == inclusion and stiffness[inclusion] > 1.05 * np.median(stiffness)
+
+
+def test_palpation_map_records_first_probes_and_rewards_them_once():
+    env = gym.make("tissue_env/Palpation-v0")
+    env.reset(seed=3)
+    unwrapped = env.unwrapped
+    centre = unwrapped.cell_centres[0]
+    n_cells = len(unwrapped.cell_centres)
+
+    def go(goal, steps=12):
+        infos = []
+        for _ in range(steps):
+            tip = unwrapped._tip()
+            action = np.clip((goal - tip) / unwrapped.max_step, -1, 1).astype(np.float32)
+            obs, _, terminated, _, info = env.step(action)
+            infos.append(info)
+            if terminated:
+                break
+        return obs, infos
+
+    surface = unwrapped.top_y
+    go(np.array([centre[0], surface + 0.002, centre[1]]))
+    assert np.all(unwrapped.palpation_map == 0)
+    obs, infos = go(np.array([centre[0], surface - 0.004, centre[1]]), steps=4)
+    explore = [info["reward_explore"] for info in infos]
+    assert explore.count(0.5) == 1 and sum(explore) == 0.5  # once, on the first probing step
+    first = unwrapped.palpation_map[0]
+    assert first > 0 and np.count_nonzero(unwrapped.palpation_map) == 1
+    np.testing.assert_allclose(obs[15:15 + n_cells], unwrapped.palpation_map / 100.0, rtol=1e-6)
+    np.testing.assert_allclose(obs[15 + n_cells:17 + n_cells], 0.0, atol=1e-5)  # stiffest = here
+    # pressing deeper on the same cell neither rewards again nor changes its recorded stiffness
+    _, infos = go(np.array([centre[0], surface - 0.008, centre[1]]), steps=3)
+    assert all(info["reward_explore"] == 0 for info in infos)
+    assert unwrapped.palpation_map[0] == first
+    # the offset to the nearest unprobed cell points to a neighbour one cell pitch away (cm)
+    pitch = unwrapped.spacing[0] / unwrapped.length_scale
+    np.testing.assert_allclose(np.hypot(*obs[17 + n_cells:19 + n_cells]), pitch, rtol=1e-5)

@@ -23,6 +23,37 @@ def check_region(name, value):
     return region
 
 
+def update_palpation_map(palpation_map, centres, tips, depth, stiffness, map_depth, radius, rows):
+    """Record presses in the palpation maps (N, C) in place and return which rows (N,) probed a
+    cell for the first time. A row probes the candidate cell whose centre (``centres`` (C, 2),
+    x and z in m) is nearest its tip (``tips`` (N, 3), m) when that centre is within ``radius``
+    (m), the tip is at least ``map_depth`` (m) deep (``depth`` (N,)) and the probe touches
+    (indentation ``stiffness`` (N,) N/m > 0); the cell keeps the stiffness of its first probe
+    (so that pressing deeper later, where the force-depth curve is stiffer, does not change the
+    ranking). Only ``rows`` (N,) bool are updated."""
+    distance = np.hypot(centres[None, :, 0] - tips[:, None, 0], centres[None, :, 1] - tips[:, None, 2])
+    cell = np.argmin(distance, axis=1)
+    index = np.arange(len(cell))
+    probed = rows & (depth >= map_depth - 1e-9) & (distance[index, cell] <= radius) & (stiffness > 0)
+    new = probed & (palpation_map[index, cell] == 0)
+    palpation_map[index, cell] = np.where(new, stiffness, palpation_map[index, cell])
+    return new
+
+
+def map_features(palpation_map, centres, tips, length_scale, squeeze=False):
+    """Observation features of palpation maps (N, C): the map (N/m / 100, 0 where not probed
+    yet), the horizontal offset (cm) from the tip to the stiffest probed cell and to the nearest
+    cell not probed yet (zeros when there is none)."""
+    offsets = (centres[None] - tips[:, None][..., [0, 2]]) / length_scale  # (N, C, 2)
+    index = np.arange(len(palpation_map))
+    probed = palpation_map > 0
+    stiffest = np.where(probed.any(axis=1)[:, None], offsets[index, np.argmax(palpation_map, axis=1)], 0.0)
+    distance = np.where(probed, np.inf, np.hypot(offsets[..., 0], offsets[..., 1]))
+    unprobed = np.where((~probed).any(axis=1)[:, None], offsets[index, np.argmin(distance, axis=1)], 0.0)
+    features = dict(palpation_map=palpation_map / 100.0, stiffest_offset=stiffest, unprobed_offset=unprobed)
+    return {key: value[0] for key, value in features.items()} if squeeze else features
+
+
 class PalpationEnv(TissueEnv):
     """
     ## Description
@@ -59,7 +90,8 @@ class PalpationEnv(TissueEnv):
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (15,), float32)``.
+    ``observation_type="state"``: ``Box(-100, 100, (15 + C + 4,), float32)``, C the number of
+    candidate inclusion cells (9 at the defaults: 28 values).
 
     | Index | Observation                                        | Unit (normalised)     |
     |-------|----------------------------------------------------|-----------------------|
@@ -72,6 +104,15 @@ class PalpationEnv(TissueEnv):
     | 12    | number of surface nodes in contact                 | count                 |
     | 13    | indentation stiffness, vertical force / depth      | N/m / 100 (0 if none) |
     | 14    | steps the success press has been held / hold_steps | 1 (0 when not pressing) |
+    | 15 .. 15+C-1 | palpation map: indentation stiffness of the first probe of each candidate cell | N/m / 100 (0 = not probed yet) |
+    | 15+C, 16+C   | offset (x, z) from the tip to the stiffest probed cell | cm (0 if none) |
+    | 17+C, 18+C   | offset (x, z) from the tip to the nearest cell not probed yet | cm (0 if none) |
+
+    The palpation map is the agent's own memory of where it pressed and what it felt (a cell is
+    probed when the tip is ``map_depth`` = 3 mm deep or more with its axis within 1 cm of the
+    cell's centre, nearest centre first); it never reveals the inclusion. Without it a
+    memoryless policy cannot tell which places it has already pressed: PPO and SAC stayed at the
+    random policy's success rate (benchmarks/results/training.json before the map).
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
@@ -82,6 +123,8 @@ class PalpationEnv(TissueEnv):
     (+ reward_instability)``:
 
     - ``reward_success = success_bonus`` (default 10) on success, else 0
+    - ``reward_explore = explore_bonus`` (default 0.5) when a candidate cell is probed for the
+      first time (at most C x 0.5 = 4.5 per episode at the defaults, less than the success bonus)
     - ``reward_time = -time_penalty`` (default 0.05) per step
     - ``reward_force = -force_weight * max(0, |F| - force_limit) / force_limit`` (defaults 1, 1 N)
     - ``reward_volume``, ``reward_strain`` as in every task (``tissue_env.base``), and
@@ -122,7 +165,8 @@ class PalpationEnv(TissueEnv):
     candidate inclusion centres),
     ``max_depth`` (m), ``success_depth`` (m), ``success_radius`` (m), ``hold_steps``,
     ``start_distance`` (m), ``success_bonus``,
-    ``time_penalty``, ``force_limit`` (N), ``force_weight``; shared keywords in
+    ``time_penalty``, ``force_limit`` (N), ``force_weight``, ``map_depth`` (m), ``explore_bonus``; shared
+    keywords in
     ``tissue_env.base.TissueEnv``.
 
     ## Version History
@@ -130,20 +174,21 @@ class PalpationEnv(TissueEnv):
     - v0: initial version (unreleased changes: random probe start away from the inclusion, the
       success press must be held for ``hold_steps``, observation 14 is the hold progress,
       ``inclusion_ratio_range`` and ``inclusion_region`` for domain randomisation, the batched
-      vector env).
+      vector env, the palpation map observation and the exploration reward).
     """
 
     default_shape = (5, 3, 5)
     default_size = (0.06, 0.03, 0.06)
     default_max_step = 0.004
     min_shape = (3, 2, 3)
-    reward_names = ("success", "time", "force", "volume", "strain")
+    reward_names = ("success", "explore", "time", "force", "volume", "strain")
     #: Start height of the probe tip above the undeformed surface, m.
     clearance = 0.002
 
     def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=None,
                  max_depth=0.008, success_depth=0.005, success_radius=0.01, hold_steps=3, start_distance=0.02,
-                 success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, **kwargs):
+                 success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, map_depth=0.003,
+                 explore_bonus=0.5, **kwargs):
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
         self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
         self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region)
@@ -159,6 +204,8 @@ class PalpationEnv(TissueEnv):
         self.time_penalty = nonnegative_scalar("time_penalty", time_penalty)
         self.force_limit = positive_scalar("force_limit", force_limit, "N")
         self.force_weight = nonnegative_scalar("force_weight", force_weight)
+        self.map_depth = positive_scalar("map_depth", map_depth, "m")
+        self.explore_bonus = nonnegative_scalar("explore_bonus", explore_bonus)
         super().__init__(**kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
@@ -195,6 +242,8 @@ class PalpationEnv(TissueEnv):
                                  f"{nx} x {nz} layer (centres at fractions (i + 0.5) / {nx}, (k + 0.5) / {nz})")
             i, k = i.ravel()[inside], k.ravel()[inside]
         self.inclusion_cells = np.stack([i.ravel(), np.full(i.size, ny - 2), k.ravel()], axis=1)
+        #: (C, 2) horizontal (x, z) centres of the candidate cells, m: the palpation map's cells.
+        self.cell_centres = (self.inclusion_cells[:, [0, 2]] + 0.5) * self.spacing[[0, 2]]
 
     def _place_probe(self, start):
         self.probe_start = start
@@ -213,7 +262,8 @@ class PalpationEnv(TissueEnv):
         return Material(young, poisson_ratio, self.density)
 
     def _task_feature_sizes(self):
-        return dict(depth=1, contact_nodes=1, indentation_stiffness=1, hold_progress=1)
+        return dict(depth=1, contact_nodes=1, indentation_stiffness=1, hold_progress=1,
+                    palpation_map=len(self.cell_centres), stiffest_offset=2, unprobed_offset=2)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
@@ -234,6 +284,7 @@ class PalpationEnv(TissueEnv):
         self._place_probe(np.array([x, self.top_y + self.clearance, z]))
         self.contact_nodes = np.zeros(0, dtype=int)
         self.press_steps = 0
+        self.palpation_map = np.zeros(len(self.cell_centres))
 
     def _start_hook(self):
         self._sweep = None
@@ -271,6 +322,10 @@ class PalpationEnv(TissueEnv):
         # consecutive steps of a success press (once per reset and per step)
         self.press_steps = self.press_steps + 1 if measures["pressing"] else 0
         measures["press_steps"] = self.press_steps
+        new = update_palpation_map(self.palpation_map[None], self.cell_centres, self._tip()[None],
+                                   np.array([measures["depth"]]), np.array([measures["indentation_stiffness"]]),
+                                   self.map_depth, self.success_radius, np.array([True]))
+        measures["new_cell"] = bool(new[0])
 
     def _measure(self, state):
         measures = super()._measure(state)
@@ -282,7 +337,9 @@ class PalpationEnv(TissueEnv):
     def _task_features(self, measures):
         return dict(depth=[measures["depth"] / self.length_scale], contact_nodes=[len(self.contact_nodes)],
                     indentation_stiffness=[measures["indentation_stiffness"] / 100.0],
-                    hold_progress=[min(measures["press_steps"], self.hold_steps) / self.hold_steps])
+                    hold_progress=[min(measures["press_steps"], self.hold_steps) / self.hold_steps],
+                    **map_features(self.palpation_map[None], self.cell_centres, self._tip()[None], self.length_scale,
+                                   squeeze=True))
 
     def _task_info(self, measures):
         return dict(depth=measures["depth"], horizontal_distance=measures["horizontal_distance"],
@@ -296,6 +353,7 @@ class PalpationEnv(TissueEnv):
         force = float(np.linalg.norm(measures["reaction_force"]))
         terms = dict(
             success=self.success_bonus if self._is_success(measures) else 0.0,
+            explore=self.explore_bonus if measures["new_cell"] else 0.0,
             time=-self.time_penalty,
             force=-self.force_weight * max(0.0, force - self.force_limit) / self.force_limit,
         )
@@ -359,14 +417,17 @@ class PalpationVectorEnv(TissueVectorEnv):
         self.inclusion_centre = np.zeros((count, 3))
         self.press_steps = np.zeros(count, dtype=int)
         self.contact = np.zeros((count, len(self.top_nodes)), dtype=bool)
+        self.cell_centres = env.cell_centres
+        self.palpation_map = np.zeros((count, len(self.cell_centres)))
         for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
-                     "force_weight", "length_scale"):
+                     "force_weight", "length_scale", "map_depth", "explore_bonus"):
             setattr(self, name, getattr(env, name))
 
     def _load_task(self, index, env):
         self.probe_start[index] = env.probe_start
         self.inclusion_centre[index] = env.inclusion_centre
         self.press_steps[index] = env.press_steps
+        self.palpation_map[index] = env.palpation_map
         self.contact[index] = np.isin(self.top_nodes, env.contact_nodes)
 
     def _tips(self):
@@ -406,12 +467,16 @@ class PalpationVectorEnv(TissueVectorEnv):
     def _batch_record(self, measures, rows):
         self.press_steps = np.where(rows, np.where(measures["pressing"], self.press_steps + 1, 0), self.press_steps)
         measures["press_steps"] = self.press_steps.copy()
+        measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, self._tips(), measures["depth"],
+                                                    measures["indentation_stiffness"], self.map_depth,
+                                                    self.success_radius, rows)
 
     def _batch_task_features(self, measures):
         return dict(depth=measures["depth"][:, None] / self.length_scale,
                     contact_nodes=self.contact.sum(axis=1)[:, None],
                     indentation_stiffness=measures["indentation_stiffness"][:, None] / 100.0,
-                    hold_progress=np.minimum(measures["press_steps"], self.hold_steps)[:, None] / self.hold_steps)
+                    hold_progress=np.minimum(measures["press_steps"], self.hold_steps)[:, None] / self.hold_steps,
+                    **map_features(self.palpation_map, self.cell_centres, self._tips(), self.length_scale))
 
     def _batch_task_info(self, measures):
         return dict(depth=measures["depth"].copy(), horizontal_distance=measures["horizontal_distance"].copy(),
@@ -425,6 +490,7 @@ class PalpationVectorEnv(TissueVectorEnv):
         force = np.linalg.norm(measures["reaction_force"], axis=1)
         terms = dict(
             success=np.where(self._batch_success(measures), self.success_bonus, 0.0),
+            explore=np.where(measures["new_cell"], self.explore_bonus, 0.0),
             time=np.full(self.num_envs, -self.time_penalty),
             force=-self.force_weight * np.maximum(0.0, force - self.force_limit) / self.force_limit,
         )
@@ -433,6 +499,8 @@ class PalpationVectorEnv(TissueVectorEnv):
 
     def _write_back_task(self, index, env):
         env.press_steps = int(self.press_steps[index])
+        env.palpation_map = self.palpation_map[index].copy()
 
     def _write_back_measures(self, index, measures):
         measures["press_steps"] = int(self.press_steps[index])
+        measures["new_cell"] = False
