@@ -3,7 +3,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo validate test bench clean
+.PHONY: setup demo validate test bench bench-peers clean
 
 setup: $(STAMP)
 
@@ -30,6 +30,11 @@ bench: $(STAMP)
 	$(PY) benchmarks/env_speed.py
 	$(PY) benchmarks/stability.py
 	$(PY) benchmarks/env_accuracy.py
+
+# MuJoCo flex and PyBullet soft body next to ours (optional extra, not needed by anything else)
+bench-peers: $(STAMP)
+	$(PY) -m pip install --quiet -e ".[bench]"
+	$(PY) benchmarks/peers.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info
