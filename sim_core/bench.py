@@ -57,8 +57,78 @@ def bare_lattice_numba_step(model, positions, velocities, dt, scratch):
     return positions + dt * velocities, velocities
 
 
+def interleaved_median_ms(functions: dict, repeats: int) -> dict:
+    """Median ms of each function, called round-robin (one call of each per round) so that every
+    reading sees the same load on a shared machine."""
+    for function in functions.values():
+        function()  # warm-up (compilation, caches)
+    times = {label: [] for label in functions}
+    for _ in range(repeats):
+        for label, function in functions.items():
+            start = time.perf_counter()
+            function()
+            times[label].append(time.perf_counter() - start)
+    return {label: float(np.median(values) * 1e3) for label, values in times.items()}
+
+
+def copy_bandwidth(n_bytes: int, repeats: int = 20) -> float:
+    """Measured memory bandwidth in bytes/s: a numpy copy reads and writes n_bytes (median)."""
+    source = np.ones(n_bytes // 8)
+    target = np.empty_like(source)
+    seconds = median_ms(lambda: np.copyto(target, source), repeats) * 1e-3
+    return 2.0 * source.nbytes / seconds
+
+
+def _nbytes(*arrays) -> int:
+    return int(sum(np.asarray(a).nbytes for a in arrays))
+
+
+def step_bytes(model, iterations: int, symmetric: bool) -> dict:
+    """Compulsory memory traffic (bytes) of one step: every array a pass reads or writes counted once per
+    pass, indices and vectors included (a floor: caches, gathers and scatters only add to it).
+
+    explicit: the fused force kernel (springs, corrections, volume, scatter) and the update.
+    implicit: the force pass with the operator's data, the right-hand side (1-2 operator products),
+    and per solver iteration 1 (CG) or 2 (BiCGSTAB) operator products plus the fused vector updates
+    (about 13 (CG) or 24 (BiCGSTAB) vector streams of 3N doubles).
+    """
+    n_nodes, n_springs, n_elements = model.n_nodes, len(model.springs), model.mesh.n_elements
+    node_vector = 3 * n_nodes * 8
+    spring_data = _nbytes(model.springs, model.stiffness, model.rest_length, model.damping)
+    spring_state_bytes = n_springs * 8 * 5  # length, unit (3), tension
+    element_data = 0
+    if model.correction_mode is not None:
+        element_data += _nbytes(model.edge_spring, model.correction_matrix, model.axis_rest_length) + n_elements * 24
+    if model.has_volume_forces:
+        element_data += _nbytes(model.mesh.elements, model.rest_volume, model.volume_stiffness)
+    forces_pass = spring_data + 2 * spring_state_bytes + element_data + 4 * node_vector  # x, v, forces (rw)
+    update = 7 * node_vector + _nbytes(model.mass)  # x0, v0, f, gravity, control force, target, fixed; x1, v1
+    explicit = forces_pass + update
+    coupled = model.correction_mode is not None and not symmetric
+    volume = model.has_volume_forces and not symmetric
+    operator = _nbytes(model.springs, model.stiffness, model.damping, model.mass) + n_springs * 8 * 4 + 2 * node_vector
+    if coupled:  # elongation and push pass
+        operator += n_springs * (16 + 8 * 3 + 8 * 3) + _nbytes(model.edge_spring, model.correction_matrix,
+                                                                model.axis_rest_length)
+    if volume:
+        operator += n_elements * (8 * 8 + 8 + 2 * 24 * 8) + node_vector
+    products = (1 if symmetric else 2) * iterations + 3  # + K v0, the imposed part, the initial residual
+    vectors = (13 if symmetric else 24) * iterations * node_vector
+    implicit = forces_pass + n_springs * 8 + (n_elements * 49 * 8 if volume else 0) + products * operator + vectors
+    return {"explicit": explicit, "implicit": implicit, "operator_product": operator}
+
+
 def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
-    """Run every measurement; returns a JSON-ready dict (times in ms)."""
+    """Run every measurement; returns a JSON-ready dict (times in ms).
+
+    Full model and bare lattice (same springs, no corrections, no volume forces) are timed side by
+    side, interleaved call by call. The implicit comparisons:
+      (a) ``ratio_implicit_fixed15``: both solvers run exactly 15 iterations (tolerance ~0): the
+          full model's BiCGSTAB (two operator products per iteration) against the bare lattice's CG.
+      (b) ``ratio_implicit_converged``: both to the same relative residual (1e-6).
+      (c) ``ratio_implicit_to_bare_fixed15``: the issue's reading, the full model's real step
+          (converged, 1e-6) against the bare lattice's fixed 15-iteration CG step.
+    """
     mesh = HexMesh.block(shape, 0.1)
     material = Material(1e4, 0.3, 1500.0)
     full = build_model(mesh, material, gravity=(0, -0.5, 0))
@@ -75,33 +145,44 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
                            "cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__}}
 
     explicit = SymplecticEuler()
-    results["explicit_step_ms"] = median_ms(lambda: explicit.simulate(full, state, out, 1e-3, control), repeats)
-    results["bare_numpy_explicit_step_ms"] = median_ms(
-        lambda: bare_lattice_numpy_step(bare, state.positions, state.velocities, 1e-3), repeats)
     n = len(bare.springs)
     scratch = (np.empty(n), np.empty((n, 3)), np.empty(n), np.empty_like(state.positions))
-    results["bare_numba_explicit_step_ms"] = median_ms(
-        lambda: bare_lattice_numba_step(bare, state.positions, state.velocities, 1e-3, scratch), repeats)
+    results.update(interleaved_median_ms({
+        "explicit_step_ms": lambda: explicit.simulate(full, state, out, 1e-3, control),
+        "bare_numba_explicit_step_ms": lambda: bare_lattice_numba_step(
+            bare, state.positions, state.velocities, 1e-3, scratch),
+        "bare_same_integrator_explicit_step_ms": lambda: explicit.simulate(bare, state, out, 1e-3, control),
+    }, repeats))
+    results["bare_numpy_explicit_step_ms"] = median_ms(
+        lambda: bare_lattice_numpy_step(bare, state.positions, state.velocities, 1e-3), max(repeats // 4, 10))
 
-    iterations = []
+    never = 1e-30  # a tolerance no solve reaches: exactly max_iterations iterations
+    configurations = {
+        "implicit_step_ms": (ImplicitEuler(), full),
+        "bare_converged_implicit_step_ms": (ImplicitEuler(), bare),
+        "implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15), full),
+        "bare_numba_implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15), bare),
+        "implicit_cg_explicit_corrections_step_ms": (ImplicitEuler(corrections="explicit"), full),
+        "implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15), full),
+        "bare_numba_implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15), bare),
+    }
+    iterations = {label: [] for label in configurations}
 
-    def implicit_step(integrator, model, states):
-        # continuous stepping: each call advances the scene (a warm start may not see the answer)
-        report = integrator.simulate(model, states[0], states[1], 0.01, control)
-        states.reverse()
-        iterations.append(report.iterations)
-
-    for label, integrator, model in [
-        ("implicit_step_ms", ImplicitEuler(), full),
-        ("implicit_cg_explicit_corrections_step_ms", ImplicitEuler(corrections="explicit"), full),
-        ("implicit_15_iterations_step_ms", ImplicitEuler(max_iterations=15), full),
-        ("bare_numba_implicit_15_iterations_step_ms", ImplicitEuler(max_iterations=15), bare),
-    ]:
-        iterations.clear()
+    def stepper(label):
+        integrator, model = configurations[label]
         states = [state.copy(), state.copy()]
-        results[label] = median_ms(lambda: implicit_step(integrator, model, states), max(repeats // 4, 10))
-        results[label.replace("_step_ms", "_iterations")] = float(np.median(iterations))
-    results["cg_iterations"] = results.pop("implicit_iterations")
+
+        def step():  # continuous stepping: each call advances the scene (a warm start may not see the answer)
+            report = integrator.simulate(model, states[0], states[1], 0.01, control)
+            states.reverse()
+            iterations[label].append(report.iterations)
+        return step
+
+    results.update(interleaved_median_ms({label: stepper(label) for label in configurations}, max(repeats // 4, 10)))
+    for label, counts in iterations.items():
+        results[label.replace("_step_ms", "_iterations")] = float(np.median(counts))
+    results["cg_iterations"] = results.pop("implicit_iterations")  # BiCGSTAB (corrections implicit)
+    results["implicit_solver"] = "BiCGSTAB (full model, corrections and volume implicit); CG (bare lattice)"
 
     start = time.perf_counter()
     solve = shear(shape, 0.1, 1e4, 0.3, angle_deg=5.0)  # a static solve that any shape admits
@@ -109,7 +190,29 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
     results["static_solve_converged"] = solve.converged
 
     results["ratio_explicit_to_bare_numba"] = results["explicit_step_ms"] / results["bare_numba_explicit_step_ms"]
-    results["ratio_implicit15_to_bare_numba_implicit15"] = (
+    results["ratio_explicit_to_bare_same_integrator"] = (
+        results["explicit_step_ms"] / results["bare_same_integrator_explicit_step_ms"])
+    results["ratio_implicit_fixed15"] = (
+        results["implicit_fixed15_step_ms"] / results["bare_numba_implicit_fixed15_step_ms"])
+    results["ratio_implicit_converged"] = results["implicit_step_ms"] / results["bare_converged_implicit_step_ms"]
+    results["ratio_implicit_to_bare_fixed15"] = (
+        results["implicit_step_ms"] / results["bare_numba_implicit_fixed15_step_ms"])
+    results["ratio_implicit15_to_bare_numba_implicit15"] = (  # both capped at 15, tolerance 1e-6 (as before)
         results["implicit_15_iterations_step_ms"] / results["bare_numba_implicit_15_iterations_step_ms"])
 
+    # Memory-bandwidth floor: compulsory bytes per step / copy bandwidth measured now, from main
+    # memory (a 256 MB copy) and from cache (a 1 MB copy: the step's arrays fit in L2).
+    bandwidth = copy_bandwidth(256 * 2**20, 10)
+    cache_bandwidth = copy_bandwidth(2**20, 200)
+    traffic = step_bytes(full, int(round(results["cg_iterations"])), symmetric=False)
+    results["memory_bandwidth_GBps"] = bandwidth / 1e9
+    results["cache_bandwidth_GBps"] = cache_bandwidth / 1e9
+    results["explicit_bytes_per_step"] = traffic["explicit"]
+    results["implicit_bytes_per_step"] = traffic["implicit"]
+    results["explicit_bandwidth_floor_ms"] = traffic["explicit"] / bandwidth * 1e3
+    results["implicit_bandwidth_floor_ms"] = traffic["implicit"] / bandwidth * 1e3
+    results["explicit_cache_floor_ms"] = traffic["explicit"] / cache_bandwidth * 1e3
+    results["implicit_cache_floor_ms"] = traffic["implicit"] / cache_bandwidth * 1e3
+    results["explicit_times_bandwidth_floor"] = results["explicit_step_ms"] / results["explicit_bandwidth_floor_ms"]
+    results["implicit_times_bandwidth_floor"] = results["implicit_step_ms"] / results["implicit_bandwidth_floor_ms"]
     return results

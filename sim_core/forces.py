@@ -105,6 +105,61 @@ def spring_state(model: Model, positions: np.ndarray) -> tuple[SpringState, np.n
     return state, push
 
 
+_CORRECTION_KIND = {None: 0, "projected": 1, "fixed": 2}
+
+
+class ForceWorkspace:
+    """Preallocated per-model arrays for the fused force kernel (``kernels.model_forces``) and the
+    implicit step's matrix-free operator (``kernels.spring_operator``): nothing is allocated per
+    step. Owned by one integrator (or one call); the arrays are overwritten by every ``compute``.
+    """
+
+    def __init__(self, model: Model, implicit: bool = True):
+        n_springs, n_elements, n_nodes = len(model.springs), model.mesh.n_elements, model.n_nodes
+        self.model = model
+        self.length = np.empty(n_springs)
+        self.unit = np.empty((n_springs, 3))
+        self.tension = np.empty(n_springs)
+        self.push = np.zeros((n_elements, 3))
+        self.forces = np.empty((n_nodes, 3))
+        # the implicit step's arrays (empty placeholders for a forces-only workspace)
+        n_springs, n_elements, n_nodes = (n_springs, n_elements, n_nodes) if implicit else (0, 0, 0)
+        self.geometric = np.zeros(n_springs)
+        self.volume_coefficient = np.zeros(n_elements)
+        self.volume_direction = np.zeros((n_elements, 8, 3))
+        self.volume_gradient = np.zeros((n_elements, 8, 3))
+        self.elongation = np.empty(n_springs)
+        self.delta = np.empty(n_springs)
+        self.correction_kind = _CORRECTION_KIND[model.correction_mode]
+        self.has_volume = model.has_volume_forces
+        self.has_hourglass = model.hourglass is not None
+        self.hourglass_arrays = model.hourglass_arrays
+        self.rest_positions = np.ascontiguousarray(model.rest_positions, dtype=float)
+        self.work = np.empty((8, 3 * n_nodes))
+        hg_indptr, hg_indices, hg_data = self.hourglass_arrays
+        self.operator_data = (model.springs, self.unit, model.stiffness, model.damping, self.geometric, model.mass,
+                              model.mesh.elements, model.edge_spring, model.correction_matrix,
+                              model.axis_rest_length, self.volume_coefficient, self.volume_direction,
+                              self.volume_gradient, hg_indptr, hg_indices, hg_data, self.elongation, self.delta)
+
+    def compute(self, positions: np.ndarray, velocities: np.ndarray | None, hourglass: bool = True,
+                geometric: bool = False, volume_jacobian: bool = False) -> np.ndarray:
+        """Internal forces (N, 3) into ``self.forces`` (and length, unit, tension, push as
+        ``spring_state``); ``geometric`` / ``volume_jacobian`` also fill the implicit step's data."""
+        model = self.model
+        use_velocity = velocities is not None
+        hg_indptr, hg_indices, hg_data = self.hourglass_arrays
+        kernels.model_forces(
+            positions, velocities if use_velocity else positions, use_velocity, model.springs, model.stiffness,
+            model.rest_length, model.damping, model.mesh.elements, model.edge_spring, model.correction_matrix,
+            model.axis_rest_length, self.correction_kind, model.rest_edge_direction, model.rest_volume,
+            model.volume_stiffness, self.has_volume, hg_indptr, hg_indices, hg_data, self.rest_positions,
+            hourglass and self.has_hourglass, self.length, self.unit, self.tension, self.push, self.forces,
+            geometric, self.geometric, volume_jacobian and self.has_volume, self.volume_coefficient,
+            self.volume_direction, self.volume_gradient)
+        return self.forces
+
+
 def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None,
                     springs: SpringState | None = None, push: np.ndarray | None = None,
                     hourglass: bool = True) -> np.ndarray:
@@ -117,13 +172,13 @@ def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray 
         hourglass: include the hourglass-control force (a caller may apply it its own way).
     """
     positions = np.ascontiguousarray(positions, dtype=float)
-    if springs is None:
-        springs, push = spring_state(model, positions)
-    forces = np.zeros_like(positions)
     use_velocity = velocities is not None
-    velocity_array = np.ascontiguousarray(velocities, dtype=float) if use_velocity else positions
-    kernels.scatter_springs(model.springs, springs.unit, springs.tension, model.damping, velocity_array,
-                            use_velocity, forces)
+    velocity_array = np.ascontiguousarray(velocities, dtype=float) if use_velocity else None
+    if springs is None:  # one fused pass (kernels.model_forces)
+        return ForceWorkspace(model, implicit=False).compute(positions, velocity_array, hourglass=hourglass)
+    forces = np.zeros_like(positions)
+    kernels.scatter_springs(model.springs, springs.unit, springs.tension, model.damping,
+                            velocity_array if use_velocity else positions, use_velocity, forces)
     if model.correction_mode == "fixed":
         kernels.fixed_direction_corrections(model.mesh.elements, push, model.rest_edge_direction, forces)
     if model.has_volume_forces:

@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels
-from .forces import external_forces, internal_forces, spring_state, stiffness_data
+from .forces import ForceWorkspace, stiffness_data
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
@@ -98,18 +98,26 @@ class SymplecticEuler:
     def __init__(self, monitor: bool = True):
         self.monitor = monitor
         self._monitors: dict[int, DivergenceMonitor] = {}
+        self._workspaces: dict[int, ForceWorkspace] = {}
 
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None) -> StepReport:
         dt = _check_dt(dt)
         control = model.new_control() if control is None else control
-        forces = internal_forces(model, state_in.positions, state_in.velocities) + external_forces(model, control)
-        velocities = state_in.velocities + dt * forces / model.mass[:, None]
-        fixed = control.fixed
-        velocities[fixed] = 0.0
-        positions = state_in.positions + dt * velocities
-        _impose(control, state_in, positions, velocities, dt)
+        x0 = np.ascontiguousarray(state_in.positions, dtype=float)
+        v0 = np.ascontiguousarray(state_in.velocities, dtype=float)
+        forces = self._workspace(model, implicit=False).compute(x0, v0)  # one fused kernel call
+        positions, velocities = np.empty_like(x0), np.empty_like(v0)
+        kernels.symplectic_update(x0, v0, forces, model.gravity_force, control.force, model.mass, dt, control.fixed,
+                                  control.target, positions, velocities)
         state_out.positions, state_out.velocities, state_out.time = positions, velocities, state_in.time + dt
         return StepReport(unstable_reason=self._check(model, state_out))
+
+    def _workspace(self, model, implicit):
+        """The preallocated arrays of the fused kernels for this model (kept between steps)."""
+        workspace = self._workspaces.get(id(model))
+        if workspace is None or workspace.model is not model:
+            workspace = self._workspaces[id(model)] = ForceWorkspace(model, implicit=implicit)
+        return workspace
 
     def _check(self, model, state):
         if not self.monitor:
@@ -162,61 +170,40 @@ class ImplicitEuler(SymplecticEuler):
         control = model.new_control() if control is None else control
         x0 = np.ascontiguousarray(state_in.positions, dtype=float)
         v0 = np.ascontiguousarray(state_in.velocities, dtype=float)
-        springs, push = spring_state(model, x0)
-        forces = internal_forces(model, x0, v0, springs=springs, push=push) + external_forces(model, control)
-        n_blocks = len(model.node_indices)
-        system = np.empty((n_blocks, 3, 3))
-        stiffness = np.empty((n_blocks, 3, 3))
-        zero_mass = np.zeros_like(model.mass)
-        kernels.assemble_implicit(model.block_of_spring, n_blocks, model.diagonal_block, springs.unit,
-                                  springs.length, springs.tension, model.stiffness, model.damping, model.mass,
-                                  dt, True, system)
-        kernels.assemble_implicit(model.block_of_spring, n_blocks, model.diagonal_block, springs.unit,
-                                  springs.length, springs.tension, model.stiffness, model.damping * 0.0,
-                                  zero_mass, 1.0, True, stiffness)
         coupled = self.corrections == "implicit" and model.correction_mode is not None
-        edge_unit = np.empty((model.mesh.n_elements, 12, 3))
-        if coupled:
-            kernels.edge_units(x0, model.mesh.elements, edge_unit)
         # Volume forces' rank-one stiffness, with the other non-symmetric terms (BiCGSTAB only).
         implicit_volume = self.corrections == "implicit" and model.has_volume_forces
-        n_elements = model.mesh.n_elements
-        volume_coefficient = np.zeros(n_elements)
-        volume_direction = np.zeros((n_elements, 8, 3))
-        volume_gradient = np.zeros((n_elements, 8, 3))
-        if implicit_volume:
-            kernels.volume_jacobian_terms(x0, model.mesh.elements, model.rest_volume, model.volume_stiffness,
-                                          volume_coefficient, volume_direction, volume_gradient)
-        hg_indptr, hg_indices, hg_data = model.hourglass_arrays
+        workspace = self._workspace(model, implicit=True)
+        # one fused pass: forces, the springs' clamped geometric stiffness, the volume terms
+        forces = workspace.compute(x0, v0, geometric=True, volume_jacobian=implicit_volume)
+        forces += model.gravity_force + control.force
         has_hourglass = model.hourglass is not None
-        ones = np.ones(x0.size)
+        data = workspace.operator_data
+        n = x0.size
 
-        def apply(blocks, scale, vector, mask):
-            out = np.empty(x0.size)
-            kernels._operator(model.node_indptr, model.node_indices, blocks, hg_indptr, hg_indices, hg_data,
-                              scale if has_hourglass else 0.0, model.mesh.elements, edge_unit,
-                              model.correction_matrix, model.axis_rest_length, scale if coupled else 0.0,
-                              mask, vector, out, volume_coefficient, volume_direction, volume_gradient,
-                              scale if implicit_volume else 0.0)
-            return out
+        def scales(mass, damping, stiffness):  # (mass, damping, stiffness, coupling, volume, hourglass)
+            return (float(mass), float(damping), float(stiffness), stiffness if coupled else 0.0,
+                    stiffness if implicit_volume else 0.0, stiffness if has_hourglass else 0.0)
 
-        rhs = dt * (forces.ravel() - dt * apply(stiffness, 1.0, v0.ravel(), ones))
+        ones = np.ones(n)
+        product = np.empty(n)
+        kernels.apply_operator(data, scales(0.0, 0.0, 1.0), ones, v0.reshape(-1), product)  # K v0
+        rhs = dt * (forces.reshape(-1) - dt * product)
+        system = scales(1.0, dt, dt * dt)  # M + dt D + dt^2 K
         free = ~control.fixed.ravel()
-        known = np.zeros(rhs.size)
+        known = np.zeros(n)
         if not free.all():
             target_velocity = (control.target - x0) / dt
             known[~free] = (target_velocity - v0).ravel()[~free]
-            rhs = rhs - apply(system, dt * dt, known, ones)
+            kernels.apply_operator(data, system, ones, known, product)
+            rhs -= product
         mask = free.astype(float)
         guess = self._warm if self._warm is not None and self._warm.shape == rhs.shape else np.zeros_like(rhs)
-        dv, iterations, residual = kernels.solve_implicit(
-            model.node_indptr, model.node_indices, system, model.diagonal_block, hg_indptr, hg_indices, hg_data,
-            dt * dt if has_hourglass else 0.0, model.mesh.elements, edge_unit, model.correction_matrix,
-            model.axis_rest_length, dt * dt if coupled else 0.0, mask, rhs * mask, guess,
-            self.tolerance, self.max_iterations, not (coupled or implicit_volume),
-            volume_coefficient, volume_direction, volume_gradient, dt * dt if implicit_volume else 0.0,
-        )
-        self._warm = dv.copy()
+        dv = np.empty(n)
+        iterations, residual = kernels.solve_springs(
+            data, system, mask, rhs * mask, guess, self.tolerance, self.max_iterations,
+            not (coupled or implicit_volume), workspace.work, dv)
+        self._warm = dv
         dv = np.where(free, dv, known)
         velocities = v0 + dv.reshape(-1, 3)
         positions = x0 + dt * velocities

@@ -135,88 +135,14 @@ def volume_jacobian_terms(positions, elements, rest_volume, kappa, coefficient, 
     """Per element the volume forces' stiffness K_v = c h grad(V)^T (physics.md 4): the coefficient
     c = 2 kappa |dV| / V0^2 (N/m^4... per m^3 of volume change), the force directions h (M, 8, 3),
     a_S / (4 A_H) summed over the node's faces, and the volume gradient (M, 8, 3) in m^2."""
-    corner = np.empty((8, 3))
-    d = np.empty((8, 3))
-    grad_lex = np.empty((8, 3))
-    area = np.empty((6, 3))
-    for m in range(elements.shape[0]):
-        coefficient[m] = 0.0
-        if kappa[m] == 0.0:
-            continue
-        for n in range(8):
-            for c in range(3):
-                corner[n, c] = positions[elements[m, n], c]
-        volume = hex_volume(corner, d)  # also fills d (lexicographic differences)
-        coefficient[m] = 2.0 * kappa[m] * abs(volume - rest_volume[m]) / rest_volume[m] ** 2
-        grad_lex[:] = 0.0
-        for t in range(15):
-            a, b, cc, sign = _VOLUME_TRIPLES[t, 0], _VOLUME_TRIPLES[t, 1], _VOLUME_TRIPLES[t, 2], _VOLUME_TRIPLES[t, 3]
-            w = sign / 12.0
-            x = _cross(d[b, 0], d[b, 1], d[b, 2], d[cc, 0], d[cc, 1], d[cc, 2])
-            y = _cross(d[cc, 0], d[cc, 1], d[cc, 2], d[a, 0], d[a, 1], d[a, 2])
-            z = _cross(d[a, 0], d[a, 1], d[a, 2], d[b, 0], d[b, 1], d[b, 2])
-            for c in range(3):
-                grad_lex[a, c] += w * x[c]
-                grad_lex[b, c] += w * y[c]
-                grad_lex[cc, c] += w * z[c]
-        for c in range(3):
-            total = 0.0
-            for n in range(1, 8):
-                total += grad_lex[n, c]
-            grad_lex[0, c] = -total
-        for n in range(8):
-            vtk = _LEXICOGRAPHIC_TO_VTK[n]
-            for c in range(3):
-                gradient[m, vtk, c] = grad_lex[n, c]
-        total_area = 0.0
-        for f in range(6):
-            n0, n1, n2, n3 = _FACES[f, 0], _FACES[f, 1], _FACES[f, 2], _FACES[f, 3]
-            a0, a1, a2 = _cross(corner[n2, 0] - corner[n0, 0], corner[n2, 1] - corner[n0, 1],
-                                corner[n2, 2] - corner[n0, 2], corner[n3, 0] - corner[n1, 0],
-                                corner[n3, 1] - corner[n1, 1], corner[n3, 2] - corner[n1, 2])
-            area[f, 0], area[f, 1], area[f, 2] = 0.5 * a0, 0.5 * a1, 0.5 * a2
-            total_area += np.sqrt(area[f, 0] ** 2 + area[f, 1] ** 2 + area[f, 2] ** 2)
-        direction[m] = 0.0
-        for f in range(6):
-            for k in range(4):
-                for c in range(3):
-                    direction[m, _FACES[f, k], c] += area[f, c] / (4.0 * total_area)
+    forces = np.zeros_like(positions)  # (the forces themselves are not returned here)
+    volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, coefficient, direction, gradient)
 
 
 @njit(cache=True, error_model="numpy")
 def volume_pass(positions, elements, rest_volume, kappa, forces):
     """Volume-conservation forces (physics.md 4) with exact trilinear element volumes."""
-    corner = np.empty((8, 3))
-    scratch = np.empty((8, 3))
-    area = np.empty((6, 3))
-    for m in range(elements.shape[0]):
-        if kappa[m] == 0.0:
-            continue
-        for n in range(8):
-            for c in range(3):
-                corner[n, c] = positions[elements[m, n], c]
-        volume = hex_volume(corner, scratch)
-        relative = (volume - rest_volume[m]) / rest_volume[m]
-        phi = -kappa[m] * relative * abs(relative)
-        total_area = 0.0
-        for f in range(6):
-            n0, n1, n2, n3 = _FACES[f, 0], _FACES[f, 1], _FACES[f, 2], _FACES[f, 3]
-            d1x = corner[n2, 0] - corner[n0, 0]
-            d1y = corner[n2, 1] - corner[n0, 1]
-            d1z = corner[n2, 2] - corner[n0, 2]
-            d2x = corner[n3, 0] - corner[n1, 0]
-            d2y = corner[n3, 1] - corner[n1, 1]
-            d2z = corner[n3, 2] - corner[n1, 2]
-            area[f, 0] = 0.5 * (d1y * d2z - d1z * d2y)
-            area[f, 1] = 0.5 * (d1z * d2x - d1x * d2z)
-            area[f, 2] = 0.5 * (d1x * d2y - d1y * d2x)
-            total_area += np.sqrt(area[f, 0] ** 2 + area[f, 1] ** 2 + area[f, 2] ** 2)
-        scale = phi / (4.0 * total_area)
-        for f in range(6):
-            for k in range(4):
-                node = elements[m, _FACES[f, k]]
-                for c in range(3):
-                    forces[node, c] += scale * area[f, c]
+    volume_forces_add(positions, elements, rest_volume, kappa, forces)
 
 
 @njit(cache=True, error_model="numpy")
@@ -476,3 +402,819 @@ def any_inverted(positions, elements, neighbours, signs):
             if signs[corner] * det <= 0.0:
                 return True
     return False
+
+
+# -- fused hot path (one call per explicit step; per-spring operator data for the implicit step) ------
+#: fastmath without the no-NaN / no-inf assumptions, so a diverging run still shows NaN to the monitor.
+_FAST = {"nsz", "arcp", "contract", "reassoc"}
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_length, damping,
+                 elements, edge_spring, correction_matrix, axis_rest_length, correction_kind, rest_edge_direction,
+                 rest_volume, kappa, has_volume, hg_indptr, hg_indices, hg_data, rest_positions, has_hourglass,
+                 length, unit, tension, push, forces,
+                 want_geometric, geometric, want_volume_jacobian, volume_coefficient, volume_direction,
+                 volume_gradient):
+    """Every internal force in three passes (springs, elements, springs), into ``forces`` (zeroed here).
+
+    correction_kind: 0 none, 1 projected (a push lowers the edge's tension), 2 fixed directions.
+    Fills length, unit, tension (elastic and projected corrections; damping excluded) and push, as
+    ``forces.spring_state`` does. For the implicit step, want_geometric fills the per-spring clamped
+    geometric stiffness max(tension / length, 0) and want_volume_jacobian the volume forces'
+    rank-one terms (coefficient, direction, gradient; see ``volume_jacobian_terms``).
+    """
+    n_springs = springs.shape[0]
+    for s in range(n_springs):
+        a, b = springs[s, 0], springs[s, 1]
+        dx = positions[b, 0] - positions[a, 0]
+        dy = positions[b, 1] - positions[a, 1]
+        dz = positions[b, 2] - positions[a, 2]
+        current = np.sqrt(dx * dx + dy * dy + dz * dz)
+        length[s] = current
+        unit[s, 0] = dx / current
+        unit[s, 1] = dy / current
+        unit[s, 2] = dz / current
+        tension[s] = stiffness[s] * (current - rest_length[s])
+    forces[:] = 0.0
+    for m in range(elements.shape[0] if correction_kind != 0 else 0):  # corrections (physics.md 3)
+        e0 = 0.25 * (length[edge_spring[m, 0]] + length[edge_spring[m, 1]] + length[edge_spring[m, 2]]
+                     + length[edge_spring[m, 3]]) / axis_rest_length[m, 0] - 1.0
+        e1 = 0.25 * (length[edge_spring[m, 4]] + length[edge_spring[m, 5]] + length[edge_spring[m, 6]]
+                     + length[edge_spring[m, 7]]) / axis_rest_length[m, 1] - 1.0
+        e2 = 0.25 * (length[edge_spring[m, 8]] + length[edge_spring[m, 9]] + length[edge_spring[m, 10]]
+                     + length[edge_spring[m, 11]]) / axis_rest_length[m, 2] - 1.0
+        for j in range(3):
+            push[m, j] = correction_matrix[m, j, 0] * e0 + correction_matrix[m, j, 1] * e1 \
+                + correction_matrix[m, j, 2] * e2
+        if correction_kind == 1:
+            for e in range(12):
+                tension[edge_spring[m, e]] -= push[m, e // 4]
+        else:
+            for e in range(12):
+                t = push[m, e // 4]
+                p, q = elements[m, _EDGES[e, 0]], elements[m, _EDGES[e, 1]]
+                for c in range(3):
+                    forces[q, c] += t * rest_edge_direction[m, e, c]
+                    forces[p, c] -= t * rest_edge_direction[m, e, c]
+    if has_volume:
+        if want_volume_jacobian:
+            volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, volume_coefficient,
+                                       volume_direction, volume_gradient)
+        else:
+            volume_forces_add(positions, elements, rest_volume, kappa, forces)
+    for s in range(n_springs):
+        a, b = springs[s, 0], springs[s, 1]
+        t = tension[s]
+        if want_geometric:
+            g = t / length[s]
+            geometric[s] = g if g > 0.0 else 0.0
+        if use_velocity:
+            t += damping[s] * ((velocities[b, 0] - velocities[a, 0]) * unit[s, 0]
+                               + (velocities[b, 1] - velocities[a, 1]) * unit[s, 1]
+                               + (velocities[b, 2] - velocities[a, 2]) * unit[s, 2])
+        fx, fy, fz = t * unit[s, 0], t * unit[s, 1], t * unit[s, 2]
+        forces[a, 0] += fx
+        forces[a, 1] += fy
+        forces[a, 2] += fz
+        forces[b, 0] -= fx
+        forces[b, 1] -= fy
+        forces[b, 2] -= fz
+    if has_hourglass:  # f -= K_hg (x - X)
+        flat = forces.reshape(-1)
+        x = positions.reshape(-1)
+        rest = rest_positions.reshape(-1)
+        for row in range(hg_indptr.shape[0] - 1):
+            total = 0.0
+            for k in range(hg_indptr[row], hg_indptr[row + 1]):
+                col = hg_indices[k]
+                total += hg_data[k] * (x[col] - rest[col])
+            flat[row] -= total
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def symplectic_update(positions, velocities, forces, gravity_force, control_force, mass, dt, fixed, target,
+                      out_positions, out_velocities):
+    """v1 = v0 + dt (f + f_gravity + f_control) / m, x1 = x0 + dt v1; imposed components move to their
+    target with the velocity that gets them there in dt (``integrators._impose``)."""
+    for node in range(positions.shape[0]):
+        for c in range(3):
+            if fixed[node, c]:
+                out_velocities[node, c] = (target[node, c] - positions[node, c]) / dt
+                out_positions[node, c] = target[node, c]
+            else:
+                v = velocities[node, c] + dt * (forces[node, c] + (gravity_force[node, c] + control_force[node, c])) \
+                    / mass[node]
+                out_velocities[node, c] = v
+                out_positions[node, c] = positions[node, c] + dt * v
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_scale, damping_scale, stiffness_scale,
+                    elements, edge_spring, correction_matrix, axis_rest_length, coupling_scale,
+                    volume_coefficient, volume_direction, volume_gradient, volume_scale,
+                    hg_indptr, hg_indices, hg_data, hg_scale, mask, vector, out, elongation, delta):
+    """out = mask * (mass_scale M + damping_scale D + stiffness_scale K_springs + hg_scale K_hourglass
+    + coupling_scale K_c + volume_scale K_v) @ vector, matrix-free from per-spring data.
+
+    A spring's block is c_along u u^T + c_across (I - u u^T) with c_along = stiffness_scale k +
+    damping_scale d and c_across = stiffness_scale g (g the clamped geometric stiffness), so the
+    product needs the spring's elongation rate e = u . (v_b - v_a). The corrections' coupling K_c =
+    -G W^ G^T (``_coupling_matvec_add``) reads the same elongation rates: each element sums them per
+    axis into strain rates, turns them into pushes (W), and the pushes change the tension of its 12
+    edge springs (``delta``), applied along the springs in the same scatter. Flat dof vectors;
+    ``elongation`` and ``delta`` (S,) are scratch.
+    """
+    n_nodes = mass.shape[0]
+    for node in range(n_nodes):
+        w = mass_scale * mass[node]
+        out[3 * node] = w * vector[3 * node]
+        out[3 * node + 1] = w * vector[3 * node + 1]
+        out[3 * node + 2] = w * vector[3 * node + 2]
+    coupled = coupling_scale != 0.0
+    n_springs = springs.shape[0]
+    if coupled:
+        for s in range(n_springs):
+            a, b = springs[s, 0], springs[s, 1]
+            elongation[s] = (unit[s, 0] * (vector[3 * b] - vector[3 * a])
+                             + unit[s, 1] * (vector[3 * b + 1] - vector[3 * a + 1])
+                             + unit[s, 2] * (vector[3 * b + 2] - vector[3 * a + 2]))
+            delta[s] = 0.0
+        for m in range(elements.shape[0]):
+            r0 = 0.25 * coupling_scale * (elongation[edge_spring[m, 0]] + elongation[edge_spring[m, 1]]
+                                          + elongation[edge_spring[m, 2]] + elongation[edge_spring[m, 3]]) \
+                / axis_rest_length[m, 0]
+            r1 = 0.25 * coupling_scale * (elongation[edge_spring[m, 4]] + elongation[edge_spring[m, 5]]
+                                          + elongation[edge_spring[m, 6]] + elongation[edge_spring[m, 7]]) \
+                / axis_rest_length[m, 1]
+            r2 = 0.25 * coupling_scale * (elongation[edge_spring[m, 8]] + elongation[edge_spring[m, 9]]
+                                          + elongation[edge_spring[m, 10]] + elongation[edge_spring[m, 11]]) \
+                / axis_rest_length[m, 2]
+            for j in range(3):
+                p = correction_matrix[m, j, 0] * r0 + correction_matrix[m, j, 1] * r1 + correction_matrix[m, j, 2] * r2
+                for q in range(4):
+                    delta[edge_spring[m, 4 * j + q]] += p
+    if volume_scale != 0.0:
+        for m in range(elements.shape[0]):
+            if volume_coefficient[m] == 0.0:
+                continue
+            rate = 0.0
+            for n in range(8):
+                node = elements[m, n]
+                rate += (volume_gradient[m, n, 0] * vector[3 * node] + volume_gradient[m, n, 1] * vector[3 * node + 1]
+                         + volume_gradient[m, n, 2] * vector[3 * node + 2])
+            rate *= volume_scale * volume_coefficient[m]
+            for n in range(8):
+                node = elements[m, n]
+                out[3 * node] += rate * volume_direction[m, n, 0]
+                out[3 * node + 1] += rate * volume_direction[m, n, 1]
+                out[3 * node + 2] += rate * volume_direction[m, n, 2]
+    for s in range(n_springs):
+        a, b = springs[s, 0], springs[s, 1]
+        u0, u1, u2 = unit[s, 0], unit[s, 1], unit[s, 2]
+        d0 = vector[3 * b] - vector[3 * a]
+        d1 = vector[3 * b + 1] - vector[3 * a + 1]
+        d2 = vector[3 * b + 2] - vector[3 * a + 2]
+        across = stiffness_scale * geometric[s]
+        along = stiffness_scale * stiffness[s] + damping_scale * damping[s] - across
+        t = along * (u0 * d0 + u1 * d1 + u2 * d2)
+        if coupled:
+            t -= delta[s]
+        f0 = t * u0 + across * d0
+        f1 = t * u1 + across * d1
+        f2 = t * u2 + across * d2
+        out[3 * a] -= f0
+        out[3 * a + 1] -= f1
+        out[3 * a + 2] -= f2
+        out[3 * b] += f0
+        out[3 * b + 1] += f1
+        out[3 * b + 2] += f2
+    if hg_scale != 0.0:
+        for row in range(hg_indptr.shape[0] - 1):
+            total = 0.0
+            for k in range(hg_indptr[row], hg_indptr[row + 1]):
+                total += hg_data[k] * vector[hg_indices[k]]
+            out[row] += hg_scale * total
+    for i in range(out.shape[0]):
+        out[i] *= mask[i]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _apply(data, scales, mask, vector, out):
+    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
+    spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
+                    elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
+                    volume_coefficient, volume_direction, volume_gradient, scales[4],
+                    hg_indptr, hg_indices, hg_data, scales[5], mask, vector, out, elongation, delta)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def apply_operator(data, scales, mask, vector, out):
+    """``spring_operator`` with its arguments packed: data = (springs, unit, stiffness, damping,
+    geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length, volume_coefficient,
+    volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta), scales =
+    (mass, damping, stiffness, coupling, volume, hourglass)."""
+    _apply(data, scales, mask, vector, out)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, symmetric, work, solution):
+    """``solve_implicit`` on the matrix-free ``spring_operator``: Jacobi-preconditioned CG (symmetric)
+    or right-preconditioned BiCGSTAB, the same algorithm, with the vector updates fused into single
+    passes and no allocation (``work`` (8, n) scratch). Writes ``solution``; returns (iterations,
+    relative residual)."""
+    springs, unit, stiffness, damping, geometric, mass = data[0], data[1], data[2], data[3], data[4], data[5]
+    hg_indptr, hg_indices, hg_data = data[13], data[14], data[15]
+    mass_scale, damping_scale, stiffness_scale, hg_scale = scales[0], scales[1], scales[2], scales[5]
+    n = rhs.shape[0]
+    inverse_diagonal, r, r_hat, p, v, s, t, p_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
+    x = solution
+    # Jacobi preconditioner: the diagonal of M + springs (+ hourglass), as ``solve_implicit``
+    for node in range(mass.shape[0]):
+        for c in range(3):
+            inverse_diagonal[3 * node + c] = mass_scale * mass[node]
+    for k in range(springs.shape[0]):
+        a, b = springs[k, 0], springs[k, 1]
+        across = stiffness_scale * geometric[k]
+        along = stiffness_scale * stiffness[k] + damping_scale * damping[k] - across
+        for c in range(3):
+            value = along * unit[k, c] * unit[k, c] + across
+            inverse_diagonal[3 * a + c] += value
+            inverse_diagonal[3 * b + c] += value
+    for row in range(n):
+        value = inverse_diagonal[row]
+        if value > 0.0:
+            if hg_scale != 0.0:
+                for k in range(hg_indptr[row], hg_indptr[row + 1]):
+                    if hg_indices[k] == row:
+                        value += hg_scale * hg_data[k]
+            inverse_diagonal[row] = mask[row] / value
+        else:
+            inverse_diagonal[row] = 0.0
+    for i in range(n):
+        x[i] = guess[i] * mask[i]
+    _apply(data, scales, mask, x, v)
+    norm_b = 0.0
+    rr = 0.0
+    for i in range(n):
+        norm_b += rhs[i] * rhs[i]
+        r[i] = rhs[i] * mask[i] - v[i]
+        rr += r[i] * r[i]
+    norm_b = np.sqrt(norm_b)
+    if norm_b == 0.0:
+        x[:] = 0.0
+        return 0, 0.0
+    residual = np.sqrt(rr) / norm_b
+    iterations = 0
+    if symmetric:
+        z = s
+        rz = 0.0
+        for i in range(n):
+            z[i] = inverse_diagonal[i] * r[i]
+            p[i] = z[i]
+            rz += r[i] * z[i]
+        while residual > tolerance and iterations < max_iterations:
+            _apply(data, scales, mask, p, v)
+            curvature = 0.0
+            for i in range(n):
+                curvature += p[i] * v[i]
+            if curvature <= 0.0:
+                break
+            alpha = rz / curvature
+            rz_new = 0.0
+            rr = 0.0
+            for i in range(n):
+                x[i] += alpha * p[i]
+                r[i] -= alpha * v[i]
+                z[i] = inverse_diagonal[i] * r[i]
+                rz_new += r[i] * z[i]
+                rr += r[i] * r[i]
+            beta = rz_new / rz
+            for i in range(n):
+                p[i] = z[i] + beta * p[i]
+            rz = rz_new
+            iterations += 1
+            residual = np.sqrt(rr) / norm_b
+        return iterations, residual
+    # right-preconditioned BiCGSTAB
+    rho_new = 0.0
+    for i in range(n):
+        r_hat[i] = r[i]
+        v[i] = 0.0
+        p[i] = 0.0
+        rho_new += r[i] * r[i]
+    rho = 1.0
+    alpha = 1.0
+    omega = 1.0
+    while residual > tolerance and iterations < max_iterations:
+        if rho_new == 0.0 or omega == 0.0:
+            break
+        beta = (rho_new / rho) * (alpha / omega)
+        rho = rho_new
+        for i in range(n):
+            p[i] = r[i] + beta * (p[i] - omega * v[i])
+            p_hat[i] = inverse_diagonal[i] * p[i]
+        _apply(data, scales, mask, p_hat, v)
+        denominator = 0.0
+        for i in range(n):
+            denominator += r_hat[i] * v[i]
+        if denominator == 0.0:
+            break
+        alpha = rho / denominator
+        ss = 0.0
+        for i in range(n):
+            s[i] = r[i] - alpha * v[i]
+            ss += s[i] * s[i]
+        iterations += 1
+        if np.sqrt(ss) / norm_b <= tolerance:
+            rr = 0.0
+            for i in range(n):
+                x[i] += alpha * p_hat[i]
+                r[i] = s[i]
+                rr += r[i] * r[i]
+            residual = np.sqrt(rr) / norm_b
+            break
+        # s_hat = D^-1 s goes in r (r is rebuilt from s and t below)
+        s_hat = r
+        for i in range(n):
+            s_hat[i] = inverse_diagonal[i] * s[i]
+        _apply(data, scales, mask, s_hat, t)
+        tt = 0.0
+        ts = 0.0
+        for i in range(n):
+            tt += t[i] * t[i]
+            ts += t[i] * s[i]
+        omega = ts / tt if tt > 0 else 0.0
+        rr = 0.0
+        rho_new = 0.0
+        for i in range(n):
+            x[i] += alpha * p_hat[i] + omega * s_hat[i]
+            r[i] = s[i] - omega * t[i]
+            rr += r[i] * r[i]
+            rho_new += r_hat[i] * r[i]
+        residual = np.sqrt(rr) / norm_b
+    return iterations, residual
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def volume_forces_add(positions, elements, rest_volume, kappa, forces):
+    """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3), with
+    exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
+    straight-line body per element (generated code, no scratch arrays; 2.4x faster than
+    ``volume_pass``).
+    """
+    for m in range(elements.shape[0]):
+        if kappa[m] == 0.0:
+            continue
+        i0 = elements[m, 0]
+        i1 = elements[m, 1]
+        i2 = elements[m, 2]
+        i3 = elements[m, 3]
+        i4 = elements[m, 4]
+        i5 = elements[m, 5]
+        i6 = elements[m, 6]
+        i7 = elements[m, 7]
+        p0x = positions[i0, 0]
+        p0y = positions[i0, 1]
+        p0z = positions[i0, 2]
+        p1x = positions[i1, 0]
+        p1y = positions[i1, 1]
+        p1z = positions[i1, 2]
+        p2x = positions[i2, 0]
+        p2y = positions[i2, 1]
+        p2z = positions[i2, 2]
+        p3x = positions[i3, 0]
+        p3y = positions[i3, 1]
+        p3z = positions[i3, 2]
+        p4x = positions[i4, 0]
+        p4y = positions[i4, 1]
+        p4z = positions[i4, 2]
+        p5x = positions[i5, 0]
+        p5y = positions[i5, 1]
+        p5z = positions[i5, 2]
+        p6x = positions[i6, 0]
+        p6y = positions[i6, 1]
+        p6z = positions[i6, 2]
+        p7x = positions[i7, 0]
+        p7y = positions[i7, 1]
+        p7z = positions[i7, 2]
+        d1x = p1x - p0x
+        d1y = p1y - p0y
+        d1z = p1z - p0z
+        d2x = p3x - p0x
+        d2y = p3y - p0y
+        d2z = p3z - p0z
+        d3x = p2x - p0x
+        d3y = p2y - p0y
+        d3z = p2z - p0z
+        d4x = p4x - p0x
+        d4y = p4y - p0y
+        d4z = p4z - p0z
+        d5x = p5x - p0x
+        d5y = p5y - p0y
+        d5z = p5z - p0z
+        d6x = p7x - p0x
+        d6y = p7y - p0y
+        d6z = p7z - p0z
+        d7x = p6x - p0x
+        d7y = p6y - p0y
+        d7z = p6z - p0z
+        # exact trilinear volume (hex_volume's grouping)
+        vax = d2y * d3z - d2z * d3y
+        vay = d2z * d3x - d2x * d3z
+        vaz = d2x * d3y - d2y * d3x
+        vbx = d3y * (d5z + d7z) - d3z * (d5y + d7y)
+        vby = d3z * (d5x + d7x) - d3x * (d5z + d7z)
+        vbz = d3x * (d5y + d7y) - d3y * (d5x + d7x)
+        vex = d5y * (d4z - d7z) - d5z * (d4y - d7y)
+        vey = d5z * (d4x - d7x) - d5x * (d4z - d7z)
+        vez = d5x * (d4y - d7y) - d5y * (d4x - d7x)
+        volume = (d1x * (vax + vbx + vex) + d1y * (vay + vby + vey) + d1z * (vaz + vbz + vez))
+        vfx = d3y * (d6z + d7z) - d3z * (d6y + d7y)
+        vfy = d3z * (d6x + d7x) - d3x * (d6z + d7z)
+        vfz = d3x * (d6y + d7y) - d3y * (d6x + d7x)
+        vgx = d6y * (d7z - d4z) - d6z * (d7y - d4y)
+        vgy = d6z * (d7x - d4x) - d6x * (d7z - d4z)
+        vgz = d6x * (d7y - d4y) - d6y * (d7x - d4x)
+        volume += d2x * (vgx - vfx) + d2y * (vgy - vfy) + d2z * (vgz - vfz)
+        vhx = (d6y - d5y) * d7z - (d6z - d5z) * d7y
+        vhy = (d6z - d5z) * d7x - (d6x - d5x) * d7z
+        vhz = (d6x - d5x) * d7y - (d6y - d5y) * d7x
+        volume += d3x * vhx + d3y * vhy + d3z * vhz
+        vsx = d6y * d7z - d6z * d7y
+        vsy = d6z * d7x - d6x * d7z
+        vsz = d6x * d7y - d6y * d7x
+        vkx = d5y * (d6z + d7z) - d5z * (d6y + d7y)
+        vky = d5z * (d6x + d7x) - d5x * (d6z + d7z)
+        vkz = d5x * (d6y + d7y) - d5y * (d6x + d7x)
+        volume += d4x * (vkx - vsx) + d4y * (vky - vsy) + d4z * (vkz - vsz)
+        volume -= d5x * vsx + d5y * vsy + d5z * vsz
+        volume = volume / 12.0
+        # face area vectors a_S = (x2 - x0) x (x3 - x1) / 2 and the total area A_H
+        f0x = (p7y - p0y) * (p3z - p4z) - (p7z - p0z) * (p3y - p4y)
+        f0y = (p7z - p0z) * (p3x - p4x) - (p7x - p0x) * (p3z - p4z)
+        f0z = (p7x - p0x) * (p3y - p4y) - (p7y - p0y) * (p3x - p4x)
+        f1x = (p6y - p1y) * (p5z - p2z) - (p6z - p1z) * (p5y - p2y)
+        f1y = (p6z - p1z) * (p5x - p2x) - (p6x - p1x) * (p5z - p2z)
+        f1z = (p6x - p1x) * (p5y - p2y) - (p6y - p1y) * (p5x - p2x)
+        f2x = (p5y - p0y) * (p4z - p1z) - (p5z - p0z) * (p4y - p1y)
+        f2y = (p5z - p0z) * (p4x - p1x) - (p5x - p0x) * (p4z - p1z)
+        f2z = (p5x - p0x) * (p4y - p1y) - (p5y - p0y) * (p4x - p1x)
+        f3x = (p6y - p3y) * (p2z - p7z) - (p6z - p3z) * (p2y - p7y)
+        f3y = (p6z - p3z) * (p2x - p7x) - (p6x - p3x) * (p2z - p7z)
+        f3z = (p6x - p3x) * (p2y - p7y) - (p6y - p3y) * (p2x - p7x)
+        f4x = (p2y - p0y) * (p1z - p3z) - (p2z - p0z) * (p1y - p3y)
+        f4y = (p2z - p0z) * (p1x - p3x) - (p2x - p0x) * (p1z - p3z)
+        f4z = (p2x - p0x) * (p1y - p3y) - (p2y - p0y) * (p1x - p3x)
+        f5x = (p6y - p4y) * (p7z - p5z) - (p6z - p4z) * (p7y - p5y)
+        f5y = (p6z - p4z) * (p7x - p5x) - (p6x - p4x) * (p7z - p5z)
+        f5z = (p6x - p4x) * (p7y - p5y) - (p6y - p4y) * (p7x - p5x)
+        area = 0.5 * (np.sqrt(f0x * f0x + f0y * f0y + f0z * f0z) + np.sqrt(f1x * f1x + f1y * f1y + f1z * f1z) + np.sqrt(f2x * f2x + f2y * f2y + f2z * f2z) + np.sqrt(f3x * f3x + f3y * f3y + f3z * f3z) + np.sqrt(f4x * f4x + f4y * f4y + f4z * f4z) + np.sqrt(f5x * f5x + f5y * f5y + f5z * f5z))
+        relative = (volume - rest_volume[m]) / rest_volume[m]
+        share = 1.0 / (8.0 * area)  # the 1/2 of each a_S, and 1 / (4 A_H)
+        scale = -kappa[m] * relative * abs(relative) * share
+        h0x = f0x + f2x + f4x
+        forces[i0, 0] += scale * h0x
+        h0y = f0y + f2y + f4y
+        forces[i0, 1] += scale * h0y
+        h0z = f0z + f2z + f4z
+        forces[i0, 2] += scale * h0z
+        h1x = f1x + f2x + f4x
+        forces[i1, 0] += scale * h1x
+        h1y = f1y + f2y + f4y
+        forces[i1, 1] += scale * h1y
+        h1z = f1z + f2z + f4z
+        forces[i1, 2] += scale * h1z
+        h2x = f1x + f3x + f4x
+        forces[i2, 0] += scale * h2x
+        h2y = f1y + f3y + f4y
+        forces[i2, 1] += scale * h2y
+        h2z = f1z + f3z + f4z
+        forces[i2, 2] += scale * h2z
+        h3x = f0x + f3x + f4x
+        forces[i3, 0] += scale * h3x
+        h3y = f0y + f3y + f4y
+        forces[i3, 1] += scale * h3y
+        h3z = f0z + f3z + f4z
+        forces[i3, 2] += scale * h3z
+        h4x = f0x + f2x + f5x
+        forces[i4, 0] += scale * h4x
+        h4y = f0y + f2y + f5y
+        forces[i4, 1] += scale * h4y
+        h4z = f0z + f2z + f5z
+        forces[i4, 2] += scale * h4z
+        h5x = f1x + f2x + f5x
+        forces[i5, 0] += scale * h5x
+        h5y = f1y + f2y + f5y
+        forces[i5, 1] += scale * h5y
+        h5z = f1z + f2z + f5z
+        forces[i5, 2] += scale * h5z
+        h6x = f1x + f3x + f5x
+        forces[i6, 0] += scale * h6x
+        h6y = f1y + f3y + f5y
+        forces[i6, 1] += scale * h6y
+        h6z = f1z + f3z + f5z
+        forces[i6, 2] += scale * h6z
+        h7x = f0x + f3x + f5x
+        forces[i7, 0] += scale * h7x
+        h7y = f0y + f3y + f5y
+        forces[i7, 1] += scale * h7y
+        h7z = f0z + f3z + f5z
+        forces[i7, 2] += scale * h7z
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, coefficient, direction, gradient):
+    """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3), with
+    exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
+    straight-line body per element (generated code, no scratch arrays; 2.4x faster than
+    ``volume_pass``). Also fills the rank-one stiffness terms of ``volume_jacobian_terms``:
+    coefficient (M,), direction and gradient (M, 8, 3).
+    """
+    for m in range(elements.shape[0]):
+        if kappa[m] == 0.0:
+            coefficient[m] = 0.0
+            continue
+        i0 = elements[m, 0]
+        i1 = elements[m, 1]
+        i2 = elements[m, 2]
+        i3 = elements[m, 3]
+        i4 = elements[m, 4]
+        i5 = elements[m, 5]
+        i6 = elements[m, 6]
+        i7 = elements[m, 7]
+        p0x = positions[i0, 0]
+        p0y = positions[i0, 1]
+        p0z = positions[i0, 2]
+        p1x = positions[i1, 0]
+        p1y = positions[i1, 1]
+        p1z = positions[i1, 2]
+        p2x = positions[i2, 0]
+        p2y = positions[i2, 1]
+        p2z = positions[i2, 2]
+        p3x = positions[i3, 0]
+        p3y = positions[i3, 1]
+        p3z = positions[i3, 2]
+        p4x = positions[i4, 0]
+        p4y = positions[i4, 1]
+        p4z = positions[i4, 2]
+        p5x = positions[i5, 0]
+        p5y = positions[i5, 1]
+        p5z = positions[i5, 2]
+        p6x = positions[i6, 0]
+        p6y = positions[i6, 1]
+        p6z = positions[i6, 2]
+        p7x = positions[i7, 0]
+        p7y = positions[i7, 1]
+        p7z = positions[i7, 2]
+        d1x = p1x - p0x
+        d1y = p1y - p0y
+        d1z = p1z - p0z
+        d2x = p3x - p0x
+        d2y = p3y - p0y
+        d2z = p3z - p0z
+        d3x = p2x - p0x
+        d3y = p2y - p0y
+        d3z = p2z - p0z
+        d4x = p4x - p0x
+        d4y = p4y - p0y
+        d4z = p4z - p0z
+        d5x = p5x - p0x
+        d5y = p5y - p0y
+        d5z = p5z - p0z
+        d6x = p7x - p0x
+        d6y = p7y - p0y
+        d6z = p7z - p0z
+        d7x = p6x - p0x
+        d7y = p6y - p0y
+        d7z = p6z - p0z
+        # exact trilinear volume (hex_volume's grouping)
+        vax = d2y * d3z - d2z * d3y
+        vay = d2z * d3x - d2x * d3z
+        vaz = d2x * d3y - d2y * d3x
+        vbx = d3y * (d5z + d7z) - d3z * (d5y + d7y)
+        vby = d3z * (d5x + d7x) - d3x * (d5z + d7z)
+        vbz = d3x * (d5y + d7y) - d3y * (d5x + d7x)
+        vex = d5y * (d4z - d7z) - d5z * (d4y - d7y)
+        vey = d5z * (d4x - d7x) - d5x * (d4z - d7z)
+        vez = d5x * (d4y - d7y) - d5y * (d4x - d7x)
+        volume = (d1x * (vax + vbx + vex) + d1y * (vay + vby + vey) + d1z * (vaz + vbz + vez))
+        vfx = d3y * (d6z + d7z) - d3z * (d6y + d7y)
+        vfy = d3z * (d6x + d7x) - d3x * (d6z + d7z)
+        vfz = d3x * (d6y + d7y) - d3y * (d6x + d7x)
+        vgx = d6y * (d7z - d4z) - d6z * (d7y - d4y)
+        vgy = d6z * (d7x - d4x) - d6x * (d7z - d4z)
+        vgz = d6x * (d7y - d4y) - d6y * (d7x - d4x)
+        volume += d2x * (vgx - vfx) + d2y * (vgy - vfy) + d2z * (vgz - vfz)
+        vhx = (d6y - d5y) * d7z - (d6z - d5z) * d7y
+        vhy = (d6z - d5z) * d7x - (d6x - d5x) * d7z
+        vhz = (d6x - d5x) * d7y - (d6y - d5y) * d7x
+        volume += d3x * vhx + d3y * vhy + d3z * vhz
+        vsx = d6y * d7z - d6z * d7y
+        vsy = d6z * d7x - d6x * d7z
+        vsz = d6x * d7y - d6y * d7x
+        vkx = d5y * (d6z + d7z) - d5z * (d6y + d7y)
+        vky = d5z * (d6x + d7x) - d5x * (d6z + d7z)
+        vkz = d5x * (d6y + d7y) - d5y * (d6x + d7x)
+        volume += d4x * (vkx - vsx) + d4y * (vky - vsy) + d4z * (vkz - vsz)
+        volume -= d5x * vsx + d5y * vsy + d5z * vsz
+        volume = volume / 12.0
+        # face area vectors a_S = (x2 - x0) x (x3 - x1) / 2 and the total area A_H
+        f0x = (p7y - p0y) * (p3z - p4z) - (p7z - p0z) * (p3y - p4y)
+        f0y = (p7z - p0z) * (p3x - p4x) - (p7x - p0x) * (p3z - p4z)
+        f0z = (p7x - p0x) * (p3y - p4y) - (p7y - p0y) * (p3x - p4x)
+        f1x = (p6y - p1y) * (p5z - p2z) - (p6z - p1z) * (p5y - p2y)
+        f1y = (p6z - p1z) * (p5x - p2x) - (p6x - p1x) * (p5z - p2z)
+        f1z = (p6x - p1x) * (p5y - p2y) - (p6y - p1y) * (p5x - p2x)
+        f2x = (p5y - p0y) * (p4z - p1z) - (p5z - p0z) * (p4y - p1y)
+        f2y = (p5z - p0z) * (p4x - p1x) - (p5x - p0x) * (p4z - p1z)
+        f2z = (p5x - p0x) * (p4y - p1y) - (p5y - p0y) * (p4x - p1x)
+        f3x = (p6y - p3y) * (p2z - p7z) - (p6z - p3z) * (p2y - p7y)
+        f3y = (p6z - p3z) * (p2x - p7x) - (p6x - p3x) * (p2z - p7z)
+        f3z = (p6x - p3x) * (p2y - p7y) - (p6y - p3y) * (p2x - p7x)
+        f4x = (p2y - p0y) * (p1z - p3z) - (p2z - p0z) * (p1y - p3y)
+        f4y = (p2z - p0z) * (p1x - p3x) - (p2x - p0x) * (p1z - p3z)
+        f4z = (p2x - p0x) * (p1y - p3y) - (p2y - p0y) * (p1x - p3x)
+        f5x = (p6y - p4y) * (p7z - p5z) - (p6z - p4z) * (p7y - p5y)
+        f5y = (p6z - p4z) * (p7x - p5x) - (p6x - p4x) * (p7z - p5z)
+        f5z = (p6x - p4x) * (p7y - p5y) - (p6y - p4y) * (p7x - p5x)
+        area = 0.5 * (np.sqrt(f0x * f0x + f0y * f0y + f0z * f0z) + np.sqrt(f1x * f1x + f1y * f1y + f1z * f1z) + np.sqrt(f2x * f2x + f2y * f2y + f2z * f2z) + np.sqrt(f3x * f3x + f3y * f3y + f3z * f3z) + np.sqrt(f4x * f4x + f4y * f4y + f4z * f4z) + np.sqrt(f5x * f5x + f5y * f5y + f5z * f5z))
+        relative = (volume - rest_volume[m]) / rest_volume[m]
+        share = 1.0 / (8.0 * area)  # the 1/2 of each a_S, and 1 / (4 A_H)
+        scale = -kappa[m] * relative * abs(relative) * share
+        h0x = f0x + f2x + f4x
+        forces[i0, 0] += scale * h0x
+        h0y = f0y + f2y + f4y
+        forces[i0, 1] += scale * h0y
+        h0z = f0z + f2z + f4z
+        forces[i0, 2] += scale * h0z
+        h1x = f1x + f2x + f4x
+        forces[i1, 0] += scale * h1x
+        h1y = f1y + f2y + f4y
+        forces[i1, 1] += scale * h1y
+        h1z = f1z + f2z + f4z
+        forces[i1, 2] += scale * h1z
+        h2x = f1x + f3x + f4x
+        forces[i2, 0] += scale * h2x
+        h2y = f1y + f3y + f4y
+        forces[i2, 1] += scale * h2y
+        h2z = f1z + f3z + f4z
+        forces[i2, 2] += scale * h2z
+        h3x = f0x + f3x + f4x
+        forces[i3, 0] += scale * h3x
+        h3y = f0y + f3y + f4y
+        forces[i3, 1] += scale * h3y
+        h3z = f0z + f3z + f4z
+        forces[i3, 2] += scale * h3z
+        h4x = f0x + f2x + f5x
+        forces[i4, 0] += scale * h4x
+        h4y = f0y + f2y + f5y
+        forces[i4, 1] += scale * h4y
+        h4z = f0z + f2z + f5z
+        forces[i4, 2] += scale * h4z
+        h5x = f1x + f2x + f5x
+        forces[i5, 0] += scale * h5x
+        h5y = f1y + f2y + f5y
+        forces[i5, 1] += scale * h5y
+        h5z = f1z + f2z + f5z
+        forces[i5, 2] += scale * h5z
+        h6x = f1x + f3x + f5x
+        forces[i6, 0] += scale * h6x
+        h6y = f1y + f3y + f5y
+        forces[i6, 1] += scale * h6y
+        h6z = f1z + f3z + f5z
+        forces[i6, 2] += scale * h6z
+        h7x = f0x + f3x + f5x
+        forces[i7, 0] += scale * h7x
+        h7y = f0y + f3y + f5y
+        forces[i7, 1] += scale * h7y
+        h7z = f0z + f3z + f5z
+        forces[i7, 2] += scale * h7z
+        coefficient[m] = 2.0 * kappa[m] * abs(volume - rest_volume[m]) / rest_volume[m] ** 2
+        direction[m, 0, 0] = share * h0x
+        direction[m, 0, 1] = share * h0y
+        direction[m, 0, 2] = share * h0z
+        direction[m, 1, 0] = share * h1x
+        direction[m, 1, 1] = share * h1y
+        direction[m, 1, 2] = share * h1z
+        direction[m, 2, 0] = share * h2x
+        direction[m, 2, 1] = share * h2y
+        direction[m, 2, 2] = share * h2z
+        direction[m, 3, 0] = share * h3x
+        direction[m, 3, 1] = share * h3y
+        direction[m, 3, 2] = share * h3z
+        direction[m, 4, 0] = share * h4x
+        direction[m, 4, 1] = share * h4y
+        direction[m, 4, 2] = share * h4z
+        direction[m, 5, 0] = share * h5x
+        direction[m, 5, 1] = share * h5y
+        direction[m, 5, 2] = share * h5z
+        direction[m, 6, 0] = share * h6x
+        direction[m, 6, 1] = share * h6y
+        direction[m, 6, 2] = share * h6z
+        direction[m, 7, 0] = share * h7x
+        direction[m, 7, 1] = share * h7y
+        direction[m, 7, 2] = share * h7z
+        x12x = d1y * d2z - d1z * d2y
+        x12y = d1z * d2x - d1x * d2z
+        x12z = d1x * d2y - d1y * d2x
+        x13x = d1y * d3z - d1z * d3y
+        x13y = d1z * d3x - d1x * d3z
+        x13z = d1x * d3y - d1y * d3x
+        x14x = d1y * d4z - d1z * d4y
+        x14y = d1z * d4x - d1x * d4z
+        x14z = d1x * d4y - d1y * d4x
+        x15x = d1y * d5z - d1z * d5y
+        x15y = d1z * d5x - d1x * d5z
+        x15z = d1x * d5y - d1y * d5x
+        x17x = d1y * d7z - d1z * d7y
+        x17y = d1z * d7x - d1x * d7z
+        x17z = d1x * d7y - d1y * d7x
+        x23x = d2y * d3z - d2z * d3y
+        x23y = d2z * d3x - d2x * d3z
+        x23z = d2x * d3y - d2y * d3x
+        x24x = d2y * d4z - d2z * d4y
+        x24y = d2z * d4x - d2x * d4z
+        x24z = d2x * d4y - d2y * d4x
+        x26x = d2y * d6z - d2z * d6y
+        x26y = d2z * d6x - d2x * d6z
+        x26z = d2x * d6y - d2y * d6x
+        x27x = d2y * d7z - d2z * d7y
+        x27y = d2z * d7x - d2x * d7z
+        x27z = d2x * d7y - d2y * d7x
+        x35x = d3y * d5z - d3z * d5y
+        x35y = d3z * d5x - d3x * d5z
+        x35z = d3x * d5y - d3y * d5x
+        x36x = d3y * d6z - d3z * d6y
+        x36y = d3z * d6x - d3x * d6z
+        x36z = d3x * d6y - d3y * d6x
+        x37x = d3y * d7z - d3z * d7y
+        x37y = d3z * d7x - d3x * d7z
+        x37z = d3x * d7y - d3y * d7x
+        x45x = d4y * d5z - d4z * d5y
+        x45y = d4z * d5x - d4x * d5z
+        x45z = d4x * d5y - d4y * d5x
+        x46x = d4y * d6z - d4z * d6y
+        x46y = d4z * d6x - d4x * d6z
+        x46z = d4x * d6y - d4y * d6x
+        x47x = d4y * d7z - d4z * d7y
+        x47y = d4z * d7x - d4x * d7z
+        x47z = d4x * d7y - d4y * d7x
+        x56x = d5y * d6z - d5z * d6y
+        x56y = d5z * d6x - d5x * d6z
+        x56z = d5x * d6y - d5y * d6x
+        x57x = d5y * d7z - d5z * d7y
+        x57y = d5z * d7x - d5x * d7z
+        x57z = d5x * d7y - d5y * d7x
+        x67x = d6y * d7z - d6z * d7y
+        x67y = d6z * d7x - d6x * d7z
+        x67z = d6x * d7y - d6y * d7x
+        g1x = (+ x23x + x35x + x37x - x45x - x57x) / 12.0
+        g1y = (+ x23y + x35y + x37y - x45y - x57y) / 12.0
+        g1z = (+ x23z + x35z + x37z - x45z - x57z) / 12.0
+        g2x = (- x13x - x36x - x37x + x46x + x67x) / 12.0
+        g2y = (- x13y - x36y - x37y + x46y + x67y) / 12.0
+        g2z = (- x13z - x36z - x37z + x46z + x67z) / 12.0
+        g3x = (+ x12x - x15x - x17x + x26x + x27x - x57x + x67x) / 12.0
+        g3y = (+ x12y - x15y - x17y + x26y + x27y - x57y + x67y) / 12.0
+        g3z = (+ x12z - x15z - x17z + x26z + x27z - x57z + x67z) / 12.0
+        g4x = (+ x15x - x26x + x56x + x57x - x67x) / 12.0
+        g4y = (+ x15y - x26y + x56y + x57y - x67y) / 12.0
+        g4z = (+ x15z - x26z + x56z + x57z - x67z) / 12.0
+        g5x = (+ x13x - x14x + x17x + x37x - x46x - x47x - x67x) / 12.0
+        g5y = (+ x13y - x14y + x17y + x37y - x46y - x47y - x67y) / 12.0
+        g5z = (+ x13z - x14z + x17z + x37z - x46z - x47z - x67z) / 12.0
+        g6x = (- x23x + x24x - x27x - x37x + x45x + x47x + x57x) / 12.0
+        g6y = (- x23y + x24y - x27y - x37y + x45y + x47y + x57y) / 12.0
+        g6z = (- x23z + x24z - x27z - x37z + x45z + x47z + x57z) / 12.0
+        g7x = (+ x13x - x15x - x23x + x26x - x35x + x36x + x45x - x46x - x56x) / 12.0
+        g7y = (+ x13y - x15y - x23y + x26y - x35y + x36y + x45y - x46y - x56y) / 12.0
+        g7z = (+ x13z - x15z - x23z + x26z - x35z + x36z + x45z - x46z - x56z) / 12.0
+        g0x = -(g1x + g2x + g3x + g4x + g5x + g6x + g7x)
+        g0y = -(g1y + g2y + g3y + g4y + g5y + g6y + g7y)
+        g0z = -(g1z + g2z + g3z + g4z + g5z + g6z + g7z)
+        gradient[m, 0, 0] = g0x
+        gradient[m, 0, 1] = g0y
+        gradient[m, 0, 2] = g0z
+        gradient[m, 1, 0] = g1x
+        gradient[m, 1, 1] = g1y
+        gradient[m, 1, 2] = g1z
+        gradient[m, 3, 0] = g2x
+        gradient[m, 3, 1] = g2y
+        gradient[m, 3, 2] = g2z
+        gradient[m, 2, 0] = g3x
+        gradient[m, 2, 1] = g3y
+        gradient[m, 2, 2] = g3z
+        gradient[m, 4, 0] = g4x
+        gradient[m, 4, 1] = g4y
+        gradient[m, 4, 2] = g4z
+        gradient[m, 5, 0] = g5x
+        gradient[m, 5, 1] = g5y
+        gradient[m, 5, 2] = g5z
+        gradient[m, 7, 0] = g6x
+        gradient[m, 7, 1] = g6y
+        gradient[m, 7, 2] = g6z
+        gradient[m, 6, 0] = g7x
+        gradient[m, 6, 1] = g7y
+        gradient[m, 6, 2] = g7z
