@@ -1,5 +1,14 @@
-"""Model no more than a scene needs: the coarsest mass-spring resolution that keeps a scene's
-observed quantities within a tolerance of a converged finite-element reference (issue 6, sec. 3).
+"""Model no more than a scene needs: the coarsest mass-spring resolution, and the cheapest env
+stepping, that keep a scene's observed quantities within a tolerance of the fine model (issue 6,
+sec. 3).
+
+Two references: ``reference="baudet"`` (the default of ``choose_resolution``) is the same
+mass-spring model and setting on a fine mesh, so the error is the discretisation error alone;
+``"fem-neohookean"`` is a finite-element continuum model, so the error adds the constitutive
+difference (the mass-spring law departs from neo-Hookean at large strain and that part does not
+fall with resolution). ``choose_stepping(scene, shape, tolerance)`` then compares an
+environment's stepping (``substeps`` implicit Euler steps of ``dt`` per env step, the tool moving
+``max_step`` per env step) with the static equilibrium at the same tool position on that mesh.
 
 A ``Scene`` describes a tool task on a block of tissue the way an environment sets it up: the
 block (size in m, material, optionally a stiffer box-shaped inclusion), the face attached to the
@@ -7,7 +16,7 @@ body, gravity, an optional rigid floor y >= 0 (frictionless unilateral contact),
 surface nodes inside a box, optionally a vertical cylinder, and which components it imposes),
 the tool displacements to test (paths solved by continuation) and a target point inside the block.
 
-``choose_resolution(scene, tolerance)`` solves the scene with the ``fem-neohookean`` reference on a
+``choose_resolution(scene, tolerance)`` solves the scene with the reference on a
 fine mesh, then with the mass-spring model at increasing resolutions (static equilibrium,
 ``solve_static(..., check_stability=True)``) for each setting in a small grid of
 ``hourglass_control`` x ``volume_stiffness``, and returns the coarsest resolution, and at it the
@@ -455,9 +464,13 @@ class ResolutionChoice:
             comes closest when nothing is admissible; the coarsest one among those within 10% of
             that smallest ratio), or None.
         candidates: every candidate tried, in order.  tolerance: {quantity: tolerance}.
-        reference_shape: the fem-neohookean mesh (per scene).  reference_time: s.
-        reference_stable: every reference equilibrium is a minimum.  reference: the solutions.
-        total_time: s.
+        reference_shape: the reference mesh (per scene).  reference_time: s (all references).
+        reference_stable: every reference equilibrium is a minimum.  reference: the solutions
+            (for "baudet", a dict {(hourglass_control, volume_stiffness): solutions}).
+        total_time: s.  reference_model: "baudet" (fine mass-spring) or "fem-neohookean".
+        reference_convergence: for "baudet", per setting, the errors of the finest candidate
+            coarser than the reference against it (how far the reference itself may be from
+            convergence), a list of dicts; None for "fem-neohookean".
     """
 
     chosen: Candidate | None
@@ -470,6 +483,8 @@ class ResolutionChoice:
     reference_converged: bool
     total_time: float
     reference: list = field(default_factory=list, repr=False)
+    reference_model: str = "fem-neohookean"
+    reference_convergence: list | None = None
 
     @property
     def resolution(self) -> int | None:
@@ -482,7 +497,8 @@ class ResolutionChoice:
             candidates=[c.summary() for c in self.candidates], tolerance=self.tolerance,
             reference_shape=[list(s) for s in self.reference_shape], reference_time=self.reference_time,
             reference_stable=self.reference_stable, reference_converged=self.reference_converged,
-            total_time=self.total_time,
+            total_time=self.total_time, reference_model=self.reference_model,
+            reference_convergence=self.reference_convergence,
         )
 
 
@@ -562,18 +578,106 @@ def evaluate(scenes, shape, references, tolerance, *, hourglass_control, volume_
                      case_errors=case_errors, case_stable=case_stable, **common)
 
 
-def reference_solutions(scenes, *, reference_resolution=10, reference_shape=None):
-    """fem-neohookean solutions of ``scenes`` on their reference meshes: (solutions, shapes, seconds)."""
+REFERENCE_MODELS = ("baudet", "fem-neohookean")
+
+
+class References(tuple):
+    """``(solutions, shapes, seconds)`` from ``reference_solutions`` (a plain 3-tuple when
+    unpacked), with the reference ``model`` and, for "baudet", its ``hourglass_control`` and
+    ``volume_stiffness`` (None for "fem-neohookean")."""
+
+    def __new__(cls, solutions, shapes, seconds, model="fem-neohookean", hourglass_control=None,
+                volume_stiffness=None):
+        out = super().__new__(cls, (solutions, shapes, seconds))
+        out.model, out.hourglass_control, out.volume_stiffness = model, hourglass_control, volume_stiffness
+        return out
+
+    @property
+    def setting(self):
+        return None if self.model != "baudet" else (self.hourglass_control, self.volume_stiffness)
+
+
+def _reference_shape_arguments(reference_resolution, reference_shape):
+    if reference_shape is None:
+        try:
+            value = int(reference_resolution)
+            exact = float(reference_resolution) == value
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"reference_resolution must be an integer >= 2, got {reference_resolution!r}") from error
+        if value < 2 or not exact:
+            raise ValueError(f"reference_resolution must be an integer >= 2, got {reference_resolution!r}")
+        return value, None
+    try:
+        shape = tuple(int(s) for s in reference_shape)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"reference_shape must be three integers >= 1, got {reference_shape!r}") from error
+    if len(shape) != 3 or min(shape) < 1:
+        raise ValueError(f"reference_shape must be three integers >= 1, got {reference_shape!r}")
+    return reference_resolution, shape
+
+
+def reference_solutions(scenes, *, reference_resolution=10, reference_shape=None, model="fem-neohookean",
+                        hourglass_control=1.0, volume_stiffness=100.0) -> References:
+    """Reference solutions of ``scenes`` on their fine meshes: ``References`` (solutions, shapes, seconds).
+
+    Args:
+        reference_resolution: n of the reference mesh (``Scene.shape(n)``), or ``reference_shape``.
+        model: "fem-neohookean" (the constitutive reference: a converged continuum model) or
+            "baudet" (the same mass-spring model, with ``hourglass_control`` and
+            ``volume_stiffness``, on the fine mesh: the discretisation reference).
+    Raises:
+        ValueError naming the argument when an input is invalid.
+    """
     scenes = [scenes] if isinstance(scenes, Scene) else list(scenes)
-    shapes = [tuple(reference_shape) if reference_shape is not None else s.shape(reference_resolution)
-              for s in scenes]
+    if not scenes or not all(isinstance(s, Scene) for s in scenes):
+        raise ValueError(f"scenes must be a Scene or a non-empty list of Scenes, got {scenes!r}")
+    if model not in REFERENCE_MODELS:
+        raise ValueError(f"model must be one of {REFERENCE_MODELS}, got {model!r}")
+    reference_resolution, reference_shape = _reference_shape_arguments(reference_resolution, reference_shape)
+    shapes = [reference_shape if reference_shape is not None else s.shape(reference_resolution) for s in scenes]
     start = time.perf_counter()
+    if model == "baudet":
+        alpha = _scalar("hourglass_control", hourglass_control, low=0.0, strict=False)
+        kappa = _scalar("volume_stiffness", volume_stiffness, low=0.0, strict=False)
+        solutions = [solve_scene(s, shape, hourglass_control=alpha, volume_stiffness=kappa)
+                     for s, shape in zip(scenes, shapes)]
+        return References(solutions, shapes, time.perf_counter() - start, model, alpha, kappa)
     solutions = [solve_scene(s, shape, model="fem-neohookean") for s, shape in zip(scenes, shapes)]
-    return solutions, shapes, time.perf_counter() - start
+    return References(solutions, shapes, time.perf_counter() - start)
+
+
+def _reference_map(references, model, settings, scenes, reference_resolution, reference_shape):
+    """{setting: References} for "baudet" ({None: References} for "fem-neohookean"), computing
+    the ones not given."""
+    given = {}
+    if references is not None:
+        items = references.values() if isinstance(references, dict) else [references]
+        for item in items:
+            try:
+                solutions, shapes, seconds = item
+            except (TypeError, ValueError) as error:
+                raise ValueError("references must be reference_solutions(...) results (or a dict of them)") from error
+            if len(solutions) != len(scenes):
+                raise ValueError(f"references hold {len(solutions)} solutions for {len(scenes)} scenes")
+            item_model = getattr(item, "model", "fem-neohookean")
+            if item_model != model:
+                raise ValueError(f"references are {item_model!r} solutions but reference is {model!r}")
+            given[getattr(item, "setting", None)] = item
+    if model == "fem-neohookean":
+        if None not in given:
+            given[None] = reference_solutions(scenes, reference_resolution=reference_resolution,
+                                              reference_shape=reference_shape)
+        return given
+    out = {}
+    for alpha, kappa in settings:
+        out[(alpha, kappa)] = given.get((alpha, kappa)) or reference_solutions(
+            scenes, reference_resolution=reference_resolution, reference_shape=reference_shape, model="baudet",
+            hourglass_control=alpha, volume_stiffness=kappa)
+    return out
 
 
 def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourglass_controls=(0.0, 0.25, 0.5, 1.0),
-                      volume_stiffnesses=(1.0, 100.0), reference_resolution=10, reference_shape=None,
+                      volume_stiffnesses=(1.0, 100.0), reference=None, reference_resolution=10, reference_shape=None,
                       quantities=QUANTITIES, full_scan=False, references=None) -> ResolutionChoice:
     """The coarsest mass-spring resolution and setting that reproduce ``scene`` within ``tolerance``.
 
@@ -584,11 +688,16 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
             {"force": ..., "target": ..., "volume": ...} (module docstring for the definition).
         resolutions: the n to try, coarsest first (integers >= 1; ``Scene.shape(n)``).
         hourglass_controls: alpha values to try (>= 0).  volume_stiffnesses: kappa multipliers (>= 0).
-        reference_resolution: n of the fem-neohookean reference mesh (or ``reference_shape``).
+        reference: "baudet" (the fine model: the same mass-spring model and setting on the
+            reference mesh; only resolutions strictly coarser than it can be chosen) or
+            "fem-neohookean" (the constitutive reference). Default: the model of ``references``
+            when given, else "baudet".
+        reference_resolution: n of the reference mesh (or ``reference_shape``).
         quantities: which observed quantities must meet the tolerance (a subset of QUANTITIES).
         full_scan: try every resolution (for charts); otherwise stop at the first one with an
             admissible setting.
-        references: precomputed ``reference_solutions(...)`` result to reuse.
+        references: precomputed ``reference_solutions(...)`` result to reuse (for "baudet", one per
+            setting: a single result or a dict {(alpha, kappa): result}; missing ones are computed).
     Returns:
         ``ResolutionChoice``; ``chosen`` is None when no candidate is admissible.
     Raises:
@@ -600,6 +709,11 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
         raise ValueError(f"scene must be a Scene or a non-empty list of Scenes, got {scene!r}")
     if any(not np.allclose(s.size, scenes[0].size) for s in scenes):
         raise ValueError("scene: every Scene in the list must have the same size")
+    if reference is None:
+        reference = getattr(references, "model", "fem-neohookean") if isinstance(references, tuple) else (
+            "baudet" if references is None or isinstance(references, dict) else "fem-neohookean")
+    if reference not in REFERENCE_MODELS:
+        raise ValueError(f"reference must be one of {REFERENCE_MODELS}, got {reference!r}")
     try:
         quantities = tuple(quantities)
     except TypeError as error:
@@ -618,26 +732,15 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
     resolutions = sorted(set(resolutions))
     hourglass_controls = _settings("hourglass_controls", hourglass_controls, 0.0)
     volume_stiffnesses = _settings("volume_stiffnesses", volume_stiffnesses, 0.0)
-    if reference_shape is None:
-        try:
-            reference_resolution = int(reference_resolution)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"reference_resolution must be an integer >= 2, got {reference_resolution!r}") from error
-        if reference_resolution < 2:
-            raise ValueError(f"reference_resolution must be an integer >= 2, got {reference_resolution!r}")
-    else:
-        try:
-            reference_shape = tuple(int(s) for s in reference_shape)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"reference_shape must be three integers >= 1, got {reference_shape!r}") from error
-        if len(reference_shape) != 3 or min(reference_shape) < 1:
-            raise ValueError(f"reference_shape must be three integers >= 1, got {reference_shape!r}")
-    if references is None:
-        references = reference_solutions(scenes, reference_resolution=reference_resolution,
-                                         reference_shape=reference_shape)
-    solutions, ref_shapes, ref_time = references
-    ref_converged = all(bool(np.all(s.converged)) for s in solutions)
-    ref_stable = all(all(v is True for v in s.stable) for s in solutions)
+    reference_resolution, reference_shape = _reference_shape_arguments(reference_resolution, reference_shape)
+    settings = [(alpha, kappa) for alpha in hourglass_controls for kappa in volume_stiffnesses]
+    ref_map = _reference_map(references, reference, settings, scenes, reference_resolution, reference_shape)
+    ref_of = (lambda setting: ref_map[None]) if reference == "fem-neohookean" else ref_map.__getitem__
+    everything = list(ref_map.values())
+    ref_converged = all(bool(np.all(s.converged)) for r in everything for s in r[0])
+    ref_stable = all(all(v is True for v in s.stable) for r in everything for s in r[0])
+    ref_shapes, ref_time = everything[0][1], float(sum(r[2] for r in everything))
+    ref_nodes = int(np.prod(np.asarray(ref_shapes[0]) + 1))
 
     candidates, chosen = [], None
     seen = set()
@@ -646,22 +749,283 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
         if shape in seen:  # min_shape or rounding can map two n to one mesh
             continue
         seen.add(shape)
-        here = [evaluate(scenes, shape, solutions, tolerance, hourglass_control=alpha, volume_stiffness=kappa,
-                         resolution=resolution)
-                for alpha in hourglass_controls for kappa in volume_stiffnesses]
+        here = []
+        for alpha, kappa in settings:
+            candidate = evaluate(scenes, shape, ref_of((alpha, kappa))[0], tolerance, hourglass_control=alpha,
+                                 volume_stiffness=kappa, resolution=resolution)
+            if reference == "baudet" and candidate.admissible and candidate.n_nodes >= ref_nodes:
+                candidate.admissible, candidate.reason = False, "not coarser than the reference"
+            here.append(candidate)
         candidates.extend(here)
         admissible = [c for c in here if c.admissible]
         if admissible and chosen is None:
             chosen = min(admissible, key=lambda c: (c.worst_ratio(tolerance), c.solve_time))
             if not full_scan:
                 break
-    sound = [c for c in candidates if c.converged and c.stable and c.errors is not None]
+    sound = [c for c in candidates if c.converged and c.stable and c.errors is not None
+             and (reference != "baudet" or c.n_nodes < ref_nodes)]
     best = None
     if sound:
         smallest = min(c.worst_ratio(tolerance) for c in sound)
         best = min((c for c in sound if c.worst_ratio(tolerance) <= 1.1 * smallest),
                    key=lambda c: (c.n_nodes, c.worst_ratio(tolerance)))
+    convergence = None
+    if reference == "baudet":
+        convergence = []
+        for alpha, kappa in settings:
+            coarser = [c for c in candidates if c.errors is not None and c.n_nodes < ref_nodes
+                       and (c.hourglass_control, c.volume_stiffness) == (alpha, kappa)]
+            finest = max(coarser, key=lambda c: c.n_nodes, default=None)
+            convergence.append(dict(
+                hourglass_control=alpha, volume_stiffness=kappa, reference_shape=list(ref_shapes[0]),
+                resolution=None if finest is None else finest.resolution,
+                shape=None if finest is None else list(finest.shape),
+                errors=None if finest is None else finest.errors))
+    solutions = ref_map[None][0] if reference == "fem-neohookean" else {k: v[0] for k, v in ref_map.items()}
     return ResolutionChoice(chosen=chosen, best=best, candidates=candidates, tolerance=tolerance,
                             reference_shape=[list(s) for s in ref_shapes], reference_time=ref_time,
                             reference_stable=ref_stable, reference_converged=ref_converged,
-                            total_time=time.perf_counter() - clock, reference=solutions)
+                            total_time=time.perf_counter() - clock, reference=solutions,
+                            reference_model=reference, reference_convergence=convergence)
+
+
+# -- the stepping ----------------------------------------------------------------------------------------
+@dataclass
+class SteppingCandidate:
+    """One (dt, substeps) tried by ``choose_stepping`` on one mesh.
+
+    Attributes:
+        dt: s per implicit Euler step.  substeps: implicit steps per env step (the cost).
+        errors: {quantity: lag error}: max over the tested displacements of |q_dyn - q_static| /
+            max |q_static| (the ``scene_errors`` convention), q_dyn observed after the env steps
+            that bring the tool there (plus ``hold_steps``), q_static the static equilibrium of the
+            same mesh and setting at the same tool position.  None when the run diverged.
+        case_errors: {quantity: [per displacement]}.  env_steps: env steps simulated.
+        iterations: mean linear-solver iterations per env step.  step_time: s per env step.
+        admissible: no divergence and every error within the tolerance.  reason: why not.
+    """
+
+    dt: float
+    substeps: int
+    errors: dict | None
+    case_errors: dict | None
+    env_steps: int
+    iterations: float
+    step_time: float
+    admissible: bool
+    reason: str | None = None
+
+    def summary(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class SteppingChoice:
+    """Outcome of ``choose_stepping``: ``chosen`` (the admissible candidate with the fewest
+    implicit steps per env step, then the fewest solver iterations per env step, then the
+    smallest error), every candidate, the tolerance and the mesh."""
+
+    chosen: SteppingCandidate | None
+    candidates: list
+    tolerance: dict
+    shape: tuple
+    max_step: float
+    hold_steps: int
+    total_time: float
+
+    def summary(self) -> dict:
+        return dict(chosen=None if self.chosen is None else self.chosen.summary(),
+                    candidates=[c.summary() for c in self.candidates], tolerance=self.tolerance,
+                    shape=list(self.shape), max_step=self.max_step, hold_steps=self.hold_steps,
+                    total_time=self.total_time)
+
+
+def _int_at_least(name, value, low):
+    if isinstance(value, bool):
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    try:
+        number = int(value)
+        exact = float(value) == number
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}") from error
+    if not exact or number < low:
+        raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    return number
+
+
+def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass_control, volume_stiffness,
+                   solver_tolerance):
+    """Observed quantities of ``scene`` as an environment produces them: from the static rest state
+    (gravity, tool at rest) the tool moves towards each tested displacement by at most ``max_step``
+    per component per env step (a scripted controller at full speed; the displacements of a path
+    in order), each env step being ``substeps`` implicit Euler steps of ``dt`` (floor: y clamped
+    after each step, as Retraction does), then is held ``hold_steps`` env steps; the observation
+    is taken then. Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""
+    from .forces import external_forces, internal_forces
+    from .integrators import ImplicitEuler
+    from .model import State
+
+    mesh, material, fixed, tool, target_nodes, weights = scene.discretise(shape)
+    nodes = mesh.nodes
+    model = build_model(mesh, material, gravity=(0.0, -scene.gravity, 0.0), hourglass_control=hourglass_control,
+                        volume_stiffness=volume_stiffness)
+    solve, _ = _mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness, False)
+    components = scene.tool_components
+    imposed = np.zeros((mesh.n_nodes, 3), bool)
+    imposed[np.ix_(tool, components)] = True
+    base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
+    floor_candidates = np.setdiff1d(np.arange(mesh.n_nodes), np.union1d(fixed, tool)) if scene.floor else None
+    rest_control = base.copy().impose(tool, nodes[tool], components=components)
+    rest = nodes.copy()
+    if scene.gravity > 0:
+        rest, _, ok, _, _ = _solve_with_floor(solve, rest_control, None, scene.floor, floor_candidates, nodes)
+        rest = rest if ok else nodes.copy()
+    rest_volume = float(mesh.element_volumes().sum())
+    integrator = ImplicitEuler(tolerance=solver_tolerance)
+    observed = dict(force=[], target=[], volume=[])
+    env_steps, iterations, reason = 0, 0, None
+    clock = time.perf_counter()
+    for path in scene.displacements:
+        state = State(rest.copy(), np.zeros_like(rest))
+        scratch = state.copy()
+        offset = np.zeros(3)
+        for displacement in path:
+            moves = int(math.ceil(float(np.max(np.abs(displacement - offset))) / max_step - 1e-9))
+            for k in range(moves + hold_steps):
+                if k < moves:
+                    offset = offset + np.clip(displacement - offset, -max_step, max_step)
+                control = base.copy().impose(tool, nodes[tool] + offset, components=components)
+                for _ in range(substeps):
+                    with np.errstate(all="ignore"):
+                        report = integrator.simulate(model, state, scratch, dt, control)
+                    iterations += report.iterations
+                    reason = report.unstable_reason
+                    if reason is None and not np.all(np.isfinite(scratch.positions)):
+                        reason = "non-finite positions"
+                    if reason is not None:
+                        return None, env_steps, iterations, time.perf_counter() - clock, reason
+                    if scene.floor:
+                        below = scratch.positions[:, 1] < 0.0
+                        scratch.positions[below, 1] = 0.0
+                        scratch.velocities[below, 1] = np.maximum(scratch.velocities[below, 1], 0.0)
+                    state, scratch = scratch, state
+                env_steps += 1
+            positions = state.positions
+            forces = internal_forces(model, positions, state.velocities) + external_forces(model, control)
+            observed["force"].append(np.where(imposed, -forces, 0.0).sum(axis=0))  # as TissueEnv._measure
+            observed["target"].append(weights @ positions[target_nodes])
+            observed["volume"].append(float(mesh.element_volumes(positions).sum()) / rest_volume - 1.0)
+    elapsed = time.perf_counter() - clock
+    count = len(observed["volume"])
+    solution = SceneSolution(
+        shape=tuple(shape), force=np.asarray(observed["force"]), target=np.asarray(observed["target"]),
+        volume=np.asarray(observed["volume"]), target_rest=weights @ nodes[target_nodes],
+        converged=np.ones(count, bool), stable=np.full(count, None, dtype=object),
+        lowest_eigenvalue=np.full(count, np.nan), solve_time=elapsed)
+    return solution, env_steps, iterations, elapsed, None
+
+
+def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_steps=0, hourglass_control=1.0,
+                   volume_stiffness=100.0, static=None, tolerance=0.05, solver_tolerance=1e-4) -> SteppingCandidate:
+    """How far an environment's stepping (``substeps`` implicit Euler steps of ``dt`` per env step,
+    the tool moving ``max_step`` per env step, then held ``hold_steps`` env steps) leaves the
+    observed quantities from the static equilibrium at the same tool position, on ``shape``.
+
+    Args:
+        scene: a ``Scene`` or a list of them.  shape: elements per axis.
+        static: the scenes' static ``SceneSolution`` s on ``shape`` with the same setting
+            (computed when None).
+        tolerance: relative error allowed (a number or a dict per quantity) for ``admissible``.
+        solver_tolerance: relative residual of the linear solves (the envs' default, 1e-4).
+    Returns:
+        ``SteppingCandidate`` (errors in the ``scene_errors`` convention against ``static``).
+    Raises:
+        ValueError naming the argument when an input is invalid.
+    """
+    scenes = [scene] if isinstance(scene, Scene) else list(scene) if isinstance(scene, (list, tuple)) else None
+    if not scenes or not all(isinstance(s, Scene) for s in scenes):
+        raise ValueError(f"scene must be a Scene or a non-empty list of Scenes, got {scene!r}")
+    try:
+        shape = tuple(int(s) for s in shape)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"shape must be three integers >= 1, got {shape!r}") from error
+    if len(shape) != 3 or min(shape) < 1:
+        raise ValueError(f"shape must be three integers >= 1, got {shape!r}")
+    dt = _scalar("dt", dt, low=0.0)
+    substeps = _int_at_least("substeps", substeps, 1)
+    max_step = _scalar("max_step", max_step, low=0.0)
+    hold_steps = _int_at_least("hold_steps", hold_steps, 0)
+    alpha = _scalar("hourglass_control", hourglass_control, low=0.0, strict=False)
+    kappa = _scalar("volume_stiffness", volume_stiffness, low=0.0, strict=False)
+    tolerance = tolerance if isinstance(tolerance, dict) and set(tolerance) <= set(QUANTITIES) and all(
+        isinstance(v, float) for v in tolerance.values()) else _tolerances(tolerance, QUANTITIES)
+    if static is None:
+        static = [solve_scene(s, shape, hourglass_control=alpha, volume_stiffness=kappa, check_stability=False)
+                  for s in scenes]
+    errors, case_errors, steps, iterations, elapsed = {}, {q: [] for q in QUANTITIES}, 0, 0, 0.0
+    for scene_, reference in zip(scenes, static):
+        solution, n, its, seconds, reason = _dynamic_scene(
+            scene_, shape, dt=dt, substeps=substeps, max_step=max_step, hold_steps=hold_steps,
+            hourglass_control=alpha, volume_stiffness=kappa, solver_tolerance=solver_tolerance)
+        steps, iterations, elapsed = steps + n, iterations + its, elapsed + seconds
+        if solution is None:
+            return SteppingCandidate(dt, substeps, None, None, steps, iterations / max(steps, 1),
+                                     elapsed / max(steps, 1), False, f"diverged: {reason}")
+        for name, value in scene_errors(solution, reference, per_case=True).items():
+            errors[name] = max(errors.get(name, 0.0), float(value.max()))
+            case_errors[name].extend(float(v) for v in value)
+    errors = {q: errors[q] for q in tolerance}
+    reason = None
+    if not all(errors[q] <= tolerance[q] for q in tolerance):
+        worst = max(tolerance, key=lambda q: errors[q] / tolerance[q])
+        reason = f"{worst} lag {errors[worst]:.3g} > {tolerance[worst]:.3g}"
+    return SteppingCandidate(dt, substeps, errors, case_errors, steps, iterations / max(steps, 1),
+                             elapsed / max(steps, 1), reason is None, reason)
+
+
+def choose_stepping(scene, shape, tolerance=0.05, *, dts=(0.01, 0.02, 0.04), substeps=(1, 2), max_step=0.002,
+                    hold_steps=0, hourglass_control=1.0, volume_stiffness=100.0, quantities=QUANTITIES,
+                    static=None) -> SteppingChoice:
+    """The cheapest env stepping (``dt``, ``substeps``) whose observations stay within ``tolerance``
+    of the static equilibrium at the same tool position (``stepping_error``) on ``shape``.
+
+    Cheapest: fewest implicit steps per env step (``substeps``), then fewest linear-solver
+    iterations per env step, then the smallest worst error / tolerance.
+    Raises:
+        ValueError naming the argument when an input is invalid.
+    """
+    clock = time.perf_counter()
+    scenes = [scene] if isinstance(scene, Scene) else list(scene) if isinstance(scene, (list, tuple)) else None
+    if not scenes or not all(isinstance(s, Scene) for s in scenes):
+        raise ValueError(f"scene must be a Scene or a non-empty list of Scenes, got {scene!r}")
+    try:
+        quantities = tuple(quantities)
+    except TypeError as error:
+        raise ValueError(f"quantities must be a subset of {QUANTITIES}, got {quantities!r}") from error
+    if not quantities or any(q not in QUANTITIES for q in quantities):
+        raise ValueError(f"quantities must be a non-empty subset of {QUANTITIES}, got {quantities!r}")
+    tolerance = _tolerances(tolerance, quantities)
+    try:
+        dts = sorted({_scalar("dts", d, low=0.0) for d in dts})
+        substeps = sorted({_int_at_least("substeps", s, 1) for s in substeps})
+    except TypeError as error:
+        raise ValueError(f"dts and substeps must be sequences, got {dts!r} and {substeps!r}") from error
+    if not dts:
+        raise ValueError("dts must hold at least one time step > 0 s")
+    if not substeps:
+        raise ValueError("substeps must hold at least one integer >= 1")
+    shape = tuple(int(s) for s in shape)
+    if static is None:
+        static = [solve_scene(s, shape, hourglass_control=hourglass_control, volume_stiffness=volume_stiffness,
+                              check_stability=False) for s in scenes]
+    candidates = [stepping_error(scenes, shape, dt=dt, substeps=n, max_step=max_step, hold_steps=hold_steps,
+                                 hourglass_control=hourglass_control, volume_stiffness=volume_stiffness,
+                                 static=static, tolerance=tolerance)
+                  for n in substeps for dt in dts]
+    admissible = [c for c in candidates if c.admissible]
+    chosen = None
+    if admissible:
+        chosen = min(admissible, key=lambda c: (c.substeps, round(c.iterations, 1),
+                                                max(c.errors[q] / tolerance[q] for q in tolerance)))
+    return SteppingChoice(chosen, candidates, tolerance, shape, float(max_step), int(hold_steps),
+                          time.perf_counter() - clock)
