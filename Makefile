@@ -2,8 +2,11 @@
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# Ray RLlib lives in its own venv: ray[rllib] pins an older gymnasium than .venv's.
+RLLIB_VENV := .venv-rllib
+RLLIB_STAMP := $(RLLIB_VENV)/.installed
 
-.PHONY: setup demo validate test bench bench-peers clean
+.PHONY: setup demo validate test bench bench-peers test-rllib bench-rllib clean
 
 setup: $(STAMP)
 
@@ -36,5 +39,19 @@ bench-peers: $(STAMP)
 	$(PY) -m pip install --quiet -e ".[bench]"
 	$(PY) benchmarks/peers.py
 
+$(RLLIB_STAMP): pyproject.toml Makefile
+	python3 -m venv $(RLLIB_VENV)
+	$(RLLIB_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(RLLIB_VENV)/bin/python -m pip install --quiet "torch==2.13.0"
+	$(RLLIB_VENV)/bin/python -m pip install --quiet -e ".[rllib,dev]"
+	touch $(RLLIB_STAMP)
+
+# RLlib smoke tests on a local Ray instance, and the throughput for 1 and 2 env runners
+test-rllib: $(RLLIB_STAMP)
+	$(RLLIB_VENV)/bin/python -m pytest -q tests/test_rllib.py
+
+bench-rllib: $(RLLIB_STAMP)
+	$(RLLIB_VENV)/bin/python benchmarks/rllib_throughput.py
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) $(RLLIB_VENV) build *.egg-info
