@@ -1218,3 +1218,356 @@ def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, 
         gradient[m, 6, 0] = g7x
         gradient[m, 6, 1] = g7y
         gradient[m, 6, 2] = g7z
+
+
+# -- batched copies (tissue_env.batched): N copies of one block, copy index last ------------------------
+# Every per-copy array has the copy as its last axis ((S, N), (S, 3, N), (3 n, N) ...), so each loop over
+# springs, elements or hourglass entries reads its indices once for all N copies (the inner loop over
+# copies is contiguous). Same formulas as ``spring_operator`` / ``solve_springs``.
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_scale, damping_scale,
+                            stiffness_scale, elements, edge_spring, correction_matrix, axis_rest_length,
+                            coupling_scale, volume_coefficient, volume_direction, volume_gradient, volume_scale,
+                            hg_indptr, hg_indices, hg_data, hg_group, hg_scale, mask, vector, out, elongation,
+                            delta):
+    """``spring_operator`` of N copies at once: out (3 n, N) = mask * A @ vector (3 n, N), with the
+    single block's topology (springs, elements, edge_spring, hg_indptr, hg_indices) and per-copy values
+    (unit (S, 3, N), stiffness, damping, geometric (S, N), mass (n, N), correction_matrix (M, 3, 3, N),
+    axis_rest_length (M, 3, N), volume_coefficient (M, N), volume_direction, volume_gradient (M, 8, 3, N),
+    hg_data (nnz, G): the G distinct hourglass matrices' values, copy c using column hg_group[c]).
+    elongation, delta (S, N) are scratch."""
+    n_copies = vector.shape[1]
+    for node in range(mass.shape[0]):
+        for k in range(3):
+            row = 3 * node + k
+            for c in range(n_copies):
+                out[row, c] = mass_scale * mass[node, c] * vector[row, c]
+    coupled = coupling_scale != 0.0
+    n_springs = springs.shape[0]
+    if coupled:
+        for s in range(n_springs):
+            a, b = springs[s, 0], springs[s, 1]
+            for c in range(n_copies):
+                elongation[s, c] = (unit[s, 0, c] * (vector[3 * b, c] - vector[3 * a, c])
+                                    + unit[s, 1, c] * (vector[3 * b + 1, c] - vector[3 * a + 1, c])
+                                    + unit[s, 2, c] * (vector[3 * b + 2, c] - vector[3 * a + 2, c]))
+                delta[s, c] = 0.0
+        for m in range(elements.shape[0]):
+            for c in range(n_copies):
+                r0 = 0.25 * coupling_scale * (elongation[edge_spring[m, 0], c] + elongation[edge_spring[m, 1], c]
+                                              + elongation[edge_spring[m, 2], c] + elongation[edge_spring[m, 3], c]) \
+                    / axis_rest_length[m, 0, c]
+                r1 = 0.25 * coupling_scale * (elongation[edge_spring[m, 4], c] + elongation[edge_spring[m, 5], c]
+                                              + elongation[edge_spring[m, 6], c] + elongation[edge_spring[m, 7], c]) \
+                    / axis_rest_length[m, 1, c]
+                r2 = 0.25 * coupling_scale * (elongation[edge_spring[m, 8], c] + elongation[edge_spring[m, 9], c]
+                                              + elongation[edge_spring[m, 10], c] + elongation[edge_spring[m, 11], c]) \
+                    / axis_rest_length[m, 2, c]
+                for j in range(3):
+                    p = (correction_matrix[m, j, 0, c] * r0 + correction_matrix[m, j, 1, c] * r1
+                         + correction_matrix[m, j, 2, c] * r2)
+                    for q in range(4):
+                        delta[edge_spring[m, 4 * j + q], c] += p
+    if volume_scale != 0.0:
+        for m in range(elements.shape[0]):
+            for c in range(n_copies):
+                if volume_coefficient[m, c] == 0.0:
+                    continue
+                rate = 0.0
+                for n in range(8):
+                    node = elements[m, n]
+                    rate += (volume_gradient[m, n, 0, c] * vector[3 * node, c]
+                             + volume_gradient[m, n, 1, c] * vector[3 * node + 1, c]
+                             + volume_gradient[m, n, 2, c] * vector[3 * node + 2, c])
+                rate *= volume_scale * volume_coefficient[m, c]
+                for n in range(8):
+                    node = elements[m, n]
+                    out[3 * node, c] += rate * volume_direction[m, n, 0, c]
+                    out[3 * node + 1, c] += rate * volume_direction[m, n, 1, c]
+                    out[3 * node + 2, c] += rate * volume_direction[m, n, 2, c]
+    for s in range(n_springs):
+        a, b = springs[s, 0], springs[s, 1]
+        for c in range(n_copies):
+            u0, u1, u2 = unit[s, 0, c], unit[s, 1, c], unit[s, 2, c]
+            d0 = vector[3 * b, c] - vector[3 * a, c]
+            d1 = vector[3 * b + 1, c] - vector[3 * a + 1, c]
+            d2 = vector[3 * b + 2, c] - vector[3 * a + 2, c]
+            across = stiffness_scale * geometric[s, c]
+            along = stiffness_scale * stiffness[s, c] + damping_scale * damping[s, c] - across
+            t = along * (u0 * d0 + u1 * d1 + u2 * d2)
+            if coupled:
+                t -= delta[s, c]
+            f0 = t * u0 + across * d0
+            f1 = t * u1 + across * d1
+            f2 = t * u2 + across * d2
+            out[3 * a, c] -= f0
+            out[3 * a + 1, c] -= f1
+            out[3 * a + 2, c] -= f2
+            out[3 * b, c] += f0
+            out[3 * b + 1, c] += f1
+            out[3 * b + 2, c] += f2
+    if hg_scale != 0.0:
+        total = np.empty(n_copies)
+        shared = hg_data.shape[1] == 1  # one matrix for every copy: a contiguous (vectorised) inner loop
+        for row in range(hg_indptr.shape[0] - 1):
+            total[:] = 0.0
+            for k in range(hg_indptr[row], hg_indptr[row + 1]):
+                col = hg_indices[k]
+                if shared:
+                    value = hg_data[k, 0]
+                    for c in range(n_copies):
+                        total[c] += value * vector[col, c]
+                else:
+                    for c in range(n_copies):
+                        total[c] += hg_data[k, hg_group[c]] * vector[col, c]
+            for c in range(n_copies):
+                out[row, c] += hg_scale * total[c]
+    for i in range(out.shape[0]):
+        for c in range(n_copies):
+            out[i, c] *= mask[i, c]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _batched_apply(data, scales, mask, vector, out):
+    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
+     hg_group) = data
+    batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
+                            elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
+                            volume_coefficient, volume_direction, volume_gradient, scales[4],
+                            hg_indptr, hg_indices, hg_data, hg_group, scales[5], mask, vector, out, elongation, delta)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def batched_apply_operator(data, scales, mask, vector, out):
+    """``batched_spring_operator`` with its arguments packed as ``apply_operator``'s (copies last), plus
+    hg_group (N,) last."""
+    _batched_apply(data, scales, mask, vector, out)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _batched_precondition(pre_data, pre_offset, pre_free, pre_count, group_of, inverse_diagonal, mask, vector, out,
+                          columns):
+    """out = mask * P_c vector[:, c] per copy c: P the dense matrix of the copy's group (``group_of[c]`` >= 0,
+    rows/columns ``pre_free[g, :pre_count[g]]``, row-major at ``pre_data[pre_offset[g]:]``) or the Jacobi
+    diagonal (``group_of[c]`` < 0). One pass over each group's matrix serves all its copies."""
+    n_copies = vector.shape[1]
+    out[:] = 0.0
+    for c in range(n_copies):
+        if group_of[c] < 0:
+            for i in range(vector.shape[0]):
+                out[i, c] = inverse_diagonal[i, c] * vector[i, c]
+    for g in range(pre_count.shape[0]):
+        used = 0
+        for c in range(n_copies):
+            if group_of[c] == g:
+                columns[used] = c
+                used += 1
+        if used == 0:
+            continue
+        k = pre_count[g]
+        offset = pre_offset[g]
+        gathered = np.empty((used, k))  # each copy's free components, contiguous
+        for j in range(k):
+            row = pre_free[g, j]
+            for t in range(used):
+                gathered[t, j] = vector[row, columns[t]]
+        # row i of the matrix times 4 copies at a time (own loops: the threaded BLAS of a loaded
+        # machine was measured 5x slower)
+        for i in range(k):
+            base = offset + i * k
+            row = pre_free[g, i]
+            t = 0
+            while t + 4 <= used:
+                a0 = a1 = a2 = a3 = 0.0
+                for j in range(k):
+                    p = pre_data[base + j]
+                    a0 += p * gathered[t, j]
+                    a1 += p * gathered[t + 1, j]
+                    a2 += p * gathered[t + 2, j]
+                    a3 += p * gathered[t + 3, j]
+                out[row, columns[t]] = a0
+                out[row, columns[t + 1]] = a1
+                out[row, columns[t + 2]] = a2
+                out[row, columns[t + 3]] = a3
+                t += 4
+            while t < used:
+                a0 = 0.0
+                for j in range(k):
+                    a0 += pre_data[base + j] * gathered[t, j]
+                out[row, columns[t]] = a0
+                t += 1
+    for i in range(out.shape[0]):
+        for c in range(n_copies):
+            out[i, c] *= mask[i, c]
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def batched_solve(data, scales, mask, rhs, guess, active, tolerance, max_iterations, pre_data, pre_offset, pre_free,
+                  pre_count, group_of, work, solution, iterations, residual):
+    """Right-preconditioned BiCGSTAB (``solve_springs``' algorithm) of every ``active`` copy, in lockstep
+    with its own scalars and stopping test ||r|| <= tolerance ||b||: a copy that has converged (or broken
+    down) stops changing. Preconditioner per copy: see ``_batched_precondition``. Vectors (3 n, N);
+    ``work`` (8, 3 n, N) scratch. Writes solution (NaN columns for a non-finite right-hand side),
+    iterations (N,) and residual (N,) (0 for a zero right-hand side)."""
+    dofs, n_copies = rhs.shape
+    springs, unit, stiffness, damping, geometric, mass = data[0], data[1], data[2], data[3], data[4], data[5]
+    hg_indptr, hg_indices, hg_data, hg_group = data[13], data[14], data[15], data[18]
+    mass_scale, damping_scale, stiffness_scale, hg_scale = scales[0], scales[1], scales[2], scales[5]
+    r, r_hat, p, v, s, t, p_hat, s_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
+    x = solution
+    columns = np.empty(n_copies, dtype=np.int64)
+    inverse_diagonal = np.zeros((dofs, n_copies))
+    jacobi = False
+    for c in range(n_copies):
+        if group_of[c] < 0:
+            jacobi = True
+    if jacobi:  # the diagonal of M + springs (+ hourglass), as ``solve_springs``
+        for node in range(mass.shape[0]):
+            for k in range(3):
+                for c in range(n_copies):
+                    inverse_diagonal[3 * node + k, c] = mass_scale * mass[node, c]
+        for q in range(springs.shape[0]):
+            a, b = springs[q, 0], springs[q, 1]
+            for k in range(3):
+                for c in range(n_copies):
+                    across = stiffness_scale * geometric[q, c]
+                    along = stiffness_scale * stiffness[q, c] + damping_scale * damping[q, c] - across
+                    value = along * unit[q, k, c] * unit[q, k, c] + across
+                    inverse_diagonal[3 * a + k, c] += value
+                    inverse_diagonal[3 * b + k, c] += value
+        for row in range(dofs):
+            diagonal_hg = -1
+            if hg_scale != 0.0:
+                for q in range(hg_indptr[row], hg_indptr[row + 1]):
+                    if hg_indices[q] == row:
+                        diagonal_hg = q
+            for c in range(n_copies):
+                value = inverse_diagonal[row, c]
+                if value > 0.0:
+                    if diagonal_hg >= 0:
+                        value += hg_scale * hg_data[diagonal_hg, hg_group[c]]
+                    inverse_diagonal[row, c] = mask[row, c] / value
+                else:
+                    inverse_diagonal[row, c] = 0.0
+    norm_b = np.zeros(n_copies)
+    finite = np.ones(n_copies, dtype=np.bool_)
+    for c in range(n_copies):
+        for i in range(dofs):
+            value = rhs[i, c] * mask[i, c]
+            if not np.isfinite(value):
+                finite[c] = False
+    for i in range(dofs):
+        for c in range(n_copies):
+            s[i, c] = rhs[i, c] * mask[i, c] if finite[c] else 0.0  # s holds b
+            x[i, c] = guess[i, c] * mask[i, c]
+    for i in range(dofs):
+        for c in range(n_copies):
+            norm_b[c] += s[i, c] * s[i, c]
+    for c in range(n_copies):
+        norm_b[c] = np.sqrt(norm_b[c])
+        if norm_b[c] == 0.0:
+            for i in range(dofs):
+                x[i, c] = 0.0
+    _batched_apply(data, scales, mask, x, v)
+    rr = np.zeros(n_copies)
+    for i in range(dofs):
+        for c in range(n_copies):
+            r[i, c] = s[i, c] - v[i, c]
+            rr[c] += r[i, c] * r[i, c]
+    safe = np.where(norm_b == 0.0, 1.0, norm_b)
+    running = np.zeros(n_copies, dtype=np.bool_)
+    for c in range(n_copies):
+        residual[c] = np.sqrt(rr[c]) / safe[c]
+        iterations[c] = 0
+        running[c] = active[c] and finite[c] and norm_b[c] > 0.0 and residual[c] > tolerance
+    rho = np.ones(n_copies)
+    alpha = np.zeros(n_copies)
+    omega = np.ones(n_copies)
+    rho_new = np.zeros(n_copies)
+    dot1 = np.zeros(n_copies)
+    dot2 = np.zeros(n_copies)
+    for i in range(dofs):
+        for c in range(n_copies):
+            r_hat[i, c] = r[i, c]
+            v[i, c] = 0.0
+            p[i, c] = 0.0
+    while running.any():
+        rho_new[:] = 0.0
+        for i in range(dofs):
+            for c in range(n_copies):
+                rho_new[c] += r_hat[i, c] * r[i, c]
+        beta = np.zeros(n_copies)
+        for c in range(n_copies):
+            if running[c] and (rho_new[c] == 0.0 or omega[c] == 0.0):
+                running[c] = False
+            if running[c]:
+                beta[c] = (rho_new[c] / rho[c]) * (alpha[c] / omega[c])
+                rho[c] = rho_new[c]
+        for i in range(dofs):
+            for c in range(n_copies):
+                p[i, c] = r[i, c] + beta[c] * (p[i, c] - omega[c] * v[i, c])
+        _batched_precondition(pre_data, pre_offset, pre_free, pre_count, group_of, inverse_diagonal, mask, p, p_hat,
+                              columns)
+        _batched_apply(data, scales, mask, p_hat, v)
+        dot1[:] = 0.0
+        for i in range(dofs):
+            for c in range(n_copies):
+                dot1[c] += r_hat[i, c] * v[i, c]
+        for c in range(n_copies):
+            if running[c] and not (np.isfinite(dot1[c]) and dot1[c] != 0.0):
+                running[c] = False
+            alpha[c] = rho[c] / dot1[c] if running[c] else 0.0
+        dot2[:] = 0.0
+        for i in range(dofs):
+            for c in range(n_copies):
+                s[i, c] = r[i, c] - alpha[c] * v[i, c]
+                dot2[c] += s[i, c] * s[i, c]
+        early = np.zeros(n_copies, dtype=np.bool_)
+        for c in range(n_copies):
+            if running[c]:
+                iterations[c] += 1
+                s_residual = np.sqrt(dot2[c]) / safe[c]
+                if s_residual <= tolerance:
+                    early[c] = True
+                    residual[c] = s_residual
+                    running[c] = False
+        if early.any():
+            for i in range(dofs):
+                for c in range(n_copies):
+                    if early[c]:
+                        x[i, c] += alpha[c] * p_hat[i, c]
+                        r[i, c] = s[i, c]
+        if not running.any():
+            break
+        _batched_precondition(pre_data, pre_offset, pre_free, pre_count, group_of, inverse_diagonal, mask, s, s_hat,
+                              columns)
+        _batched_apply(data, scales, mask, s_hat, t)
+        dot1[:] = 0.0
+        dot2[:] = 0.0
+        for i in range(dofs):
+            for c in range(n_copies):
+                dot1[c] += t[i, c] * t[i, c]
+                dot2[c] += t[i, c] * s[i, c]
+        for c in range(n_copies):
+            omega[c] = dot2[c] / dot1[c] if (running[c] and dot1[c] > 0.0) else 0.0
+        rr[:] = 0.0
+        for i in range(dofs):
+            for c in range(n_copies):
+                if running[c]:
+                    x[i, c] += alpha[c] * p_hat[i, c] + omega[c] * s_hat[i, c]
+                    r[i, c] = s[i, c] - omega[c] * t[i, c]
+                    rr[c] += r[i, c] * r[i, c]
+        for c in range(n_copies):
+            if running[c]:
+                residual[c] = np.sqrt(rr[c]) / safe[c]
+                if not (np.isfinite(residual[c]) and residual[c] > tolerance and iterations[c] < max_iterations):
+                    running[c] = False
+            if not running[c]:
+                omega[c] = 1.0
+    for c in range(n_copies):
+        if active[c] and not finite[c]:
+            for i in range(dofs):
+                x[i, c] = np.nan
+        if norm_b[c] == 0.0:
+            residual[c] = 0.0

@@ -7,29 +7,28 @@ the concatenation of the copies' arrays. A copy whose material changes (a new ep
 another inclusion or Young's modulus) overwrites its slot; nothing is rebuilt.
 
 ``BatchedImplicitEuler`` advances all copies by the discrete equation of sim_core's
-``ImplicitEuler`` (corrections="implicit"), built from the same ``sim_core.kernels`` calls on the
-stacked arrays:
+``ImplicitEuler`` (corrections="implicit"):
 
-    (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1.
+    (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1,
 
-Only the linear solver differs. sim_core solves one copy with Jacobi-preconditioned BiCGSTAB
-(about 20 iterations per env step of TumorPositioning); one call on the stacked model would keep
-that cost per copy (measured: no faster than N single steps) and couple the copies through shared
-scalars and one stopping test. Here every copy runs its own BiCGSTAB (its own scalars and
-stopping test ||r|| <= tolerance ||b||, as sim_core's), all in lockstep, preconditioned by the
-exact inverse of the copy's system matrix at the start of its episode. Copies that start alike
-share that inverse, so the preconditioner is one dense matrix product for the whole batch, and
-it stays close to the current matrix while the tissue moves a few millimetres: 4-5 iterations on
-average. When it no longer fits (large deformation, a probe contact that changes the imposed
-dofs), the copy that needed the most iterations (more than ``refresh_iterations``) is
-re-linearised at its current state, one per step, and a copy that has not converged after
-``first_pass`` iterations is re-linearised and solved again. The trajectories equal those of N
-single environments up to the solvers' tolerance (tests/test_env_vector.py). ``solver="jacobi"``
-instead runs sim_core's own compiled solve on each copy's slice of the stacked system (for scenes
-whose deformation is too large for a start-of-episode preconditioner, e.g. Retraction). SI units.
+with sim_core's fused kernels: one ``kernels.model_forces`` pass over the stacked model (forces,
+clamped geometric stiffness, volume terms, through a ``ForceWorkspace``), then
+``kernels.batched_spring_operator``, the matrix-free per-spring operator of ``spring_operator``
+with the copy index last ((3 n, N) vectors), so each spring, element and hourglass entry is read
+once for all copies, and ``kernels.batched_solve``, one compiled call that runs every copy's
+BiCGSTAB in lockstep, each with its own scalars, stopping test ||r|| <= tolerance ||b|| (as
+sim_core's) and convergence mask. No Python loop over copies in the step.
 
-Uses sim_core's public API and its compiled kernels, including ``kernels._operator`` (the matrix-
-free product of the implicit system, the one ``ImplicitEuler`` applies).
+Preconditioner (solver "reference"): the exact inverse of the copy's system matrix at the start
+of its episode. Copies that start alike share it (one pass over the matrix serves them all), and
+it stays close to the current matrix while the tissue moves a few millimetres: 4-7 iterations.
+When it no longer fits (large deformation, a probe contact that changes the imposed dofs), the
+copy that needed the most iterations (more than ``refresh_iterations``) is re-linearised at its
+current state, one per step, and a copy that has not converged after ``first_pass`` iterations is
+re-linearised and solved again. ``solver="jacobi"`` uses sim_core's Jacobi diagonal instead (for
+scenes whose deformation is too large for a start-of-episode preconditioner, e.g. Retraction).
+The trajectories equal those of N single environments up to the solvers' tolerance
+(tests/test_env_vector.py). SI units.
 """
 
 from __future__ import annotations
@@ -43,7 +42,7 @@ import scipy.sparse.linalg as spla
 
 from sim_core import HexMesh
 from sim_core import kernels
-from sim_core.forces import internal_forces, spring_state, stiffness_data
+from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
 from sim_core.integrators import DivergenceMonitor, SymplecticEuler
 from sim_core.model import Control, Model, State
 
@@ -101,6 +100,8 @@ class ModelStack:
         self._hourglass_keys = [_digest(model.hourglass.data) if model.hourglass is not None else None] * count
         self._hourglass_by_key = {self._hourglass_keys[0]: model.hourglass}
         self._hourglass_groups = None
+        self.version = 0
+        self._copies_last = None
 
     def _check(self, model: Model):
         same = (model.n_nodes == self.n_nodes and len(model.springs) == self.n_springs
@@ -133,6 +134,30 @@ class ModelStack:
             self._hourglass_keys[index] = key
             self._hourglass_groups = None
         self.models[index] = model
+        self.version += 1
+
+    def copies_last(self):
+        """The copies' material arrays with the copy index last (``kernels.batched_spring_operator``'s
+        layout): dict of stiffness, damping (S, N), mass (n, N), correction_matrix (M, 3, 3, N),
+        axis_rest_length (M, 3, N), hourglass data (nnz, G) of the G distinct hourglass matrices and
+        hourglass_group (N,) the column of each copy; rebuilt after ``assign``."""
+        if self._copies_last is None or self._copies_last[0] != self.version:
+            model, count = self.model, self.count
+
+            def last(array):
+                array = np.asarray(array, dtype=float)
+                return np.ascontiguousarray(np.moveaxis(array.reshape((count, -1) + array.shape[1:]), 0, -1))
+
+            arrays = {name: last(getattr(model, name)) for name in
+                      ("stiffness", "damping", "mass", "correction_matrix", "axis_rest_length")}
+            groups = self.hourglass_groups()  # copies with equal hourglass matrices share a column
+            arrays["hourglass"] = np.zeros((self.hourglass_nnz if groups else 0, max(len(groups), 1)))
+            arrays["hourglass_group"] = np.zeros(count, dtype=np.int64)
+            for g, (matrix, copies) in enumerate(groups):
+                arrays["hourglass"][:, g] = matrix.data
+                arrays["hourglass_group"][copies] = g
+            self._copies_last = (self.version, arrays)
+        return self._copies_last[1]
 
     def hourglass_groups(self):
         """[(single-copy hourglass matrix, copy indices)] grouping the copies with equal matrices."""
@@ -178,10 +203,6 @@ def _inverse_system(model, positions, dt, fixed):
     return free, np.ascontiguousarray(inverse.T)
 
 
-def _rows_dot(a, b):
-    return np.einsum("ij,ij->i", a, b)
-
-
 class BatchedImplicitEuler:
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
     copy run in lockstep (see the module docstring).
@@ -208,10 +229,14 @@ class BatchedImplicitEuler:
         self.warm = np.zeros((count, dofs))
         self._preconditioners = [None] * count
         self._groups = None
-        model = stack.model
-        self._zero_mass = np.zeros_like(model.mass)
-        self._zero_damping = np.zeros_like(model.damping)
         self.last_iterations = np.zeros(count, dtype=int)
+        self.workspace = ForceWorkspace(stack.model, implicit=True)
+        self._elongation = np.empty((stack.n_springs, count))
+        self._delta = np.empty((stack.n_springs, count))
+        self._work = np.empty((8, dofs, count))
+        self._ones = np.ones((dofs, count))
+        self._packed = None
+        self._packed_groups = None
 
     # -- preconditioner ------------------------------------------------------------------------------
     def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
@@ -273,6 +298,30 @@ class BatchedImplicitEuler:
         return out
 
     # -- step ------------------------------------------------------------------------------------------
+    def _pack_preconditioners(self):
+        """The kernel's view of the copies' preconditioners: (data, offsets, free, counts, group_of)."""
+        count, dofs = self.stack.count, 3 * self.stack.n_nodes
+        if self.solver != "reference":
+            if self._packed is None:
+                self._packed = (np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros((0, 1), dtype=np.int64),
+                                np.zeros(0, dtype=np.int64), np.full(count, -1, dtype=np.int64))
+            return self._packed
+        groups = self._group()
+        if self._packed is None or self._packed_groups is not groups:
+            sizes = [len(free) for (free, _), _ in groups]
+            offsets = np.concatenate([[0], np.cumsum([k * k for k in sizes])]).astype(np.int64)
+            data = np.empty(max(int(offsets[-1]), 1))
+            free_rows = np.zeros((len(groups), max(max(sizes), 1)), dtype=np.int64)
+            group_of = np.full(count, -1, dtype=np.int64)
+            for g, ((free, inverse_t), rows) in enumerate(groups):
+                k = len(free)
+                data[offsets[g]:offsets[g + 1]] = inverse_t.T.ravel()  # row-major P = inverse
+                free_rows[g, :k] = free
+                group_of[rows] = g
+            self._packed = (data, offsets[:-1].copy(), free_rows, np.array(sizes, dtype=np.int64), group_of)
+            self._packed_groups = groups
+        return self._packed
+
     def simulate(self, positions, velocities, fixed, target, dt, active):
         """One step of every copy in ``active`` (N,) bool; the others keep their state.
 
@@ -281,89 +330,79 @@ class BatchedImplicitEuler:
             target: (N, n, 3) imposed positions, m (read where fixed).  dt: s.
         Returns: (positions, velocities) (N, n, 3), new arrays.
         """
-        model = self.stack.model
+        stack = self.stack
+        model = stack.model
         count, n_nodes = positions.shape[:2]
+        dofs = 3 * n_nodes
         x0 = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
         v0 = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
-        springs, push = spring_state(model, x0)
-        forces = stacked_internal_forces(self.stack, x0, v0, springs=springs, push=push) + model.gravity_force
-        n_blocks = len(model.node_indices)
-        system = np.empty((n_blocks, 3, 3))
-        stiffness = np.empty((n_blocks, 3, 3))
-        kernels.assemble_implicit(model.block_of_spring, n_blocks, model.diagonal_block, springs.unit,
-                                  springs.length, springs.tension, model.stiffness, model.damping, model.mass,
-                                  dt, True, system)
-        kernels.assemble_implicit(model.block_of_spring, n_blocks, model.diagonal_block, springs.unit,
-                                  springs.length, springs.tension, model.stiffness, self._zero_damping,
-                                  self._zero_mass, 1.0, True, stiffness)
         coupled = model.correction_mode is not None
-        edge_unit = np.zeros((model.mesh.n_elements, 12, 3))
-        if coupled:
-            kernels.edge_units(x0, model.mesh.elements, edge_unit)
-        # the volume forces' rank-one stiffness, implicit as in sim_core's ImplicitEuler
         implicit_volume = model.has_volume_forces
-        n_elements = model.mesh.n_elements
-        volume_terms = (np.zeros(n_elements), np.zeros((n_elements, 8, 3)), np.zeros((n_elements, 8, 3)))
-        if implicit_volume:
-            kernels.volume_jacobian_terms(x0, model.mesh.elements, model.rest_volume, model.volume_stiffness,
-                                          *volume_terms)
-        hg_indptr, hg_indices, hg_data = model.hourglass_arrays
-        hourglass_groups = self.stack.hourglass_groups()
-        dofs = x0.size
+        has_hourglass = model.hourglass is not None
+        workspace = self.workspace
+        # one fused pass over the stacked model: forces, clamped geometric stiffness, volume terms
+        forces = workspace.compute(x0, v0, geometric=True, volume_jacobian=implicit_volume) + model.gravity_force
+        reference = stack.reference
+        n_springs, n_elements = stack.n_springs, stack.n_elements
 
-        def apply(blocks, scale, vector, mask):
-            """mask * (blocks + scale (K_hourglass + K_coupling + K_volume)) @ vector (flat dof arrays). The
-            hourglass term (a constant matrix) is one sparse product per group of copies with equal
-            matrices, over all their vectors at once: 4x faster than the stacked matrix."""
-            vector = np.ascontiguousarray(vector).reshape(-1)
-            out = np.empty(dofs)
-            kernels._operator(model.node_indptr, model.node_indices, blocks, hg_indptr, hg_indices, hg_data, 0.0,
-                              model.mesh.elements, edge_unit, model.correction_matrix, model.axis_rest_length,
-                              scale if coupled else 0.0, mask, vector, out, *volume_terms,
-                              scale if implicit_volume else 0.0)
-            vectors, rows, row_mask = vector.reshape(count, -1), out.reshape(count, -1), mask.reshape(count, -1)
-            for matrix, copies in hourglass_groups:
-                if len(copies) == count:
-                    rows += scale * (matrix @ vectors.T).T * row_mask
-                else:
-                    rows[copies] += scale * (matrix @ vectors[copies].T).T * row_mask[copies]
-            return out
+        def last(array, rows):
+            return np.ascontiguousarray(np.moveaxis(array.reshape((count, rows) + array.shape[1:]), 0, -1))
 
-        ones = np.ones(dofs)
-        rhs = dt * (forces.ravel() - dt * apply(stiffness, 1.0, v0.ravel(), ones))
-        free = ~fixed.reshape(-1)
-        known = np.zeros(dofs)
+        values = stack.copies_last()
+        hg_indptr, hg_indices, _ = reference.hourglass_arrays
+        data = (reference.springs, last(workspace.unit, n_springs), values["stiffness"], values["damping"],
+                last(workspace.geometric, n_springs), values["mass"], reference.mesh.elements, reference.edge_spring,
+                values["correction_matrix"], values["axis_rest_length"],
+                last(workspace.volume_coefficient, n_elements), last(workspace.volume_direction, n_elements),
+                last(workspace.volume_gradient, n_elements), hg_indptr, hg_indices, values["hourglass"],
+                self._elongation, self._delta, values["hourglass_group"])
+
+        def scales(mass, damping, stiffness):  # (mass, damping, stiffness, coupling, volume, hourglass)
+            return (float(mass), float(damping), float(stiffness), stiffness if coupled else 0.0,
+                    stiffness if implicit_volume else 0.0, stiffness if has_hourglass else 0.0)
+
+        ones = self._ones
+        product = np.empty((dofs, count))
+        kernels.batched_apply_operator(data, scales(0.0, 0.0, 1.0), ones, last(v0, n_nodes).reshape(dofs, count),
+                                       product)  # K v0
+        rhs = dt * (last(forces, n_nodes).reshape(dofs, count) - dt * product)
+        system = scales(1.0, dt, dt * dt)  # M + dt D + dt^2 K
+        free = ~fixed.reshape(count, dofs).T
+        known = np.zeros((dofs, count))
         if not free.all():
-            target_velocity = (target.reshape(-1, 3) - x0) / dt
-            known[~free] = (target_velocity - v0).ravel()[~free]
-            rhs = rhs - apply(system, dt * dt, known, ones)
-        mask = free.astype(float)
-        flat_mask = mask
-        mask = mask.reshape(count, -1)
-
-        def operator(vectors):
-            return apply(system, dt * dt, vectors, flat_mask).reshape(count, -1)
-
-        rhs = rhs.reshape(count, -1)
-        if self.solver == "jacobi":
-            solution, iterations = self._solve_each(system, edge_unit, rhs, mask, active, dt, coupled,
-                                                    volume_terms if implicit_volume else None)
-            stalled = np.zeros(count, dtype=bool)
-        else:
-            solution, iterations, converged = self._solve(operator, rhs, mask, active, self.warm, self.first_pass)
+            imposed = ~free
+            target_velocity = last((target.reshape(-1, 3) - x0) / dt, n_nodes).reshape(dofs, count)
+            known[imposed] = (target_velocity - last(v0, n_nodes).reshape(dofs, count))[imposed]
+            kernels.batched_apply_operator(data, system, ones, known, product)
+            rhs -= product
+        mask = np.ascontiguousarray(free, dtype=float)
+        solution = np.empty((dofs, count))
+        iterations = np.zeros(count, dtype=np.int64)
+        residual = np.zeros(count)
+        guess = np.ascontiguousarray(self.warm.T)
+        limit = self.first_pass if self.solver == "reference" else self.max_iterations
+        kernels.batched_solve(data, system, mask, rhs, guess, active, self.tolerance, limit,
+                              *self._pack_preconditioners(), self._work, solution, iterations, residual)
+        stalled = np.zeros(count, dtype=bool)
+        if self.solver == "reference":
             # A copy whose start-of-episode preconditioner no longer fits (large deformation, a
             # contact change) stalls: re-linearise it here, exactly, and solve it again from there.
-            stalled = active & ~converged & np.all(np.isfinite(solution), axis=1)
+            converged = residual <= self.tolerance
+            stalled = active & ~converged & np.all(np.isfinite(solution), axis=0)
         if stalled.any():
             for index in np.flatnonzero(stalled):
                 self._refresh(index, x0.reshape(count, n_nodes, 3)[index], dt, fixed[index])
-            again, more, _ = self._solve(operator, rhs, mask, stalled, solution,
-                                         self.max_iterations - self.first_pass)
-            solution = np.where(stalled[:, None], again, solution)
+            again = np.empty((dofs, count))
+            more = np.zeros(count, dtype=np.int64)
+            kernels.batched_solve(data, system, mask, rhs, solution, stalled, self.tolerance,
+                                  self.max_iterations - self.first_pass, *self._pack_preconditioners(), self._work,
+                                  again, more, residual)
+            solution = np.where(stalled[None, :], again, solution)
             iterations = iterations + more
+        solution = solution.T
         self.warm = np.where(active[:, None], solution, self.warm)
         self.last_iterations = iterations
-        dv = np.where(free, solution.ravel(), known)
+        dv = np.where(free.T, solution, known.T)
         new_velocities = v0 + dv.reshape(-1, 3)
         new_positions = x0 + dt * new_velocities
         imposed = fixed.reshape(-1, 3)
@@ -380,91 +419,6 @@ class BatchedImplicitEuler:
             if np.all(np.isfinite(new_positions[worst])):
                 self._refresh(worst, new_positions[worst], dt, fixed[worst])
         return new_positions, new_velocities
-
-    def _solve_each(self, system, edge_unit, rhs, mask, active, dt, coupled, volume_terms=None):
-        """sim_core's own compiled solve (Jacobi-preconditioned BiCGSTAB, ``kernels.solve_implicit``)
-        on each copy's slice of the stacked system: what its ``ImplicitEuler`` does, minus the
-        per-step Python work, which the batch shares."""
-        stack = self.stack
-        blocks_per_copy = len(system) // stack.count
-        solution = np.zeros_like(rhs)
-        iterations = np.zeros(stack.count, dtype=int)
-        for index in np.flatnonzero(active):
-            model = stack.models[index]
-            hg_indptr, hg_indices, hg_data = model.hourglass_arrays
-            blocks = system[index * blocks_per_copy:(index + 1) * blocks_per_copy]
-            elements = slice(index * stack.n_elements, (index + 1) * stack.n_elements)
-            solution[index], iterations[index], _ = kernels.solve_implicit(
-                model.node_indptr, model.node_indices, blocks, model.diagonal_block, hg_indptr, hg_indices, hg_data,
-                dt * dt if model.hourglass is not None else 0.0, model.mesh.elements, edge_unit[elements],
-                model.correction_matrix, model.axis_rest_length, dt * dt if coupled else 0.0, mask[index],
-                rhs[index] * mask[index], self.warm[index], self.tolerance, self.max_iterations,
-                not (coupled or volume_terms is not None),
-                *((term[elements] for term in volume_terms) if volume_terms is not None
-                  else (np.zeros(stack.n_elements), np.zeros((stack.n_elements, 8, 3)),
-                        np.zeros((stack.n_elements, 8, 3)))),
-                dt * dt if volume_terms is not None else 0.0)
-        return solution, iterations
-
-    def _solve(self, operator, rhs, mask, active, guess, max_iterations):
-        """Right-preconditioned BiCGSTAB per row (the algorithm of sim_core's solve_implicit) for
-        the ``active`` rows, all in lockstep from ``guess``. A row that has converged (or broken
-        down) gets zero step lengths, so the shared vector operations leave it unchanged.
-        Returns (solutions, iterations, converged) per row."""
-        tolerance = self.tolerance
-        count = len(rhs)
-        b = rhs * mask
-        x = guess * mask
-        finite = np.all(np.isfinite(b), axis=1)
-        b[~finite] = 0.0  # a diverged copy: reported as NaN below, never mixed into the others
-        r = b - operator(x)
-        norm_b = np.sqrt(_rows_dot(b, b))
-        safe_norm = np.where(norm_b == 0.0, 1.0, norm_b)
-        x[norm_b == 0.0] = 0.0
-        residual = np.sqrt(_rows_dot(r, r)) / safe_norm
-        running = active & finite & (norm_b > 0.0) & (residual > tolerance)
-        iterations = np.zeros(count, dtype=int)
-        r_hat = r.copy()
-        rho = np.ones(count)
-        alpha = np.zeros(count)
-        omega = np.ones(count)
-        v = np.zeros_like(r)
-        p = np.zeros_like(r)
-        with np.errstate(all="ignore"):
-            while running.any():
-                rho_new = _rows_dot(r_hat, r)
-                running &= (rho_new != 0.0) & (omega != 0.0)
-                beta = np.where(running, (rho_new / rho) * (alpha / omega), 0.0)
-                rho = np.where(running, rho_new, rho)
-                p = r + beta[:, None] * (p - omega[:, None] * v)
-                p_hat = self._precondition(p, mask)
-                v = operator(p_hat)
-                denominator = _rows_dot(r_hat, v)
-                running &= np.isfinite(denominator) & (denominator != 0.0)
-                alpha = np.where(running, rho / denominator, 0.0)
-                s = r - alpha[:, None] * v
-                iterations += running
-                s_residual = np.sqrt(_rows_dot(s, s)) / safe_norm
-                early = running & (s_residual <= tolerance)
-                x += np.where(early, alpha, 0.0)[:, None] * p_hat
-                r = np.where(early[:, None], s, r)
-                residual = np.where(early, s_residual, residual)
-                running &= ~early
-                if not running.any():
-                    break
-                s_hat = self._precondition(s, mask)
-                t = operator(s_hat)
-                tt = _rows_dot(t, t)
-                omega = np.where(running & (tt > 0), _rows_dot(t, s) / np.where(tt > 0, tt, 1.0), 0.0)
-                step = np.where(running, alpha, 0.0)
-                x += step[:, None] * p_hat + omega[:, None] * s_hat
-                r = np.where(running[:, None], s - omega[:, None] * t, r)
-                residual = np.where(running, np.sqrt(_rows_dot(r, r)) / safe_norm, residual)
-                running &= np.isfinite(residual) & (residual > tolerance) & (iterations < max_iterations)
-                omega = np.where(running, omega, 1.0)
-        x[active & ~finite] = np.nan
-        converged = (norm_b == 0.0) | (residual <= tolerance)
-        return x, iterations, converged
 
 
 class BatchedSymplecticEuler:

@@ -21,10 +21,9 @@ same episodes, and their trajectories agree up to the linear solvers' tolerance
 counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
-actions, registered episode lengths, env steps per CPU second): TumorPositioning 2.1x (2.8x for
-the steps alone: its resets, a static solve for the goal, cost the same in both modes and are
-about 40 % of the vector env's time), Palpation 2.3x, Retraction 1.5x (its single env's physics is
-sim_core's compiled solve, which batching does not shorten).
+actions, registered episode lengths, env steps per CPU second, median of 3 interleaved rounds on
+a loaded 2-core machine): TumorPositioning 2.5x (its resets, a static solve for the goal, cost the
+same in both modes and are about 30 % of the vector env's time), Palpation 2.8x, Retraction 2.4x.
 """
 
 from __future__ import annotations
@@ -36,11 +35,12 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
+from sim_core.forces import ForceWorkspace
 from sim_core.mesh import hex_jacobians
 from sim_core.model import State
 
 from .base import OBS_LIMIT
-from .batched import ModelStack, make_batched_integrator, new_monitor, stacked_internal_forces
+from .batched import ModelStack, make_batched_integrator, new_monitor
 
 
 class TissueVectorEnv(VectorEnv):
@@ -80,6 +80,7 @@ class TissueVectorEnv(VectorEnv):
         self.action_space = batch_space(env.action_space, count)
 
         self.stack = ModelStack(env.model, count)
+        self._forces = ForceWorkspace(self.stack.model, implicit=False)  # the measurements' fused force pass
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
                                                   self.linear_solver)
         self.mesh = env.mesh
@@ -313,7 +314,9 @@ class TissueVectorEnv(VectorEnv):
         flat = positions.reshape(-1, 3)
         model = self.stack.model
         with np.errstate(all="ignore"):
-            forces = stacked_internal_forces(self.stack, flat, velocities.reshape(-1, 3)) + model.gravity_force
+            forces = self._forces.compute(np.ascontiguousarray(flat, dtype=float),
+                                          np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float))
+            forces = forces + model.gravity_force
             forces = forces.reshape(count, -1, 3)
             reaction = np.where(tool_mask, -forces, 0.0).sum(axis=1)
             strain = np.max(np.abs(self._lengths / self.rest_length - 1.0), axis=1)
