@@ -502,6 +502,17 @@ class ResolutionChoice:
         )
 
 
+def _quantities(quantities) -> tuple:
+    """A non-empty subset of QUANTITIES as a tuple, else ValueError naming ``quantities``."""
+    try:
+        quantities = tuple(quantities)
+    except TypeError as error:
+        raise ValueError(f"quantities must be a subset of {QUANTITIES}, got {quantities!r}") from error
+    if not quantities or any(q not in QUANTITIES for q in quantities):
+        raise ValueError(f"quantities must be a non-empty subset of {QUANTITIES}, got {quantities!r}")
+    return quantities
+
+
 def _tolerances(tolerance, quantities):
     if isinstance(tolerance, dict):
         unknown = set(tolerance) - set(QUANTITIES)
@@ -714,12 +725,7 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
             "baudet" if references is None or isinstance(references, dict) else "fem-neohookean")
     if reference not in REFERENCE_MODELS:
         raise ValueError(f"reference must be one of {REFERENCE_MODELS}, got {reference!r}")
-    try:
-        quantities = tuple(quantities)
-    except TypeError as error:
-        raise ValueError(f"quantities must be a subset of {QUANTITIES}, got {quantities!r}") from error
-    if not quantities or any(q not in QUANTITIES for q in quantities):
-        raise ValueError(f"quantities must be a non-empty subset of {QUANTITIES}, got {quantities!r}")
+    quantities = _quantities(quantities)
     tolerance = _tolerances(tolerance, quantities)
     try:
         given = list(resolutions)
@@ -998,12 +1004,7 @@ def choose_stepping(scene, shape, tolerance=0.05, *, dts=(0.01, 0.02, 0.04), sub
     scenes = [scene] if isinstance(scene, Scene) else list(scene) if isinstance(scene, (list, tuple)) else None
     if not scenes or not all(isinstance(s, Scene) for s in scenes):
         raise ValueError(f"scene must be a Scene or a non-empty list of Scenes, got {scene!r}")
-    try:
-        quantities = tuple(quantities)
-    except TypeError as error:
-        raise ValueError(f"quantities must be a subset of {QUANTITIES}, got {quantities!r}") from error
-    if not quantities or any(q not in QUANTITIES for q in quantities):
-        raise ValueError(f"quantities must be a non-empty subset of {QUANTITIES}, got {quantities!r}")
+    quantities = _quantities(quantities)
     tolerance = _tolerances(tolerance, quantities)
     try:
         dts = sorted({_scalar("dts", d, low=0.0) for d in dts})

@@ -38,6 +38,17 @@ def check_env_id(env_id: str) -> str:
     return env_id
 
 
+def parse_env_kwargs(text: str) -> dict:
+    """The --env-kwargs argument: a JSON object of environment constructor keywords."""
+    try:
+        env_kwargs = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise UsageError(f"--env-kwargs must be a JSON object: {error}") from error
+    if not isinstance(env_kwargs, dict):
+        raise UsageError("--env-kwargs must be a JSON object")
+    return env_kwargs
+
+
 def check_algo(algo: str) -> str:
     if algo not in ALGORITHMS:
         raise UsageError(f"unknown algorithm {algo!r}; choose one of {', '.join(ALGORITHMS)}")

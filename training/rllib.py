@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import math
 import os
 import sys
@@ -40,7 +39,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from .common import UsageError, check_env_id, fail, load_hyperparams, run_name, write_json
+from .common import UsageError, parse_env_kwargs, check_env_id, fail, load_hyperparams, run_name, write_json
 
 PROGRAM = "training.rllib"
 INSTALL_HINT = 'pip install "tissue-gym[rllib]" (install torch==2.13.0 first, see docs/rllib.md)'
@@ -139,12 +138,7 @@ def _validated(args):
         raise UsageError(f"--num-cpus-per-env-runner must be positive, got {args.num_cpus_per_env_runner}")
     if args.address is not None and args.num_cpus is not None:
         raise UsageError("--num-cpus sizes the local Ray instance; it cannot be combined with --address")
-    try:
-        env_kwargs = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as error:
-        raise UsageError(f"--env-kwargs must be a JSON object: {error}") from error
-    if not isinstance(env_kwargs, dict):
-        raise UsageError("--env-kwargs must be a JSON object")
+    env_kwargs = parse_env_kwargs(args.env_kwargs)
     if env_kwargs:  # fail here, not in a remote worker
         try:
             make_tissue_env(args.env, env_kwargs).close()

@@ -19,7 +19,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from .common import (UsageError, algorithm_class, check_algo, check_env_id, fail, load_hyperparams, make_env,
+from .common import (UsageError, parse_env_kwargs, algorithm_class, check_algo, check_env_id, fail, load_hyperparams, make_env,
                      run_name, write_json)
 
 PROGRAM = "training.train"
@@ -77,12 +77,7 @@ def _validated(args):
         raise UsageError(f"--n-envs must be positive, got {args.n_envs}")
     if args.threads <= 0:
         raise UsageError(f"--threads must be positive, got {args.threads}")
-    try:
-        env_kwargs = json.loads(args.env_kwargs)
-    except json.JSONDecodeError as error:
-        raise UsageError(f"--env-kwargs must be a JSON object: {error}") from error
-    if not isinstance(env_kwargs, dict):
-        raise UsageError("--env-kwargs must be a JSON object")
+    env_kwargs = parse_env_kwargs(args.env_kwargs)
     hyperparams = load_hyperparams(args.algo, args.env, args.config)
     n_envs = args.n_envs or int(hyperparams.pop("n_envs", 1))
     hyperparams.pop("n_envs", None)
