@@ -7,7 +7,10 @@ gravity). Reports medians of repeated steps (ms), full model and bare lattice (s
 corrections or volume forces) interleaved call by call, CG/BiCGSTAB iterations, a static shear solve
 (ms), the ratios to the bare lattice (explicit; implicit at a fixed 15 iterations, converged to the
 same tolerance, and the full model's converged step against the bare fixed-15 CG step), and the
-memory-bandwidth floor (compulsory bytes per step / numpy-copy bandwidth measured in the same run).
+memory-bandwidth floor (compulsory bytes per step / numpy-copy bandwidth measured in the same run),
+and the implicit step with ImplicitEuler's factorised preconditioner against Jacobi, on this block
+(``implicit_step_factorised_ms``, ``implicit_step_auto_ms``) and on TumorPositioning's stiff 5 cm
+block at 4^3 / dt 20 ms and 7^3 / dt 40 ms (``stiff_4_*``, ``stiff_7_*``).
 Writes benchmarks/results/step_speed.json. Timing is never asserted in tests: machines are shared.
 """
 

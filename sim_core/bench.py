@@ -3,7 +3,9 @@
 Used by ``tissue-sim bench`` and ``benchmarks/step_speed.py``. Scene: a block of 0.1 m cubes
 (E = 1e4 Pa, nu = 0.3, rho = 1500 kg/m^3), bottom face fixed, sagging under a reduced gravity of
 0.5 m/s^2 (a few % strain), so springs, corrections and volume forces are all active. Medians of
-repeated steps in ms; the static solve is the 5-degree shear experiment.
+repeated steps in ms; the static solve is the 5-degree shear experiment. ``stiff_block`` adds
+ImplicitEuler's Jacobi and factorised preconditioners side by side on TumorPositioning's stiff
+block (``stiff_<n>_*`` keys); the 10^3 block's entries are Jacobi unless named factorised / auto.
 """
 
 from __future__ import annotations
@@ -118,6 +120,48 @@ def step_bytes(model, iterations: int, symmetric: bool) -> dict:
     return {"explicit": explicit, "implicit": implicit, "operator_product": operator}
 
 
+def stiff_block(repeats: int = 200, shapes=((4, 4, 4), (7, 7, 7))) -> dict:
+    """Jacobi against factorised preconditioning of the implicit step on TumorPositioning's block:
+    a 5 cm cube, E 5 kPa, nu 0.45, rho 1060, volume stiffness x100, hourglass control 1, bottom
+    fixed, a top patch pressed 0.2 mm per step (dt 20 ms at 4^3, 40 ms at 7^3, the env settings);
+    interleaved medians (ms) and median iterations, keys ``stiff_<n>_...``."""
+    results = {}
+    for shape, dt in zip(shapes, (0.02, 0.04)):
+        mesh = HexMesh.block(shape, 0.05 / np.asarray(shape))
+        model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0,
+                            volume_stiffness=100.0)
+        nodes = mesh.nodes
+        bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
+        top = np.flatnonzero(np.isclose(nodes[:, 1], 0.05))
+        patch = top[np.linalg.norm(nodes[top][:, [0, 2]] - 0.025, axis=1) <= 1.5 * 0.05 / shape[0]]
+        integrators = {name: ImplicitEuler(tolerance=1e-4, preconditioner=name) for name in ("jacobi", "factorised")}
+        counts = {name: [] for name in integrators}
+
+        def stepper(name):
+            states, step = [model.new_state(), model.new_state()], [0]
+
+            def advance():  # the patch goes down and back (5 mm), so the state keeps changing
+                step[0] += 1
+                depth = 0.0002 * (25 - abs(step[0] % 50 - 25))
+                control = model.new_control()
+                control.impose(bottom, nodes[bottom])
+                control.impose(patch, nodes[patch] - [0.0, depth, 0.0])
+                report = integrators[name].simulate(model, states[0], states[1], dt, control)
+                states.reverse()
+                counts[name].append(report.iterations)
+            return advance
+
+        label = f"stiff_{shape[0]}"
+        times = interleaved_median_ms({name: stepper(name) for name in integrators}, max(repeats // 2, 20))
+        results[f"{label}_dt_s"] = dt
+        for name in integrators:
+            results[f"{label}_implicit_{name}_ms"] = times[name]
+            results[f"{label}_implicit_{name}_iterations"] = float(np.median(counts[name]))
+        results[f"{label}_factorisations"] = integrators["factorised"].factorisations
+        results[f"{label}_ratio_jacobi_to_factorised"] = times["jacobi"] / times["factorised"]
+    return results
+
+
 def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
     """Run every measurement; returns a JSON-ready dict (times in ms).
 
@@ -157,14 +201,17 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
         lambda: bare_lattice_numpy_step(bare, state.positions, state.velocities, 1e-3), max(repeats // 4, 10))
 
     never = 1e-30  # a tolerance no solve reaches: exactly max_iterations iterations
+    jacobi = dict(preconditioner="jacobi")  # the historic entries (and the bare lattice's CG): Jacobi
     configurations = {
-        "implicit_step_ms": (ImplicitEuler(), full),
-        "bare_converged_implicit_step_ms": (ImplicitEuler(), bare),
-        "implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15), full),
-        "bare_numba_implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15), bare),
-        "implicit_cg_explicit_corrections_step_ms": (ImplicitEuler(corrections="explicit"), full),
-        "implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15), full),
-        "bare_numba_implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15), bare),
+        "implicit_step_ms": (ImplicitEuler(**jacobi), full),
+        "implicit_step_factorised_ms": (ImplicitEuler(preconditioner="factorised"), full),
+        "implicit_step_auto_ms": (ImplicitEuler(preconditioner="auto"), full),
+        "bare_converged_implicit_step_ms": (ImplicitEuler(**jacobi), bare),
+        "implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15, **jacobi), full),
+        "bare_numba_implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15, **jacobi), bare),
+        "implicit_cg_explicit_corrections_step_ms": (ImplicitEuler(corrections="explicit", **jacobi), full),
+        "implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15, **jacobi), full),
+        "bare_numba_implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15, **jacobi), bare),
     }
     iterations = {label: [] for label in configurations}
 
@@ -180,8 +227,11 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
 
     results.update(interleaved_median_ms({label: stepper(label) for label in configurations}, max(repeats // 4, 10)))
     for label, counts in iterations.items():
-        results[label.replace("_step_ms", "_iterations")] = float(np.median(counts))
+        results[label[:-len("_ms")].replace("_step", "") + "_iterations"] = float(np.median(counts))
     results["cg_iterations"] = results.pop("implicit_iterations")  # BiCGSTAB (corrections implicit)
+    results["implicit_factorisations"] = configurations["implicit_step_factorised_ms"][0].factorisations
+    results["implicit_auto_factorisations"] = configurations["implicit_step_auto_ms"][0].factorisations
+    results.update(stiff_block(repeats))
     results["implicit_solver"] = "BiCGSTAB (full model, corrections and volume implicit); CG (bare lattice)"
 
     start = time.perf_counter()

@@ -757,6 +757,77 @@ def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, sym
     return iterations, residual
 
 
+@njit(cache=True, error_model="numpy")
+def operator_matrix_data(data, scales, spring_positions, element_positions, hg_positions, diagonal_positions, out):
+    """``out`` (the model's ``BlockPattern`` data, zeroed here) = the matrix that ``apply_operator``
+    applies with these ``scales`` (no mask): mass, spring blocks (clamped geometric term), the
+    corrections' coupling -G W^ G^T along the current spring directions, the volume forces'
+    rank-one c h grad(V)^T and the hourglass matrix, the same terms as ``spring_operator`` so that
+    the assembled matrix reproduces the matrix-free product to rounding (the factorised
+    preconditioner of ``ImplicitEuler``). spring_positions (S, 4, 3, 3) (blocks aa, bb, ab, ba),
+    element_positions (M, 8, 8, 3, 3), hg_positions (nnz_hg,), diagonal_positions (3N,): positions
+    in ``out`` (``Model``'s derived arrays)."""
+    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
+    mass_scale, damping_scale, stiffness_scale = scales[0], scales[1], scales[2]
+    coupling_scale, volume_scale, hg_scale = scales[3], scales[4], scales[5]
+    out[:] = 0.0
+    for node in range(mass.shape[0]):
+        for c in range(3):
+            out[diagonal_positions[3 * node + c]] += mass_scale * mass[node]
+    for s in range(springs.shape[0]):
+        across = stiffness_scale * geometric[s]
+        along = stiffness_scale * stiffness[s] + damping_scale * damping[s] - across
+        for i in range(3):
+            for j in range(3):
+                value = along * unit[s, i] * unit[s, j]
+                if i == j:
+                    value += across
+                out[spring_positions[s, 0, i, j]] += value
+                out[spring_positions[s, 1, i, j]] += value
+                out[spring_positions[s, 2, i, j]] -= value
+                out[spring_positions[s, 3, i, j]] -= value
+    if coupling_scale != 0.0:
+        local = np.empty((12, 2), dtype=np.int64)  # element-local end nodes of the 12 edge springs
+        for m in range(elements.shape[0]):
+            for e in range(12):
+                s = edge_spring[m, e]
+                for end in range(2):
+                    node = springs[s, end]
+                    for k in range(8):
+                        if elements[m, k] == node:
+                            local[e, end] = k
+            for e in range(12):  # row edge (its delta), column edge r (its elongation rate)
+                se = edge_spring[m, e]
+                ae, be = local[e, 0], local[e, 1]
+                for r in range(12):
+                    sr = edge_spring[m, r]
+                    ar, br = local[r, 0], local[r, 1]
+                    coefficient = correction_matrix[m, e // 4, r // 4] * 0.25 * coupling_scale \
+                        / axis_rest_length[m, r // 4]
+                    for i in range(3):
+                        for j in range(3):
+                            value = coefficient * unit[se, i] * unit[sr, j]
+                            out[element_positions[m, ae, br, i, j]] += value
+                            out[element_positions[m, ae, ar, i, j]] -= value
+                            out[element_positions[m, be, br, i, j]] -= value
+                            out[element_positions[m, be, ar, i, j]] += value
+    if volume_scale != 0.0:
+        for m in range(elements.shape[0]):
+            coefficient = volume_scale * volume_coefficient[m]
+            if coefficient == 0.0:
+                continue
+            for k in range(8):
+                for n in range(8):
+                    for i in range(3):
+                        for j in range(3):
+                            out[element_positions[m, k, n, i, j]] += \
+                                coefficient * volume_direction[m, k, i] * volume_gradient[m, n, j]
+    if hg_scale != 0.0:
+        for k in range(hg_data.shape[0]):
+            out[hg_positions[k]] += hg_scale * hg_data[k]
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def volume_forces_add(positions, elements, rest_volume, kappa, forces):
     """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3), with

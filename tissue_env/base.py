@@ -25,7 +25,7 @@ from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.forces import external_forces, internal_forces
-from sim_core.integrators import make_integrator
+from sim_core.integrators import PRECONDITIONERS, make_integrator
 from sim_core.model import State
 
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
@@ -134,6 +134,11 @@ class TissueEnv(gym.Env):
         instability_penalty: reward (negated) of the step where the simulation diverges.
         solver_tolerance: relative residual of the implicit integrator's linear solve (default 1e-4:
             measured 1.5x faster than 1e-6, positions within 0.01 mm of the 1e-6 run).
+        preconditioner: the implicit integrator's ("auto" default, "jacobi" or "factorised";
+            ``sim_core.integrators.ImplicitEuler``): "auto" starts with Jacobi and switches to a
+            sparse LU of the system matrix, kept across steps, when Jacobi needs more than about
+            5 sqrt(free dofs / 400) iterations. Measured against "jacobi": 1.5x env steps/s on
+            TumorPositioning at its default shape, 2.85x at (7, 7, 7) with dt 40 ms.
         render_mode: None, "rgb_array" or "human".
     """
 
@@ -156,7 +161,7 @@ class TissueEnv(gym.Env):
                  integrator="implicit", dt=0.02, substeps=1, max_step=None, hourglass_control=1.0,
                  volume_stiffness=100.0, gravity=9.81, observation_type="state", young_modulus_range=None,
                  poisson_ratio_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
-                 instability_penalty=10.0, solver_tolerance=1e-4, render_mode=None):
+                 instability_penalty=10.0, solver_tolerance=1e-4, preconditioner="auto", render_mode=None):
         self.young_modulus = positive_scalar("young_modulus", young_modulus, "Pa")
         self.poisson_ratio = check_poisson_ratio("poisson_ratio", poisson_ratio)
         self.density = positive_scalar("density", density, "kg/m^3")
@@ -184,6 +189,9 @@ class TissueEnv(gym.Env):
         self.strain_weight = nonnegative_scalar("strain_weight", strain_weight)
         self.instability_penalty = nonnegative_scalar("instability_penalty", instability_penalty)
         self.solver_tolerance = positive_scalar("solver_tolerance", solver_tolerance)
+        if preconditioner not in PRECONDITIONERS:
+            raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, got {preconditioner!r}")
+        self.preconditioner = preconditioner
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.render_mode = render_mode
@@ -309,7 +317,8 @@ class TissueEnv(gym.Env):
         self._reset_task(options)
         self.model = self._model(young_modulus, poisson_ratio, self.task_key)
         self.rest_volume = float(self.model.rest_volume.sum())
-        options = dict(tolerance=self.solver_tolerance) if self.integrator_name == "implicit" else {}
+        options = (dict(tolerance=self.solver_tolerance, preconditioner=self.preconditioner)
+                   if self.integrator_name == "implicit" else {})
         self.integrator = make_integrator(self.integrator_name, **options)
         positions = self._start_positions(self.model)
         self.state = State(positions, np.zeros_like(positions))

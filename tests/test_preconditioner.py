@@ -1,0 +1,141 @@
+"""ImplicitEuler's preconditioners: "jacobi", "factorised" (sparse LU of the system matrix, kept across
+steps) and "auto" agree to the solver tolerance; the factorised one needs far fewer iterations on a
+stiff block, re-factorises when the imposed dofs change, and bad names are rejected."""
+
+import numpy as np
+import pytest
+
+from sim_core import HexMesh, Material, build_model, kernels
+from sim_core.forces import ForceWorkspace
+from sim_core.integrators import ImplicitEuler, _FreeStructure, make_integrator, run
+
+
+def stiff_scene(shape=(6, 6, 6)):
+    """TumorPositioning's material on a 5 cm cube: E 5 kPa, nu 0.45, volume stiffness x100,
+    hourglass control 1; bottom fixed, a top patch pressed down 1 mm per step (dt 40 ms)."""
+    mesh = HexMesh.block(shape, 0.05 / np.asarray(shape))
+    model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0,
+                        volume_stiffness=100.0)
+    nodes = mesh.nodes
+    bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
+    top = np.flatnonzero(np.isclose(nodes[:, 1], 0.05))
+    patch = top[np.linalg.norm(nodes[top][:, [0, 2]] - 0.025, axis=1) < 0.01]
+
+    def control(step):
+        c = model.new_control()
+        c.impose(bottom, nodes[bottom])
+        c.impose(patch, nodes[patch] + [0.0, -0.001 * step, 0.0005 * step])
+        return c
+    return model, control, patch
+
+
+def trajectory(model, control, integrator, steps, dt=0.04):
+    state = model.new_state()
+    out = state.copy()
+    positions, iterations = [], []
+    for step in range(1, steps + 1):
+        report = integrator.simulate(model, state, out, dt, control(step))
+        assert not report.unstable
+        state, out = out, state
+        positions.append(state.positions.copy())
+        iterations.append(report.iterations)
+    return np.array(positions), np.array(iterations)
+
+
+def test_assembled_matrix_is_the_matrix_free_operator():
+    model, control, _ = stiff_scene((3, 3, 3))
+    state = model.new_state()
+    run(model, state, ImplicitEuler(), 0.04, 3, control(3))
+    workspace = ForceWorkspace(model)
+    workspace.compute(state.positions, state.velocities, geometric=True, volume_jacobian=True)
+    vector = np.random.default_rng(0).standard_normal(3 * model.n_nodes)
+    structure = _FreeStructure(model, np.arange(3 * model.n_nodes))
+    for scales in [(1.0, 0.04, 0.0016, 0.0016, 0.0016, 0.0016), (0.0, 0.0, 1.0, 1.0, 1.0, 1.0), (1.0, 0.1, 0.01, 0, 0, 0)]:
+        data = np.empty(model.pattern.nnz)
+        kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
+                                     structure.hg_positions, model.pattern.diagonal_positions, data)
+        product = np.empty_like(vector)
+        kernels.apply_operator(workspace.operator_data, scales, np.ones_like(vector), vector, product)
+        assert np.abs(model.pattern.matrix(data) @ vector - product).max() < 1e-12 * np.abs(product).max()
+
+
+@pytest.mark.parametrize("corrections, dt, jacobi_least, factorised_most, margin",
+                         [("implicit", 0.04, 50, 8, 8), ("explicit", 0.005, 30, 9, 4)])
+def test_factorised_agrees_with_jacobi_in_far_fewer_iterations(corrections, dt, jacobi_least, factorised_most,
+                                                              margin):
+    """Stiff block (nu 0.45, volume stiffness x100), 6^3 elements, tolerance 1e-8, 8 steps pressing
+    8 mm. Measured: BiCGSTAB (dt 40 ms) median 70 Jacobi iterations against 6.5 factorised (1 right
+    after the factorisation); CG (explicit corrections, which diverge at 40 ms with nu 0.45; dt 5 ms)
+    40 against 7.5. Positions agree within 1e-10 m (measured 5e-11 and 1e-11)."""
+    model, control, _ = stiff_scene()
+    options = dict(corrections=corrections, tolerance=1e-8, max_iterations=400)
+    jacobi, jacobi_iterations = trajectory(model, control, ImplicitEuler(preconditioner="jacobi", **options), 8, dt)
+    integrator = ImplicitEuler(preconditioner="factorised", **options)
+    factorised, factorised_iterations = trajectory(model, control, integrator, 8, dt)
+    assert np.abs(factorised - jacobi).max() < 1e-9
+    assert np.median(jacobi_iterations) > jacobi_least
+    assert np.median(factorised_iterations) <= factorised_most
+    assert np.median(jacobi_iterations) > margin * np.median(factorised_iterations)
+    assert factorised_iterations[0] <= 2  # the factor is exact at its own linearisation
+    assert 1 <= integrator.factorisations <= 3
+
+
+def test_auto_switches_on_stiff_blocks_only():
+    model, control, _ = stiff_scene((4, 4, 4))
+    jacobi, _ = trajectory(model, control, ImplicitEuler(preconditioner="jacobi", tolerance=1e-8), 4)
+    auto = ImplicitEuler(tolerance=1e-8, preconditioner="auto")
+    positions, iterations = trajectory(model, control, auto, 4)
+    assert auto.factorisations == 1 and iterations[-1] <= 6
+    assert np.abs(positions - jacobi).max() < 1e-8
+    assert ImplicitEuler().preconditioner == "jacobi"  # the default
+    # a soft block (1 m, E 10 kPa, nu 0.3, dt 10 ms: 5 Jacobi iterations) stays with Jacobi
+    soft = build_model(HexMesh.block((4, 4, 4), 0.1), Material(1e4, 0.3, 1500.0), gravity=(0, -0.5, 0))
+    fixed = soft.new_control()
+    bottom = np.flatnonzero(soft.mesh.nodes[:, 1] == 0)
+    fixed.impose(bottom, soft.mesh.nodes[bottom])
+    auto = ImplicitEuler(preconditioner="auto")
+    run(soft, soft.new_state(), auto, 0.01, 5, fixed)
+    assert auto.factorisations == 0
+
+
+def test_refactorises_when_the_fixed_set_changes_not_otherwise():
+    model, control, patch = stiff_scene((4, 4, 4))
+    integrator = ImplicitEuler(preconditioner="factorised", tolerance=1e-6)
+    state = model.new_state()
+    for step in range(1, 4):  # same imposed dofs: one factorisation
+        integrator.simulate(model, state, state.copy(), 0.04, control(step))
+    assert integrator.factorisations == 1
+    released = control(3)
+    released.fixed[patch[0]] = False  # the tool lets go of one node
+    out = state.copy()
+    report = integrator.simulate(model, state, out, 0.04, released)
+    assert integrator.factorisations == 2 and report.residual <= 1e-6
+    reference = state.copy()
+    ImplicitEuler(preconditioner="jacobi", tolerance=1e-10, max_iterations=1000).simulate(
+        model, state, reference, 0.04, released)
+    assert np.abs(out.positions - reference.positions).max() < 1e-7
+    integrator.simulate(model, state, out, 0.02, released)  # another dt: another matrix
+    assert integrator.factorisations == 3
+
+
+def test_refactorises_when_iterations_grow():
+    """A factor from the rest state serves a block pressed 12 mm down poorly (8 iterations without
+    converging to 1e-8): re-factorised at that state, then 1 more iteration (measured)."""
+    model, control, _ = stiff_scene((4, 4, 4))
+    integrator = ImplicitEuler(preconditioner="factorised", tolerance=1e-8)
+    state = model.new_state()
+    integrator.simulate(model, state, state.copy(), 0.04, control(0))
+    assert integrator.factorisations == 1
+    pressed = state.copy()
+    run(model, pressed, ImplicitEuler(preconditioner="jacobi"), 0.04, 12, control(12))
+    report = integrator.simulate(model, pressed, pressed.copy(), 0.04, control(12))
+    assert integrator.factorisations == 2 and report.residual <= 1e-8
+    assert report.iterations <= 8 + 2
+
+
+@pytest.mark.parametrize("bad", ["cholesky", "", None, 3])
+def test_bad_preconditioner_names_are_rejected(bad):
+    with pytest.raises(ValueError, match="preconditioner"):
+        ImplicitEuler(preconditioner=bad)
+    with pytest.raises(ValueError, match="preconditioner"):
+        make_integrator("implicit", preconditioner=bad)
