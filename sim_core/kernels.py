@@ -1642,3 +1642,195 @@ def batched_solve(data, scales, mask, rhs, guess, active, tolerance, max_iterati
                 x[i, c] = np.nan
         if norm_b[c] == 0.0:
             residual[c] = 0.0
+
+
+# -- per-copy solves with sparse LU preconditioners (tissue_env.batched, solver "factorised") --------
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _lu_apply(ints, values, mask, vector, out, buffer):
+    """out = mask * A^-1 vector through one packed sparse LU: Pr A Pc = L U on the copy's free dofs
+    (SuperLU's convention). ``ints``: [k, nnz_L, nnz_U, L indptr (k + 1), L indices, U indptr (k + 1),
+    U indices, gather (k), free (k), perm_c (k)] (CSC, sorted indices: L's diagonal first, U's last in
+    each column), ``values``: [L data, U data]; gather[j] = the dof that Pr puts in position j. The
+    factor's free dofs may include dofs the mask imposes (a factor of a larger free set: an
+    approximate inverse). k = 0: no factor (out = mask * vector)."""
+    k = ints[0]
+    if k == 0:
+        for i in range(vector.shape[0]):
+            out[i] = mask[i] * vector[i]
+        return
+    nnz_l = ints[1]
+    lp = 3
+    li = lp + k + 1
+    up = li + nnz_l
+    ui = up + k + 1
+    gather = ui + ints[2]
+    free = gather + k
+    perm_c = free + k
+    for j in range(k):
+        buffer[j] = vector[ints[gather + j]]
+    for j in range(k):
+        value = buffer[j] / values[ints[lp + j]]
+        buffer[j] = value
+        if value != 0.0:
+            for q in range(ints[lp + j] + 1, ints[lp + j + 1]):
+                buffer[ints[li + q]] -= values[q] * value
+    for j in range(k - 1, -1, -1):
+        end = ints[up + j + 1] - 1
+        value = buffer[j] / values[nnz_l + end]
+        buffer[j] = value
+        if value != 0.0:
+            for q in range(ints[up + j], end):
+                buffer[ints[ui + q]] -= values[nnz_l + q] * value
+    for i in range(vector.shape[0]):
+        out[i] = 0.0
+    for i in range(k):
+        row = ints[free + i]
+        out[row] = mask[row] * buffer[ints[perm_c + i]]
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
+                    lu_float, factor_of, work, solution, iterations, residual):
+    """Each ``active`` copy's right-preconditioned BiCGSTAB (``solve_springs``' algorithm and stopping
+    test ||r|| <= tolerance ||b||), one copy after the other (no lockstep: a copy costs its own
+    iterations), preconditioned by its sparse LU ``factor_of[c]`` (``_lu_apply``) and stopped after
+    ``limits[c]`` iterations. ``stacked``: ``apply_operator``'s data of the N-copy stacked model
+    (copies first: copy c's springs, elements and nodes are the c-th equal slices; topology arrays
+    springs, elements, edge_spring, hg_indptr, hg_indices of ONE copy), its hourglass values per
+    copy group ``hg_rows`` (G, nnz) and ``hg_group`` (N,). Vectors (N, 3 n); ``work`` (8, 3 n).
+    Writes solution (NaN rows for a non-finite right-hand side), iterations and residual (N,)."""
+    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
+     delta) = stacked
+    n_copies, dofs = rhs.shape
+    n_springs = springs.shape[0]
+    n_elements = elements.shape[0]
+    n_nodes = dofs // 3
+    r, r_hat, p, v, s, t, p_hat, s_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
+    buffer = np.empty(dofs)
+    for c in range(n_copies):
+        iterations[c] = 0
+        residual[c] = 0.0
+        if not active[c]:
+            continue
+        x = solution[c]
+        a, b = c * n_springs, (c + 1) * n_springs
+        e0, e1 = c * n_elements, (c + 1) * n_elements
+        data = (springs, unit[a:b], stiffness[a:b], damping[a:b], geometric[a:b], mass[c * n_nodes:(c + 1) * n_nodes],
+                elements, edge_spring, correction_matrix[e0:e1], axis_rest_length[e0:e1], volume_coefficient[e0:e1],
+                volume_direction[e0:e1], volume_gradient[e0:e1], hg_indptr, hg_indices, hg_rows[hg_group[c]],
+                elongation[a:b], delta[a:b])
+        m = mask[c]
+        ints = lu_int[factor_of[c]]
+        values = lu_float[factor_of[c]]
+        finite = True
+        norm_b = 0.0
+        for i in range(dofs):
+            value = rhs[c, i] * m[i]
+            if not np.isfinite(value):
+                finite = False
+            s[i] = value
+            norm_b += value * value
+        if not finite:
+            for i in range(dofs):
+                x[i] = np.nan
+            residual[c] = np.inf
+            continue
+        norm_b = np.sqrt(norm_b)
+        if norm_b == 0.0:
+            for i in range(dofs):
+                x[i] = 0.0
+            continue
+        for i in range(dofs):
+            x[i] = guess[c, i] * m[i]
+        _apply(data, scales, m, x, v)
+        rr = 0.0
+        for i in range(dofs):
+            r[i] = s[i] - v[i]
+            rr += r[i] * r[i]
+            r_hat[i] = r[i]
+            p[i] = 0.0
+            v[i] = 0.0
+        res = np.sqrt(rr) / norm_b
+        rho = alpha = omega = 1.0
+        count = 0
+        limit = limits[c]
+        while res > tolerance and count < limit:
+            rho_new = 0.0
+            for i in range(dofs):
+                rho_new += r_hat[i] * r[i]
+            if rho_new == 0.0 or omega == 0.0:
+                break
+            beta = (rho_new / rho) * (alpha / omega)
+            rho = rho_new
+            for i in range(dofs):
+                p[i] = r[i] + beta * (p[i] - omega * v[i])
+            _lu_apply(ints, values, m, p, p_hat, buffer)
+            _apply(data, scales, m, p_hat, v)
+            denominator = 0.0
+            for i in range(dofs):
+                denominator += r_hat[i] * v[i]
+            if not (np.isfinite(denominator) and denominator != 0.0):
+                break
+            alpha = rho / denominator
+            ss = 0.0
+            for i in range(dofs):
+                s[i] = r[i] - alpha * v[i]
+                ss += s[i] * s[i]
+            count += 1
+            if np.sqrt(ss) / norm_b <= tolerance:
+                for i in range(dofs):
+                    x[i] += alpha * p_hat[i]
+                    r[i] = s[i]
+                res = np.sqrt(ss) / norm_b
+                break
+            _lu_apply(ints, values, m, s, s_hat, buffer)
+            _apply(data, scales, m, s_hat, t)
+            tt = 0.0
+            ts = 0.0
+            for i in range(dofs):
+                tt += t[i] * t[i]
+                ts += t[i] * s[i]
+            omega = ts / tt if tt > 0.0 else 0.0
+            rr = 0.0
+            for i in range(dofs):
+                x[i] += alpha * p_hat[i] + omega * s_hat[i]
+                r[i] = s[i] - omega * t[i]
+                rr += r[i] * r[i]
+            res = np.sqrt(rr) / norm_b
+            if not np.isfinite(res):
+                break
+        iterations[c] = count
+        residual[c] = res
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def refactor_lu(values, take, b_indptr, b_indices, l_indptr, l_indices, l_map, u_indptr, u_indices, u_map, out,
+                work, u_rows):
+    """Numeric LU of a matrix whose LU structure is known (no pivoting: the symbolic factorisation of
+    an earlier SuperLU factor of the same structure and ordering), row by row (IKJ). The permuted
+    matrix B: CSR (b_indptr, b_indices), entry q = ``values[take[q]]``; L (unit lower, diagonal last
+    in each row) and U (diagonal first) CSR structures; ``l_map`` / ``u_map``: the positions of
+    their entries in ``out`` ([L data, U data] in CSC order, ``_lu_apply``'s layout).
+    ``work`` (k,) zeros (left zero), ``u_rows`` (nnz_U,) scratch."""
+    k = b_indptr.shape[0] - 1
+    nnz_l = l_indices.shape[0]
+    for i in range(k):
+        for q in range(b_indptr[i], b_indptr[i + 1]):
+            work[b_indices[q]] = values[take[q]]
+        last = l_indptr[i + 1] - 1
+        for q in range(l_indptr[i], last):
+            j = l_indices[q]
+            factor = work[j] / u_rows[u_indptr[j]]
+            work[j] = 0.0
+            out[l_map[q]] = factor
+            if factor != 0.0:
+                for p in range(u_indptr[j] + 1, u_indptr[j + 1]):
+                    work[u_indices[p]] -= factor * u_rows[p]
+        out[l_map[last]] = 1.0
+        work[i] = work[i]
+        for p in range(u_indptr[i], u_indptr[i + 1]):
+            m = u_indices[p]
+            u_rows[p] = work[m]
+            out[nnz_l + u_map[p]] = work[m]
+            work[m] = 0.0

@@ -182,3 +182,50 @@ def test_render_rgb_array(env_id):
 def test_invalid_num_envs():
     with pytest.raises(ValueError, match="num_envs"):
         tissue_env.TumorPositioningVectorEnv(num_envs=0)
+
+
+@pytest.mark.parametrize("solver", ["factorised", "reference", "jacobi"])
+def test_every_batched_solver_gives_the_single_env_trajectories(solver):
+    """Each of the batched step's linear solvers (tissue_env.batched) equals N single envs at a
+    tight tolerance, on Palpation, whose probe contact changes the imposed dofs during an episode
+    (the factorised solver keeps or re-factorises a copy's LU when its free set changes)."""
+    env_id = "tissue_env/Palpation-v0"
+    vector = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", solver_tolerance=1e-9,
+                          max_episode_steps=15)
+    vector.integrator.__init__(vector.stack, tolerance=1e-9, solver=solver)
+    sync = gym.make_vec(env_id, num_envs=3, vectorization_mode="sync", solver_tolerance=1e-9, max_episode_steps=15)
+    run_side_by_side(vector, sync, steps=25, seed=3, obs_atol=2e-4, reward_atol=1e-5, info_atol=1e-5)
+    vector.close()
+    sync.close()
+
+
+def test_factorised_refactorisation_matches_superlu():
+    """A numeric refactorisation on a known LU structure (kernels.refactor_lu) gives SuperLU's
+    factor of the new matrix, and the packed factor solves the system (kernels._lu_apply)."""
+    from sim_core import kernels
+    from tissue_env import batched
+
+    vector = gym.make_vec("tissue_env/Retraction-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    vector.reset(seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        vector.step(rng.uniform(-1, 1, (2, 3)))
+    integrator = vector.integrator
+    assert integrator.solver == "factorised" and integrator._lu_patterns
+    structure = next(iter(integrator._lu_patterns.values()))
+    assert structure.valid
+    k = int(structure.ints[0])  # packed: ..., gather (k), free (k), perm_c (k)
+    free = structure.ints[len(structure.ints) - 2 * k:len(structure.ints) - k]
+    pattern = batched._FreePattern(vector.stack.reference, free)
+    values = integrator._values.copy()  # the last factorisation's matrix, in the block's pattern
+    values[vector.stack.reference.pattern.diagonal_positions] *= 1.5  # another matrix, same structure
+    matrix = batched.sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
+    refactored = structure.refactor(values)
+    vector_in = rng.normal(size=3 * vector.n_nodes)
+    mask = np.zeros(3 * vector.n_nodes)
+    mask[free] = 1.0
+    out = np.empty_like(vector_in)
+    kernels._lu_apply(structure.ints, refactored, mask, vector_in * mask, out, np.empty(k))
+    expected = batched.spla.spsolve(matrix.tocsc(), vector_in[free])
+    np.testing.assert_allclose(out[free], expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
+    vector.close()

@@ -17,16 +17,20 @@ clamped geometric stiffness, volume terms, through a ``ForceWorkspace``), then
 with the copy index last ((3 n, N) vectors), so each spring, element and hourglass entry is read
 once for all copies, and ``kernels.batched_solve``, one compiled call that runs every copy's
 BiCGSTAB in lockstep, each with its own scalars, stopping test ||r|| <= tolerance ||b|| (as
-sim_core's) and convergence mask. No Python loop over copies in the step.
+sim_core's) and convergence mask. No Python loop over copies in the step (but for the
+factorisations of solver "factorised").
 
-Preconditioner (solver "reference"): the exact inverse of the copy's system matrix at the start
-of its episode. Copies that start alike share it (one pass over the matrix serves them all), and
+Preconditioner (solver "factorised", the default): each copy's own sparse LU of its free-dof system
+matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator), kept across steps
+and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does, and the copies' BiCGSTABs run
+one after the other in one compiled call (``kernels.solve_copies_lu``): no copy waits for the
+slowest, 1-5 iterations per copy. Solver "reference": the exact inverse of the copy's system
+matrix at the start of its episode. Copies that start alike share it (one pass over the matrix serves them all), and
 it stays close to the current matrix while the tissue moves a few millimetres: 4-7 iterations.
 When it no longer fits (large deformation, a probe contact that changes the imposed dofs), the
 copy that needed the most iterations (more than ``refresh_iterations``) is re-linearised at its
 current state, one per step, and a copy that has not converged after ``first_pass`` iterations is
-re-linearised and solved again. ``solver="jacobi"`` uses sim_core's Jacobi diagonal instead (for
-scenes whose deformation is too large for a start-of-episode preconditioner, e.g. Retraction).
+re-linearised and solved again. ``solver="jacobi"`` uses sim_core's Jacobi diagonal instead.
 The trajectories equal those of N single environments up to the solvers' tolerance
 (tests/test_env_vector.py). SI units.
 """
@@ -39,11 +43,12 @@ from collections import OrderedDict
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from numba.typed import List as TypedList
 
 from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
-from sim_core.integrators import DivergenceMonitor, SymplecticEuler
+from sim_core.integrators import REFACTOR_MIN, DivergenceMonitor, SymplecticEuler
 from sim_core.model import Control, Model, State
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
@@ -54,6 +59,9 @@ VALUE_FIELDS = ("mass", "rest_length", "stiffness", "damping", "axis_rest_length
 #: imposed dofs): the N copies of a vector env (and several vector envs) share them.
 PRECONDITIONER_CACHE_SIZE = 64
 _preconditioners: OrderedDict = OrderedDict()
+_factors: OrderedDict = OrderedDict()
+#: The batched implicit step's linear solvers (``BatchedImplicitEuler``).
+SOLVERS = ("factorised", "reference", "jacobi")
 #: Rows per dense product in the preconditioner: OpenBLAS runs products this small on one thread,
 #: larger ones on all cores, which was measured 10-50x slower on a loaded 2-core machine.
 BLAS_ROWS = 4
@@ -203,6 +211,101 @@ def _inverse_system(model, positions, dt, fixed):
     return free, np.ascontiguousarray(inverse.T)
 
 
+class _FreePattern:
+    """The CSC structure of one copy's system matrix on its free dofs (``free``) and the positions of
+    its entries in the block's ``BlockPattern`` data (as sim_core's ``_FreeStructure``)."""
+
+    def __init__(self, model: Model, free: np.ndarray):
+        pattern = model.pattern
+        self.free = free
+        order = pattern.matrix(np.arange(1, pattern.nnz + 1, dtype=float)).tocsr()[free][:, free].tocsc()
+        order.sort_indices()
+        self.take = order.data.astype(np.int64) - 1
+        self.indices, self.indptr, self.shape = order.indices, order.indptr, order.shape
+
+
+class _CopyFactor:
+    """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner) of one copy's free-dof
+    system matrix, packed for ``kernels.solve_copies_lu`` (``ints``, ``floats``); ``threshold``: the
+    iterations after which a solve re-factorises it (see ``BatchedImplicitEuler.amortise``)."""
+
+
+    def __init__(self, matrix=None, free=None):
+        self.set_baseline(0)
+        if matrix is None:
+            self.ints, self.floats = np.zeros(1, dtype=np.int64), np.zeros(1)
+            self.lu = self.lower = self.upper = None
+            return
+        lu = spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+        lower, upper = lu.L.tocsc(), lu.U.tocsc()
+        lower.sort_indices()
+        upper.sort_indices()
+        k = matrix.shape[0]
+        columns = np.arange(k)
+        if not (np.array_equal(lower.indices[lower.indptr[:-1]], columns)
+                and np.array_equal(upper.indices[upper.indptr[1:] - 1], columns)):
+            raise np.linalg.LinAlgError("LU factor without its diagonal")
+        gather = np.empty(k, dtype=np.int64)
+        gather[lu.perm_r] = free  # (Pr b)[perm_r[j]] = b[j]
+        self.ints = np.concatenate([[k, lower.nnz, upper.nnz], lower.indptr, lower.indices, upper.indptr,
+                                    upper.indices, gather, free, lu.perm_c]).astype(np.int64)
+        self.floats = np.concatenate([lower.data, upper.data])
+        self.lu, self.lower, self.upper = lu, lower, upper
+
+    @classmethod
+    def refactored(cls, pattern, floats):
+        factor = cls.__new__(cls)
+        factor.set_baseline(0)
+        factor.ints, factor.floats = pattern.ints, floats
+        return factor
+
+    def set_baseline(self, iterations, amortise=None):
+        self.baseline = int(iterations)
+        self.excess = 0
+        self.threshold = max(REFACTOR_MIN, 2 * self.baseline) if amortise is None else self.baseline + 2 * amortise
+
+
+class _LUPattern:
+    """The structure of a ``_CopyFactor`` (ordering, L and U patterns) for one free set, with what
+    ``kernels.refactor_lu`` needs to factorise another matrix of the same structure without SuperLU;
+    ``valid`` once checked against SuperLU's own factor."""
+
+    def __init__(self, free_pattern: _FreePattern, factor: _CopyFactor, values: np.ndarray):
+        lu, lower, upper = factor.lu, factor.lower, factor.upper
+        self.ints = factor.ints
+        k = free_pattern.shape[0]
+        positions = sp.csc_matrix((free_pattern.take + 1.0, free_pattern.indices, free_pattern.indptr),
+                                  shape=free_pattern.shape).tocsr()
+        permuted = positions[np.argsort(lu.perm_r)][:, np.argsort(lu.perm_c)].tocsr()  # B = Pr A Pc
+        permuted.sort_indices()
+        self.take = permuted.data.astype(np.int64) - 1
+        self.b_indptr, self.b_indices = permuted.indptr.astype(np.int64), permuted.indices.astype(np.int64)
+
+        def rows(matrix):
+            order = sp.csc_matrix((np.arange(1.0, matrix.nnz + 1), matrix.indices, matrix.indptr), shape=(k, k)).tocsr()
+            order.sort_indices()
+            return order.indptr.astype(np.int64), order.indices.astype(np.int64), order.data.astype(np.int64) - 1
+
+        self.l_indptr, self.l_indices, self.l_map = rows(lower)
+        self.u_indptr, self.u_indices, self.u_map = rows(upper)
+        self.work = np.zeros(k)
+        self.u_rows = np.empty(upper.nnz)
+        self.valid = True
+        check = self.refactor(values)
+        nnz_l = lower.nnz
+        self.valid = bool(np.all(np.isfinite(check))
+                          and np.max(np.abs(check[:nnz_l] - factor.floats[:nnz_l])) <= 1e-8
+                          and np.max(np.abs(check[nnz_l:] - factor.floats[nnz_l:]))
+                          <= 1e-8 * np.max(np.abs(factor.floats[nnz_l:])))
+
+    def refactor(self, values):
+        out = np.empty(self.l_indices.shape[0] + self.u_indices.shape[0])
+        self.work[:] = 0.0
+        kernels.refactor_lu(values, self.take, self.b_indptr, self.b_indices, self.l_indptr, self.l_indices,
+                            self.l_map, self.u_indptr, self.u_indices, self.u_map, out, self.work, self.u_rows)
+        return out
+
+
 class BatchedImplicitEuler:
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
     copy run in lockstep (see the module docstring).
@@ -214,11 +317,16 @@ class BatchedImplicitEuler:
     """
 
     def __init__(self, stack: ModelStack, tolerance: float = 1e-4, max_iterations: int = 200,
-                 refresh_iterations: int = 8, solver: str = "reference"):
-        if solver not in ("reference", "jacobi"):
-            raise ValueError(f"solver must be 'reference' or 'jacobi', got {solver!r}")
+                 refresh_iterations: int = 8, solver: str = "reference", amortise: int | None = None):
+        if solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         self.stack = stack
         self.solver = solver
+        #: solver "factorised": None re-factorises a copy when a solve needs more than max(8, 2 x the
+        #: iterations right after its last factorisation) (``ImplicitEuler``'s rule); an integer R also
+        #: re-factorises it (at its next step) once its iterations beyond that baseline add up to
+        #: more than R, and at once when a solve needs more than the baseline + 2 R
+        self.amortise = None if amortise is None else int(amortise)
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self.refresh_iterations = int(refresh_iterations)
@@ -237,6 +345,27 @@ class BatchedImplicitEuler:
         self._ones = np.ones((dofs, count))
         self._packed = None
         self._packed_groups = None
+        if solver == "factorised":
+            identity = _CopyFactor()
+            self._factors = [None] * count
+            self._pending = [None] * count  # (cache key, free dofs) of a copy's episode start
+            self._factor_free = np.zeros((count, dofs), dtype=bool)  # the free set of each factor
+            self._stale = np.zeros(count, dtype=bool)  # re-factorise at the next step
+            self._lu_int = TypedList([identity.ints] * count)
+            self._lu_float = TypedList([identity.floats] * count)
+            self._factor_of = np.arange(count, dtype=np.int64)
+            self._patterns = {}
+            self._lu_patterns = {}
+            reference = stack.reference
+            hg_indptr, hg_indices, _ = reference.hourglass_arrays
+            rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
+            self._hg_positions = (reference.pattern.positions(rows, hg_indices) if len(hg_indices)
+                                  else np.zeros(0, np.int64))
+            self._values = np.empty(reference.pattern.nnz)
+            self._row_work = np.empty((8, dofs))
+            self._first = None
+            #: factorisations done so far (a diagnostic)
+            self.factorisations = 0
 
     # -- preconditioner ------------------------------------------------------------------------------
     def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
@@ -245,7 +374,7 @@ class BatchedImplicitEuler:
         (n, 3) m, the episode's start; geometric terms clamped as the integrator does) on the dofs
         not in ``fixed`` (n, 3). Shared (cached) between copies and episodes that start alike."""
         self.warm[index] = 0.0
-        if self.solver != "reference":
+        if self.solver == "jacobi":
             return
         digest = hashlib.blake2b(digest_size=16)
         for array in (model.stiffness, model.damping, model.mass, model.correction_matrix, model.volume_stiffness,
@@ -253,6 +382,17 @@ class BatchedImplicitEuler:
                       np.array([dt, model.n_nodes, len(model.springs)])):
             digest.update(np.ascontiguousarray(array).tobytes())
         key = digest.digest()
+        if self.solver == "factorised":
+            free = ~np.asarray(fixed, dtype=bool).ravel()
+            entry = _factors.get((key, "lu"))
+            if entry is None:  # factorised by the copy's first step, at this linearisation
+                self._set_factor(index, None, free)
+                self._pending[index] = ((key, "lu"), free)
+            else:
+                _factors.move_to_end((key, "lu"))
+                self._set_factor(index, entry, free)
+                self._pending[index] = None
+            return
         entry = _preconditioners.get(key)
         if entry is None:
             entry = _preconditioners[key] = _inverse_system(model, positions, dt, fixed)
@@ -296,6 +436,166 @@ class BatchedImplicitEuler:
                 out[rows[:, None], free] = product
         out *= mask
         return out
+
+    # -- factorised preconditioner (solver "factorised") ---------------------------------------------
+    def _set_factor(self, index, factor, free):
+        self._factors[index] = factor
+        self._factor_free[index] = free
+        if factor is not None:
+            self._lu_int[index] = factor.ints
+            self._lu_float[index] = factor.floats
+
+    def _factorise(self, index, data, system, free):
+        """Factorise copy ``index``'s system matrix at the step's linearisation (``data``, the stacked
+        operator data) on its ``free`` dofs (3 n,) bool."""
+        stack, count = self.stack, self.stack.count
+        reference = stack.reference
+
+        def copy(array):
+            size = len(array) // count
+            return array[index * size:(index + 1) * size]
+
+        hg_data = (stack.models[index].hourglass.data if reference.hourglass is not None
+                   else reference.hourglass_arrays[2])
+        workspace, model = self.workspace, stack.model
+        single = (reference.springs, copy(workspace.unit), copy(model.stiffness), copy(model.damping),
+                  copy(workspace.geometric), copy(model.mass), reference.mesh.elements, reference.edge_spring,
+                  copy(model.correction_matrix), copy(model.axis_rest_length), copy(workspace.volume_coefficient),
+                  copy(workspace.volume_direction), copy(workspace.volume_gradient), reference.hourglass_arrays[0],
+                  reference.hourglass_arrays[1], hg_data, copy(workspace.elongation), copy(workspace.delta))
+        values = self._values
+        kernels.operator_matrix_data(single, system, reference.spring_positions, reference.element_positions,
+                                     self._hg_positions, reference.pattern.diagonal_positions, values)
+        key = free.tobytes()
+        pattern = self._patterns.get(key)
+        if pattern is None:
+            if len(self._patterns) >= 4 * count:
+                self._patterns.clear()
+            pattern = self._patterns[key] = _FreePattern(reference, np.flatnonzero(free))
+        structure = self._lu_patterns.get(key)
+        if structure is None:
+            structure = self._lu_structure(pattern, values)
+            if len(self._lu_patterns) >= 4 * count:
+                self._lu_patterns.clear()
+            self._lu_patterns[key] = structure
+        factor = None
+        if structure is not None and structure.valid:
+            # the same structure as an earlier factor: numeric refactorisation only
+            with np.errstate(all="ignore"):
+                floats = structure.refactor(values)
+            if np.all(np.isfinite(floats)):
+                factor = _CopyFactor.refactored(structure, floats)
+        if factor is None:
+            matrix = sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
+            try:
+                with np.errstate(all="ignore"):
+                    factor = _CopyFactor(matrix, pattern.free)
+                factor.lu = factor.lower = factor.upper = None
+            except (RuntimeError, ValueError, np.linalg.LinAlgError):
+                factor = _CopyFactor()  # singular (a diverging state): no preconditioner
+        self.factorisations += 1
+        self._set_factor(index, factor, free)
+        return factor
+
+    def _copies_first(self):
+        """``kernels.solve_copies_lu``'s view of the stacked model: (data, hourglass rows (G, nnz),
+        hourglass group (N,))."""
+        stack = self.stack
+        if self._first is None or self._first[0] != stack.version:
+            reference, model, workspace = stack.reference, stack.model, self.workspace
+            values = stack.copies_last()
+            hg_rows = np.ascontiguousarray(values["hourglass"].T)
+            hg_indptr, hg_indices, _ = reference.hourglass_arrays
+            stacked = (reference.springs, workspace.unit, model.stiffness, model.damping, workspace.geometric,
+                       model.mass, reference.mesh.elements, reference.edge_spring, model.correction_matrix,
+                       model.axis_rest_length, workspace.volume_coefficient, workspace.volume_direction,
+                       workspace.volume_gradient, hg_indptr, hg_indices, hg_rows[0], workspace.elongation,
+                       workspace.delta)
+            self._first = (stack.version, (stacked, hg_rows, values["hourglass_group"]))
+        return self._first[1]
+
+    @staticmethod
+    def _lu_structure(pattern, values):
+        """The LU structure of a free set: SuperLU's factor of the matrix with every stored entry made
+        generic (``values`` plus a small deterministic perturbation: SuperLU's factor leaves out the
+        entries that come out exactly zero, which another matrix of the structure may fill), checked
+        against ``kernels.refactor_lu``; None when SuperLU fails."""
+        noise = np.random.default_rng(0).uniform(-1.0, 1.0, len(values))
+        generic = values + 1e-6 * np.max(np.abs(values)) * noise
+        matrix = sp.csc_matrix((generic[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
+        try:
+            with np.errstate(all="ignore"):
+                factor = _CopyFactor(matrix, pattern.free)
+            if not np.all(np.isfinite(factor.floats)):
+                return None
+            return _LUPattern(pattern, factor, generic)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):
+            return None
+
+    def _solve_factorised(self, data, system, mask, rhs, guess_rows, active, free, solution, iterations, residual):
+        """Every active copy's BiCGSTAB preconditioned by the sparse LU of its own system matrix, kept
+        across steps (``ImplicitEuler``'s "factorised" rule, per copy), one compiled call solving the
+        copies one after the other (``kernels.solve_copies_lu``: a copy costs its own iterations, no
+        lockstep). A copy without a factor, or whose free dofs are not all in its factor's (a probe
+        contact released), is factorised at this step's linearisation, on the union of its free sets
+        (a contact that imposes more dofs keeps the factor: its masked inverse is a close
+        preconditioner); one that needs more than its factor's threshold is re-factorised here and
+        continues from its iterate. A factorisation of a free set seen before is numeric only
+        (``kernels.refactor_lu`` on the structure of the first SuperLU factor)."""
+        count = self.stack.count
+        free_rows = free.T
+        fresh = np.zeros(count, dtype=bool)
+        missing = np.array([factor is None for factor in self._factors]) | self._stale
+        uncovered = np.any(free_rows & ~self._factor_free, axis=1)
+        for index in np.flatnonzero(active & (missing | uncovered)):
+            cover = free_rows[index] | (self._factor_free[index] if not missing[index] else False)
+            factor = self._factorise(index, data, system, cover)
+            pending = self._pending[index]
+            if pending is not None and np.array_equal(pending[1], free_rows[index]) and factor.ints[0] > 0:
+                _factors[pending[0]] = factor
+                if len(_factors) > PRECONDITIONER_CACHE_SIZE:
+                    _factors.popitem(last=False)
+            self._pending[index] = None
+            self._stale[index] = False
+            fresh[index] = True
+        limits = np.array([self.max_iterations if fresh[i] or factor is None else min(factor.threshold,
+                           self.max_iterations) for i, factor in enumerate(self._factors)], dtype=np.int64)
+        stacked, hg_rows, hg_group = self._copies_first()
+        mask_rows = np.ascontiguousarray(mask.T)
+        rhs_rows = np.ascontiguousarray(rhs.T)
+        rows = np.zeros_like(rhs_rows)
+        work = self._row_work
+        kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active,
+                                self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of, work, rows,
+                                iterations, residual)
+        stalled = (active & ~fresh & (residual > self.tolerance) & (iterations < self.max_iterations)
+                   & np.all(np.isfinite(rows), axis=1))
+        for index in np.flatnonzero(fresh):
+            self._factors[index].set_baseline(iterations[index], self.amortise)
+        for index in np.flatnonzero(active & ~fresh & ~stalled if self.amortise is not None else ()):
+            # amortised: re-factorise (at the next step) once the iterations spent beyond those right
+            # after the last factorisation add up to about a factorisation's cost
+            factor = self._factors[index]
+            factor.excess += max(0, int(iterations[index]) - factor.baseline)
+            if factor.excess > self.amortise:
+                self._stale[index] = True
+        if stalled.any():
+            for index in np.flatnonzero(stalled):
+                self._factorise(index, data, system, free_rows[index] | self._factor_free[index])
+            again = np.zeros_like(rows)
+            more = np.zeros(count, dtype=np.int64)
+            more_residual = np.zeros(count)
+            limits = (self.max_iterations - iterations).astype(np.int64)
+            kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, rows, stalled,
+                                    self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of, work,
+                                    again, more, more_residual)
+            for index in np.flatnonzero(stalled):
+                self._factors[index].set_baseline(more[index], self.amortise)
+            rows[stalled] = again[stalled]
+            residual[stalled] = more_residual[stalled]
+            iterations += np.where(stalled, more, 0)
+        solution[:] = rows.T
+        return iterations
 
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
@@ -380,9 +680,12 @@ class BatchedImplicitEuler:
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
         guess = np.ascontiguousarray(self.warm.T)
-        limit = self.first_pass if self.solver == "reference" else self.max_iterations
-        kernels.batched_solve(data, system, mask, rhs, guess, active, self.tolerance, limit,
-                              *self._pack_preconditioners(), self._work, solution, iterations, residual)
+        if self.solver == "factorised":
+            self._solve_factorised(data, system, mask, rhs, self.warm, active, free, solution, iterations, residual)
+        else:
+            limit = self.first_pass if self.solver == "reference" else self.max_iterations
+            kernels.batched_solve(data, system, mask, rhs, guess, active, self.tolerance, limit,
+                                  *self._pack_preconditioners(), self._work, solution, iterations, residual)
         stalled = np.zeros(count, dtype=bool)
         if self.solver == "reference":
             # A copy whose start-of-episode preconditioner no longer fits (large deformation, a
@@ -448,9 +751,10 @@ class BatchedSymplecticEuler:
         return new_positions, new_velocities
 
 
-def make_batched_integrator(name: str, stack: ModelStack, tolerance: float, solver: str = "reference"):
+def make_batched_integrator(name: str, stack: ModelStack, tolerance: float, solver: str = "factorised",
+                            amortise: int | None = None):
     if name == "implicit":
-        return BatchedImplicitEuler(stack, tolerance=tolerance, solver=solver)
+        return BatchedImplicitEuler(stack, tolerance=tolerance, solver=solver, amortise=amortise)
     if name == "explicit":
         return BatchedSymplecticEuler(stack)
     raise ValueError(f"integrator must be 'implicit' or 'explicit', got {name!r}")

@@ -240,10 +240,9 @@ class RetractionVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``RetractionEnv``)."""
 
     env_class = RetractionEnv
-    # The flap swings through large rotations: a start-of-episode preconditioner fits poorly (24
-    # lockstep iterations and a re-linearisation almost every step, N = 16); the Jacobi diagonal
-    # (about 60 lockstep iterations, no factorisation) was measured as fast.
-    linear_solver = "jacobi"
+    # The flap swings through large rotations: its matrix changes fast and factorises cheaply
+    # (120 free dofs), so a copy's factor is refreshed once its extra iterations add up.
+    refactor_amortise = 6
 
     def __init__(self, num_envs=1, **kwargs):
         super().__init__(num_envs, **kwargs)

@@ -252,6 +252,9 @@ class TumorPositioningVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``TumorPositioningEnv``)."""
 
     env_class = TumorPositioningEnv
+    # Measured (N = 16, interleaved): the start-of-episode dense inverse, shared pass over 4 copies
+    # at a time, about 10 % faster here than per-copy sparse LUs (4 iterations per copy either way).
+    linear_solver = "reference"
 
     def __init__(self, num_envs=1, **kwargs):
         super().__init__(num_envs, **kwargs)

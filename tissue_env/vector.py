@@ -20,10 +20,12 @@ same episodes, and their trajectories agree up to the linear solvers' tolerance
 (tests/test_env_vector.py). Only the per-step work is batched. A task provides the vectorised
 counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
-Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
-actions, registered episode lengths, env steps per CPU second, median of 3 interleaved rounds on
-a loaded 2-core machine): TumorPositioning 2.5x (its resets, a static solve for the goal, cost the
-same in both modes and are about 30 % of the vector env's time), Palpation 2.8x, Retraction 2.4x.
+Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "auto"
+preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
+steps per CPU second, median of 3 interleaved rounds on a loaded 2-core machine): Palpation 3.2x
+and Retraction 3.2x (per-copy sparse LUs, solver "factorised"), TumorPositioning 1.8x (its
+resets, a static solve for the goal, cost the same in both modes and are 28 % of the vector env's
+time; solver "reference").
 """
 
 from __future__ import annotations
@@ -56,9 +58,14 @@ class TissueVectorEnv(VectorEnv):
     #: The task class; set by each task's vector env.
     env_class = None
     #: How the batched implicit step solves each copy's linear system (``tissue_env.batched``):
-    #: "reference" (BiCGSTAB preconditioned by the start-of-episode system inverse, for blocks
-    #: whose deformation stays moderate) or "jacobi" (sim_core's own compiled solve per copy).
-    linear_solver = "reference"
+    #: "factorised" (each copy's sparse LU kept across steps, the copies solved one after the
+    #: other), "reference" (BiCGSTAB preconditioned by the start-of-episode system inverse, in
+    #: lockstep) or "jacobi" (the Jacobi diagonal, in lockstep).
+    linear_solver = "factorised"
+    #: solver "factorised": None, or the iterations beyond the fresh count after which a copy's
+    #: factor is refreshed (``BatchedImplicitEuler``'s ``amortise``; for scenes whose matrix changes
+    #: fast and factorises cheaply, e.g. Retraction)
+    refactor_amortise = None
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None, **kwargs):
@@ -82,7 +89,7 @@ class TissueVectorEnv(VectorEnv):
         self.stack = ModelStack(env.model, count)
         self._forces = ForceWorkspace(self.stack.model, implicit=False)  # the measurements' fused force pass
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
-                                                  self.linear_solver)
+                                                  self.linear_solver, self.refactor_amortise)
         self.mesh = env.mesh
         self.n_nodes = env.mesh.n_nodes
         self.springs = env.model.springs
