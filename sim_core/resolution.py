@@ -502,6 +502,14 @@ class ResolutionChoice:
         )
 
 
+def _scenes(scene, name="scene") -> list:
+    """A Scene or a non-empty list/tuple of Scenes as a list, else ValueError naming ``name``."""
+    scenes = [scene] if isinstance(scene, Scene) else list(scene) if isinstance(scene, (list, tuple)) else None
+    if not scenes or not all(isinstance(s, Scene) for s in scenes):
+        raise ValueError(f"{name} must be a Scene or a non-empty list of Scenes, got {scene!r}")
+    return scenes
+
+
 def _quantities(quantities) -> tuple:
     """A non-empty subset of QUANTITIES as a tuple, else ValueError naming ``quantities``."""
     try:
@@ -639,9 +647,7 @@ def reference_solutions(scenes, *, reference_resolution=10, reference_shape=None
     Raises:
         ValueError naming the argument when an input is invalid.
     """
-    scenes = [scenes] if isinstance(scenes, Scene) else list(scenes)
-    if not scenes or not all(isinstance(s, Scene) for s in scenes):
-        raise ValueError(f"scenes must be a Scene or a non-empty list of Scenes, got {scenes!r}")
+    scenes = _scenes(scenes, "scenes")
     if model not in REFERENCE_MODELS:
         raise ValueError(f"model must be one of {REFERENCE_MODELS}, got {model!r}")
     reference_resolution, reference_shape = _reference_shape_arguments(reference_resolution, reference_shape)
@@ -715,9 +721,7 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
         ValueError naming the argument when an input is invalid.
     """
     clock = time.perf_counter()
-    scenes = [scene] if isinstance(scene, Scene) else list(scene) if isinstance(scene, (list, tuple)) else None
-    if not scenes or not all(isinstance(s, Scene) for s in scenes):
-        raise ValueError(f"scene must be a Scene or a non-empty list of Scenes, got {scene!r}")
+    scenes = _scenes(scene)
     if any(not np.allclose(s.size, scenes[0].size) for s in scenes):
         raise ValueError("scene: every Scene in the list must have the same size")
     if reference is None:
@@ -948,9 +952,7 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
     Raises:
         ValueError naming the argument when an input is invalid.
     """
-    scenes = [scene] if isinstance(scene, Scene) else list(scene) if isinstance(scene, (list, tuple)) else None
-    if not scenes or not all(isinstance(s, Scene) for s in scenes):
-        raise ValueError(f"scene must be a Scene or a non-empty list of Scenes, got {scene!r}")
+    scenes = _scenes(scene)
     try:
         shape = tuple(int(s) for s in shape)
     except (TypeError, ValueError) as error:
@@ -1001,9 +1003,7 @@ def choose_stepping(scene, shape, tolerance=0.05, *, dts=(0.01, 0.02, 0.04), sub
         ValueError naming the argument when an input is invalid.
     """
     clock = time.perf_counter()
-    scenes = [scene] if isinstance(scene, Scene) else list(scene) if isinstance(scene, (list, tuple)) else None
-    if not scenes or not all(isinstance(s, Scene) for s in scenes):
-        raise ValueError(f"scene must be a Scene or a non-empty list of Scenes, got {scene!r}")
+    scenes = _scenes(scene)
     quantities = _quantities(quantities)
     tolerance = _tolerances(tolerance, quantities)
     try:
