@@ -11,6 +11,8 @@ constrained tangent) so that experiments can report them.
 
 from __future__ import annotations
 
+import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +62,47 @@ class StaticResult:
         return self.state.positions
 
 
+class FactorCache:
+    """Reusable LU factors of the constrained tangent stiffness, for repeated ``solve_static`` calls
+    on the same model (e.g. an env's goal solve at every reset, from the same start).
+
+    An entry is keyed by the model's identity, the free-dof pattern, the linearisation positions
+    (bitwise) and the damping: it holds exactly the factor ``solve_static`` would compute there, so a
+    hit changes no result, only skips the factorisation. Least recently used entries are dropped past
+    ``size``; entries of a model that no longer exists are never matched (the model is held weakly).
+    """
+
+    def __init__(self, size: int = 8):
+        self.size = int(size)
+        self._entries: OrderedDict = OrderedDict()
+        self.hits = self.misses = 0
+
+    def factorise(self, model, positions, free, damping):
+        """(stiffness, LU of the damped K_ff) at ``positions``: cached or computed (and stored)."""
+        key = (id(model), free.tobytes(), np.ascontiguousarray(positions, dtype=float).tobytes(), float(damping))
+        entry = self._entries.get(key)
+        if entry is not None and entry[0]() is model:
+            self._entries.move_to_end(key)
+            self.hits += 1
+            return entry[1]
+        self.misses += 1
+        value = _factorise(model, positions, free, damping)
+        self._entries[key] = (weakref.ref(model), value)
+        self._entries.move_to_end(key)
+        while len(self._entries) > self.size:
+            self._entries.popitem(last=False)
+        return value
+
+    def clear(self):
+        self._entries.clear()
+
+    def __getstate__(self):  # LU objects do not pickle: copies start empty
+        return dict(size=self.size)
+
+    def __setstate__(self, state):
+        self.__init__(state["size"])
+
+
 def _free_dofs(control: Control) -> np.ndarray:
     return np.flatnonzero(~control.fixed.ravel())
 
@@ -83,6 +126,9 @@ def solve_static(
     load_steps: int = 1,
     max_load_steps: int = 256,
     check_stability: bool = False,
+    cache: FactorCache | None = None,
+    chord_contraction: float = 0.25,
+    acceleration: int = 0,
 ) -> StaticResult:
     """Find positions where internal + external forces vanish on every free component.
 
@@ -100,6 +146,15 @@ def solve_static(
         max_load_steps: give up (converged=False) past this many increments.
         check_stability: compute the lowest eigenvalue of the tangent at the solution (a saddle
             point, e.g. hourglass buckling under compression, is an equilibrium too).
+        cache: a ``FactorCache`` for the predictor's factorisations (at the start of a load step):
+            repeated solves from the same positions (same model, same imposed dofs) then reuse the
+            LU. The result does not depend on whether the cache hits.
+        chord_contraction: a factorised tangent is reused (chord steps) while every step reduces
+            the residual norm at least by this factor, refactorised otherwise. Larger values (up to
+            ~0.7) trade cheap chord iterations for factorisations, e.g. with a cached start tangent
+            and moderate displacements; the converged result stays within ``tolerance``.
+        acceleration: Anderson mixing depth for the chord steps (0: plain chord steps), which
+            speeds up a chord iteration with an old tangent.
     """
     control = model.new_control() if control is None else control
     start = model.rest_positions.copy() if initial is None else np.array(initial, dtype=float)
@@ -114,8 +169,9 @@ def solve_static(
     def advance(level):
         applied = level * full_load if ramp_loads else full_load
         target = start[fixed] + level * (control.target[fixed] - start[fixed])
-        trial, factor = _predict(model, state["positions"], free, fixed, target, applied)
-        ok, trial, residual, used = _newton(model, trial, free, applied, tolerance, max_iterations, factor)
+        trial, factor = _predict(model, state["positions"], free, fixed, target, applied, cache)
+        ok, trial, residual, used = _newton(model, trial, free, applied, tolerance, max_iterations, factor,
+                                            chord_contraction, acceleration)
         if ok:
             state["positions"] = trial
         return ok, residual, used
@@ -167,7 +223,7 @@ def _factorise(model, positions, free, damping):
     return stiffness, spla.splu(matrix, permc_spec="MMD_AT_PLUS_A")
 
 
-def _predict(model, positions, free, fixed, target, applied):
+def _predict(model, positions, free, fixed, target, applied, cache=None):
     """Linear predictor for a new load level: imposed components jump to ``target`` and the free
     ones follow by K_ff dx_f = r_f - K_fc dx_c. Returns (trial positions, LU of K_ff or None)."""
     trial = positions.copy()
@@ -177,7 +233,8 @@ def _predict(model, positions, free, fixed, target, applied):
     if not np.any(delta):
         return trial, None
     try:
-        stiffness, factor = _factorise(model, positions, free, 1e-10)
+        factorise = _factorise if cache is None else cache.factorise
+        stiffness, factor = factorise(model, positions, free, 1e-10)
     except RuntimeError:
         return trial, None
     force = _residual(model, positions, applied).ravel()
@@ -188,21 +245,26 @@ def _predict(model, positions, free, fixed, target, applied):
     return trial, None
 
 
-def _newton(model, positions, free, applied, tolerance, max_iterations, factor=None):
+def _newton(model, positions, free, applied, tolerance, max_iterations, factor=None, chord_contraction=0.25,
+            acceleration=0):
     """Damped Newton with line search. The factorised tangent is reused (chord steps) while it
-    keeps contracting the residual by 4x per step, and rebuilt otherwise: one LU often serves a
-    whole nearly linear solve (``factor``: an LU to start with, e.g. the predictor's)."""
+    keeps contracting the residual by 1 / ``chord_contraction`` (4x) per step, and rebuilt
+    otherwise: one LU often serves a whole nearly linear solve (``factor``: an LU to start with,
+    e.g. the predictor's). ``acceleration`` > 0: Anderson mixing of the chord steps over that many
+    previous steps with the same LU (the plain step is tried when the mixed one is rejected)."""
     force = _residual(model, positions, applied)
     residual = _relative(force, free, applied)
     norm = np.linalg.norm(force.ravel()[free])
     damping = 1e-10
     fresh = False
+    history = []  # (free positions, chord step) with the current factor
     for iteration in range(1, max_iterations + 1):
         if residual < tolerance:
             return True, positions, residual, iteration - 1
         accepted = False
         while not accepted and damping < 1.0:
             if factor is None:
+                history = []
                 try:
                     factor = _factorise(model, positions, free, damping)[1]
                 except RuntimeError:  # exactly singular: regularise more
@@ -210,20 +272,39 @@ def _newton(model, positions, free, applied, tolerance, max_iterations, factor=N
                     continue
                 fresh = True
             step = factor.solve(force.ravel()[free])
-            accepted, trial, trial_force, trial_norm = _line_search(model, positions, free, applied, step, norm)
+            if acceleration and history:
+                mixed = _anderson(history, positions.ravel()[free], step)
+                accepted, trial, trial_force, trial_norm = _line_search(model, positions, free, applied, mixed, norm)
+                if not accepted:
+                    history = []
+            if not accepted:
+                accepted, trial, trial_force, trial_norm = _line_search(model, positions, free, applied, step, norm)
             if not accepted:
                 if fresh:
                     damping *= 100.0
                 factor = None
         if not accepted:
             return False, positions, residual, iteration
-        if trial_norm > 0.25 * norm:
+        if trial_norm > chord_contraction * norm:
             factor = None  # slow contraction: refresh the tangent next time
+        elif acceleration:
+            history = (history + [(positions.ravel()[free].copy(), step)])[-acceleration:]
         fresh = False
         positions, force, norm = trial, trial_force, trial_norm
         residual = _relative(force, free, applied)
         damping = max(damping / 100.0, 1e-10)
     return residual < tolerance, positions, residual, max_iterations
+
+
+def _anderson(history, x, step):
+    """Anderson-mixed step from ``x`` for the fixed-point map x -> x + step(x), given previous
+    (x, step) pairs of the same map."""
+    xs = np.stack([h[0] for h in history] + [x], axis=1)
+    fs = np.stack([h[1] for h in history] + [step], axis=1)
+    dx, df = np.diff(xs, axis=1), np.diff(fs, axis=1)
+    gamma = np.linalg.lstsq(df, step, rcond=1e-10)[0]
+    mixed = step - (dx + df) @ gamma
+    return mixed if np.all(np.isfinite(mixed)) else step
 
 
 def _line_search(model, positions, free, applied, step, norm):

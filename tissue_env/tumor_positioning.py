@@ -5,11 +5,18 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import solve_static
+from sim_core.static import FactorCache
 from sim_core.mesh import LOCAL_CORNERS
 from sim_core.model import Control
 
 from .base import TissueEnv, check_range, check_vector, nonnegative_scalar, positive_scalar
 from .vector import TissueVectorEnv
+
+
+# Goal solves: keep the (cached) start tangent while it contracts the residual by 0.7 per step,
+# with Anderson mixing over 3 steps. Measured (interleaved medians): reset 15.5 -> 9.0 ms at the
+# default shape, 128 -> 72 ms at (7, 7, 7); goals within 2e-7 m of the plain Newton ones.
+GOAL_SOLVER = dict(chord_contraction=0.7, acceleration=3)
 
 
 def trilinear_weights(local):
@@ -147,6 +154,7 @@ class TumorPositioningEnv(TissueEnv):
         self.tumor_region = region
         self.success_distance = positive_scalar("success_distance", success_distance, "m")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
+        self._goal_factors = FactorCache(size=2)  # start tangent LUs of the goal solves, per model
         super().__init__(**kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
@@ -187,7 +195,8 @@ class TumorPositioningEnv(TissueEnv):
         positions, minimum = start, 2.0 * self.success_distance
         for _ in range(3):
             control = self.base_control.copy().impose(self.tool_nodes, self.tool_rest + displacement)
-            result = solve_static(self.model, control, initial=positions, tolerance=1e-5)
+            result = solve_static(self.model, control, initial=positions, tolerance=1e-5, **GOAL_SOLVER,
+                                  cache=self._goal_factors if positions is start else None)
             if not result.converged:
                 break
             positions = result.positions

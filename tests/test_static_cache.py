@@ -1,0 +1,73 @@
+"""solve_static's FactorCache (reused start tangent) and chord/Anderson options; TumorPositioning's goal solve."""
+
+import copy
+import pickle
+
+import gymnasium as gym
+import numpy as np
+
+import tissue_env  # noqa: F401  (registers the ids)
+from sim_core import solve_static
+from sim_core.static import FactorCache
+from tissue_env.tumor_positioning import GOAL_SOLVER
+
+
+def _goal_problem(displacement=(0.006, 0.004, -0.008)):
+    env = gym.make("tissue_env/TumorPositioning-v0").unwrapped
+    env.reset(seed=0)
+    control = env.base_control.copy().impose(env.tool_nodes, env.tool_rest + np.asarray(displacement))
+    return env, control, env.state.positions.copy()
+
+
+def test_cache_hit_gives_the_same_result_bitwise():
+    env, control, start = _goal_problem()
+    plain = solve_static(env.model, control, initial=start, tolerance=1e-8)
+    cache = FactorCache()
+    first = solve_static(env.model, control, initial=start, tolerance=1e-8, cache=cache)
+    second = solve_static(env.model, control, initial=start.copy(), tolerance=1e-8, cache=cache)
+    assert cache.misses == 1 and cache.hits == 1
+    assert np.array_equal(plain.positions, first.positions)
+    assert np.array_equal(plain.positions, second.positions)
+    assert plain.iterations == second.iterations
+
+
+def test_cache_keys_on_model_fixed_pattern_and_positions():
+    env, control, start = _goal_problem()
+    cache = FactorCache(size=2)
+    solve_static(env.model, control, initial=start, cache=cache)
+    other = env.base_control.copy().impose(env.tool_nodes[:1], env.tool_rest[:1] + 0.005)  # other fixed dofs
+    solve_static(env.model, other, initial=start, cache=cache)
+    moved = start.copy()
+    moved[0, 0] += 1e-12  # other linearisation state
+    solve_static(env.model, control, initial=moved, cache=cache)
+    assert cache.hits == 0 and cache.misses == 3
+    assert len(cache._entries) == 2  # least recently used dropped
+    clone = pickle.loads(pickle.dumps(cache))
+    assert len(clone._entries) == 0 and clone.size == 2
+
+
+def test_chord_and_anderson_converge_within_tolerance():
+    env, control, start = _goal_problem()
+    reference = solve_static(env.model, control, initial=start, tolerance=1e-10)
+    for options in ({}, dict(chord_contraction=0.7), GOAL_SOLVER, dict(chord_contraction=0.9, acceleration=5)):
+        result = solve_static(env.model, control, initial=start, tolerance=1e-8, cache=FactorCache(), **options)
+        assert result.converged and result.residual < 1e-8
+        assert np.abs(result.positions - reference.positions).max() < 1e-8
+
+
+def test_goal_does_not_depend_on_the_cache_state():
+    """A warm cache (earlier resets of the same model) gives bitwise the same goals as a cold one,
+    and the goals are within 1e-6 m of the plain (no cache, default Newton) solve."""
+    warm = gym.make("tissue_env/TumorPositioning-v0").unwrapped
+    warm.reset(seed=100)
+    for seed in range(1, 6):
+        warm.reset(seed=seed)
+        cold = gym.make("tissue_env/TumorPositioning-v0").unwrapped
+        cold.reset(seed=seed)
+        assert np.array_equal(warm.goal, cold.goal)
+        control = cold.base_control.copy().impose(cold.tool_nodes, cold.tool_rest + cold.goal_tool_displacement)
+        plain = solve_static(cold.model, control, initial=cold.state.positions, tolerance=1e-8)
+        goal = cold.tumor_weights @ plain.positions[cold.tumor_nodes]
+        assert np.linalg.norm(goal - cold.goal) < 1e-6
+    assert warm._goal_factors.hits >= 5
+    copy.deepcopy(warm)  # the LU cache does not block copies
