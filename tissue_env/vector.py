@@ -24,7 +24,7 @@ Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "
 preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
 steps per CPU second, median of 3 interleaved rounds on a loaded 2-core machine): Palpation 3.2x
 and Retraction 3.2x (per-copy sparse LUs, solver "factorised"), TumorPositioning 1.8x (its
-resets, a static solve for the goal, cost the same in both modes and are 28 % of the vector env's
+resets, a static solve for the goal, cost the same in both modes and are 17 % of the vector env's
 time; solver "reference").
 """
 
