@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .mesh import EDGES, FACES, GAUSS_GRADIENTS, GAUSS_POINTS
+from .mesh import EDGES, FACES, GAUSS_GRADIENTS
 
 _EDGES = np.ascontiguousarray(EDGES)
 _FACES = np.ascontiguousarray(FACES)
@@ -157,48 +157,6 @@ def csr_matvec_add(indptr, indices, data, vector, scale, out):
 
 # -- implicit Euler -----------------------------------------------------------------------------
 @njit(cache=True, error_model="numpy")
-def assemble_implicit(block_of_spring, n_blocks, diagonal_block, unit, length, tension, stiffness,
-                      damping, mass, dt, clamp, blocks):
-    """Blocks (3x3 per node pair) of M + dt D + dt^2 K for the springs (geometric term clamped)."""
-    blocks[:] = 0.0
-    for node in range(mass.shape[0]):
-        for c in range(3):
-            blocks[diagonal_block[node], c, c] = mass[node]
-    for s in range(unit.shape[0]):
-        geometric = tension[s] / length[s]
-        if clamp and geometric < 0.0:
-            geometric = 0.0
-        along = dt * dt * stiffness[s] + dt * damping[s]
-        across = dt * dt * geometric
-        for r in range(3):
-            for c in range(3):
-                value = (along - across) * unit[s, r] * unit[s, c]
-                if r == c:
-                    value += across
-                blocks[block_of_spring[s, 0], r, c] += value
-                blocks[block_of_spring[s, 1], r, c] += value
-                blocks[block_of_spring[s, 2], r, c] -= value
-                blocks[block_of_spring[s, 3], r, c] -= value
-
-
-@njit(cache=True, error_model="numpy")
-def _block_matvec(node_indptr, node_indices, blocks, vector, out):
-    for node in range(node_indptr.shape[0] - 1):
-        x0 = 0.0
-        x1 = 0.0
-        x2 = 0.0
-        for k in range(node_indptr[node], node_indptr[node + 1]):
-            col = node_indices[k]
-            v0, v1, v2 = vector[3 * col], vector[3 * col + 1], vector[3 * col + 2]
-            x0 += blocks[k, 0, 0] * v0 + blocks[k, 0, 1] * v1 + blocks[k, 0, 2] * v2
-            x1 += blocks[k, 1, 0] * v0 + blocks[k, 1, 1] * v1 + blocks[k, 1, 2] * v2
-            x2 += blocks[k, 2, 0] * v0 + blocks[k, 2, 1] * v1 + blocks[k, 2, 2] * v2
-        out[3 * node] = x0
-        out[3 * node + 1] = x1
-        out[3 * node + 2] = x2
-
-
-@njit(cache=True, error_model="numpy")
 def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_length, vector, scale, out):
     """out += scale * K_c vector, K_c = -G W^ G^T the corrections' strain coupling (matrix-free:
     per element 12 edge elongation rates -> 3 axis strains -> 3 pushes -> 12 edge forces)."""
@@ -222,149 +180,6 @@ def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_lengt
                 # force +push u on q, -push u on p; K = -df/dx
                 out[3 * q + c] -= scale * push * edge_unit[m, e, c]
                 out[3 * p + c] += scale * push * edge_unit[m, e, c]
-
-
-@njit(cache=True, error_model="numpy")
-def _volume_matvec_add(elements, coefficient, direction, gradient, vector, scale, out):
-    """out += scale * K_v vector with K_v = sum_e c_e h_e grad(V_e)^T, the volume forces' rank-one
-    stiffness per element (physics.md 4; see forces.volume_terms)."""
-    for m in range(elements.shape[0]):
-        if coefficient[m] == 0.0:
-            continue
-        rate = 0.0
-        for n in range(8):
-            node = elements[m, n]
-            for c in range(3):
-                rate += gradient[m, n, c] * vector[3 * node + c]
-        rate *= scale * coefficient[m]
-        for n in range(8):
-            node = elements[m, n]
-            for c in range(3):
-                out[3 * node + c] += rate * direction[m, n, c]
-
-
-@njit(cache=True, error_model="numpy")
-def _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale,
-              elements, edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, vector, out,
-              volume_coefficient=None, volume_direction=None, volume_gradient=None, volume_scale=0.0):
-    _block_matvec(node_indptr, node_indices, blocks, vector, out)
-    if hg_scale != 0.0:
-        csr_matvec_add(hg_indptr, hg_indices, hg_data, vector, hg_scale, out)
-    if coupling_scale != 0.0:
-        _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_length, vector, coupling_scale, out)
-    if volume_coefficient is not None:
-        if volume_scale != 0.0:
-            _volume_matvec_add(elements, volume_coefficient, volume_direction, volume_gradient, vector,
-                               volume_scale, out)
-    for i in range(out.shape[0]):
-        out[i] *= mask[i]
-
-
-@njit(cache=True, error_model="numpy")
-def solve_implicit(node_indptr, node_indices, blocks, diagonal_block, hg_indptr, hg_indices, hg_data, hg_scale,
-                   elements, edge_unit, correction_matrix, axis_rest_length, coupling_scale,
-                   mask, rhs, guess, tolerance, max_iterations, symmetric,
-                   volume_coefficient=None, volume_direction=None, volume_gradient=None, volume_scale=0.0):
-    """Jacobi-preconditioned CG (symmetric) or BiCGSTAB on the masked system. Returns
-    (solution, iterations, relative residual)."""
-    n = rhs.shape[0]
-    inverse_diagonal = np.empty(n)
-    for node in range(diagonal_block.shape[0]):
-        for c in range(3):
-            value = blocks[diagonal_block[node], c, c]
-            inverse_diagonal[3 * node + c] = mask[3 * node + c] / value if value > 0 else 0.0
-    if hg_scale != 0.0:  # include the hourglass diagonal in the preconditioner
-        for row in range(n):
-            for k in range(hg_indptr[row], hg_indptr[row + 1]):
-                if hg_indices[k] == row and inverse_diagonal[row] > 0:
-                    inverse_diagonal[row] = 1.0 / (1.0 / inverse_diagonal[row] + hg_scale * hg_data[k])
-    x = guess * mask
-    work = np.empty(n)
-    _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements, edge_unit,
-              correction_matrix, axis_rest_length, coupling_scale, mask, x, work,
-              volume_coefficient, volume_direction, volume_gradient, volume_scale)
-    r = rhs * mask - work
-    norm_b = np.sqrt(np.dot(rhs, rhs))
-    if norm_b == 0.0:
-        return np.zeros(n), 0, 0.0
-    residual = np.sqrt(np.dot(r, r)) / norm_b
-    iterations = 0
-    if symmetric:
-        z = inverse_diagonal * r
-        p = z.copy()
-        rz = np.dot(r, z)
-        while residual > tolerance and iterations < max_iterations:
-            _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements,
-                      edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, p, work,
-                      volume_coefficient, volume_direction, volume_gradient, volume_scale)
-            curvature = np.dot(p, work)
-            if curvature <= 0.0:
-                break
-            alpha = rz / curvature
-            x += alpha * p
-            r -= alpha * work
-            z = inverse_diagonal * r
-            rz_new = np.dot(r, z)
-            p = z + (rz_new / rz) * p
-            rz = rz_new
-            iterations += 1
-            residual = np.sqrt(np.dot(r, r)) / norm_b
-        return x, iterations, residual
-    # right-preconditioned BiCGSTAB
-    r_hat = r.copy()
-    rho = 1.0
-    alpha = 1.0
-    omega = 1.0
-    v = np.zeros(n)
-    p = np.zeros(n)
-    t = np.empty(n)
-    while residual > tolerance and iterations < max_iterations:
-        rho_new = np.dot(r_hat, r)
-        if rho_new == 0.0 or omega == 0.0:
-            break
-        beta = (rho_new / rho) * (alpha / omega)
-        rho = rho_new
-        p = r + beta * (p - omega * v)
-        p_hat = inverse_diagonal * p
-        _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements,
-                  edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, p_hat, v,
-                  volume_coefficient, volume_direction, volume_gradient, volume_scale)
-        denominator = np.dot(r_hat, v)
-        if denominator == 0.0:
-            break
-        alpha = rho / denominator
-        s = r - alpha * v
-        iterations += 1
-        if np.sqrt(np.dot(s, s)) / norm_b <= tolerance:
-            x += alpha * p_hat
-            r = s
-            residual = np.sqrt(np.dot(r, r)) / norm_b
-            break
-        s_hat = inverse_diagonal * s
-        _operator(node_indptr, node_indices, blocks, hg_indptr, hg_indices, hg_data, hg_scale, elements,
-                  edge_unit, correction_matrix, axis_rest_length, coupling_scale, mask, s_hat, t,
-                  volume_coefficient, volume_direction, volume_gradient, volume_scale)
-        tt = np.dot(t, t)
-        omega = np.dot(t, s) / tt if tt > 0 else 0.0
-        x += alpha * p_hat + omega * s_hat
-        r = s - omega * t
-        residual = np.sqrt(np.dot(r, r)) / norm_b
-    return x, iterations, residual
-
-
-@njit(cache=True, error_model="numpy")
-def edge_units(positions, elements, out):
-    """(M, 12, 3) current unit vectors of every element edge (local orientation)."""
-    for m in range(elements.shape[0]):
-        for e in range(12):
-            p, q = elements[m, _EDGES[e, 0]], elements[m, _EDGES[e, 1]]
-            dx = positions[q, 0] - positions[p, 0]
-            dy = positions[q, 1] - positions[p, 1]
-            dz = positions[q, 2] - positions[p, 2]
-            norm = np.sqrt(dx * dx + dy * dy + dz * dz)
-            out[m, e, 0] = dx / norm
-            out[m, e, 1] = dy / norm
-            out[m, e, 2] = dz / norm
 
 
 @njit(cache=True, error_model="numpy")
@@ -620,9 +435,9 @@ def apply_operator(data, scales, mask, vector, out):
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, symmetric, work, solution):
-    """``solve_implicit`` on the matrix-free ``spring_operator``: Jacobi-preconditioned CG (symmetric)
-    or right-preconditioned BiCGSTAB, the same algorithm, with the vector updates fused into single
-    passes and no allocation (``work`` (8, n) scratch). Writes ``solution``; returns (iterations,
+    """The implicit Euler solve on the matrix-free ``spring_operator``: Jacobi-preconditioned CG
+    (symmetric) or right-preconditioned BiCGSTAB, with the vector updates fused into single passes
+    and no allocation (``work`` (8, n) scratch). Writes ``solution``; returns (iterations,
     relative residual)."""
     springs, unit, stiffness, damping, geometric, mass = data[0], data[1], data[2], data[3], data[4], data[5]
     hg_indptr, hg_indices, hg_data = data[13], data[14], data[15]
@@ -630,7 +445,7 @@ def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, sym
     n = rhs.shape[0]
     inverse_diagonal, r, r_hat, p, v, s, t, p_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     x = solution
-    # Jacobi preconditioner: the diagonal of M + springs (+ hourglass), as ``solve_implicit``
+    # Jacobi preconditioner: the diagonal of M + springs (+ hourglass)
     for node in range(mass.shape[0]):
         for c in range(3):
             inverse_diagonal[3 * node + c] = mass_scale * mass[node]
