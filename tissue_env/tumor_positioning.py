@@ -39,7 +39,8 @@ class TumorPositioningEnv(TissueEnv):
     equilibrium position (``solve_static``) for a random tool displacement in the workspace.
 
     Physics: one implicit Euler step of ``dt`` = 20 ms per env step (``substeps`` keyword), gravity
-    on, hourglass control 0.5. Measured at the defaults on one core: see the README / the
+    on, hourglass control 1, volume stiffness x100 (``tissue_env.base``). Measured at the defaults
+    on one core: see the README / the
     ``benchmarks/env_speed.py`` output; a ``solve_static`` per step was about 10x slower. After a
     tool move the tumour settles to the static equilibrium within a few steps (tested).
 
