@@ -645,182 +645,32 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def volume_forces_add(positions, elements, rest_volume, kappa, forces):
-    """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3), with
-    exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
-    straight-line body per element (generated code, no scratch arrays; 2.4x faster than
-    ``volume_pass``).
-    """
-    for m in range(elements.shape[0]):
-        if kappa[m] == 0.0:
-            continue
-        i0 = elements[m, 0]
-        i1 = elements[m, 1]
-        i2 = elements[m, 2]
-        i3 = elements[m, 3]
-        i4 = elements[m, 4]
-        i5 = elements[m, 5]
-        i6 = elements[m, 6]
-        i7 = elements[m, 7]
-        p0x = positions[i0, 0]
-        p0y = positions[i0, 1]
-        p0z = positions[i0, 2]
-        p1x = positions[i1, 0]
-        p1y = positions[i1, 1]
-        p1z = positions[i1, 2]
-        p2x = positions[i2, 0]
-        p2y = positions[i2, 1]
-        p2z = positions[i2, 2]
-        p3x = positions[i3, 0]
-        p3y = positions[i3, 1]
-        p3z = positions[i3, 2]
-        p4x = positions[i4, 0]
-        p4y = positions[i4, 1]
-        p4z = positions[i4, 2]
-        p5x = positions[i5, 0]
-        p5y = positions[i5, 1]
-        p5z = positions[i5, 2]
-        p6x = positions[i6, 0]
-        p6y = positions[i6, 1]
-        p6z = positions[i6, 2]
-        p7x = positions[i7, 0]
-        p7y = positions[i7, 1]
-        p7z = positions[i7, 2]
-        d1x = p1x - p0x
-        d1y = p1y - p0y
-        d1z = p1z - p0z
-        d2x = p3x - p0x
-        d2y = p3y - p0y
-        d2z = p3z - p0z
-        d3x = p2x - p0x
-        d3y = p2y - p0y
-        d3z = p2z - p0z
-        d4x = p4x - p0x
-        d4y = p4y - p0y
-        d4z = p4z - p0z
-        d5x = p5x - p0x
-        d5y = p5y - p0y
-        d5z = p5z - p0z
-        d6x = p7x - p0x
-        d6y = p7y - p0y
-        d6z = p7z - p0z
-        d7x = p6x - p0x
-        d7y = p6y - p0y
-        d7z = p6z - p0z
-        # exact trilinear volume (hex_volume's grouping)
-        vax = d2y * d3z - d2z * d3y
-        vay = d2z * d3x - d2x * d3z
-        vaz = d2x * d3y - d2y * d3x
-        vbx = d3y * (d5z + d7z) - d3z * (d5y + d7y)
-        vby = d3z * (d5x + d7x) - d3x * (d5z + d7z)
-        vbz = d3x * (d5y + d7y) - d3y * (d5x + d7x)
-        vex = d5y * (d4z - d7z) - d5z * (d4y - d7y)
-        vey = d5z * (d4x - d7x) - d5x * (d4z - d7z)
-        vez = d5x * (d4y - d7y) - d5y * (d4x - d7x)
-        volume = (d1x * (vax + vbx + vex) + d1y * (vay + vby + vey) + d1z * (vaz + vbz + vez))
-        vfx = d3y * (d6z + d7z) - d3z * (d6y + d7y)
-        vfy = d3z * (d6x + d7x) - d3x * (d6z + d7z)
-        vfz = d3x * (d6y + d7y) - d3y * (d6x + d7x)
-        vgx = d6y * (d7z - d4z) - d6z * (d7y - d4y)
-        vgy = d6z * (d7x - d4x) - d6x * (d7z - d4z)
-        vgz = d6x * (d7y - d4y) - d6y * (d7x - d4x)
-        volume += d2x * (vgx - vfx) + d2y * (vgy - vfy) + d2z * (vgz - vfz)
-        vhx = (d6y - d5y) * d7z - (d6z - d5z) * d7y
-        vhy = (d6z - d5z) * d7x - (d6x - d5x) * d7z
-        vhz = (d6x - d5x) * d7y - (d6y - d5y) * d7x
-        volume += d3x * vhx + d3y * vhy + d3z * vhz
-        vsx = d6y * d7z - d6z * d7y
-        vsy = d6z * d7x - d6x * d7z
-        vsz = d6x * d7y - d6y * d7x
-        vkx = d5y * (d6z + d7z) - d5z * (d6y + d7y)
-        vky = d5z * (d6x + d7x) - d5x * (d6z + d7z)
-        vkz = d5x * (d6y + d7y) - d5y * (d6x + d7x)
-        volume += d4x * (vkx - vsx) + d4y * (vky - vsy) + d4z * (vkz - vsz)
-        volume -= d5x * vsx + d5y * vsy + d5z * vsz
-        volume = volume / 12.0
-        # face area vectors a_S = (x2 - x0) x (x3 - x1) / 2 and the total area A_H
-        f0x = (p7y - p0y) * (p3z - p4z) - (p7z - p0z) * (p3y - p4y)
-        f0y = (p7z - p0z) * (p3x - p4x) - (p7x - p0x) * (p3z - p4z)
-        f0z = (p7x - p0x) * (p3y - p4y) - (p7y - p0y) * (p3x - p4x)
-        f1x = (p6y - p1y) * (p5z - p2z) - (p6z - p1z) * (p5y - p2y)
-        f1y = (p6z - p1z) * (p5x - p2x) - (p6x - p1x) * (p5z - p2z)
-        f1z = (p6x - p1x) * (p5y - p2y) - (p6y - p1y) * (p5x - p2x)
-        f2x = (p5y - p0y) * (p4z - p1z) - (p5z - p0z) * (p4y - p1y)
-        f2y = (p5z - p0z) * (p4x - p1x) - (p5x - p0x) * (p4z - p1z)
-        f2z = (p5x - p0x) * (p4y - p1y) - (p5y - p0y) * (p4x - p1x)
-        f3x = (p6y - p3y) * (p2z - p7z) - (p6z - p3z) * (p2y - p7y)
-        f3y = (p6z - p3z) * (p2x - p7x) - (p6x - p3x) * (p2z - p7z)
-        f3z = (p6x - p3x) * (p2y - p7y) - (p6y - p3y) * (p2x - p7x)
-        f4x = (p2y - p0y) * (p1z - p3z) - (p2z - p0z) * (p1y - p3y)
-        f4y = (p2z - p0z) * (p1x - p3x) - (p2x - p0x) * (p1z - p3z)
-        f4z = (p2x - p0x) * (p1y - p3y) - (p2y - p0y) * (p1x - p3x)
-        f5x = (p6y - p4y) * (p7z - p5z) - (p6z - p4z) * (p7y - p5y)
-        f5y = (p6z - p4z) * (p7x - p5x) - (p6x - p4x) * (p7z - p5z)
-        f5z = (p6x - p4x) * (p7y - p5y) - (p6y - p4y) * (p7x - p5x)
-        area = 0.5 * (np.sqrt(f0x * f0x + f0y * f0y + f0z * f0z) + np.sqrt(f1x * f1x + f1y * f1y + f1z * f1z) + np.sqrt(f2x * f2x + f2y * f2y + f2z * f2z) + np.sqrt(f3x * f3x + f3y * f3y + f3z * f3z) + np.sqrt(f4x * f4x + f4y * f4y + f4z * f4z) + np.sqrt(f5x * f5x + f5y * f5y + f5z * f5z))
-        relative = (volume - rest_volume[m]) / rest_volume[m]
-        share = 1.0 / (8.0 * area)  # the 1/2 of each a_S, and 1 / (4 A_H)
-        scale = -kappa[m] * relative * abs(relative) * share
-        h0x = f0x + f2x + f4x
-        forces[i0, 0] += scale * h0x
-        h0y = f0y + f2y + f4y
-        forces[i0, 1] += scale * h0y
-        h0z = f0z + f2z + f4z
-        forces[i0, 2] += scale * h0z
-        h1x = f1x + f2x + f4x
-        forces[i1, 0] += scale * h1x
-        h1y = f1y + f2y + f4y
-        forces[i1, 1] += scale * h1y
-        h1z = f1z + f2z + f4z
-        forces[i1, 2] += scale * h1z
-        h2x = f1x + f3x + f4x
-        forces[i2, 0] += scale * h2x
-        h2y = f1y + f3y + f4y
-        forces[i2, 1] += scale * h2y
-        h2z = f1z + f3z + f4z
-        forces[i2, 2] += scale * h2z
-        h3x = f0x + f3x + f4x
-        forces[i3, 0] += scale * h3x
-        h3y = f0y + f3y + f4y
-        forces[i3, 1] += scale * h3y
-        h3z = f0z + f3z + f4z
-        forces[i3, 2] += scale * h3z
-        h4x = f0x + f2x + f5x
-        forces[i4, 0] += scale * h4x
-        h4y = f0y + f2y + f5y
-        forces[i4, 1] += scale * h4y
-        h4z = f0z + f2z + f5z
-        forces[i4, 2] += scale * h4z
-        h5x = f1x + f2x + f5x
-        forces[i5, 0] += scale * h5x
-        h5y = f1y + f2y + f5y
-        forces[i5, 1] += scale * h5y
-        h5z = f1z + f2z + f5z
-        forces[i5, 2] += scale * h5z
-        h6x = f1x + f3x + f5x
-        forces[i6, 0] += scale * h6x
-        h6y = f1y + f3y + f5y
-        forces[i6, 1] += scale * h6y
-        h6z = f1z + f3z + f5z
-        forces[i6, 2] += scale * h6z
-        h7x = f0x + f3x + f5x
-        forces[i7, 0] += scale * h7x
-        h7y = f0y + f3y + f5y
-        forces[i7, 1] += scale * h7y
-        h7z = f0z + f3z + f5z
-        forces[i7, 2] += scale * h7z
+    """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3): the
+    body of ``volume_forces_jacobian_add`` without the stiffness terms."""
+    none = np.empty((0, 8, 3))
+    _volume_forces(positions, elements, rest_volume, kappa, forces, False, np.empty(0), none, none)
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, coefficient, direction, gradient):
+    """``volume_forces_add`` that also fills the rank-one stiffness terms of
+    ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3)."""
+    _volume_forces(positions, elements, rest_volume, kappa, forces, True, coefficient, direction, gradient)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _volume_forces(positions, elements, rest_volume, kappa, forces, jacobian, coefficient, direction, gradient):
     """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3), with
     exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
     straight-line body per element (generated code, no scratch arrays; 2.4x faster than
-    ``volume_pass``). Also fills the rank-one stiffness terms of ``volume_jacobian_terms``:
-    coefficient (M,), direction and gradient (M, 8, 3).
+    the earlier two-pass version). With ``jacobian``, also fills the rank-one stiffness terms of
+    ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3); without it those
+    arrays are not touched (may be empty).
     """
     for m in range(elements.shape[0]):
         if kappa[m] == 0.0:
-            coefficient[m] = 0.0
+            if jacobian:
+                coefficient[m] = 0.0
             continue
         i0 = elements[m, 0]
         i1 = elements[m, 1]
@@ -977,6 +827,8 @@ def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, 
         forces[i7, 1] += scale * h7y
         h7z = f0z + f3z + f5z
         forces[i7, 2] += scale * h7z
+        if not jacobian:
+            continue
         coefficient[m] = 2.0 * kappa[m] * abs(volume - rest_volume[m]) / rest_volume[m] ** 2
         direction[m, 0, 0] = share * h0x
         direction[m, 0, 1] = share * h0y
