@@ -68,6 +68,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import io
 import json
 import math
@@ -340,7 +341,7 @@ def _prepare(config: Config, scene: SceneSpec):
     if config.method in ("baudet", "baudet-original", "uniform-springs"):
         model = _mss_model(config.method, config.resolution)
         if config.stepping == "quasi-static":
-            return (lambda: _quasi_static(model, path)), info
+            return (lambda: _static_per_step(functools.partial(solve_static, model), path)), info
         if config.stepping == "explicit":
             limit = _explicit_limit(config.method, config.resolution, scene.name)
             safety = float(config.solver.split("x")[0])
@@ -356,7 +357,7 @@ def _prepare(config: Config, scene: SceneSpec):
         return _fem_linear(mesh, path), info
     if config.method == "fem-neohookean":
         fem = NeoHookeanFEM(mesh, Material(YOUNG, POISSON, DENSITY))
-        return (lambda: _fem_neohookean(fem, path)), info
+        return (lambda: _static_per_step(fem.solve, path)), info
     raise ValueError(f"unknown configuration {config}")
 
 
@@ -388,12 +389,15 @@ def _dynamic(model, path: ScenePath, integrator, dt, steps) -> Outcome:
     return Outcome(state.positions.copy(), steps=steps, iterations=iterations / steps)
 
 
-def _quasi_static(model, path: ScenePath) -> Outcome:
+def _static_per_step(solve, path: ScenePath) -> Outcome:
+    """One static solve per control step, warm-started from the previous one: ``solve(control,
+    initial, max_load_steps)`` is ``solve_static`` on a model (quasi-static mass-spring) or
+    ``NeoHookeanFEM.solve``."""
     positions, newton = None, 0
     times = _control_times()
     for step, t in enumerate(times, 1):
         PROGRESS["t"] = t - 1.0 / CONTROL_RATE
-        result = solve_static(model, path.control(ramp(t)), initial=positions, max_load_steps=STATIC_MAX_LOAD_STEPS)
+        result = solve(path.control(ramp(t)), initial=positions, max_load_steps=STATIC_MAX_LOAD_STEPS)
         newton += result.iterations
         if not result.converged:
             return Outcome(None, "not converged", f"control step {step} (t = {t:.2g} s): {result.message}", step,
@@ -423,20 +427,6 @@ def _fem_linear(mesh, path: ScenePath):
         return Outcome((rest + displacement).reshape(-1, 3), steps=len(times), iterations=1.0)
 
     return runner
-
-
-def _fem_neohookean(fem: NeoHookeanFEM, path: ScenePath) -> Outcome:
-    positions, newton = None, 0
-    times = _control_times()
-    for step, t in enumerate(times, 1):
-        PROGRESS["t"] = t - 1.0 / CONTROL_RATE
-        result = fem.solve(path.control(ramp(t)), initial=positions, max_load_steps=STATIC_MAX_LOAD_STEPS)
-        newton += result.iterations
-        if not result.converged:
-            return Outcome(None, "not converged", f"control step {step} (t = {t:.2g} s): {result.message}", step,
-                           newton / step)
-        positions = result.positions
-    return Outcome(positions.copy(), steps=len(times), iterations=newton / len(times))
 
 
 def _alarm(signum, frame):
