@@ -120,6 +120,20 @@ def step_bytes(model, iterations: int, symmetric: bool) -> dict:
     return {"explicit": explicit, "implicit": implicit, "operator_product": operator}
 
 
+def tumor_block(shape, patch_radius):
+    """TumorPositioning's block: a 5 cm cube of ``shape`` hexahedra, E 5 kPa, nu 0.45, rho 1060,
+    volume stiffness x100, hourglass control 1, gravity. Returns (model, bottom nodes, top-patch
+    nodes within ``patch_radius`` m of the top face's centre)."""
+    mesh = HexMesh.block(shape, 0.05 / np.asarray(shape))
+    model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0,
+                        volume_stiffness=100.0)
+    nodes = mesh.nodes
+    bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
+    top = np.flatnonzero(np.isclose(nodes[:, 1], 0.05))
+    patch = top[np.linalg.norm(nodes[top][:, [0, 2]] - 0.025, axis=1) <= patch_radius]
+    return model, bottom, patch
+
+
 def stiff_block(repeats: int = 200, shapes=((4, 4, 4), (7, 7, 7))) -> dict:
     """Jacobi against factorised preconditioning of the implicit step on TumorPositioning's block:
     a 5 cm cube, E 5 kPa, nu 0.45, rho 1060, volume stiffness x100, hourglass control 1, bottom
@@ -127,13 +141,8 @@ def stiff_block(repeats: int = 200, shapes=((4, 4, 4), (7, 7, 7))) -> dict:
     interleaved medians (ms) and median iterations, keys ``stiff_<n>_...``."""
     results = {}
     for shape, dt in zip(shapes, (0.02, 0.04)):
-        mesh = HexMesh.block(shape, 0.05 / np.asarray(shape))
-        model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0,
-                            volume_stiffness=100.0)
-        nodes = mesh.nodes
-        bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
-        top = np.flatnonzero(np.isclose(nodes[:, 1], 0.05))
-        patch = top[np.linalg.norm(nodes[top][:, [0, 2]] - 0.025, axis=1) <= 1.5 * 0.05 / shape[0]]
+        model, bottom, patch = tumor_block(shape, 1.5 * 0.05 / shape[0])
+        nodes = model.mesh.nodes
         integrators = {name: ImplicitEuler(tolerance=1e-4, preconditioner=name) for name in ("jacobi", "factorised")}
         counts = {name: [] for name in integrators}
 

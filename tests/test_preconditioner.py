@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model, kernels
+from sim_core.bench import tumor_block
 from sim_core.forces import ForceWorkspace
 from sim_core.integrators import ImplicitEuler, _FreeStructure, make_integrator, run
 
@@ -13,13 +14,8 @@ from sim_core.integrators import ImplicitEuler, _FreeStructure, make_integrator,
 def stiff_scene(shape=(6, 6, 6)):
     """TumorPositioning's material on a 5 cm cube: E 5 kPa, nu 0.45, volume stiffness x100,
     hourglass control 1; bottom fixed, a top patch pressed down 1 mm per step (dt 40 ms)."""
-    mesh = HexMesh.block(shape, 0.05 / np.asarray(shape))
-    model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0,
-                        volume_stiffness=100.0)
-    nodes = mesh.nodes
-    bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
-    top = np.flatnonzero(np.isclose(nodes[:, 1], 0.05))
-    patch = top[np.linalg.norm(nodes[top][:, [0, 2]] - 0.025, axis=1) < 0.01]
+    model, bottom, patch = tumor_block(shape, 0.01)
+    nodes = model.mesh.nodes
 
     def control(step):
         c = model.new_control()
