@@ -65,6 +65,20 @@ def check_poisson_ratio(name, value):
     return value
 
 
+def check_region(name, value, axes):
+    """((a0, b0, ...), (a1, b1, ...)) fractions in [0, 1] of the block along ``axes`` (e.g. "xz"),
+    low <= high, as a (2, len(axes)) array; else ValueError naming ``name``."""
+    form = "(" + ", ".join("(" + ", ".join(f"{axis}{i}" for axis in axes) + ")" for i in (0, 1)) + ")"
+    try:
+        region = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be {form} fractions, got {value!r}") from error
+    if region.shape != (2, len(axes)) or not np.all(np.isfinite(region)) or np.any(region < 0) or np.any(region > 1) \
+            or np.any(region[0] > region[1]):
+        raise ValueError(f"{name} must be {form} fractions in [0, 1] with low <= high, got {value!r}")
+    return region
+
+
 def check_range(name, value, check):
     """None or a (low, high) pair whose ends pass ``check`` and low <= high."""
     if value is None:

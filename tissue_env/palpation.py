@@ -7,20 +7,8 @@ import numpy as np
 from sim_core import Material
 from sim_core.model import Control
 
-from .base import TissueEnv, check_range, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, check_range, check_region, nonnegative_scalar, positive_scalar
 from .vector import TissueVectorEnv
-
-
-def check_region(name, value):
-    """((x0, z0), (x1, z1)) fractions in [0, 1] with low <= high, as a (2, 2) array."""
-    try:
-        region = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be ((x0, z0), (x1, z1)) fractions of the top face, got {value!r}") from error
-    if region.shape != (2, 2) or not np.all(np.isfinite(region)) or np.any(region < 0) or np.any(region > 1) \
-            or np.any(region[0] > region[1]):
-        raise ValueError(f"{name} must be ((x0, z0), (x1, z1)) fractions in [0, 1] with low <= high, got {value!r}")
-    return region
 
 
 def update_palpation_map(palpation_map, centres, tips, depth, stiffness, map_depth, radius, rows):
@@ -197,7 +185,7 @@ class PalpationEnv(TissueEnv):
                  explore_bonus=0.5, approach_weight=1.0, **kwargs):
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
         self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
-        self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region)
+        self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region, "xz")
         self.probe_radius = None if probe_radius is None else positive_scalar("probe_radius", probe_radius, "m")
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
         self.success_depth = positive_scalar("success_depth", success_depth, "m")

@@ -9,7 +9,7 @@ from sim_core.static import FactorCache
 from sim_core.mesh import LOCAL_CORNERS
 from sim_core.model import Control
 
-from .base import TissueEnv, check_range, check_vector, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
 from .vector import TissueVectorEnv
 
 
@@ -145,14 +145,7 @@ class TumorPositioningEnv(TissueEnv):
         if goal_scale_range is None:
             raise ValueError("goal_scale_range must be a (low, high) pair of positive numbers, got None")
         self.goal_scale_range = check_range("goal_scale_range", goal_scale_range, positive_scalar)
-        try:
-            region = np.asarray(tumor_region, dtype=float)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"tumor_region must be ((x0, y0, z0), (x1, y1, z1)) fractions, got {tumor_region!r}") from error
-        if region.shape != (2, 3) or not np.all(np.isfinite(region)) or np.any(region < 0) or np.any(region > 1) \
-                or np.any(region[0] > region[1]):
-            raise ValueError(f"tumor_region must be ((x0, y0, z0), (x1, y1, z1)) fractions in [0, 1] with low <= high, got {tumor_region!r}")
-        self.tumor_region = region
+        self.tumor_region = check_region("tumor_region", tumor_region, "xyz")
         self.success_distance = positive_scalar("success_distance", success_distance, "m")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
         self._goal_factors = FactorCache(size=2)  # start tangent LUs of the goal solves, per model
