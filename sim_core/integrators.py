@@ -104,13 +104,15 @@ class DivergenceMonitor:
 
 
     def _oscillation_grows(self, velocities) -> bool:
-        previous, self._previous = self._previous, velocities.copy()
+        previous = self._previous
         if previous is None or previous.shape != velocities.shape:
+            self._previous = velocities.copy()
             return False
         new, old = float(np.vdot(velocities, velocities)), float(np.vdot(previous, previous))
         reversing = float(np.vdot(velocities, previous)) < -0.5 * np.sqrt(new * old)
         fast = new > len(velocities) * (self.oscillation_floor * self.wave_speed) ** 2
         self._growing = self._growing + 1 if reversing and new > old and fast else 0
+        np.copyto(previous, velocities)  # the next check's previous step, without a new array
         return self._growing >= self.oscillation_steps
 
 
