@@ -63,7 +63,7 @@ class DivergenceMonitor:
     a time step beyond the explicit stability limit (the highest mode flips sign every step); it
     catches a run at the very edge of the limit while its amplitude is still small (measured:
     a 4x4x4 block at 0.9x the estimated limit, 0.997x the measured one, was 12x its static
-    displacement after 500 steps before the speed check fired; this check fires at step 415).
+    displacement after 500 steps before the speed check fired; this check fires at about step 415).
     The checks assume consecutive states of one trajectory (one monitor per trajectory).
     """
 
