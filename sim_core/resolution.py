@@ -864,7 +864,7 @@ def _int_at_least(name, value, low):
 
 
 def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass_control, volume_stiffness,
-                   solver_tolerance):
+                   solver_tolerance, solver=None):
     """Observed quantities of ``scene`` as an environment produces them: from the static rest state
     (gravity, tool at rest) the tool moves towards each tested displacement by at most ``max_step``
     per component per env step (a scripted controller at full speed; the displacements of a path
@@ -891,7 +891,7 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
         rest, _, ok, _, _ = _solve_with_floor(solve, rest_control, None, scene.floor, floor_candidates, nodes)
         rest = rest if ok else nodes.copy()
     rest_volume = float(mesh.element_volumes().sum())
-    integrator = ImplicitEuler(tolerance=solver_tolerance)
+    integrator = ImplicitEuler(tolerance=solver_tolerance, **(solver or {}))
     observed = dict(force=[], target=[], volume=[])
     env_steps, iterations, reason = 0, 0, None
     clock = time.perf_counter()
@@ -936,7 +936,8 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
 
 
 def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_steps=0, hourglass_control=1.0,
-                   volume_stiffness=100.0, static=None, tolerance=0.05, solver_tolerance=1e-4) -> SteppingCandidate:
+                   volume_stiffness=100.0, static=None, tolerance=0.05, solver_tolerance=1e-4,
+                   solver=None) -> SteppingCandidate:
     """How far an environment's stepping (``substeps`` implicit Euler steps of ``dt`` per env step,
     the tool moving ``max_step`` per env step, then held ``hold_steps`` env steps) leaves the
     observed quantities from the static equilibrium at the same tool position, on ``shape``.
@@ -947,6 +948,8 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
             (computed when None).
         tolerance: relative error allowed (a number or a dict per quantity) for ``admissible``.
         solver_tolerance: relative residual of the linear solves (the envs' default, 1e-4).
+        solver: further ``ImplicitEuler`` keywords (e.g. ``preconditioner``, ``max_iterations``);
+            None: its defaults.
     Returns:
         ``SteppingCandidate`` (errors in the ``scene_errors`` convention against ``static``).
     Raises:
@@ -974,7 +977,7 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
     for scene_, reference in zip(scenes, static):
         solution, n, its, seconds, reason = _dynamic_scene(
             scene_, shape, dt=dt, substeps=substeps, max_step=max_step, hold_steps=hold_steps,
-            hourglass_control=alpha, volume_stiffness=kappa, solver_tolerance=solver_tolerance)
+            hourglass_control=alpha, volume_stiffness=kappa, solver_tolerance=solver_tolerance, solver=solver)
         steps, iterations, elapsed = steps + n, iterations + its, elapsed + seconds
         if solution is None:
             return SteppingCandidate(dt, substeps, None, None, steps, iterations / max(steps, 1),

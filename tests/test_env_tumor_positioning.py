@@ -2,6 +2,7 @@
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import tissue_env  # noqa: F401  (registers the ids)
 from sim_core import solve_static
@@ -23,3 +24,18 @@ def test_dynamics_settle_to_static_equilibrium():
     tumor = unwrapped.tumor_weights @ result.positions[unwrapped.tumor_nodes]
     assert result.converged
     assert np.linalg.norm(tumor - unwrapped.measures["tumor"]) < 5e-5
+
+
+def test_grasped_patch_has_a_physical_size():
+    """``tool_size`` is a length: a finer mesh grasps the same 2.5 cm square with more nodes; a square
+    smaller than the node spacing that holds no node is a ValueError naming the keyword."""
+    for shape, count in (((4, 4, 4), 9), ((8, 8, 8), 25)):
+        env = gym.make(ENV_ID, shape=shape).unwrapped
+        tool = env.mesh.nodes[env.tool_nodes]
+        assert len(env.tool_nodes) == count
+        np.testing.assert_allclose(np.ptp(tool[:, [0, 2]], axis=0), [0.025, 0.025], atol=1e-12)
+        np.testing.assert_allclose(tool[:, 1], 0.05)
+    with pytest.raises(ValueError, match="tool_size"):
+        gym.make(ENV_ID, tool_size=0.005, shape=(3, 3, 3))
+    with pytest.raises(ValueError, match="tool_size"):
+        gym.make(ENV_ID, tool_size=-0.01)

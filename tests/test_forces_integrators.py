@@ -227,6 +227,10 @@ def test_closed_form_hexahedron_volume_matches_gauss():
         positions = mesh.nodes + 0.008 * rng.standard_normal(mesh.nodes.shape)
         corners = np.ascontiguousarray(positions[mesh.elements[0]])
         assert kernels.hex_volume(corners) == pytest.approx(hex_volumes(positions, mesh.elements)[0], rel=1e-12)
+    # HexMesh.element_volumes (the compiled loop over elements) on a distorted 3x2x4 block
+    block = HexMesh.block((3, 2, 4), (0.01, 0.012, 0.011))
+    positions = block.nodes + 0.0015 * rng.standard_normal(block.nodes.shape)
+    np.testing.assert_allclose(block.element_volumes(positions), hex_volumes(positions, block.elements), rtol=1e-12)
 
 
 def test_stiff_volume_forces_are_stable_only_when_implicit():

@@ -24,7 +24,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.forces import external_forces, internal_forces
+from sim_core.forces import ForceWorkspace, external_forces
 from sim_core.integrators import PRECONDITIONERS, make_integrator
 from sim_core.model import State
 
@@ -240,6 +240,7 @@ class TissueEnv(gym.Env):
             total = sum(self._feature_sizes.values())
             self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(total,), dtype=np.float32)
         self._renderer = None
+        self._measure_workspace = None
         self.state = None
 
     # -- hooks a task implements -------------------------------------------------------------
@@ -418,14 +419,20 @@ class TissueEnv(gym.Env):
     def _measure(self, state) -> dict:
         positions = state.positions
         model = self.model
+        workspace = self._measure_workspace
+        if workspace is None or workspace.model is not model:  # one per model: nothing allocated per step
+            workspace = self._measure_workspace = ForceWorkspace(model, implicit=False)
         try:
             with np.errstate(all="ignore"):
-                forces = internal_forces(model, positions, state.velocities) + external_forces(model, self.control)
+                forces = workspace.compute(np.ascontiguousarray(positions, dtype=float),
+                                           np.ascontiguousarray(state.velocities, dtype=float))
+                forces = forces + external_forces(model, self.control)
+            length = workspace.length  # the spring lengths of this fused pass
         except ArithmeticError:  # a degenerate (last healthy) state: report no force rather than crash
             forces = np.zeros_like(positions)
+            a, b = model.springs[:, 0], model.springs[:, 1]
+            length = np.linalg.norm(positions[b] - positions[a], axis=1)
         reaction = np.where(self.tool_mask, -forces, 0.0).sum(axis=0)
-        a, b = model.springs[:, 0], model.springs[:, 1]
-        length = np.linalg.norm(positions[b] - positions[a], axis=1)
         strain = float(np.max(np.abs(length / model.rest_length - 1.0)))
         volume = float(self.mesh.element_volumes(positions).sum())
         measures = dict(
