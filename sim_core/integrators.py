@@ -199,7 +199,7 @@ class ImplicitEuler(SymplecticEuler):
     name = "implicit"
 
     def __init__(self, corrections: str = "implicit", tolerance: float = 1e-6, max_iterations: int = 200,
-                 monitor: bool = True, preconditioner: str = "jacobi", refactor_residual: float = np.inf):
+                 monitor: bool = True, preconditioner: str = "jacobi"):
         if corrections not in ("explicit", "implicit"):
             raise ValueError(f"corrections must be 'explicit' or 'implicit', got {corrections!r}")
         if not tolerance > 0:
@@ -213,9 +213,6 @@ class ImplicitEuler(SymplecticEuler):
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self.preconditioner = preconditioner
-        if not refactor_residual > 0:
-            raise ValueError(f"refactor_residual must be > 0, got {refactor_residual}")
-        self.refactor_residual = float(refactor_residual)
         self._warm: np.ndarray | None = None
         self._factor: _Factor | None = None
         self._structures: dict = {}  # (model id, fixed digest) -> (model, free, CSC structure)
@@ -301,16 +298,7 @@ class ImplicitEuler(SymplecticEuler):
         limit = max_iterations if fresh else min(max_iterations, factor.threshold)
         iterations, residual = _krylov(data, system, mask, rhs * mask, guess, factor, self.tolerance, limit,
                                        symmetric, out)
-        capped = iterations >= max_iterations
-        if not fresh and residual > self.tolerance and capped and residual > self.refactor_residual:
-            # A capped (inexact) solve whose stale factor left too large a residual: re-factorise at
-            # this step's linearisation and spend the cap once more from the current iterate.
-            factor = self._factorise(model, key, data, system, mask)
-            more, residual = _krylov(data, system, mask, rhs * mask, out.copy(), factor, self.tolerance,
-                                     max_iterations, symmetric, out)
-            factor.set_baseline(more)
-            return iterations + more, residual
-        if not fresh and residual > self.tolerance and not capped:
+        if not fresh and residual > self.tolerance and iterations < max_iterations:
             factor = self._factorise(model, key, data, system, mask)  # at this step's linearisation
             more, residual = _krylov(data, system, mask, rhs * mask, out.copy(), factor, self.tolerance,
                                      max_iterations - iterations, symmetric, out)
