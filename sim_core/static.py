@@ -19,8 +19,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import kernels
 from .forces import external_forces, internal_forces, stiffness_data
-from .mesh import corner_jacobians
+from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
 
@@ -240,7 +241,8 @@ def _predict(model, positions, free, fixed, target, applied, cache=None):
     force = _residual(model, positions, applied).ravel()
     predicted = trial.copy()
     predicted.ravel()[free] += factor.solve(force[free] - stiffness[free] @ delta)
-    if np.all(np.isfinite(predicted)) and np.all(corner_jacobians(predicted, model.mesh.elements) > 0):
+    if np.all(np.isfinite(predicted)) and not kernels.any_inverted(predicted, model.mesh.elements, CORNER_NEIGHBOURS,
+                                                                   CORNER_SIGN):
         return predicted, factor
     return trial, None
 
@@ -313,7 +315,8 @@ def _line_search(model, positions, free, applied, step, norm):
     for _ in range(12):
         trial = positions.copy()
         trial.ravel()[free] += scale * step
-        if np.all(np.isfinite(trial)) and np.all(corner_jacobians(trial, model.mesh.elements) > 0):
+        if np.all(np.isfinite(trial)) and not kernels.any_inverted(trial, model.mesh.elements, CORNER_NEIGHBOURS,
+                                                                   CORNER_SIGN):
             trial_force = _residual(model, trial, applied)
             trial_norm = np.linalg.norm(trial_force.ravel()[free])
             if trial_norm < (1.0 - 1e-4 * scale) * norm or trial_norm == 0:
