@@ -25,8 +25,8 @@ Scenes (SI units; tool displacements from rest, y up):
   square, glued), target = the block centre; displacements: press 6 and 12 mm, pull 12 mm, drag
   12 mm along x, (8, -8, 8) mm (goals are 6-12 mm tool moves, the workspace +-20 mm).
   Fine model n = 12 (the tool square falls on nodes for n = 4, 8, 12).
-- Palpation: 6 x 3 x 6 cm slab, bottom fixed, inclusion (the default cell 1.2 x 1 x 1.2 cm,
-  1-2 cm deep, 10x stiffer), a frictionless flat probe of radius 9 mm (0.75 element at 5x3x5, only
+- Palpation: 6 x 3 x 6 cm slab, bottom fixed, inclusion (the default 1.2 x 1 x 1.2 cm box,
+  1-2 cm deep, 10x stiffer), a frictionless flat probe of radius 9 mm (the env's defaults; only
   u_y imposed on the top nodes under it) pressed 2, 4, 6, 8 mm (the env's max_depth) at three
   places: over the inclusion, between nodes away from it, and on a node of the default mesh;
   target = the inclusion centre. Fine model n = 12.
@@ -72,9 +72,9 @@ def tumor_scenes():
 
 
 def palpation_scenes():
-    # tissue_env.PalpationEnv defaults: size (6, 3, 6) cm, shape (5, 3, 5), probe radius 0.75 *
-    # 1.2 cm, inclusion = the middle candidate cell (2, 1, 2), 10x E; only u_y of the touched
-    # top nodes is imposed; max_depth 8 mm.
+    # tissue_env.PalpationEnv defaults: size (6, 3, 6) cm, shape (5, 3, 5), probe radius 9 mm,
+    # inclusion = the 1.2 x 1 x 1.2 cm box at the middle candidate centre (3.0, 1.5, 3.0) cm, 10x E;
+    # only u_y of the touched top nodes is imposed; max_depth 8 mm.
     size = np.array([0.06, 0.03, 0.06])
     path = [[(0, -d * MM, 0) for d in (2, 4, 6, 8)]]
     scenes = []

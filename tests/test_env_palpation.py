@@ -2,6 +2,7 @@
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import tissue_env  # noqa: F401  (registers the ids)
 from tissue_env.episodes import random_policy, run_episode, scripted_policy
@@ -95,5 +96,73 @@ def test_palpation_map_records_first_probes_and_rewards_them_once():
     assert all(info["reward_explore"] == 0 for info in infos)
     assert unwrapped.palpation_map[0] == first
     # the offset to the nearest unprobed cell points to a neighbour one cell pitch away (cm)
-    pitch = unwrapped.spacing[0] / unwrapped.length_scale
+    pitch = unwrapped.cell_size[0] / unwrapped.length_scale
     np.testing.assert_allclose(np.hypot(*obs[17 + n_cells:19 + n_cells]), pitch, rtol=1e-5)
+
+
+def stiff_box(env):
+    """Total volume (m^3) and volume-weighted centre (m) of the stiff elements of an env's model."""
+    model, mesh = env.unwrapped.model, env.unwrapped.mesh
+    stiff = model.young_modulus > model.young_modulus.min()
+    volume = mesh.element_volumes()[stiff]
+    return volume.sum(), volume @ mesh.nodes[mesh.elements[stiff]].mean(axis=1) / volume.sum()
+
+
+def test_shape_only_sets_the_resolution_of_the_inclusion():
+    """At (10, 6, 10) the inclusion is 8 elements covering the same 1.2 x 1 x 1.2 cm box as the one
+    element at (5, 3, 5), at the same candidate centres (x, z in 1.8, 3.0, 4.2 cm, y = 1.5 cm)."""
+    coarse, fine = gym.make(ENV_ID), gym.make(ENV_ID, shape=(10, 6, 10))
+    expected = [[x, 0.015, z] for x in (0.018, 0.030, 0.042) for z in (0.018, 0.030, 0.042)]
+    for env in (coarse, fine):
+        np.testing.assert_allclose(env.unwrapped.inclusion_centres, expected, atol=1e-12)
+    assert coarse.observation_space == fine.observation_space  # same palpation map cells
+    # the default model (the middle candidate, 10x E): same stiff volume and centre
+    (coarse_volume, coarse_centre), (fine_volume, fine_centre) = stiff_box(coarse), stiff_box(fine)
+    assert np.isclose(coarse_volume, 0.012 * 0.01 * 0.012) and np.isclose(fine_volume, coarse_volume)
+    np.testing.assert_allclose([coarse_centre, fine_centre], [[0.03, 0.015, 0.03]] * 2, atol=1e-12)
+    # every candidate: one element at (5, 3, 5), 2 x 2 x 2 at (10, 6, 10), the same volume
+    for env, count in ((coarse, 1), (fine, 8)):
+        unwrapped = env.unwrapped
+        assert np.all(unwrapped.inclusion_elements.sum(axis=1) == count)
+        volumes = unwrapped.inclusion_elements @ unwrapped.mesh.element_volumes()
+        np.testing.assert_allclose(volumes, 0.012 * 0.01 * 0.012, rtol=1e-9)
+    # an episode's inclusion stiffens the elements of its candidate box
+    fine.reset(seed=1)
+    unwrapped = fine.unwrapped
+    stiff = unwrapped.model.young_modulus > unwrapped.young_modulus
+    assert np.array_equal(stiff, unwrapped.inclusion_elements[unwrapped.inclusion_index])
+    assert np.isclose(stiff_box(fine)[1][0], unwrapped.inclusion_centre[0])
+
+
+@pytest.mark.parametrize("shape, count", [((5, 3, 5), 4), ((10, 6, 10), 9)])
+def test_probe_radius_is_9_mm_whatever_the_shape(shape, count):
+    """The probe pressing 2 mm at the slab centre holds the top nodes within 9 mm of its axis: 4 on
+    the 12 mm grid of (5, 3, 5), 9 on the 6 mm grid of (10, 6, 10) (a radius of 0.75 element,
+    4.5 mm, would hold only the centre node there)."""
+    unwrapped = gym.make(ENV_ID, shape=shape).unwrapped
+    assert unwrapped.probe_radius == 0.009
+    unwrapped.state = None  # the rest mesh
+    unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - 0.002, 0.0])
+    control = unwrapped._control()
+    contact = unwrapped.mesh.nodes[unwrapped.contact_nodes]
+    distance = np.hypot(contact[:, 0] - 0.03, contact[:, 2] - 0.03)
+    assert len(contact) == count and np.all(distance <= 0.009) and np.all(contact[:, 1] == unwrapped.top_y)
+    top = unwrapped.mesh.nodes[unwrapped.top_nodes]
+    assert np.count_nonzero(np.hypot(top[:, 0] - 0.03, top[:, 2] - 0.03) <= 0.009) == count
+    assert np.allclose(control.target[unwrapped.contact_nodes, 1], unwrapped.top_y - 0.002)
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(shape=(10, 6, 10), inclusion_size=0.004), ("inclusion_size", "shape")),  # between element centres
+    (dict(shape=(4, 3, 4)), ("inclusion_size", "shape")),  # 1.5 cm elements: none centred in some boxes
+    (dict(inclusion_size=-0.01), ("inclusion_size",)),
+    (dict(inclusion_size=(0.012, 0.012)), ("inclusion_size",)),
+    (dict(inclusion_size=(0.012, 0.0, 0.012)), ("inclusion_size",)),
+    (dict(inclusion_size="big"), ("inclusion_size",)),
+    (dict(probe_radius=0.0), ("probe_radius",)),
+    (dict(probe_radius=-0.009), ("probe_radius",)),
+])
+def test_invalid_inclusion_size_or_probe_radius_names_the_keyword(kwargs, words):
+    with pytest.raises(ValueError) as error:
+        gym.make(ENV_ID, **kwargs)
+    assert all(word in str(error.value) for word in words), str(error.value)

@@ -7,7 +7,7 @@ import numpy as np
 from sim_core import Material
 from sim_core.model import Control
 
-from .base import TissueEnv, check_range, check_region, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
 from .vector import TissueVectorEnv
 
 
@@ -47,13 +47,17 @@ class PalpationEnv(TissueEnv):
     ## Description
 
     A slab of liver-like tissue (6 x 3 x 6 cm, 5 x 3 x 5 hexahedra of 1.2 x 1 x 1.2 cm, Baudet
-    mass-spring model of ``sim_core``, gravity on) is attached to the body by its bottom face. One
-    element of the middle layer (1 cm under the surface) is a tumour ``inclusion_ratio`` (default 10)
-    times stiffer than the tissue (per-element Young's modulus). A flat-ended cylindrical probe of
-    radius ``probe_radius`` (default 0.75 element) indents the top surface: every top-surface node
-    under the probe that would lie above its tip is held at the tip height (frictionless projection
-    contact, only the vertical component is imposed). The agent sees the probe position and the
-    reaction force and must press at least 5 mm deep within 1 cm (horizontally) of the inclusion
+    mass-spring model of ``sim_core``, gravity on) is attached to the body by its bottom face. A
+    tumour, a box of ``inclusion_size`` (default 1.2 x 1 x 1.2 cm, one element of the default mesh)
+    centred 1.5 cm under the surface, is ``inclusion_ratio`` (default 10) times stiffer than the
+    tissue: the elements whose centre lies in the box get that Young's modulus. A flat-ended
+    cylindrical probe of radius ``probe_radius`` (default 9 mm) indents the top surface: every
+    top-surface node under the probe that would lie above its tip is held at the tip height
+    (frictionless projection contact, only the vertical component is imposed). The probe radius,
+    the inclusion and its candidate positions are physical sizes: ``shape`` only sets the
+    resolution (a finer mesh models the same scene with more elements and probe nodes; a shape too
+    coarse to hold an element centre in the inclusion box raises ``ValueError``). The agent sees
+    the probe position and the reaction force and must press at least 5 mm deep within 1 cm (horizontally) of the inclusion
     and hold that press for ``hold_steps`` (default 3) consecutive steps: what a surgeon does when
     palpating a liver for a tumour. The probe starts at a random place at least ``start_distance``
     (default 2 cm) away from the inclusion, so the agent has to search; holding the press is what
@@ -79,7 +83,8 @@ class PalpationEnv(TissueEnv):
     ## Observation Space
 
     ``observation_type="state"``: ``Box(-100, 100, (15 + C + 4,), float32)``, C the number of
-    candidate inclusion cells (9 at the defaults: 28 values).
+    candidate inclusion cells (9 at the defaults: 28 values; it depends on ``size`` and
+    ``inclusion_region``, not on ``shape``).
 
     | Index | Observation                                        | Unit (normalised)     |
     |-------|----------------------------------------------------|-----------------------|
@@ -125,9 +130,14 @@ class PalpationEnv(TissueEnv):
 
     ## Starting State
 
-    The slab at static equilibrium under gravity. The inclusion is one of the elements of the layer
-    under the top layer whose centre lies in ``inclusion_region`` (default: the interior elements,
-    9 positions at the defaults), drawn uniformly; its stiffness ratio is ``inclusion_ratio`` or,
+    The slab at static equilibrium under gravity. The inclusion is centred on one of the candidate
+    cells, drawn uniformly. The candidate cells are physical: the slab is tiled by cells of
+    ``cell_size`` = 1.2 x 1 x 1.2 cm (whole cells, centred on the top face, layers counted from the
+    surface; at the default size, the 5 x 3 x 5 elements of the default mesh) and the candidates are
+    the cells of the second layer (centres 1.5 cm under the surface): the interior ones by default (9
+    positions at the default size: x, z in {0.018, 0.030, 0.042} m, y = 0.015 m), or, with
+    ``inclusion_region``, all those (the outer ring included) whose centre lies in that region of
+    the top face. Its stiffness ratio is ``inclusion_ratio`` or,
     with ``inclusion_ratio_range``, drawn uniformly in that range. The probe tip
     starts 2 mm above the undeformed surface, over a point drawn uniformly in the workspace among
     those at least ``start_distance`` (default 2 cm) horizontally from the inclusion centre (the
@@ -152,10 +162,13 @@ class PalpationEnv(TissueEnv):
     vectorization_mode="vector_entry_point")`` steps the copies together in one batched physics
     step (``PalpationVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
 
-    Task keywords: ``inclusion_ratio``, ``probe_radius`` (m, default 0.75 element width),
+    Task keywords: ``inclusion_ratio``, ``probe_radius`` (m, default 0.009),
+    ``inclusion_size`` (m, a number or (x, y, z), default (0.012, 0.01, 0.012): the inclusion box),
     ``inclusion_ratio_range`` (None or (low, high): a ratio drawn per reset, the model is rebuilt),
     ``inclusion_region`` (None or ((x0, z0), (x1, z1)): fractions of the top face that hold the
-    candidate inclusion centres),
+    candidate inclusion centres; the candidates are the 1.2 cm cells of the top face whose centre
+    lies in it, whatever the ``shape``: at the default size, centres at fractions 0.1, 0.3, 0.5, 0.7,
+    0.9 in x and z),
     ``max_depth`` (m), ``success_depth`` (m), ``success_radius`` (m), ``hold_steps``,
     ``start_distance`` (m), ``success_bonus``,
     ``time_penalty``, ``force_limit`` (N), ``force_weight``, ``map_depth`` (m), ``explore_bonus``,
@@ -168,25 +181,32 @@ class PalpationEnv(TissueEnv):
     - v0: initial version (unreleased changes: random probe start away from the inclusion, the
       success press must be held for ``hold_steps``, observation 14 is the hold progress,
       ``inclusion_ratio_range`` and ``inclusion_region`` for domain randomisation, the batched
-      vector env, the palpation map observation, the exploration and approach rewards).
+      vector env, the palpation map observation, the exploration and approach rewards; the probe
+      radius (``probe_radius`` = 9 mm), the inclusion (``inclusion_size`` box) and its candidate
+      positions are physical sizes, so ``shape`` only sets the resolution: the default scene is
+      unchanged, a finer shape no longer shrinks the probe and the inclusion to its elements).
     """
 
     default_shape = (5, 3, 5)
     default_size = (0.06, 0.03, 0.06)
     default_max_step = 0.004
     min_shape = (3, 2, 3)
+    #: Cells (x, y, z) of the candidate lattice, m: the elements of the default mesh, as physical
+    #: boxes, so that ``shape`` does not move the candidates (see ``_setup_scene``).
+    cell_size = np.array([0.012, 0.01, 0.012])
     reward_names = ("success", "explore", "approach", "time", "force", "volume", "strain")
     #: Start height of the probe tip above the undeformed surface, m.
     clearance = 0.002
 
-    def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=None,
-                 max_depth=0.008, success_depth=0.005, success_radius=0.01, hold_steps=3, start_distance=0.02,
-                 success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, map_depth=0.003,
+    def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=0.009,
+                 inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,
+                 hold_steps=3, start_distance=0.02, success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, map_depth=0.003,
                  explore_bonus=0.5, approach_weight=1.0, **kwargs):
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
         self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
         self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region, "xz")
-        self.probe_radius = None if probe_radius is None else positive_scalar("probe_radius", probe_radius, "m")
+        self.probe_radius = positive_scalar("probe_radius", probe_radius, "m")
+        self.inclusion_size = check_vector("inclusion_size", inclusion_size)
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
         self.success_depth = positive_scalar("success_depth", success_depth, "m")
         self.success_radius = positive_scalar("success_radius", success_radius, "m")
@@ -206,12 +226,9 @@ class PalpationEnv(TissueEnv):
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):
         nodes = self.mesh.nodes
-        nx, ny, nz = self.shape
         self.fixed_nodes = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
         self.top_nodes = np.flatnonzero(np.isclose(nodes[:, 1], self.size[1]))
         self.top_y = float(self.size[1])
-        if self.probe_radius is None:
-            self.probe_radius = 0.75 * float(min(self.spacing[0], self.spacing[2]))
         self.tool_nodes = np.zeros(0, dtype=int)
         self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
         # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
@@ -223,22 +240,46 @@ class PalpationEnv(TissueEnv):
             np.array([self.centre[0] + half[0], self.top_y + 0.01, self.centre[2] + half[2]]),
         )
         self._place_probe(np.array([self.centre[0], self.top_y + self.clearance, self.centre[2]]))
-        # Candidate inclusion cells: elements (i, k) of the layer under the top layer, the interior
-        # ones by default, else those whose centre lies in inclusion_region.
-        if self.inclusion_region is None:
-            i, k = np.meshgrid(np.arange(1, nx - 1), np.arange(1, nz - 1), indexing="ij")
-        else:
-            i, k = np.meshgrid(np.arange(nx), np.arange(nz), indexing="ij")
-            fraction = (np.stack([i.ravel(), k.ravel()], axis=1) + 0.5) / np.array([nx, nz])
+        # Candidate inclusion cells: a lattice of cell_size cells over the slab (whole cells, centred
+        # on the top face, layers counted down from the surface; at the default size, the elements of
+        # the default mesh), the cells of its second layer under the surface: the interior ones by
+        # default, else those whose centre lies in inclusion_region. Physical, whatever the shape.
+        nx, ny, nz = count = np.floor(self.size / self.cell_size + 1e-9).astype(int)
+        if nx < 3 or ny < 2 or nz < 3:
+            raise ValueError(f"size {self.size.tolist()} m is too small for the palpation scene: it needs at least "
+                             f"3 x 2 x 3 candidate cells of {self.cell_size.tolist()} m")
+        offset = 0.5 * (self.size - count * self.cell_size)  # centred in x and z
+        offset[1] = self.size[1] - count[1] * self.cell_size[1]  # layers counted from the surface
+        first = 0 if self.inclusion_region is not None else 1
+        i, k = np.meshgrid(np.arange(first, nx - first), np.arange(first, nz - first), indexing="ij")
+        cells = np.stack([i.ravel(), np.full(i.size, ny - 2), k.ravel()], axis=1)
+        centres = (cells + 0.5) * self.cell_size + offset
+        if self.inclusion_region is not None:
+            fraction = centres[:, [0, 2]] / self.size[[0, 2]]
             low, high = self.inclusion_region
             inside = np.all((fraction >= low - 1e-9) & (fraction <= high + 1e-9), axis=1)
             if not inside.any():
-                raise ValueError(f"inclusion_region {self.inclusion_region.tolist()} holds no element centre of the "
-                                 f"{nx} x {nz} layer (centres at fractions (i + 0.5) / {nx}, (k + 0.5) / {nz})")
-            i, k = i.ravel()[inside], k.ravel()[inside]
-        self.inclusion_cells = np.stack([i.ravel(), np.full(i.size, ny - 2), k.ravel()], axis=1)
+                raise ValueError(f"inclusion_region {self.inclusion_region.tolist()} holds no candidate centre (the "
+                                 f"{nx} x {nz} cells of {self.cell_size[0]} x {self.cell_size[2]} m across the top "
+                                 f"face, centres at fractions {np.unique(fraction[:, 0]).round(3).tolist()} in x and "
+                                 f"{np.unique(fraction[:, 1]).round(3).tolist()} in z)")
+            cells, centres = cells[inside], centres[inside]
+        #: (C, 3) int lattice indices (i, j, k) of the candidate cells (the element indices at the
+        #: default size and shape) and (C, 3) their centres, m: the candidate inclusion centres.
+        self.inclusion_cells, self.inclusion_centres = cells, centres
         #: (C, 2) horizontal (x, z) centres of the candidate cells, m: the palpation map's cells.
-        self.cell_centres = (self.inclusion_cells[:, [0, 2]] + 0.5) * self.spacing[[0, 2]]
+        self.cell_centres = self.inclusion_centres[:, [0, 2]]
+        # The inclusion: the elements whose centre lies in the inclusion_size box around the
+        # candidate centre (boundary included), (C, n_elements) bool.
+        element_centres = nodes[self.mesh.elements].mean(axis=1)
+        offsets = np.abs(element_centres[None] - self.inclusion_centres[:, None])
+        self.inclusion_elements = np.all(offsets <= 0.5 * self.inclusion_size + 1e-9 * self.size, axis=2)
+        empty = ~self.inclusion_elements.any(axis=1)
+        if empty.any():
+            raise ValueError(f"inclusion_size {self.inclusion_size.tolist()} m holds no element centre of the shape "
+                             f"{self.shape} mesh (elements of {self.spacing.round(6).tolist()} m) around the candidate "
+                             f"centre {self.inclusion_centres[np.argmax(empty)].round(6).tolist()} m: use a finer "
+                             f"shape or an inclusion_size of at least about one element")
 
     def _place_probe(self, start):
         self.probe_start = start
@@ -246,14 +287,14 @@ class PalpationEnv(TissueEnv):
         self.workspace_high = self.workspace_box[1] - start
 
     def _default_task_key(self):
-        # (i, j, k, stiffness ratio) of the inclusion: what the model depends on
-        return tuple(int(c) for c in self.inclusion_cells[len(self.inclusion_cells) // 2]) + (self.inclusion_ratio,)
+        # (candidate index, stiffness ratio) of the inclusion: the stiff elements are
+        # inclusion_elements[index], what the model depends on
+        return (len(self.inclusion_cells) // 2, self.inclusion_ratio)
 
     def _material(self, young_modulus, poisson_ratio, task_key):
-        nx, ny, _ = self.shape
-        i, j, k, ratio = task_key
+        index, ratio = task_key
         young = np.full(self.mesh.n_elements, float(young_modulus))
-        young[i + nx * (j + ny * k)] *= ratio
+        young[self.inclusion_elements[index]] *= ratio
         return Material(young, poisson_ratio, self.density)
 
     def _task_feature_sizes(self):
@@ -262,13 +303,14 @@ class PalpationEnv(TissueEnv):
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
-        cell = self.inclusion_cells[self.np_random.integers(len(self.inclusion_cells))]
+        index = int(self.np_random.integers(len(self.inclusion_cells)))
         ratio = self.inclusion_ratio
         if self.inclusion_ratio_range is not None:
             ratio = float(self.np_random.uniform(*self.inclusion_ratio_range))
-        self.inclusion_cell, self.episode_inclusion_ratio = cell.copy(), ratio
-        self.task_key = tuple(int(c) for c in cell) + (ratio,)
-        self.inclusion_centre = (np.asarray(cell) + 0.5) * self.spacing
+        self.inclusion_index, self.episode_inclusion_ratio = index, ratio
+        self.inclusion_cell = self.inclusion_cells[index].copy()
+        self.task_key = (index, ratio)
+        self.inclusion_centre = self.inclusion_centres[index].copy()
         # Probe start: uniform over the workspace among the points at least start_distance from
         # the inclusion (32 draws at once: a fixed number of random numbers per reset).
         low, high = self.workspace_box[0][[0, 2]], self.workspace_box[1][[0, 2]]
@@ -366,7 +408,7 @@ class PalpationEnv(TissueEnv):
         end nearest the start), record the indentation stiffness, then press ``success_depth`` +
         1 mm over the stiffest one and hold it there."""
         if self._sweep is None:
-            centres = (self.inclusion_cells[:, [0, 2]] + 0.5) * self.spacing[[0, 2]]
+            centres = self.cell_centres.copy()
             rows = np.unique(centres[:, 0], return_inverse=True)[1]
             order = np.concatenate([
                 np.flatnonzero(rows == r)[np.argsort(centres[rows == r, 1])[::-1 if r % 2 else 1]]
