@@ -294,6 +294,23 @@ class ImplicitEuler(SymplecticEuler):
         return StepReport(int(iterations), float(residual), self._check(model, state_out))
 
     # -- factorised preconditioner ------------------------------------------------------------------
+    def factor_snapshot(self):
+        """The current factorisation (with its re-factorisation threshold) and the keys "auto" has
+        switched, for ``adopt_factor`` in another integrator; None before any factorisation. A
+        caller that always starts from the same state (an environment's reset) can keep the
+        snapshot taken after the first step and skip that factorisation in later episodes: the
+        steps are then exactly those of a fresh integrator that factorised at that step."""
+        if self._factor is None:
+            return None
+        return self._factor, self._factor.threshold, frozenset(self._auto_factorised)
+
+    def adopt_factor(self, snapshot):
+        """Use ``snapshot`` (from ``factor_snapshot``) as this integrator's factorisation."""
+        factor, threshold, keys = snapshot
+        factor.threshold = threshold
+        self._factor = factor
+        self._auto_factorised |= keys
+
     def _solve_factorised(self, model, key, data, system, mask, rhs, guess, max_iterations, symmetric, out):
         """Krylov solve preconditioned by the sparse LU of the system matrix on the free dofs,
         assembled at the state of its last (re-)factorisation; re-factorises (and continues from the
