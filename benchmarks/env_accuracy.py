@@ -15,16 +15,20 @@ mass-spring setting (hourglass_control and volume_stiffness read from ``TissueEn
     env step, dt in {10, 20, 40} ms, substeps in {1, 2}) whose observations, when a scripted tool
     reaches each tested displacement at the env's max_step per env step (no hold), stay within the
     tolerance of the static equilibrium at that tool position (the dynamic lag).
+(c) the env's speed (steps/s with resets, random actions, one core) at every candidate shape, and
+    the budgeted choice: the most accurate candidate that keeps 300 steps/s (issue 4's floor),
+    which is how an env's default shape is chosen.
 (b) constitutive accuracy: the chosen mesh and the env's default mesh against the
     ``fem-neohookean`` reference on a finer mesh (relative errors and per-case absolute errors in
     N, mm and percentage points). The mass-spring law departs from neo-Hookean at these strains,
     so these errors do not fall with resolution.
 
 Scenes (SI units; tool displacements from rest, y up):
-- TumorPositioning: 5 cm cube, bottom fixed, tool = the 3x3 central top nodes at 4x4x4 (a 2.5 cm
-  square, glued), target = the block centre; displacements: press 6 and 12 mm, pull 12 mm, drag
-  12 mm along x, (8, -8, 8) mm (goals are 6-12 mm tool moves, the workspace +-20 mm).
-  Fine model n = 12 (the tool square falls on nodes for n = 4, 8, 12).
+- TumorPositioning: 5 cm cube, bottom fixed, tool = the top nodes in the central 2.5 cm square
+  (glued; the env's ``tool_size``), target = the block centre; displacements: press 6 and 12 mm,
+  pull 12 mm, drag 12 mm along x, (8, -8, 8) mm (goals are 6-12 mm tool moves, the workspace
+  +-20 mm). Fine model n = 16 (the tool square falls on nodes for n = 4, 8, 12, 16; in between
+  the grasped nodes span less, as in the env, so the error is not monotonic in n).
 - Palpation: 6 x 3 x 6 cm slab, bottom fixed, inclusion (the default 1.2 x 1 x 1.2 cm box,
   1-2 cm deep, 10x stiffer), a frictionless flat probe of radius 9 mm (the env's defaults; only
   u_y imposed on the top nodes under it) pressed 2, 4, 6, 8 mm (the env's max_depth) at three
@@ -121,7 +125,7 @@ def absolute_errors(case_errors, reference):
 
 TASKS = {
     # name: (scenes, env default shape, env max_step (m), fem reference n, fine-model n, candidate n)
-    "TumorPositioning": (tumor_scenes, (4, 4, 4), 0.002, 8, 12, (2, 3, 4, 5, 6, 7, 8, 10)),
+    "TumorPositioning": (tumor_scenes, (6, 6, 6), 0.002, 8, 16, (2, 3, 4, 5, 6, 7, 8, 12)),
     "Palpation": (palpation_scenes, (5, 3, 5), 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
     "Retraction": (retraction_scenes, (6, 1, 3), 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
 }
@@ -131,7 +135,58 @@ QUICK = {  # --quick (tests): coarse references and few candidates
     "Retraction": (6, 8, (4, 6)),
 }
 DTS, SUBSTEPS = (0.01, 0.02, 0.04), (1, 2)
-ENV_DT, ENV_SUBSTEPS = 0.02, 1
+ENV_SUBSTEPS = 1
+#: env steps per second (resets included, one core) a default must keep: issue 4's floor
+SPEED_FLOOR = 300.0
+ENV_IDS = {"TumorPositioning": "tissue_env/TumorPositioning-v0", "Palpation": "tissue_env/Palpation-v0",
+           "Retraction": "tissue_env/Retraction-v0"}
+
+
+def env_default_dt(name):
+    from tissue_env import PalpationEnv, RetractionEnv, TumorPositioningEnv
+
+    return dict(TumorPositioning=TumorPositioningEnv, Palpation=PalpationEnv, Retraction=RetractionEnv)[name].default_dt
+
+
+def env_solver_tolerance(name):
+    from tissue_env import PalpationEnv, RetractionEnv, TumorPositioningEnv
+
+    return dict(TumorPositioning=TumorPositioningEnv, Palpation=PalpationEnv,
+                Retraction=RetractionEnv)[name].default_solver_tolerance
+
+
+def env_speed(env_id, shape, steps=300, seed=0):
+    """Env steps per second (resets included, random actions, this process) of ``env_id`` at
+    ``shape`` with its other defaults; None when the env rejects the shape."""
+    import gymnasium as gym
+
+    import tissue_env  # noqa: F401
+
+    try:
+        env = gym.make(env_id, shape=tuple(int(s) for s in shape))
+    except ValueError:
+        return None
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    for _ in range(5):
+        env.step(env.action_space.sample())
+    start = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    rate = steps / (time.perf_counter() - start)
+    env.close()
+    return rate
+
+
+def budget_choice(candidates, speeds, floor=SPEED_FLOOR):
+    """The most accurate candidate (smallest worst error against the fine model; converged and
+    stable) whose env keeps ``floor`` steps/s: how the defaults are chosen ("model no more than a
+    scene needs" under a speed budget). ``speeds``: {shape string: steps/s or None}."""
+    fast = [c for c in candidates if c.converged and c.stable and c.errors is not None
+            and (speeds.get("x".join(map(str, c.shape))) or 0.0) >= floor]
+    return min(fast, key=lambda c: max(c.errors.values())) if fast else None
 
 
 def _pick(candidates, tolerance, reference_nodes=None):
@@ -186,6 +241,8 @@ def run(quick=False):
                    "same tool position; constitutive: reference = fem-neohookean"), tasks={})
     start = time.perf_counter()
     for name, (make, default_shape, max_step, fem_resolution, fine_resolution, resolutions) in TASKS.items():
+        default_dt = env_default_dt(name)
+        solver_tolerance = env_solver_tolerance(name)
         if quick:
             fem_resolution, fine_resolution, resolutions = QUICK[name]
         scenes = make()
@@ -206,14 +263,24 @@ def run(quick=False):
                                                           target_displacement=(r.target - r.target_rest).tolist(),
                                                           volume=r.volume.tolist(), stable=[bool(v) for v in r.stable])
                                                      for s, r in zip(scenes, fine[0])])
+        # env speed at every candidate shape, and the budgeted choice (the most accurate that keeps
+        # SPEED_FLOOR steps/s): how the env defaults are chosen
+        speeds = {}
+        for c in choice.candidates:
+            key = "x".join(map(str, c.shape))
+            if key not in speeds and c.errors is not None:
+                speeds[key] = None if quick else env_speed(ENV_IDS[name], c.shape)
+        budget = budget_choice(choice.candidates, speeds)
         # stepping on the chosen meshes and on the env's default mesh
         stepping, recommendation = {}, {}
-        shapes = {tuple(default_shape)} | {tuple(c.shape) for c in chosen.values() if c is not None}
+        shapes = ({tuple(default_shape)} | {tuple(c.shape) for c in chosen.values() if c is not None}
+                  | ({tuple(budget.shape)} if budget is not None else set()))
         for shape in sorted(shapes, key=lambda s: np.prod(np.asarray(s) + 1)):
             static = [solve_scene(s, shape, hourglass_control=alpha, volume_stiffness=kappa, check_stability=False)
                       for s in scenes]
             steps = choose_stepping(scenes, shape, TOLERANCE, dts=DTS, substeps=SUBSTEPS, max_step=max_step,
-                                    hourglass_control=alpha, volume_stiffness=kappa, static=static)
+                                    hourglass_control=alpha, volume_stiffness=kappa, static=static,
+                                    solver_tolerance=solver_tolerance, solver=dict(preconditioner="auto"))
             entry = steps.summary()
             entry["chosen_by_tolerance"] = {f"{int(t * 100)}pct": (lambda c: None if c is None else c.summary())(
                 _pick_stepping(steps.candidates, t)) for t in TOLERANCES}
@@ -241,12 +308,15 @@ def run(quick=False):
                 constitutive[f"chosen_{key}"] = (constitutive["env_default"] if tuple(c.shape) == tuple(default_shape)
                                                  else _constitutive(scenes, c.shape, fem, alpha, kappa))
         default_step = stepping["x".join(map(str, default_shape))]
-        env_dt = next(c for c in default_step["candidates"] if c["dt"] == ENV_DT and c["substeps"] == ENV_SUBSTEPS)
+        env_dt = next(c for c in default_step["candidates"] if c["dt"] == default_dt and c["substeps"] == ENV_SUBSTEPS)
+        budget_summary = None if budget is None else dict(
+            budget.summary(), steps_per_s=speeds["x".join(map(str, budget.shape))], floor=SPEED_FLOOR,
+            is_env_default=tuple(budget.shape) == tuple(default_shape))
         default_disc = next((c.summary() for c in choice.candidates if tuple(c.shape) == tuple(default_shape)), None)
         out["tasks"][name] = dict(
             scenes=[s.name for s in scenes], displacements_m=[[p.tolist() for p in s.displacements] for s in scenes],
-            max_step=max_step, recommendation=recommendation,
-            env_default=dict(shape=list(default_shape), dt=ENV_DT, substeps=ENV_SUBSTEPS, hourglass_control=alpha,
+            max_step=max_step, recommendation=recommendation, env_speeds=speeds, budget_choice=budget_summary,
+            env_default=dict(shape=list(default_shape), dt=default_dt, substeps=ENV_SUBSTEPS, hourglass_control=alpha,
                              volume_stiffness=kappa, discretisation=default_disc, stepping=env_dt,
                              constitutive=constitutive["env_default"]),
             discretisation=discretisation, stepping=stepping, constitutive=constitutive,
@@ -303,6 +373,15 @@ def table(out):
             if absolute:
                 print(f"    vs FEM per case: force N {_list(absolute['force'])}  target mm {_list(absolute['target'])}  "
                       f"volume pp {_list(absolute['volume'])}")
+        speeds = task.get("env_speeds") or {}
+        if any(v is not None for v in speeds.values()):
+            print("  env steps/s (resets included) by shape: " + ", ".join(
+                f"{k} {'-' if v is None else f'{v:.0f}'}" for k, v in speeds.items()))
+        budget = task.get("budget_choice")
+        if budget is not None:
+            print(f"  budgeted choice (most accurate >= {budget['floor']:.0f} steps/s): {tuple(budget['shape'])} "
+                  f"{_fmt(budget['errors'])} at {budget['steps_per_s']:.0f} steps/s"
+                  f"{' = env default' if budget['is_env_default'] else ''}")
         for shape, steps in task["stepping"].items():
             print(f"  stepping on {shape} (max_step {task['max_step'] * 1e3:g} mm): " + ", ".join(
                 f"dt={c['dt'] * 1e3:g}ms x{c['substeps']} {_fmt(c['errors'])}" for c in steps["candidates"]))
@@ -358,6 +437,11 @@ def figure(out, path):
                 ax.plot([rec["resolution"]], [max(fem.values()) * 100], "^", ms=10, mfc=colour, mec="k", alpha=0.8,
                         label=f"chosen 5% vs FEM: F {fem['force'] * 100:.0f}% x {fem['target'] * 100:.0f}% "
                               f"V {fem['volume'] * 100:.0f}%", zorder=5)
+        budget = task.get("budget_choice")
+        if budget is not None:
+            ax.plot([budget["resolution"]], [max(budget["errors"].values()) * 100], "D", ms=11, mfc="none", mec="tab:cyan",
+                    mew=2, zorder=6, label=f"most accurate at >= {budget['floor']:.0f} steps/s: {tuple(budget['shape'])}, "
+                                          f"{budget['steps_per_s']:.0f} steps/s")
         conv = (disc["reference_convergence"] or [{}])[0]
         conv_text = "" if not conv.get("errors") else (
             f"; n={conv['resolution']} vs fine: {max(conv['errors'].values()) * 100:.0f}%")

@@ -996,12 +996,13 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
 
 def choose_stepping(scene, shape, tolerance=0.05, *, dts=(0.01, 0.02, 0.04), substeps=(1, 2), max_step=0.002,
                     hold_steps=0, hourglass_control=1.0, volume_stiffness=100.0, quantities=QUANTITIES,
-                    static=None) -> SteppingChoice:
+                    static=None, solver_tolerance=1e-4, solver=None) -> SteppingChoice:
     """The cheapest env stepping (``dt``, ``substeps``) whose observations stay within ``tolerance``
     of the static equilibrium at the same tool position (``stepping_error``) on ``shape``.
 
     Cheapest: fewest implicit steps per env step (``substeps``), then fewest linear-solver
-    iterations per env step, then the smallest worst error / tolerance.
+    iterations per env step, then the smallest worst error / tolerance. ``solver_tolerance`` and
+    ``solver`` (``ImplicitEuler`` keywords) as in ``stepping_error``.
     Raises:
         ValueError naming the argument when an input is invalid.
     """
@@ -1024,7 +1025,7 @@ def choose_stepping(scene, shape, tolerance=0.05, *, dts=(0.01, 0.02, 0.04), sub
                               check_stability=False) for s in scenes]
     candidates = [stepping_error(scenes, shape, dt=dt, substeps=n, max_step=max_step, hold_steps=hold_steps,
                                  hourglass_control=hourglass_control, volume_stiffness=volume_stiffness,
-                                 static=static, tolerance=tolerance)
+                                 static=static, tolerance=tolerance, solver_tolerance=solver_tolerance, solver=solver)
                   for n in substeps for dt in dts]
     admissible = [c for c in candidates if c.admissible]
     chosen = None
