@@ -364,6 +364,10 @@ class TissueEnv(gym.Env):
     def _start_hook(self):
         """Called at the end of reset, after the state exists (task bookkeeping)."""
 
+    def share_caches(self, other):
+        """Use ``other``'s task caches (an env built with the same keywords; the vector envs call it
+        for their copies). Default: none."""
+
     def constrain_tool(self, offset):
         """Tool offsets (..., 3) in m, already clipped to the workspace box, projected on the
         task's admissible set (default: the box itself). Vectorised: the vector envs call it on

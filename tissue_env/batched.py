@@ -640,8 +640,9 @@ class BatchedImplicitEuler:
         implicit_volume = model.has_volume_forces
         has_hourglass = model.hourglass is not None
         workspace = self.workspace
-        # one fused pass over the stacked model: forces, clamped geometric stiffness, volume terms
-        forces = workspace.compute(x0, v0, geometric=True, volume_jacobian=implicit_volume) + model.gravity_force
+        # one fused pass over the stacked model: forces without damping, clamped geometric stiffness,
+        # volume terms
+        forces = workspace.compute(x0, None, geometric=True, volume_jacobian=implicit_volume) + model.gravity_force
         reference = stack.reference
         n_springs, n_elements = stack.n_springs, stack.n_elements
 
@@ -661,20 +662,22 @@ class BatchedImplicitEuler:
             return (float(mass), float(damping), float(stiffness), stiffness if coupled else 0.0,
                     stiffness if implicit_volume else 0.0, stiffness if has_hourglass else 0.0)
 
-        ones = self._ones
-        product = np.empty((dofs, count))
-        kernels.batched_apply_operator(data, scales(0.0, 0.0, 1.0), ones, last(v0, n_nodes).reshape(dofs, count),
-                                       product)  # K v0
-        rhs = dt * (last(forces, n_nodes).reshape(dofs, count) - dt * product)
-        system = scales(1.0, dt, dt * dt)  # M + dt D + dt^2 K
+        system = scales(1.0, dt, dt * dt)  # A = M + dt D + dt^2 K
         free = ~fixed.reshape(count, dofs).T
-        known = np.zeros((dofs, count))
+        start_velocity = last(v0, n_nodes).reshape(dofs, count)
+        known = np.zeros((dofs, count))  # dv on the imposed dofs
+        moved = start_velocity.copy()  # v0 + known
         if not free.all():
             imposed = ~free
             target_velocity = last((target.reshape(-1, 3) - x0) / dt, n_nodes).reshape(dofs, count)
-            known[imposed] = (target_velocity - last(v0, n_nodes).reshape(dofs, count))[imposed]
-            kernels.batched_apply_operator(data, system, ones, known, product)
-            rhs -= product
+            known[imposed] = (target_velocity - start_velocity)[imposed]
+            moved[imposed] = target_velocity[imposed]
+        # rhs = dt f(x0, v0) - dt^2 K v0 - A known = dt f_0 + M v0 - A (v0 + known), f_0 without
+        # damping (ImplicitEuler's form): one operator product
+        product = np.empty((dofs, count))
+        kernels.batched_apply_operator(data, system, self._ones, moved, product)
+        mass = np.repeat(last(model.mass, n_nodes), 3, axis=0)
+        rhs = dt * last(forces, n_nodes).reshape(dofs, count) + mass * start_velocity - product
         mask = np.ascontiguousarray(free, dtype=float)
         solution = np.empty((dofs, count))
         iterations = np.zeros(count, dtype=np.int64)

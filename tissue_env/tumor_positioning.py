@@ -182,6 +182,9 @@ class TumorPositioningEnv(TissueEnv):
         self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
         self.workspace_low, self.workspace_high = -self.workspace, self.workspace
 
+    def share_caches(self, other):
+        self._goal_factors = other._goal_factors
+
     def _task_feature_sizes(self):
         return dict(tumor_position=3, goal_position=3, goal_error=3, goal_distance=1, tumor_displacement=3)
 

@@ -38,7 +38,7 @@ from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
 from sim_core.forces import ForceWorkspace
-from sim_core.mesh import hex_jacobians
+from sim_core import kernels
 from sim_core.model import State
 
 from .base import OBS_LIMIT
@@ -79,6 +79,14 @@ class TissueVectorEnv(VectorEnv):
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.envs = [self.env_class(**kwargs) for _ in range(count)]
         env = self.envs[0]
+        # The copies were built from the same keywords: they share the models (a Palpation model per
+        # inclusion cell, a new one per domain-randomised draw), their start states and the
+        # task's caches, built once instead of once per copy.
+        for copy in self.envs[1:]:
+            copy._model_cache, copy._start_cache = env._model_cache, env._start_cache
+            copy._first_factors = env._first_factors
+            copy.model = env.model
+            copy.share_caches(env)
         self.render_mode = env.render_mode
         self.metadata = dict(self.metadata, render_fps=env.metadata["render_fps"])
         self.single_observation_space = env.observation_space
@@ -327,12 +335,10 @@ class TissueVectorEnv(VectorEnv):
             forces = forces.reshape(count, -1, 3)
             reaction = np.where(tool_mask, -forces, 0.0).sum(axis=1)
             strain = np.max(np.abs(self._lengths / self.rest_length - 1.0), axis=1)
-            # exact trilinear volume, mean det J over the 8 Gauss points (sim_core.mesh.hex_volumes),
-            # with the 3x3 determinants written out (np.linalg.det was 5x slower here)
-            jacobian = hex_jacobians(flat, model.mesh.elements)
-            column = [jacobian[..., 0], jacobian[..., 1], jacobian[..., 2]]
-            det = np.einsum("...i,...i->...", column[0], np.cross(column[1], column[2]))
-            volume = det.mean(axis=1).reshape(count, -1).sum(axis=1)
+            # exact trilinear volumes of the stacked model's elements (HexMesh.element_volumes)
+            elements = model.mesh.elements
+            volume = kernels.element_volumes(np.ascontiguousarray(flat, dtype=float), elements,
+                                             np.empty(len(elements))).reshape(count, -1).sum(axis=1)
         measures = dict(positions=positions, reaction_force=reaction, max_strain=strain,
                         relative_volume_change=(volume - self.rest_volume) / self.rest_volume)
         measures.update(self._batch_task_measures(positions))
