@@ -600,7 +600,7 @@ class BatchedImplicitEuler:
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
         """The kernel's view of the copies' preconditioners: (data, offsets, free, counts, group_of)."""
-        count, dofs = self.stack.count, 3 * self.stack.n_nodes
+        count = self.stack.count
         if self.solver != "reference":
             if self._packed is None:
                 self._packed = (np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros((0, 1), dtype=np.int64),
