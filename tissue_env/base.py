@@ -7,9 +7,11 @@ imposes positions, the task features, the reward terms, the reset distribution);
 
 Physics per env step (measured, see ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
 Euler steps of ``dt`` s (``sim_core.integrators.ImplicitEuler``). It is stable far past the explicit
-limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one 20 ms substep per env step is enough,
-and with the springs' critical damping the block settles to the quasi-static equilibrium within a
-few steps of a slow tool (checked against ``solve_static`` in tests/test_env_tumor_positioning.py).
+limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms
+for TumorPositioning) per env step is enough, and with the springs' critical damping the block
+settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
+``solve_static`` in tests/test_env_tumor_positioning.py). A task's ``default_shape`` is the most
+accurate shape that keeps 300 env steps/s (``benchmarks/env_accuracy.py``).
 A full ``solve_static`` per env step was measured about 10 times slower (a sparse LU factorisation
 per Newton iteration), so it is used only at reset (initial sag under gravity, goal generation).
 """
