@@ -10,8 +10,10 @@ Euler steps of ``dt`` s (``sim_core.integrators.ImplicitEuler``). It is stable f
 limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms
 for TumorPositioning) per env step is enough, and with the springs' critical damping the block
 settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
-``solve_static`` in tests/test_env_tumor_positioning.py). A task's ``default_shape`` is the most
-accurate shape that keeps 300 env steps/s (``benchmarks/env_accuracy.py``).
+``solve_static`` in tests/test_env_tumor_positioning.py). TumorPositioning's ``default_shape`` is
+the most accurate shape that keeps 300 env steps/s (``benchmarks/env_accuracy.py``); Palpation and
+Retraction keep theirs, as their errors come from the contact models rather than the resolution
+(README, "How the default resolution is chosen").
 A full ``solve_static`` per env step was measured about 10 times slower (a sparse LU factorisation
 per Newton iteration), so it is used only at reset (initial sag under gravity, goal generation).
 """
