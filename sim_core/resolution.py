@@ -868,8 +868,9 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
     """Observed quantities of ``scene`` as an environment produces them: from the static rest state
     (gravity, tool at rest) the tool moves towards each tested displacement by at most ``max_step``
     per component per env step (a scripted controller at full speed; the displacements of a path
-    in order), each env step being ``substeps`` implicit Euler steps of ``dt`` (floor: y clamped
-    after each step, as Retraction does), then is held ``hold_steps`` env steps; the observation
+    in order), each env step being ``substeps`` implicit Euler steps of ``dt`` (floor: y projected
+    after each step, the floor nodes held at y = 0 in the step, as Retraction does), then is held
+    ``hold_steps`` env steps; the observation
     is taken then. Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""
     from .forces import external_forces, internal_forces
     from .integrators import ImplicitEuler
@@ -895,16 +896,28 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
     observed = dict(force=[], target=[], volume=[])
     env_steps, iterations, reason = 0, 0, None
     clock = time.perf_counter()
+    candidates = np.zeros(mesh.n_nodes, bool)
+    if scene.floor:
+        candidates[floor_candidates] = True
     for path in scene.displacements:
         state = State(rest.copy(), np.zeros_like(rest))
         scratch = state.copy()
         offset = np.zeros(3)
+        # floor contact as RetractionEnv: the nodes on the floor have y = 0 imposed in the step; a
+        # node the tissue pulls up is released; one that goes below joins (after a projection)
+        contact = candidates & (state.positions[:, 1] <= 1e-12)
         for displacement in path:
             moves = int(math.ceil(float(np.max(np.abs(displacement - offset))) / max_step - 1e-9))
             for k in range(moves + hold_steps):
                 if k < moves:
                     offset = offset + np.clip(displacement - offset, -max_step, max_step)
                 control = base.copy().impose(tool, nodes[tool] + offset, components=components)
+                if scene.floor:
+                    net = internal_forces(model, state.positions, state.velocities) + external_forces(model, control)
+                    contact &= net[:, 1] <= 0.0
+                    held = np.flatnonzero(contact)
+                    if len(held):
+                        control.impose(held, np.zeros((len(held), 3)), components=(1,))
                 for _ in range(substeps):
                     with np.errstate(all="ignore"):
                         report = integrator.simulate(model, state, scratch, dt, control)
@@ -915,9 +928,10 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
                     if reason is not None:
                         return None, env_steps, iterations, time.perf_counter() - clock, reason
                     if scene.floor:
-                        below = scratch.positions[:, 1] < 0.0
+                        below = (scratch.positions[:, 1] < 0.0) & candidates
                         scratch.positions[below, 1] = 0.0
                         scratch.velocities[below, 1] = np.maximum(scratch.velocities[below, 1], 0.0)
+                        contact |= below
                     state, scratch = scratch, state
                 env_steps += 1
             positions = state.positions

@@ -464,7 +464,7 @@ class TissueEnv(gym.Env):
         strain = float(np.max(np.abs(length / model.rest_length - 1.0)))
         volume = float(self.mesh.element_volumes(positions).sum())
         measures = dict(
-            positions=positions, reaction_force=reaction, max_strain=strain,
+            positions=positions, reaction_force=reaction, max_strain=strain, forces=forces,
             relative_volume_change=(volume - self.rest_volume) / self.rest_volume,
         )
         measures.update(self._task_measures(positions))

@@ -339,7 +339,7 @@ class TissueVectorEnv(VectorEnv):
             elements = model.mesh.elements
             volume = kernels.element_volumes(np.ascontiguousarray(flat, dtype=float), elements,
                                              np.empty(len(elements))).reshape(count, -1).sum(axis=1)
-        measures = dict(positions=positions, reaction_force=reaction, max_strain=strain,
+        measures = dict(positions=positions, reaction_force=reaction, max_strain=strain, forces=forces,
                         relative_volume_change=(volume - self.rest_volume) / self.rest_volume)
         measures.update(self._batch_task_measures(positions))
         return measures
