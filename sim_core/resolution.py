@@ -266,7 +266,7 @@ def _mss_solver(mesh, material, gravity, hourglass_control, volume_stiffness, ch
     def solve(control, initial):
         try:
             return _solve(control, initial)
-        except (ArithmeticError, ValueError, RuntimeError) as error:  # degenerate configuration
+        except (ArithmeticError, ValueError, RuntimeError):  # degenerate configuration
             return (initial if initial is not None else mesh.nodes).copy(), np.zeros((mesh.n_nodes, 3)), False, None
 
     def _solve(control, initial):
