@@ -93,7 +93,7 @@ def palpation_scenes():
 
 
 def retraction_scenes():
-    # tissue_env.RetractionEnv defaults: size (6, 0.8, 3) cm, shape (6, 1, 3), face x = 0 attached,
+    # tissue_env.RetractionEnv defaults: size (6, 0.8, 3) cm, shape (8, 2, 4), face x = 0 attached,
     # tool = face x = 6 cm (glued), floor y >= 0, gravity; workspace x -6..+1 cm, y 0..6 cm.
     path = [[(0, 10 * MM, 0), (0, 20 * MM, 0), (0, 40 * MM, 0), (-20 * MM, 45 * MM, 0), (-40 * MM, 45 * MM, 0)]]
     return [Scene(size=(0.06, 0.008, 0.03), young_modulus=E, poisson_ratio=NU, density=RHO, gravity=G,
@@ -127,7 +127,7 @@ TASKS = {
     # name: (scenes, env default shape, env max_step (m), fem reference n, fine-model n, candidate n)
     "TumorPositioning": (tumor_scenes, (6, 6, 6), 0.002, 8, 16, (2, 3, 4, 5, 6, 7, 8, 12)),
     "Palpation": (palpation_scenes, (5, 3, 5), 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
-    "Retraction": (retraction_scenes, (6, 1, 3), 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
+    "Retraction": (retraction_scenes, (8, 2, 4), 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
 }
 QUICK = {  # --quick (tests): coarse references and few candidates
     "TumorPositioning": (4, 4, (2, 3)),
