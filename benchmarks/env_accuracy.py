@@ -160,24 +160,13 @@ def env_speed(env_id, shape, steps=300, seed=0):
     ``shape`` with its other defaults; None when the env rejects the shape."""
     import gymnasium as gym
 
-    import tissue_env  # noqa: F401
+    from benchmarks.env_speed import random_steps_per_s
 
     try:
         env = gym.make(env_id, shape=tuple(int(s) for s in shape))
     except ValueError:
         return None
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    for _ in range(5):
-        env.step(env.action_space.sample())
-    start = time.perf_counter()
-    for _ in range(steps):
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-        if terminated or truncated:
-            env.reset()
-    rate = steps / (time.perf_counter() - start)
-    env.close()
-    return rate
+    return random_steps_per_s(env, steps, seed)
 
 
 def budget_choice(candidates, speeds, floor=SPEED_FLOOR):

@@ -55,20 +55,9 @@ def plain_env_speed(env_id: str, steps: int = 300, seed: int = 0) -> float:
 
     import tissue_env  # noqa: F401
 
-    env = gym.make(env_id)
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    for _ in range(5):  # compiled kernels, caches
-        env.step(env.action_space.sample())
-    env.reset(seed=seed)
-    start = time.perf_counter()
-    for _ in range(steps):
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-        if terminated or truncated:
-            env.reset()
-    rate = steps / (time.perf_counter() - start)
-    env.close()
-    return rate
+    from benchmarks.env_speed import random_steps_per_s
+
+    return random_steps_per_s(gym.make(env_id), steps, seed)
 
 
 def _sample_with_cpu_time(runner, num_timesteps):
