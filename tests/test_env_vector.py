@@ -229,3 +229,16 @@ def test_factorised_refactorisation_matches_superlu():
     expected = batched.spla.spsolve(matrix.tocsc(), vector_in[free])
     np.testing.assert_allclose(out[free], expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
     vector.close()
+
+
+def test_copies_share_models_and_caches():
+    """The batched env's copies are built from the same keywords: one model (and start state, first
+    factorisation, goal factor cache) serves them all instead of one per copy."""
+    vector = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=3, vectorization_mode="vector_entry_point")
+    first, *others = vector.unwrapped.envs
+    assert others
+    for copy in others:
+        assert copy.model is first.model
+        assert copy._model_cache is first._model_cache and copy._start_cache is first._start_cache
+        assert copy._first_factors is first._first_factors and copy._goal_factors is first._goal_factors
+    vector.close()

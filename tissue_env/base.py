@@ -369,8 +369,12 @@ class TissueEnv(gym.Env):
         """Called at the end of reset, after the state exists (task bookkeeping)."""
 
     def share_caches(self, other):
-        """Use ``other``'s task caches (an env built with the same keywords; the vector envs call it
-        for their copies). Default: none."""
+        """Use ``other``'s models, start states, first-step factorisations and task caches (an env
+        built with the same keywords; the vector envs call it for their copies). Tasks with caches
+        of their own extend it."""
+        self._model_cache, self._start_cache = other._model_cache, other._start_cache
+        self._first_factors = other._first_factors
+        self.model = other.model
 
     def constrain_tool(self, offset):
         """Tool offsets (..., 3) in m, already clipped to the workspace box, projected on the

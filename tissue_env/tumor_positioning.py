@@ -183,6 +183,7 @@ class TumorPositioningEnv(TissueEnv):
         self.workspace_low, self.workspace_high = -self.workspace, self.workspace
 
     def share_caches(self, other):
+        super().share_caches(other)
         self._goal_factors = other._goal_factors
 
     def _task_feature_sizes(self):

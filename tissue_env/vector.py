@@ -83,9 +83,6 @@ class TissueVectorEnv(VectorEnv):
         # inclusion cell, a new one per domain-randomised draw), their start states and the
         # task's caches, built once instead of once per copy.
         for copy in self.envs[1:]:
-            copy._model_cache, copy._start_cache = env._model_cache, env._start_cache
-            copy._first_factors = env._first_factors
-            copy.model = env.model
             copy.share_caches(env)
         self.render_mode = env.render_mode
         self.metadata = dict(self.metadata, render_fps=env.metadata["render_fps"])
