@@ -30,16 +30,17 @@ Scenes (SI units; tool displacements from rest, y up):
   +-20 mm). Fine model n = 16 (the tool square falls on nodes for n = 4, 8, 12, 16; in between
   the grasped nodes span less, as in the env, so the error is not monotonic in n).
 - Palpation: 6 x 3 x 6 cm slab, bottom fixed, inclusion (the default 1.2 x 1 x 1.2 cm box,
-  1-2 cm deep, 10x stiffer), a frictionless flat probe of radius 9 mm (the env's defaults; only
-  u_y imposed on the top nodes under it) pressed 2, 4, 6, 8 mm (the env's max_depth) at three
-  places: over the inclusion, between nodes away from it, and on a node of the default mesh;
-  target = the inclusion centre. Fine model n = 12.
+  1-2 cm deep, 10x stiffer), a frictionless sphere-ended probe of radius 9 mm (the env's
+  defaults; an active-set contact, ``sim_core.contact``) pressed 2, 4, 6, 8 mm (the env's
+  max_depth) at three places: over the inclusion, between nodes away from it, and on a node of
+  the 5x3x5 mesh; target = the inclusion centre. Fine model n = 12.
 - Retraction: 6 x 0.8 x 3 cm flap on a frictionless floor, edge x = 0 attached, tool = the face
   x = 6 cm (glued), target = the flap's centre; the scripted lift-and-pull path, by continuation:
   lift 10, 20, 40 mm, then back 20 mm and 40 mm at 45 mm height. Fine model n = 24.
 
-Writes benchmarks/results/env_accuracy.json and docs/figures/env_accuracy.png; prints a table.
-Run: python -m benchmarks.env_accuracy [--quick]
+Writes benchmarks/results/env_accuracy.json (atomically) and docs/figures/env_accuracy.png; prints
+a table. ``--task NAME`` re-runs that task only and keeps the others' results from the JSON.
+Run: python -m benchmarks.env_accuracy [--quick] [--task NAME ...]
 """
 
 from __future__ import annotations
@@ -76,9 +77,9 @@ def tumor_scenes():
 
 
 def palpation_scenes():
-    # tissue_env.PalpationEnv defaults: size (6, 3, 6) cm, shape (5, 3, 5), probe radius 9 mm,
-    # inclusion = the 1.2 x 1 x 1.2 cm box at the middle candidate centre (3.0, 1.5, 3.0) cm, 10x E;
-    # only u_y of the touched top nodes is imposed; max_depth 8 mm.
+    # tissue_env.PalpationEnv defaults: size (6, 3, 6) cm, sphere-ended probe of radius 9 mm
+    # (frictionless contact, sim_core.contact), inclusion = the 1.2 x 1 x 1.2 cm box at the middle
+    # candidate centre (3.0, 1.5, 3.0) cm, 10x E; max_depth 8 mm.
     size = np.array([0.06, 0.03, 0.06])
     path = [[(0, -d * MM, 0) for d in (2, 4, 6, 8)]]
     scenes = []
@@ -86,7 +87,7 @@ def palpation_scenes():
                           ("on a node", (0.012, 0.048))):
         scenes.append(Scene(
             size=size, young_modulus=E, poisson_ratio=NU, density=RHO, gravity=G, fixed_face="y-",
-            tool_low=(x, 0.03, z), tool_high=(x, 0.03, z), tool_radius=0.009, tool_components=(1,),
+            tool_low=(x, 0.03, z), tool_high=(x, 0.03, z), tool_radius=0.009, tool_components=(1,), probe="sphere",
             displacements=path, target=(0.030, 0.015, 0.030), inclusion_low=(0.024, 0.01, 0.024),
             inclusion_high=(0.036, 0.02, 0.036), inclusion_ratio=10.0, name=f"Palpation ({label})"))
     return scenes
@@ -126,7 +127,7 @@ def absolute_errors(case_errors, reference):
 TASKS = {
     # name: (scenes, env default shape, env max_step (m), fem reference n, fine-model n, candidate n)
     "TumorPositioning": (tumor_scenes, (6, 6, 6), 0.002, 8, 16, (2, 3, 4, 5, 6, 7, 8, 12)),
-    "Palpation": (palpation_scenes, (5, 3, 5), 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
+    "Palpation": (palpation_scenes, (7, 4, 7), 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
     "Retraction": (retraction_scenes, (8, 2, 4), 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
 }
 QUICK = {  # --quick (tests): coarse references and few candidates
@@ -220,8 +221,13 @@ def _absolute(case_errors, scenes, references):
     return out
 
 
-def run(quick=False):
+def run(quick=False, tasks=None):
     alpha, kappa = env_defaults()
+    results = ROOT / "benchmarks" / "results"
+    path = results / ("env_accuracy_quick.json" if quick else "env_accuracy.json")
+    unknown = set(tasks or ()) - set(TASKS)
+    if unknown:
+        raise ValueError(f"unknown task(s) {sorted(unknown)}: choose among {list(TASKS)}")
     out = dict(tolerance=TOLERANCE, tolerances=list(TOLERANCES), hourglass_control=alpha, volume_stiffness=kappa,
                dts=list(DTS), substeps=list(SUBSTEPS), quick=quick, error_definition=(
                    "max over tested displacements of |q - q_ref| / max |q_ref|; q = tool force (3,), target "
@@ -229,7 +235,11 @@ def run(quick=False):
                    "model on the fine mesh; stepping: reference = the static equilibrium on the same mesh at the "
                    "same tool position; constitutive: reference = fem-neohookean"), tasks={})
     start = time.perf_counter()
+    if tasks:  # the other tasks' results as they were
+        out["tasks"] = {name: task for name, task in json.loads(path.read_text())["tasks"].items()}
     for name, (make, default_shape, max_step, fem_resolution, fine_resolution, resolutions) in TASKS.items():
+        if tasks and name not in tasks:
+            continue
         default_dt = env_default_dt(name)
         solver_tolerance = env_solver_tolerance(name)
         if quick:
@@ -311,11 +321,12 @@ def run(quick=False):
             discretisation=discretisation, stepping=stepping, constitutive=constitutive,
             wall_time=time.perf_counter() - clock)
         print(f"{name}: {time.perf_counter() - clock:.0f} s", flush=True)
+    out["tasks"] = {name: out["tasks"][name] for name in TASKS if name in out["tasks"]}
     out["total_time"] = time.perf_counter() - start
-    results = ROOT / "benchmarks" / "results"
     results.mkdir(parents=True, exist_ok=True)
-    (results / ("env_accuracy_quick.json" if quick else "env_accuracy.json")).write_text(
-        json.dumps(out, indent=1, default=float))
+    scratch = path.with_suffix(".json.tmp")
+    scratch.write_text(json.dumps(out, indent=1, default=float))
+    scratch.replace(path)  # atomic: a reader never sees half a file
     figure(out, ROOT / "docs" / "figures" / ("env_accuracy_quick.png" if quick else "env_accuracy.png"))
     table(out)
     return out
@@ -450,4 +461,6 @@ def figure(out, path):
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="coarse references and few candidates (tests)")
-    run(parser.parse_args().quick)
+    parser.add_argument("--task", action="append", choices=list(TASKS), help="re-run only this task (repeatable)")
+    arguments = parser.parse_args()
+    run(arguments.quick, arguments.task)

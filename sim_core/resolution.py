@@ -55,6 +55,7 @@ import numpy as np
 from .hyperelastic import NeoHookeanFEM
 from .material import Material
 from .mesh import LOCAL_CORNERS, HexMesh
+from . import contact as contact_
 from .model import Control, build_model
 from .static import solve_static
 
@@ -98,6 +99,11 @@ class Scene:
         tool_radius: None, or a radius (m): the tool is then the vertical cylinder of this radius
             around the box centre (x and z bounded by the radius, y by the box): a round probe.
         tool_components: the components the tool imposes: (0, 1, 2) glued, (1,) a frictionless probe.
+        probe: None (the tool's nodes are imposed throughout, as ``tool_components`` says), or a
+            contact probe of radius ``tool_radius`` pressed from above (``sim_core.contact.Probe``):
+            "sphere" (hemispherical end) or "flat" (flat-ended cylinder), its lowest point at the
+            top centre of the tool box plus the displacement; the tool box's surface nodes, at any
+            x and z, are the contact candidates (frictionless active set, only u_y imposed).
         displacements: tool displacements from rest (m): an (K, 3) array of independent cases, or a
             sequence of paths (each an (K_p, 3) array) solved in order by continuation, each path
             starting from the equilibrium under gravity with the tool at rest.
@@ -122,6 +128,7 @@ class Scene:
     fixed_face: str = "y-"
     tool_radius: float | None = None
     tool_components: tuple = (0, 1, 2)
+    probe: str | None = None
     gravity: float = 9.81
     floor: bool = False
     inclusion_low: tuple | None = None
@@ -160,6 +167,13 @@ class Scene:
         set_("target", target)
         set_("gravity", _scalar("gravity", self.gravity, low=0.0, strict=False))
         set_("floor", bool(self.floor))
+        if self.probe is not None:
+            if self.probe not in contact_.TIPS:
+                raise ValueError(f"probe must be None or one of {contact_.TIPS}, got {self.probe!r}")
+            if self.tool_radius is None:
+                raise ValueError("a probe needs tool_radius (m), its radius")
+            if self.floor:
+                raise ValueError("a scene has one contact obstacle: a probe or a floor, not both")
         if (self.inclusion_low is None) != (self.inclusion_high is None):
             raise ValueError("inclusion_low and inclusion_high must be given together")
         if self.inclusion_low is not None:
@@ -174,6 +188,20 @@ class Scene:
             raise ValueError(f"min_shape must be three integers >= 1, got {self.min_shape!r}")
         set_("min_shape", min_shape)
 
+    # -- contact ----------------------------------------------------------------------------
+    def obstacle(self):
+        """The scene's contact obstacle (``sim_core.contact``): the floor, the probe, or None."""
+        if self.floor:
+            return contact_.Floor()
+        return None if self.probe is None else contact_.Probe(self.tool_radius, self.probe)
+
+    def probe_tip(self, displacement):
+        """(3,) the probe's lowest point (m) at a tool displacement (m); None without a probe."""
+        if self.probe is None:
+            return None
+        centre = 0.5 * (self.tool_low + self.tool_high)
+        return np.array([centre[0], self.tool_high[1], centre[2]]) + np.asarray(displacement, dtype=float)
+
     # -- discretisation ----------------------------------------------------------------------
     def shape(self, resolution: int) -> tuple:
         """Elements per axis at ``resolution`` n: no element longer than max(size) / n."""
@@ -181,7 +209,8 @@ class Scene:
         return tuple(max(m, math.ceil(length / h - 1e-9)) for m, length in zip(self.min_shape, self.size))
 
     def discretise(self, shape):
-        """(mesh, material, fixed nodes, tool nodes, target element, target weights) for ``shape``."""
+        """(mesh, material, fixed nodes, tool nodes (a probe's: its contact candidates), target
+        element, target weights) for ``shape``."""
         shape = tuple(int(s) for s in shape)
         spacing = self.size / np.asarray(shape)
         mesh = HexMesh.block(shape, spacing)
@@ -191,10 +220,10 @@ class Scene:
         fixed = np.flatnonzero(np.abs(nodes[:, axis] - (self.size[axis] if end else 0.0)) <= tol)
         surface = mesh.surface_nodes()
         low, high = self.tool_low.copy(), self.tool_high.copy()
-        if self.tool_radius is not None:  # the cylinder bounds x and z
+        if self.tool_radius is not None:  # the cylinder bounds x and z (a probe's contact: nothing)
             low[[0, 2]], high[[0, 2]] = -np.inf, np.inf
         inside = np.all((nodes[surface] >= low - tol) & (nodes[surface] <= high + tol), axis=1)
-        if self.tool_radius is not None:
+        if self.tool_radius is not None and self.probe is None:
             centre = 0.5 * (self.tool_low + self.tool_high)
             inside &= np.hypot(*(nodes[surface][:, [0, 2]] - centre[[0, 2]]).T) <= self.tool_radius + tol
         tool = np.setdiff1d(surface[inside], fixed)
@@ -309,32 +338,69 @@ def _fem_solver(mesh, material, gravity, check_stability):
     return solve, timer
 
 
-def _solve_with_floor(solve, control, initial, floor, candidates, rest=None, max_rounds=25):
-    """Static solve with the frictionless floor y >= 0 by an active set: nodes below the floor get
-    u_y imposed (y = 0), nodes the floor pulls down are released; repeated until no change."""
-    if not floor:
+def _contact_candidates(scene, n_nodes, fixed, tool):
+    """(n,) bool: the nodes the scene's obstacle may hold (the floor: every node neither attached nor
+    grasped; a probe: its candidates, the tool nodes)."""
+    candidates = np.zeros(n_nodes, bool)
+    if scene.floor:
+        candidates[:] = True
+        candidates[np.union1d(fixed, tool)] = False
+    elif scene.probe is not None:
+        candidates[tool] = True
+    return candidates
+
+
+def _tool_control(scene, base, nodes, tool, displacement):
+    """``base`` with the tool's nodes imposed at ``displacement`` (m) from rest (a probe imposes
+    through its contact instead)."""
+    control = base.copy()
+    if scene.probe is None:
+        control.impose(tool, nodes[tool] + displacement, components=scene.tool_components)
+    return control
+
+
+def _tool_force(scene, tool, contact, reaction):
+    """(3,) the force (N) the tool exerts on the tissue: the constraint forces ``reaction`` (n, 3)
+    on the tool's imposed components, or on the probe's contact nodes (along y)."""
+    imposed = np.zeros(reaction.shape, bool)
+    if scene.probe is None:
+        imposed[np.ix_(tool, scene.tool_components)] = True
+    else:
+        imposed[contact, 1] = True
+    return np.where(imposed, reaction, 0.0).sum(axis=0)
+
+
+def _solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, rest=None, max_rounds=25,
+                        tolerance=1e-9, slide_tolerance=1e-7):
+    """Static solve with a frictionless obstacle (``sim_core.contact``: the floor y >= 0 or a probe
+    from above) by an active set: the candidate nodes (n,) bool on or through its surface get
+    their height imposed on it at their (x, z), the nodes it would pull are released, and the
+    heights follow the nodes' horizontal sliding; repeated until no node goes through the surface
+    by more than ``tolerance`` (m) and the held heights are within ``slide_tolerance`` (m) of the
+    surface under the nodes. Returns (positions, reaction, converged, lowest eigenvalue, control, contact (n,) bool)."""
+    if obstacle is None:
         positions, reaction, converged, lowest = solve(control, initial)
-        return positions, reaction, converged, lowest, control
-    start = initial
-    contact = np.zeros(len(control.fixed), bool)
-    contact[candidates] = (rest if start is None else start)[candidates, 1] <= 1e-12  # on the floor
+        return positions, reaction, converged, lowest, control, np.zeros(len(control.fixed), bool)
+    start = rest if initial is None else initial
+    contact = contact_.touching(obstacle, start, candidates, tip, tolerance=1e-12)
     for _ in range(max_rounds):
         trial = control.copy()
         active = np.flatnonzero(contact)
         if len(active):
-            target = np.zeros((len(active), 3))
+            target = start[active].copy()
+            target[:, 1] = contact_.targets(obstacle, start, contact, tip)[active]
             trial.impose(active, target, components=(1,))
-        positions, reaction, converged, lowest = solve(trial, start)
+        positions, reaction, converged, lowest = solve(trial, initial if initial is None else start)
         if not converged:
-            return positions, reaction, False, lowest, trial
-        below = np.zeros_like(contact)
-        below[candidates] = positions[candidates, 1] < -1e-9
-        pulled = contact & (reaction[:, 1] < -1e-12)
-        if not below.any() and not pulled.any():
-            return positions, reaction, True, lowest, trial
-        contact = (contact | below) & ~pulled
-        start = positions  # the solver ramps the newly imposed u_y = 0 from here
-    return positions, reaction, False, lowest, trial
+            return positions, reaction, False, lowest, trial, contact
+        through = contact_.touching(obstacle, positions, candidates & ~contact, tip, tolerance=-tolerance)
+        pulled = contact & ~contact_.release(obstacle, contact, -reaction, tolerance=1e-12)
+        drift = contact & (np.abs(contact_.gap(obstacle, positions, tip)) > slide_tolerance)
+        if not through.any() and not pulled.any() and not drift.any():
+            return positions, reaction, True, lowest, trial, contact
+        contact = (contact | through) & ~pulled
+        start = initial = positions  # the solver ramps the newly imposed heights from here
+    return positions, reaction, False, lowest, trial, contact
 
 
 def solve_scene(scene: Scene, shape, *, model="baudet", hourglass_control=0.0, volume_stiffness=1.0,
@@ -353,32 +419,25 @@ def solve_scene(scene: Scene, shape, *, model="baudet", hourglass_control=0.0, v
     else:
         raise ValueError(f"model must be 'baudet' or 'fem-neohookean', got {model!r}")
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
-    components = scene.tool_components
-    imposed = np.zeros((mesh.n_nodes, 3), bool)
-    imposed[np.ix_(tool, components)] = True
-    floor_candidates = np.setdiff1d(np.arange(mesh.n_nodes), np.union1d(fixed, tool)) if scene.floor else None
+    obstacle, candidates = scene.obstacle(), _contact_candidates(scene, mesh.n_nodes, fixed, tool)
     rest_volume = float(mesh.element_volumes().sum())
     results = dict(force=[], target=[], volume=[], converged=[], lowest=[])
     elapsed = 0.0
     start_clock = time.perf_counter()
     # equilibrium under gravity with the tool at rest (the environments' start state)
-    control = base.copy().impose(tool, nodes[tool], components=components)
-    if scene.gravity > 0 and not scene.floor:
-        rest_positions, _, ok, _ = solve(control, None)
+    rest_positions = nodes.copy()
+    if scene.gravity > 0:
+        rest_positions, _, ok, _, _, _ = _solve_with_contact(
+            solve, _tool_control(scene, base, nodes, tool, np.zeros(3)), None, obstacle, candidates,
+            scene.probe_tip(np.zeros(3)), rest=nodes)
         rest_positions = rest_positions if ok else nodes.copy()
-    else:
-        rest_positions = nodes.copy()
-        if scene.gravity > 0:
-            rest_positions, _, ok, _, _ = _solve_with_floor(solve, control, None, True, floor_candidates, nodes)
-            rest_positions = rest_positions if ok else nodes.copy()
     for path in scene.displacements:
         positions = rest_positions
         for displacement in path:
-            control = base.copy().impose(tool, nodes[tool] + displacement, components=components)
-            positions, reaction, converged, lowest, _ = _solve_with_floor(
-                solve, control, positions, scene.floor, floor_candidates)
-            force = np.where(imposed, reaction, 0.0).sum(axis=0)  # the force the tool exerts on the tissue
-            results["force"].append(force)
+            control = _tool_control(scene, base, nodes, tool, displacement)
+            positions, reaction, converged, lowest, _, contact = _solve_with_contact(
+                solve, control, positions, obstacle, candidates, scene.probe_tip(displacement))
+            results["force"].append(_tool_force(scene, tool, contact, reaction))
             results["target"].append(weights @ positions[target_nodes])
             results["volume"].append(float(mesh.element_volumes(positions).sum()) / rest_volume - 1.0)
             results["converged"].append(bool(converged))
@@ -881,43 +940,42 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
     model = build_model(mesh, material, gravity=(0.0, -scene.gravity, 0.0), hourglass_control=hourglass_control,
                         volume_stiffness=volume_stiffness)
     solve, _ = _mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness, False)
-    components = scene.tool_components
-    imposed = np.zeros((mesh.n_nodes, 3), bool)
-    imposed[np.ix_(tool, components)] = True
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
-    floor_candidates = np.setdiff1d(np.arange(mesh.n_nodes), np.union1d(fixed, tool)) if scene.floor else None
-    rest_control = base.copy().impose(tool, nodes[tool], components=components)
+    obstacle, candidates = scene.obstacle(), _contact_candidates(scene, mesh.n_nodes, fixed, tool)
     rest = nodes.copy()
     if scene.gravity > 0:
-        rest, _, ok, _, _ = _solve_with_floor(solve, rest_control, None, scene.floor, floor_candidates, nodes)
+        rest, _, ok, _, _, _ = _solve_with_contact(solve, _tool_control(scene, base, nodes, tool, np.zeros(3)), None,
+                                                   obstacle, candidates, scene.probe_tip(np.zeros(3)), rest=nodes)
         rest = rest if ok else nodes.copy()
     rest_volume = float(mesh.element_volumes().sum())
     integrator = ImplicitEuler(tolerance=solver_tolerance, **(solver or {}))
     observed = dict(force=[], target=[], volume=[])
     env_steps, iterations, reason = 0, 0, None
     clock = time.perf_counter()
-    candidates = np.zeros(mesh.n_nodes, bool)
-    if scene.floor:
-        candidates[floor_candidates] = True
     for path in scene.displacements:
         state = State(rest.copy(), np.zeros_like(rest))
         scratch = state.copy()
         offset = np.zeros(3)
-        # floor contact as RetractionEnv: the nodes on the floor have y = 0 imposed in the step; a
-        # node the tissue pulls up is released; one that goes below joins (after a projection)
-        contact = candidates & (state.positions[:, 1] <= 1e-12)
+        # contact as the environments (RetractionEnv's floor, PalpationEnv's probe): the nodes on
+        # the obstacle have their height imposed in the step; a node it would pull is released; one
+        # that goes through it joins (after a projection)
+        contact = (np.zeros(mesh.n_nodes, bool) if obstacle is None else
+                   contact_.touching(obstacle, state.positions, candidates, scene.probe_tip(offset), 1e-12))
         for displacement in path:
             moves = int(math.ceil(float(np.max(np.abs(displacement - offset))) / max_step - 1e-9))
             for k in range(moves + hold_steps):
                 if k < moves:
                     offset = offset + np.clip(displacement - offset, -max_step, max_step)
-                control = base.copy().impose(tool, nodes[tool] + offset, components=components)
-                if scene.floor:
+                control = _tool_control(scene, base, nodes, tool, offset)
+                tip = scene.probe_tip(offset)
+                if obstacle is not None:
                     net = internal_forces(model, state.positions, state.velocities) + external_forces(model, control)
-                    contact &= net[:, 1] <= 0.0
+                    contact = contact_.update(obstacle, contact, state.positions, net, candidates, tip)
                     held = np.flatnonzero(contact)
                     if len(held):
-                        control.impose(held, np.zeros((len(held), 3)), components=(1,))
+                        target = state.positions[held].copy()
+                        target[:, 1] = contact_.targets(obstacle, state.positions, contact, tip)[held]
+                        control.impose(held, target, components=(1,))
                 for _ in range(substeps):
                     with np.errstate(all="ignore"):
                         report = integrator.simulate(model, state, scratch, dt, control)
@@ -927,16 +985,13 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
                         reason = "non-finite positions"
                     if reason is not None:
                         return None, env_steps, iterations, time.perf_counter() - clock, reason
-                    if scene.floor:
-                        below = (scratch.positions[:, 1] < 0.0) & candidates
-                        scratch.positions[below, 1] = 0.0
-                        scratch.velocities[below, 1] = np.maximum(scratch.velocities[below, 1], 0.0)
-                        contact |= below
+                    if obstacle is not None:
+                        contact |= contact_.project(obstacle, scratch.positions, scratch.velocities, candidates, tip)
                     state, scratch = scratch, state
                 env_steps += 1
             positions = state.positions
             forces = internal_forces(model, positions, state.velocities) + external_forces(model, control)
-            observed["force"].append(np.where(imposed, -forces, 0.0).sum(axis=0))  # as TissueEnv._measure
+            observed["force"].append(_tool_force(scene, tool, contact, -forces))  # as TissueEnv._measure
             observed["target"].append(weights @ positions[target_nodes])
             observed["volume"].append(float(mesh.element_volumes(positions).sum()) / rest_volume - 1.0)
     elapsed = time.perf_counter() - clock

@@ -111,7 +111,7 @@ def stiff_box(env):
 def test_shape_only_sets_the_resolution_of_the_inclusion():
     """At (10, 6, 10) the inclusion is 8 elements covering the same 1.2 x 1 x 1.2 cm box as the one
     element at (5, 3, 5), at the same candidate centres (x, z in 1.8, 3.0, 4.2 cm, y = 1.5 cm)."""
-    coarse, fine = gym.make(ENV_ID), gym.make(ENV_ID, shape=(10, 6, 10))
+    coarse, fine = gym.make(ENV_ID, shape=(5, 3, 5)), gym.make(ENV_ID, shape=(10, 6, 10))
     expected = [[x, 0.015, z] for x in (0.018, 0.030, 0.042) for z in (0.018, 0.030, 0.042)]
     for env in (coarse, fine):
         np.testing.assert_allclose(env.unwrapped.inclusion_centres, expected, atol=1e-12)
@@ -135,11 +135,11 @@ def test_shape_only_sets_the_resolution_of_the_inclusion():
 
 
 @pytest.mark.parametrize("shape, count", [((5, 3, 5), 4), ((10, 6, 10), 9)])
-def test_probe_radius_is_9_mm_whatever_the_shape(shape, count):
-    """The probe pressing 2 mm at the slab centre holds the top nodes within 9 mm of its axis: 4 on
-    the 12 mm grid of (5, 3, 5), 9 on the 6 mm grid of (10, 6, 10) (a radius of 0.75 element,
+def test_flat_probe_radius_is_9_mm_whatever_the_shape(shape, count):
+    """The flat probe pressing 2 mm at the slab centre holds the top nodes within 9 mm of its axis:
+    4 on the 12 mm grid of (5, 3, 5), 9 on the 6 mm grid of (10, 6, 10) (a radius of 0.75 element,
     4.5 mm, would hold only the centre node there)."""
-    unwrapped = gym.make(ENV_ID, shape=shape).unwrapped
+    unwrapped = gym.make(ENV_ID, shape=shape, probe_tip="flat").unwrapped
     assert unwrapped.probe_radius == 0.009
     unwrapped.state = None  # the rest mesh
     unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - 0.002, 0.0])
@@ -150,6 +150,56 @@ def test_probe_radius_is_9_mm_whatever_the_shape(shape, count):
     top = unwrapped.mesh.nodes[unwrapped.top_nodes]
     assert np.count_nonzero(np.hypot(top[:, 0] - 0.03, top[:, 2] - 0.03) <= 0.009) == count
     assert np.allclose(control.target[unwrapped.contact_nodes, 1], unwrapped.top_y - 0.002)
+
+
+@pytest.mark.parametrize("shape, count", [((5, 3, 5), 4), ((10, 6, 10), 5), ((12, 6, 12), 9)])
+def test_sphere_probe_holds_the_nodes_under_its_surface_at_its_height(shape, count):
+    """The default sphere-ended probe (radius 9 mm) pressed 5 mm at the slab centre holds exactly the
+    top nodes its surface reaches, r <= sqrt(R^2 - (R - 5 mm)^2) = 8.06 mm from its axis, each at
+    the sphere's height over it (4 nodes at 8.49 mm are out of reach at (5, 3, 5) until 6 mm deep)."""
+    unwrapped = gym.make(ENV_ID, shape=shape).unwrapped
+    assert unwrapped.probe_tip == "sphere"
+    unwrapped.state = None  # the rest mesh
+    depth = 0.005 if shape != (5, 3, 5) else 0.0065
+    unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - depth, 0.0])
+    control = unwrapped._control()
+    top = unwrapped.mesh.nodes[unwrapped.top_nodes]
+    r = np.hypot(top[:, 0] - 0.03, top[:, 2] - 0.03)
+    reached = 0.009 - np.sqrt(np.maximum(0.009**2 - r**2, 0.0)) <= depth
+    assert np.array_equal(np.sort(unwrapped.contact_nodes), np.sort(unwrapped.top_nodes[reached & (r <= 0.009)]))
+    assert len(unwrapped.contact_nodes) == count
+    nodes = unwrapped.mesh.nodes[unwrapped.contact_nodes]
+    height = unwrapped.top_y - depth + 0.009 - np.sqrt(0.009**2 - np.hypot(nodes[:, 0] - 0.03, nodes[:, 2] - 0.03)**2)
+    np.testing.assert_allclose(control.target[unwrapped.contact_nodes, 1], height, atol=1e-12)
+    assert np.all(control.fixed[unwrapped.contact_nodes, 1]) and not control.fixed[unwrapped.contact_nodes][:, [0, 2]].any()
+
+
+def test_held_press_settles_on_the_static_contact_equilibrium():
+    """Pressed 5 mm over a corner cell and held, the probe's force and the tissue settle on the
+    frictionless-contact equilibrium that the static active set (sim_core.resolution) finds for
+    the same probe (measured: within 1e-6 N after 40 steps; the contact set held within one step)."""
+    from sim_core.contact import Probe
+    from sim_core.resolution import _mss_solver, _solve_with_contact
+
+    env = gym.make(ENV_ID, max_episode_steps=400).unwrapped
+    env.terminate_on_success = False
+    env.reset(seed=3)
+    goal = np.array([0.018, env.top_y - 0.005, 0.018])
+    forces = []
+    for step in range(60):
+        target = goal if step >= 10 else np.array([goal[0], env.top_y, goal[2]])
+        env.step(np.clip((target - env._tip()) / env.max_step, -1, 1).astype(np.float32))
+        forces.append(env.measures["reaction_force"][1])
+    assert abs(forces[-1] - forces[-2]) < 1e-6  # settled, no oscillation
+    solve, _ = _mss_solver(env.mesh, env._material(env.young_modulus, env.poisson_ratio, env.task_key), env.gravity,
+                           env.hourglass_control, env.volume_stiffness, False)
+    candidates = np.zeros(env.mesh.n_nodes, bool)
+    candidates[env.top_nodes] = True
+    positions, reaction, converged, _, _, contact = _solve_with_contact(
+        solve, env.base_control.copy(), env.state.positions, Probe(0.009), candidates, env._tip())
+    assert converged and np.array_equal(contact, env.contact)
+    assert abs(reaction[contact, 1].sum() - forces[-1]) < 1e-4 * abs(forces[-1])
+    assert np.abs(positions - env.state.positions).max() < 1e-6
 
 
 @pytest.mark.parametrize("kwargs, words", [

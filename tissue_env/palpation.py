@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import Material
+from sim_core import contact
 from sim_core.model import Control
 
 from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
@@ -187,7 +188,7 @@ class PalpationEnv(TissueEnv):
       unchanged, a finer shape no longer shrinks the probe and the inclusion to its elements).
     """
 
-    default_shape = (5, 3, 5)
+    default_shape = (7, 4, 7)
     default_size = (0.06, 0.03, 0.06)
     default_max_step = 0.004
     min_shape = (3, 2, 3)
@@ -199,13 +200,18 @@ class PalpationEnv(TissueEnv):
     clearance = 0.002
 
     def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=0.009,
-                 inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,
+                 probe_tip="sphere", inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,
                  hold_steps=3, start_distance=0.02, success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, map_depth=0.003,
                  explore_bonus=0.5, approach_weight=1.0, **kwargs):
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
         self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
         self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region, "xz")
         self.probe_radius = positive_scalar("probe_radius", probe_radius, "m")
+        if probe_tip not in contact.TIPS:
+            raise ValueError(f"probe_tip must be one of {contact.TIPS}, got {probe_tip!r}")
+        self.probe_tip = probe_tip
+        #: the probe as a contact obstacle (``sim_core.contact.Probe``)
+        self.probe = contact.Probe(self.probe_radius, probe_tip)
         self.inclusion_size = check_vector("inclusion_size", inclusion_size)
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
         self.success_depth = positive_scalar("success_depth", success_depth, "m")
@@ -230,6 +236,10 @@ class PalpationEnv(TissueEnv):
         self.top_nodes = np.flatnonzero(np.isclose(nodes[:, 1], self.size[1]))
         self.top_y = float(self.size[1])
         self.tool_nodes = np.zeros(0, dtype=int)
+        #: (n,) bool: the nodes the probe may touch (the top face) and those it holds now
+        self._probe_candidates = np.zeros(self.mesh.n_nodes, bool)
+        self._probe_candidates[self.top_nodes] = True
+        self.contact = np.zeros(self.mesh.n_nodes, bool)
         self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
         # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
         # surface, the axis over the central 80 % of the top face. ``workspace_low/high`` (what
@@ -319,7 +329,8 @@ class PalpationEnv(TissueEnv):
         far = np.flatnonzero(distance >= self.start_distance)
         x, z = draws[far[0] if len(far) else int(np.argmax(distance))]
         self._place_probe(np.array([x, self.top_y + self.clearance, z]))
-        self.contact_nodes = np.zeros(0, dtype=int)
+        self.contact = np.zeros(self.mesh.n_nodes, bool)
+        self.measures = None
         self.press_steps = 0
         self.palpation_map = np.zeros(len(self.cell_centres))
         self.distance = None
@@ -331,20 +342,36 @@ class PalpationEnv(TissueEnv):
         return self.probe_start + self.tool_offset
 
     def _control(self):
+        """The attached bottom face and the probe contact (``sim_core.contact``): the top nodes on
+        or under the probe's surface have their height imposed on it (frictionless: x and z stay
+        free), so the implicit step solves with the contact in place; a node the tissue pulls away
+        from the probe (net force on it downward, measured at the current state) is released."""
         tip = self._tip()
         current = self.mesh.nodes if self.state is None else self.state.positions
-        top = current[self.top_nodes]
-        horizontal = np.hypot(top[:, 0] - tip[0], top[:, 2] - tip[2])
-        touching = (horizontal <= self.probe_radius) & (top[:, 1] >= tip[1])
-        self.contact_nodes = self.top_nodes[touching]
+        measures = getattr(self, "measures", None)
+        forces = measures["forces"] if measures is not None and "forces" in measures else np.zeros_like(current)
+        self.contact = contact.update(self.probe, self.contact, current, forces, self._probe_candidates, tip)
         control = self.base_control.copy()
-        if len(self.contact_nodes):
-            target = current[self.contact_nodes].copy()
-            target[:, 1] = tip[1]
-            control.impose(self.contact_nodes, target, components=(1,))
+        held = np.flatnonzero(self.contact)
+        if len(held):
+            target = current[held].copy()
+            target[:, 1] = contact.targets(self.probe, current, self.contact, tip)[held]
+            control.impose(held, target, components=(1,))
         self.tool_mask = np.zeros((self.mesh.n_nodes, 3), bool)
-        self.tool_mask[self.contact_nodes, 1] = True
+        self.tool_mask[self.contact, 1] = True
         return control
+
+    def _after_substep(self, state):
+        # a top node that went into the probe is put back on its surface and joins the contact
+        through = contact.project(self.probe, state.positions, state.velocities, self._probe_candidates, self._tip())
+        if np.any(through):
+            self.contact |= through
+            self.tool_mask[through, 1] = True
+
+    @property
+    def contact_nodes(self):
+        """Indices of the top nodes the probe holds."""
+        return np.flatnonzero(self.contact)
 
     def _tool_position(self, positions):
         return self._tip()
@@ -403,7 +430,7 @@ class PalpationEnv(TissueEnv):
         return terms
 
     # -- scripted sweep ------------------------------------------------------------------------------
-    def scripted_action(self, probe_depth=0.003):
+    def scripted_action(self, probe_depth=0.003, settle_steps=0):
         """A sweep: press ``probe_depth`` over each candidate cell centre (a serpentine from the
         end nearest the start), record the indentation stiffness, then press ``success_depth`` +
         1 mm over the stiffest one and hold it there."""
@@ -429,7 +456,12 @@ class PalpationEnv(TissueEnv):
                 if np.allclose(tip[[0, 2]], goal_xz, atol=1e-6) and tip[1] >= surface - 1e-6:
                     sweep["phase"] = "press"
                     goal = np.array([goal_xz[0], surface - probe_depth, goal_xz[1]])
+            elif tip[1] > surface - probe_depth + 1e-6 or sweep.setdefault("held", 0) < settle_steps:
+                # pressing, then held ``settle_steps`` so that the tissue catches up with the probe
+                sweep["held"] = sweep.get("held", 0) + (tip[1] <= surface - probe_depth + 1e-6)
+                goal = np.array([goal_xz[0], surface - probe_depth, goal_xz[1]])
             else:  # pressed: record and go on
+                sweep["held"] = 0
                 sweep["stiffness"][cell] = self.measures["indentation_stiffness"]
                 sweep["index"] += 1
                 sweep["phase"] = "move"
@@ -453,12 +485,14 @@ class PalpationVectorEnv(TissueVectorEnv):
     def __init__(self, num_envs=1, **kwargs):
         super().__init__(num_envs, **kwargs)
         env, count = self.envs[0], self.num_envs
-        self.top_nodes, self.top_y, self.probe_radius = env.top_nodes, env.top_y, env.probe_radius
+        self.top_y, self.probe, self._probe_candidates = env.top_y, env.probe, env._probe_candidates
         self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
         self.probe_start = np.zeros((count, 3))
         self.inclusion_centre = np.zeros((count, 3))
         self.press_steps = np.zeros(count, dtype=int)
-        self.contact = np.zeros((count, len(self.top_nodes)), dtype=bool)
+        self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's probe holds
+        self._node_forces = None  # (N, n, 3) net forces of the last measurement
+        self._tool_mask = None  # (N, n, 3) the step's contact dofs (projected nodes join after the step)
         self.cell_centres = env.cell_centres
         self.palpation_map = np.zeros((count, len(self.cell_centres)))
         self.distance = np.zeros(count)
@@ -472,24 +506,32 @@ class PalpationVectorEnv(TissueVectorEnv):
         self.press_steps[index] = env.press_steps
         self.palpation_map[index] = env.palpation_map
         self.distance[index] = env.distance
-        self.contact[index] = np.isin(self.top_nodes, env.contact_nodes)
+        self.contact[index] = env.contact
+        if self._node_forces is not None:  # the copy's measurement at its reset, as the single env's
+            self._node_forces[index] = env.measures["forces"]
 
     def _tips(self):
         return self.probe_start + self.tool_offset
 
     def _batch_control(self):
-        count = self.num_envs
-        tip = self._tips()
-        top = self.positions[:, self.top_nodes]  # the state before the step, as the single env
-        horizontal = np.hypot(top[..., 0] - tip[:, None, 0], top[..., 2] - tip[:, None, 2])
-        self.contact = (horizontal <= self.probe_radius) & (top[..., 1] >= tip[:, None, 1])
+        # PalpationEnv._control for every copy
+        count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
+        forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
+        self.contact = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips)
         fixed = np.repeat(self._base_fixed[None], count, axis=0)
         target = np.repeat(self._base_target[None], count, axis=0)
-        fixed[:, self.top_nodes, 1] |= self.contact
-        target[:, self.top_nodes, 1] = np.where(self.contact, tip[:, None, 1], target[:, self.top_nodes, 1])
-        tool_mask = np.zeros_like(fixed)
-        tool_mask[:, self.top_nodes, 1] = self.contact
+        fixed[..., 1] |= self.contact
+        target[..., 1] = np.where(self.contact, contact.targets(self.probe, positions, self.contact, tips),
+                                  target[..., 1])
+        self._tool_mask = tool_mask = np.zeros_like(fixed)
+        tool_mask[..., 1] = self.contact
         return fixed, target, tool_mask
+
+    def _batch_after_substep(self, positions, velocities, rows):
+        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None],
+                                  self._tips())
+        self.contact |= through
+        self._tool_mask[..., 1] |= through
 
     def _batch_tool_position(self, positions):
         return self._tips()
@@ -503,6 +545,7 @@ class PalpationVectorEnv(TissueVectorEnv):
 
     def _measure(self, tool_mask):
         measures = super()._measure(tool_mask)
+        self._node_forces = measures["forces"]
         pushing, depth = -measures["reaction_force"][:, 1], measures["depth"]
         touching = (depth > 1e-4) & self.contact.any(axis=1)
         measures["indentation_stiffness"] = np.where(touching, pushing / np.where(touching, depth, 1.0), 0.0)
@@ -546,6 +589,7 @@ class PalpationVectorEnv(TissueVectorEnv):
         return terms
 
     def _write_back_task(self, index, env):
+        env.contact = self.contact[index].copy()
         env.press_steps = int(self.press_steps[index])
         env.palpation_map = self.palpation_map[index].copy()
         env.distance = float(self.distance[index])
