@@ -127,7 +127,7 @@ def absolute_errors(case_errors, reference):
 TASKS = {
     # name: (scenes, env default shape, env max_step (m), fem reference n, fine-model n, candidate n)
     "TumorPositioning": (tumor_scenes, (6, 6, 6), 0.002, 8, 16, (2, 3, 4, 5, 6, 7, 8, 12)),
-    "Palpation": (palpation_scenes, (7, 4, 7), 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
+    "Palpation": (palpation_scenes, (8, 4, 8), 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
     "Retraction": (retraction_scenes, (8, 2, 4), 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
 }
 QUICK = {  # --quick (tests): coarse references and few candidates

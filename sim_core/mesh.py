@@ -135,6 +135,16 @@ class HexMesh:
         """Extent of the bounding box in m."""
         return self.nodes.max(axis=0) - self.nodes.min(axis=0)
 
+    def box_shares(self, low, high) -> np.ndarray:
+        """(M,) share of each element's volume inside the axis-aligned box [low, high] (m): exact
+        for axis-aligned hexahedra (a block's), computed on the elements' bounding boxes otherwise.
+        A material region given as a box then does not depend on where the mesh's nodes fall."""
+        corners = self.nodes[self.elements]
+        lo, hi = corners.min(axis=1), corners.max(axis=1)
+        overlap = np.clip(np.minimum(hi, np.asarray(high, float)) - np.maximum(lo, np.asarray(low, float)), 0.0, None)
+        share = np.prod(overlap, axis=1) / np.prod(hi - lo, axis=1)
+        return np.where(share > 1e-9, share, 0.0)  # a box face on an element face: rounding, not overlap
+
     def element_volumes(self, positions=None) -> np.ndarray:
         """(M,) volumes in m^3, exact for trilinear hexahedra (the compiled closed form
         ``kernels.element_volumes``, equal to 2x2x2 Gauss on det J, ``hex_volumes``)."""

@@ -231,10 +231,7 @@ class Scene:
             raise ValueError(f"the tool selects no surface node of the {shape} mesh of scene {self.name!r}")
         young = np.full(mesh.n_elements, self.young_modulus)
         if self.inclusion_low is not None:
-            corners = nodes[mesh.elements]
-            lo, hi = corners.min(axis=1), corners.max(axis=1)
-            overlap = np.clip(np.minimum(hi, self.inclusion_high) - np.maximum(lo, self.inclusion_low), 0.0, None)
-            share = np.prod(overlap, axis=1) / np.prod(hi - lo, axis=1)
+            share = mesh.box_shares(self.inclusion_low, self.inclusion_high)
             young = young * (1.0 + (self.inclusion_ratio - 1.0) * share)
         material = Material(young, self.poisson_ratio, self.density)
         cell = np.minimum((self.target // spacing).astype(int), np.asarray(shape) - 1)

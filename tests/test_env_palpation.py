@@ -101,37 +101,39 @@ def test_palpation_map_records_first_probes_and_rewards_them_once():
 
 
 def stiff_box(env):
-    """Total volume (m^3) and volume-weighted centre (m) of the stiff elements of an env's model."""
-    model, mesh = env.unwrapped.model, env.unwrapped.mesh
-    stiff = model.young_modulus > model.young_modulus.min()
-    volume = mesh.element_volumes()[stiff]
-    return volume.sum(), volume @ mesh.nodes[mesh.elements[stiff]].mean(axis=1) / volume.sum()
+    """Stiff volume (m^3: the elements' volumes weighted by their share of the inclusion's extra
+    stiffness) and its centre (m) of an env's model."""
+    unwrapped = env.unwrapped
+    model, mesh = unwrapped.model, unwrapped.mesh
+    share = (model.young_modulus / unwrapped.young_modulus - 1.0) / (unwrapped.episode_inclusion_ratio - 1.0)
+    volume = mesh.element_volumes() * share
+    return volume.sum(), volume @ mesh.nodes[mesh.elements].mean(axis=1) / volume.sum()
 
 
-def test_shape_only_sets_the_resolution_of_the_inclusion():
-    """At (10, 6, 10) the inclusion is 8 elements covering the same 1.2 x 1 x 1.2 cm box as the one
-    element at (5, 3, 5), at the same candidate centres (x, z in 1.8, 3.0, 4.2 cm, y = 1.5 cm)."""
-    coarse, fine = gym.make(ENV_ID, shape=(5, 3, 5)), gym.make(ENV_ID, shape=(10, 6, 10))
+@pytest.mark.parametrize("shape", [(5, 3, 5), (8, 4, 8), (10, 6, 10), (7, 5, 9)])
+def test_shape_only_sets_the_resolution_of_the_inclusion(shape):
+    """At every shape the inclusion stiffens exactly the 1.2 x 1 x 1.2 cm box (each element by its
+    volume share in it), at the same candidate centres (x, z in 1.8, 3.0, 4.2 cm, y = 1.5 cm): one
+    element at (5, 3, 5), parts of 8 at (8, 4, 8) wherever the nodes fall."""
+    env = gym.make(ENV_ID, shape=shape)
+    unwrapped = env.unwrapped
     expected = [[x, 0.015, z] for x in (0.018, 0.030, 0.042) for z in (0.018, 0.030, 0.042)]
-    for env in (coarse, fine):
-        np.testing.assert_allclose(env.unwrapped.inclusion_centres, expected, atol=1e-12)
-    assert coarse.observation_space == fine.observation_space  # same palpation map cells
-    # the default model (the middle candidate, 10x E): same stiff volume and centre
-    (coarse_volume, coarse_centre), (fine_volume, fine_centre) = stiff_box(coarse), stiff_box(fine)
-    assert np.isclose(coarse_volume, 0.012 * 0.01 * 0.012) and np.isclose(fine_volume, coarse_volume)
-    np.testing.assert_allclose([coarse_centre, fine_centre], [[0.03, 0.015, 0.03]] * 2, atol=1e-12)
-    # every candidate: one element at (5, 3, 5), 2 x 2 x 2 at (10, 6, 10), the same volume
-    for env, count in ((coarse, 1), (fine, 8)):
-        unwrapped = env.unwrapped
-        assert np.all(unwrapped.inclusion_elements.sum(axis=1) == count)
-        volumes = unwrapped.inclusion_elements @ unwrapped.mesh.element_volumes()
-        np.testing.assert_allclose(volumes, 0.012 * 0.01 * 0.012, rtol=1e-9)
-    # an episode's inclusion stiffens the elements of its candidate box
-    fine.reset(seed=1)
-    unwrapped = fine.unwrapped
-    stiff = unwrapped.model.young_modulus > unwrapped.young_modulus
-    assert np.array_equal(stiff, unwrapped.inclusion_elements[unwrapped.inclusion_index])
-    assert np.isclose(stiff_box(fine)[1][0], unwrapped.inclusion_centre[0])
+    np.testing.assert_allclose(unwrapped.inclusion_centres, expected, atol=1e-12)
+    assert env.observation_space == gym.make(ENV_ID, shape=(5, 3, 5)).observation_space  # same palpation map cells
+    volumes = unwrapped.inclusion_shares @ unwrapped.mesh.element_volumes()
+    np.testing.assert_allclose(volumes, 0.012 * 0.01 * 0.012, rtol=1e-9)
+    centres = (unwrapped.inclusion_shares * unwrapped.mesh.element_volumes()) @ unwrapped.mesh.nodes[
+        unwrapped.mesh.elements].mean(axis=1) / volumes[:, None]
+    if shape == (5, 3, 5):  # the box is one element
+        assert np.all(unwrapped.inclusion_elements.sum(axis=1) == 1)
+        np.testing.assert_allclose(centres, expected, atol=1e-12)
+    # an episode's inclusion stiffens its candidate box, by the share of each element in it
+    for seed in (1, 2):
+        env.reset(seed=seed)
+        volume, centre = stiff_box(env)
+        assert np.isclose(volume, 0.012 * 0.01 * 0.012, rtol=1e-9)
+        stiff = unwrapped.model.young_modulus > unwrapped.young_modulus
+        assert np.array_equal(stiff, unwrapped.inclusion_elements[unwrapped.inclusion_index])
 
 
 @pytest.mark.parametrize("shape, count", [((5, 3, 5), 4), ((10, 6, 10), 9)])
@@ -203,8 +205,7 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
 
 
 @pytest.mark.parametrize("kwargs, words", [
-    (dict(shape=(10, 6, 10), inclusion_size=0.004), ("inclusion_size", "shape")),  # between element centres
-    (dict(shape=(4, 3, 4)), ("inclusion_size", "shape")),  # 1.5 cm elements: none centred in some boxes
+    (dict(probe_tip="cone"), ("probe_tip", "sphere", "flat")),
     (dict(inclusion_size=-0.01), ("inclusion_size",)),
     (dict(inclusion_size=(0.012, 0.012)), ("inclusion_size",)),
     (dict(inclusion_size=(0.012, 0.0, 0.012)), ("inclusion_size",)),
