@@ -8,12 +8,11 @@ imposes positions, the task features, the reward terms, the reset distribution);
 Physics per env step (measured, see ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
 Euler steps of ``dt`` s (``sim_core.integrators.ImplicitEuler``). It is stable far past the explicit
 limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms
-for TumorPositioning) per env step is enough, and with the springs' critical damping the block
+for TumorPositioning and Palpation) per env step is enough, and with the springs' critical damping the block
 settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
-``solve_static`` in tests/test_env_tumor_positioning.py). TumorPositioning's ``default_shape`` is
-the most accurate shape that keeps 300 env steps/s (``benchmarks/env_accuracy.py``); Palpation and
-Retraction keep theirs, as their errors come from the contact models rather than the resolution
-(README, "How the default resolution is chosen").
+``solve_static`` in tests/test_env_tumor_positioning.py). Each task's ``default_shape`` is the
+most accurate shape that keeps 300 env steps/s (``benchmarks/env_accuracy.py``; README, "How the
+default resolution is chosen").
 A full ``solve_static`` per env step was measured about 10 times slower (a sparse LU factorisation
 per Newton iteration), so it is used only at reset (initial sag under gravity, goal generation).
 """
@@ -132,7 +131,7 @@ class TissueEnv(gym.Env):
         size: (Lx, Ly, Lz) block extent in m (a float gives a cube).
         integrator: "implicit" (default, linearised implicit Euler) or "explicit" (symplectic Euler,
             needs dt below about 1 ms; for experiments on stability).
-        dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning 0.04);
+        dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
             substeps: physics steps per env step (default 1).
         max_step: tool displacement in m per env step for an action component of 1.
         hourglass_control: sim_core's hourglass stabilisation alpha (default 1).
@@ -153,7 +152,7 @@ class TissueEnv(gym.Env):
         instability_penalty: reward (negated) of the step where the simulation diverges.
         solver_tolerance: relative residual of the implicit integrator's linear solve (the task's
             ``default_solver_tolerance``: 1e-4, measured 1.5x faster than 1e-6 with positions within
-            0.01 mm of the 1e-6 run; TumorPositioning 1e-2, see its docstring).
+            0.01 mm of the 1e-6 run; TumorPositioning and Palpation 1e-2, see their docstrings).
         preconditioner: the implicit integrator's ("auto" default, "jacobi" or "factorised";
             ``sim_core.integrators.ImplicitEuler``): "auto" starts with Jacobi and switches to a
             sparse LU of the system matrix, kept across steps, when Jacobi needs more than about

@@ -141,7 +141,7 @@ class PalpationEnv(TissueEnv):
     The slab at static equilibrium under gravity. The inclusion is centred on one of the candidate
     cells, drawn uniformly. The candidate cells are physical: the slab is tiled by cells of
     ``cell_size`` = 1.2 x 1 x 1.2 cm (whole cells, centred on the top face, layers counted from the
-    surface; at the default size, the 5 x 3 x 5 elements of the default mesh) and the candidates are
+    surface; at the default size, the elements of a 5 x 3 x 5 mesh) and the candidates are
     the cells of the second layer (centres 1.5 cm under the surface): the interior ones by default (9
     positions at the default size: x, z in {0.018, 0.030, 0.042} m, y = 0.015 m), or, with
     ``inclusion_region``, all those (the outer ring included) whose centre lies in that region of
@@ -205,7 +205,7 @@ class PalpationEnv(TissueEnv):
     default_solver_tolerance = 1e-2
     default_max_step = 0.004
     min_shape = (3, 2, 3)
-    #: Cells (x, y, z) of the candidate lattice, m: the elements of the default mesh, as physical
+    #: Cells (x, y, z) of the candidate lattice, m: the elements of a 5 x 3 x 5 mesh, as physical
     #: boxes, so that ``shape`` does not move the candidates (see ``_setup_scene``).
     cell_size = np.array([0.012, 0.01, 0.012])
     reward_names = ("success", "explore", "approach", "time", "force", "volume", "strain")
@@ -265,7 +265,7 @@ class PalpationEnv(TissueEnv):
         self._place_probe(np.array([self.centre[0], self.top_y + self.clearance, self.centre[2]]))
         # Candidate inclusion cells: a lattice of cell_size cells over the slab (whole cells, centred
         # on the top face, layers counted down from the surface; at the default size, the elements of
-        # the default mesh), the cells of its second layer under the surface: the interior ones by
+        # a 5 x 3 x 5 mesh), the cells of its second layer under the surface: the interior ones by
         # default, else those whose centre lies in inclusion_region. Physical, whatever the shape.
         nx, ny, nz = count = np.floor(self.size / self.cell_size + 1e-9).astype(int)
         if nx < 3 or ny < 2 or nz < 3:
