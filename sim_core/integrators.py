@@ -9,6 +9,7 @@ never left to produce an unexplained NaN. SI units: s, m, m/s, N.
 from __future__ import annotations
 
 import hashlib
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -395,19 +396,42 @@ def _digest(array) -> bytes:
 class _FreeStructure:
     """The CSC structure of the system matrix restricted to the free dofs (``free``), with the
     positions of its entries in the model's ``BlockPattern`` data: a factorisation only gathers
-    values, nothing is re-sliced."""
+    values, nothing is re-sliced. Built from ``_pattern_arrays`` by masks (O(nnz) numpy, once per
+    imposed set: a contact makes many)."""
 
     def __init__(self, model: Model, free: np.ndarray):
-        pattern = model.pattern
+        column, rows, transpose, self.hg_positions = _pattern_arrays(model)
         self.model = model
         self.free = free
-        order = pattern.matrix(np.arange(1, pattern.nnz + 1, dtype=float)).tocsr()[free][:, free].tocsc()
-        order.sort_indices()
-        self.take = order.data.astype(np.int64) - 1
-        self.indices, self.indptr, self.shape = order.indices, order.indptr, order.shape
+        mask = np.zeros(model.pattern.n_dofs, bool)
+        mask[free] = True
+        keep = mask[column] & mask[rows]
+        number = np.cumsum(mask) - 1
+        self.take = transpose[keep]
+        self.indices = number[rows[keep]].astype(np.int32)
+        self.indptr = np.zeros(len(free) + 1, np.int32)
+        np.cumsum(np.bincount(number[column[keep]], minlength=len(free)), out=self.indptr[1:])
+        self.shape = (len(free), len(free))
+
+
+def _pattern_arrays(model: Model):
+    """Per model (cached while it lives): the model's symmetric block pattern read as CSC, column by
+    column (column of each entry, its row, the position in the CSR data of the entry (row,
+    column)), and the pattern positions of the hourglass matrix's entries."""
+    cached = _PATTERN_ARRAYS.get(model)
+    if cached is None:
+        pattern = model.pattern
+        column = np.repeat(np.arange(pattern.n_dofs), np.diff(pattern.indptr))  # CSR row c = CSC column c
+        rows = pattern.indices.astype(np.int64)
+        transpose = pattern.positions(rows, column)  # data position of (row, column): the pattern is symmetric
         hg_indptr, hg_indices, _ = model.hourglass_arrays
-        rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
-        self.hg_positions = pattern.positions(rows, hg_indices) if len(hg_indices) else np.zeros(0, np.int64)
+        hg_rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
+        hg_positions = pattern.positions(hg_rows, hg_indices) if len(hg_indices) else np.zeros(0, np.int64)
+        cached = _PATTERN_ARRAYS[model] = (column, rows, transpose, hg_positions)
+    return cached
+
+
+_PATTERN_ARRAYS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class _Factor:
