@@ -115,6 +115,15 @@ class PalpationEnv(TissueEnv):
     memoryless policy cannot tell which places it has already pressed: PPO and SAC stayed at the
     random policy's success rate (benchmarks/results/training.json before the map).
 
+    A shallow press is resolved by few contact nodes (at 3 mm the 9 mm sphere touches a disc of
+    about 5-7 mm radius: one to four nodes at the default 7.5 mm spacing), so the stiffness a cell
+    reads depends on where the nodes fall under the probe. Measured on a homogeneous slab
+    (``inclusion_ratio=1``, the press held one step): the 9 cells read 23-35 N/m at 3 mm (max/min
+    1.57; 1.24 at (12, 6, 12)) and 1.16 at 4 mm, while the inclusion raises its cell by 4-60%. The
+    pattern is fixed per cell, so the scripted sweep still finds every inclusion at the default
+    shape, but comparing cells is noisier than in a continuum; a contact that samples the probe
+    between the nodes (surface quadrature with a penalty) would remove it.
+
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
 
