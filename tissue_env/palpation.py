@@ -12,6 +12,11 @@ from .base import TissueEnv, check_range, check_region, check_vector, nonnegativ
 from .vector import TissueVectorEnv
 
 
+#: A press is held when the tip moved at most this much (m) in the last env step: what the
+#: palpation map records (the tissue has caught up with the probe).
+HELD_MOVE = 5e-4
+
+
 def update_palpation_map(palpation_map, centres, tips, depth, stiffness, map_depth, radius, rows):
     """Record presses in the palpation maps (N, C) in place and return which rows (N,) probed a
     cell for the first time. A row probes the candidate cell whose centre (``centres`` (C, 2),
@@ -19,7 +24,7 @@ def update_palpation_map(palpation_map, centres, tips, depth, stiffness, map_dep
     (m), the tip is at least ``map_depth`` (m) deep (``depth`` (N,)) and the probe touches
     (indentation ``stiffness`` (N,) N/m > 0); the cell keeps the stiffness of its first probe
     (so that pressing deeper later, where the force-depth curve is stiffer, does not change the
-    ranking). Only ``rows`` (N,) bool are updated."""
+    ranking). Only ``rows`` (N,) bool are updated (the envs pass the rows whose press is held)."""
     distance = np.hypot(centres[None, :, 0] - tips[:, None, 0], centres[None, :, 1] - tips[:, None, 2])
     cell = np.argmin(distance, axis=1)
     index = np.arange(len(cell))
@@ -110,19 +115,21 @@ class PalpationEnv(TissueEnv):
     | 17+C, 18+C   | offset (x, z) from the tip to the nearest cell not probed yet | cm (0 if none) |
 
     The palpation map is the agent's own memory of where it pressed and what it felt (a cell is
-    probed when the tip is ``map_depth`` = 3 mm deep or more with its axis within 1 cm of the
-    cell's centre, nearest centre first); it never reveals the inclusion. Without it a
-    memoryless policy cannot tell which places it has already pressed: PPO and SAC stayed at the
-    random policy's success rate (benchmarks/results/training.json before the map).
+    probed by a held press: the tip ``map_depth`` = 4 mm deep or more, moved at most 0.5 mm in the
+    last step, with its axis within 1 cm of the cell's centre, nearest centre first); it never
+    reveals the inclusion. Without it a memoryless policy cannot tell which places it has already
+    pressed: PPO and SAC stayed at the random policy's success rate
+    (benchmarks/results/training.json before the map).
 
     A shallow press is resolved by few contact nodes (at 3 mm the 9 mm sphere touches a disc of
     about 5-7 mm radius: one to four nodes at the default 7.5 mm spacing), so the stiffness a cell
     reads depends on where the nodes fall under the probe. Measured on a homogeneous slab
-    (``inclusion_ratio=1``, the press held one step): the 9 cells read 23-35 N/m at 3 mm (max/min
-    1.57; 1.24 at (12, 6, 12)) and 1.16 at 4 mm, while the inclusion raises its cell by 4-60%. The
-    pattern is fixed per cell, so the scripted sweep still finds every inclusion at the default
-    shape, but comparing cells is noisier than in a continuum; a contact that samples the probe
-    between the nodes (surface quadrature with a penalty) would remove it.
+    (``inclusion_ratio=1``), a press held one step: the 9 cells read 23-35 N/m at 3 mm (max/min
+    1.57; 1.24 at (12, 6, 12)) and 1.16 at 4 mm; the step the probe arrives, the tissue lags and
+    the spread is larger. Hence the map's 4 mm held press: over the inclusion a cell reads 1.05
+    (centre) to 1.33 (corners) times the stiffest other cell at the default shape (at 3 mm, or
+    unsettled, some inclusions read below another cell). The pattern is fixed per cell; a contact
+    that samples the probe between the nodes (surface quadrature with a penalty) would remove it.
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
@@ -205,7 +212,8 @@ class PalpationEnv(TissueEnv):
       shrinks the probe and the inclusion to its elements, and the elements are stiffened by their
       volume share in the inclusion box; the probe has a hemispherical end and
       an active-set contact (``probe_tip``), and the defaults moved from (5, 3, 5), 20 ms, 1e-4 to
-      (8, 4, 8), 40 ms, 1e-2, so that its observations converge with the mesh).
+      (8, 4, 8), 40 ms, 1e-2, so that its observations converge with the mesh; the palpation map
+      records held presses 4 mm deep, it recorded the first step 3 mm deep).
     """
 
     default_shape = (8, 4, 8)
@@ -223,7 +231,7 @@ class PalpationEnv(TissueEnv):
 
     def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=0.009,
                  probe_tip="sphere", inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,
-                 hold_steps=3, start_distance=0.02, success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, map_depth=0.003,
+                 hold_steps=3, start_distance=0.02, success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, map_depth=0.004,
                  explore_bonus=0.5, approach_weight=1.0, **kwargs):
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
         self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
@@ -352,6 +360,7 @@ class PalpationEnv(TissueEnv):
         self.press_steps = 0
         self.palpation_map = np.zeros(len(self.cell_centres))
         self.distance = None
+        self._last_tip = self.probe_start.copy()
 
     def _start_hook(self):
         self._sweep = None
@@ -405,9 +414,12 @@ class PalpationEnv(TissueEnv):
         # consecutive steps of a success press (once per reset and per step)
         self.press_steps = self.press_steps + 1 if measures["pressing"] else 0
         measures["press_steps"] = self.press_steps
-        new = update_palpation_map(self.palpation_map[None], self.cell_centres, self._tip()[None],
+        tip = self._tip()
+        held = np.linalg.norm(tip - self._last_tip) <= HELD_MOVE
+        self._last_tip = tip
+        new = update_palpation_map(self.palpation_map[None], self.cell_centres, tip[None],
                                    np.array([measures["depth"]]), np.array([measures["indentation_stiffness"]]),
-                                   self.map_depth, self.success_radius, np.array([True]))
+                                   self.map_depth, self.success_radius, np.array([held]))
         measures["new_cell"] = bool(new[0])
         distance = measures["horizontal_distance"]
         measures["approach"] = 0.0 if self.distance is None else self.distance - distance
@@ -448,10 +460,11 @@ class PalpationEnv(TissueEnv):
         return terms
 
     # -- scripted sweep ------------------------------------------------------------------------------
-    def scripted_action(self, probe_depth=0.003, settle_steps=0):
+    def scripted_action(self, probe_depth=0.004, settle_steps=1):
         """A sweep: press ``probe_depth`` over each candidate cell centre (a serpentine from the
-        end nearest the start), record the indentation stiffness, then press ``success_depth`` +
-        1 mm over the stiffest one and hold it there."""
+        end nearest the start), hold it ``settle_steps``, record the indentation stiffness (what the
+        palpation map records), then press ``success_depth`` + 1 mm over the stiffest one and hold
+        it there."""
         if self._sweep is None:
             centres = self.cell_centres.copy()
             rows = np.unique(centres[:, 0], return_inverse=True)[1]
@@ -514,6 +527,7 @@ class PalpationVectorEnv(TissueVectorEnv):
         self.cell_centres = env.cell_centres
         self.palpation_map = np.zeros((count, len(self.cell_centres)))
         self.distance = np.zeros(count)
+        self.last_tips = np.zeros((count, 3))  # each copy's tip at the previous step (held presses)
         for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
                      "force_weight", "length_scale", "map_depth", "explore_bonus", "approach_weight"):
             setattr(self, name, getattr(env, name))
@@ -524,6 +538,7 @@ class PalpationVectorEnv(TissueVectorEnv):
         self.press_steps[index] = env.press_steps
         self.palpation_map[index] = env.palpation_map
         self.distance[index] = env.distance
+        self.last_tips[index] = env._last_tip
         self.contact[index] = env.contact
         if self._node_forces is not None:  # the copy's measurement at its reset, as the single env's
             self._node_forces[index] = env.measures["forces"]
@@ -572,9 +587,12 @@ class PalpationVectorEnv(TissueVectorEnv):
     def _batch_record(self, measures, rows):
         self.press_steps = np.where(rows, np.where(measures["pressing"], self.press_steps + 1, 0), self.press_steps)
         measures["press_steps"] = self.press_steps.copy()
-        measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, self._tips(), measures["depth"],
+        tips = self._tips()
+        held = np.linalg.norm(tips - self.last_tips, axis=1) <= HELD_MOVE
+        self.last_tips = np.where(rows[:, None], tips, self.last_tips)
+        measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, tips, measures["depth"],
                                                     measures["indentation_stiffness"], self.map_depth,
-                                                    self.success_radius, rows)
+                                                    self.success_radius, rows & held)
         distance = measures["horizontal_distance"]
         measures["approach"] = np.where(rows, self.distance - distance, 0.0)
         self.distance = np.where(rows, distance, self.distance)
@@ -611,6 +629,7 @@ class PalpationVectorEnv(TissueVectorEnv):
         env.press_steps = int(self.press_steps[index])
         env.palpation_map = self.palpation_map[index].copy()
         env.distance = float(self.distance[index])
+        env._last_tip = self.last_tips[index].copy()
 
     def _write_back_measures(self, index, measures):
         measures["press_steps"] = int(self.press_steps[index])
