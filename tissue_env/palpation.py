@@ -12,11 +12,6 @@ from .base import TissueEnv, check_range, check_region, check_vector, nonnegativ
 from .vector import TissueVectorEnv
 
 
-#: A press is held when the tip moved at most this much (m) in the last env step: what the
-#: palpation map records (the tissue has caught up with the probe).
-HELD_MOVE = 5e-4
-
-
 def update_palpation_map(palpation_map, centres, tips, depth, stiffness, map_depth, radius, rows):
     """Record presses in the palpation maps (N, C) in place and return which rows (N,) probed a
     cell for the first time. A row probes the candidate cell whose centre (``centres`` (C, 2),
@@ -24,7 +19,7 @@ def update_palpation_map(palpation_map, centres, tips, depth, stiffness, map_dep
     (m), the tip is at least ``map_depth`` (m) deep (``depth`` (N,)) and the probe touches
     (indentation ``stiffness`` (N,) N/m > 0); the cell keeps the stiffness of its first probe
     (so that pressing deeper later, where the force-depth curve is stiffer, does not change the
-    ranking). Only ``rows`` (N,) bool are updated (the envs pass the rows whose press is held)."""
+    ranking). Only ``rows`` (N,) bool are updated."""
     distance = np.hypot(centres[None, :, 0] - tips[:, None, 0], centres[None, :, 1] - tips[:, None, 2])
     cell = np.argmin(distance, axis=1)
     index = np.arange(len(cell))
@@ -115,21 +110,21 @@ class PalpationEnv(TissueEnv):
     | 17+C, 18+C   | offset (x, z) from the tip to the nearest cell not probed yet | cm (0 if none) |
 
     The palpation map is the agent's own memory of where it pressed and what it felt (a cell is
-    probed by a held press: the tip ``map_depth`` = 4 mm deep or more, moved at most 0.5 mm in the
-    last step, with its axis within 1 cm of the cell's centre, nearest centre first); it never
-    reveals the inclusion. Without it a memoryless policy cannot tell which places it has already
-    pressed: PPO and SAC stayed at the random policy's success rate
-    (benchmarks/results/training.json before the map).
+    probed when the tip is ``map_depth`` = 4 mm deep or more with its axis within 1 cm of the
+    cell's centre, nearest centre first); it never reveals the inclusion. Without it a memoryless
+    policy cannot tell which places it has already pressed: PPO and SAC stayed at the random
+    policy's success rate (benchmarks/results/training.json before the map).
 
     A shallow press is resolved by few contact nodes (at 3 mm the 9 mm sphere touches a disc of
     about 5-7 mm radius: one to four nodes at the default 7.5 mm spacing), so the stiffness a cell
     reads depends on where the nodes fall under the probe. Measured on a homogeneous slab
     (``inclusion_ratio=1``), a press held one step: the 9 cells read 23-35 N/m at 3 mm (max/min
-    1.57; 1.24 at (12, 6, 12)) and 1.16 at 4 mm; the step the probe arrives, the tissue lags and
-    the spread is larger. Hence the map's 4 mm held press: over the inclusion a cell reads 1.05
-    (centre) to 1.33 (corners) times the stiffest other cell at the default shape (at 3 mm, or
-    unsettled, some inclusions read below another cell). The pattern is fixed per cell; a contact
-    that samples the probe between the nodes (surface quadrature with a penalty) would remove it.
+    1.57; 1.24 at (12, 6, 12)) and 1.16 at 4 mm. Hence the map's 4 mm: at the default shape, the
+    first step 4 mm deep over the inclusion reads 0.97 (centre cell) to 1.64 (corners) times the
+    stiffest other cell; held one step, as the scripted sweep does, 1.05 to 1.33 (at 3 mm some
+    inclusions read below another cell). Requiring the map's press to be held made it too rare
+    for PPO (0-10% success). The pattern is fixed per cell; a contact that samples the probe
+    between the nodes (surface quadrature with a penalty) would remove it.
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
@@ -213,7 +208,7 @@ class PalpationEnv(TissueEnv):
       volume share in the inclusion box; the probe has a hemispherical end and
       an active-set contact (``probe_tip``), and the defaults moved from (5, 3, 5), 20 ms, 1e-4 to
       (8, 4, 8), 40 ms, 1e-2, so that its observations converge with the mesh; the palpation map
-      records held presses 4 mm deep, it recorded the first step 3 mm deep).
+      records the first press 4 mm deep, it was 3 mm).
     """
 
     default_shape = (8, 4, 8)
@@ -360,7 +355,6 @@ class PalpationEnv(TissueEnv):
         self.press_steps = 0
         self.palpation_map = np.zeros(len(self.cell_centres))
         self.distance = None
-        self._last_tip = self.probe_start.copy()
 
     def _start_hook(self):
         self._sweep = None
@@ -414,12 +408,9 @@ class PalpationEnv(TissueEnv):
         # consecutive steps of a success press (once per reset and per step)
         self.press_steps = self.press_steps + 1 if measures["pressing"] else 0
         measures["press_steps"] = self.press_steps
-        tip = self._tip()
-        held = np.linalg.norm(tip - self._last_tip) <= HELD_MOVE
-        self._last_tip = tip
-        new = update_palpation_map(self.palpation_map[None], self.cell_centres, tip[None],
+        new = update_palpation_map(self.palpation_map[None], self.cell_centres, self._tip()[None],
                                    np.array([measures["depth"]]), np.array([measures["indentation_stiffness"]]),
-                                   self.map_depth, self.success_radius, np.array([held]))
+                                   self.map_depth, self.success_radius, np.array([True]))
         measures["new_cell"] = bool(new[0])
         distance = measures["horizontal_distance"]
         measures["approach"] = 0.0 if self.distance is None else self.distance - distance
@@ -527,7 +518,6 @@ class PalpationVectorEnv(TissueVectorEnv):
         self.cell_centres = env.cell_centres
         self.palpation_map = np.zeros((count, len(self.cell_centres)))
         self.distance = np.zeros(count)
-        self.last_tips = np.zeros((count, 3))  # each copy's tip at the previous step (held presses)
         for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
                      "force_weight", "length_scale", "map_depth", "explore_bonus", "approach_weight"):
             setattr(self, name, getattr(env, name))
@@ -538,7 +528,6 @@ class PalpationVectorEnv(TissueVectorEnv):
         self.press_steps[index] = env.press_steps
         self.palpation_map[index] = env.palpation_map
         self.distance[index] = env.distance
-        self.last_tips[index] = env._last_tip
         self.contact[index] = env.contact
         if self._node_forces is not None:  # the copy's measurement at its reset, as the single env's
             self._node_forces[index] = env.measures["forces"]
@@ -587,12 +576,9 @@ class PalpationVectorEnv(TissueVectorEnv):
     def _batch_record(self, measures, rows):
         self.press_steps = np.where(rows, np.where(measures["pressing"], self.press_steps + 1, 0), self.press_steps)
         measures["press_steps"] = self.press_steps.copy()
-        tips = self._tips()
-        held = np.linalg.norm(tips - self.last_tips, axis=1) <= HELD_MOVE
-        self.last_tips = np.where(rows[:, None], tips, self.last_tips)
-        measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, tips, measures["depth"],
+        measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, self._tips(), measures["depth"],
                                                     measures["indentation_stiffness"], self.map_depth,
-                                                    self.success_radius, rows & held)
+                                                    self.success_radius, rows)
         distance = measures["horizontal_distance"]
         measures["approach"] = np.where(rows, self.distance - distance, 0.0)
         self.distance = np.where(rows, distance, self.distance)
@@ -629,7 +615,6 @@ class PalpationVectorEnv(TissueVectorEnv):
         env.press_steps = int(self.press_steps[index])
         env.palpation_map = self.palpation_map[index].copy()
         env.distance = float(self.distance[index])
-        env._last_tip = self.last_tips[index].copy()
 
     def _write_back_measures(self, index, measures):
         measures["press_steps"] = int(self.press_steps[index])
