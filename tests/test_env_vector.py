@@ -242,3 +242,82 @@ def test_copies_share_models_and_caches():
         assert copy._model_cache is first._model_cache and copy._start_cache is first._start_cache
         assert copy._first_factors is first._first_factors and copy._goal_factors is first._goal_factors
     vector.close()
+
+
+@pytest.mark.parametrize("layout", ["node blocks", "scalar"])
+def test_reference_preconditioner_solves_each_group_with_its_factor(layout, monkeypatch):
+    """Solver "reference": the copies that start alike share one sparse LU (one group), and the
+    compiled solve (kernels._batched_precondition) applies each group's factor to all its copies at
+    once: the exact inverse of the group's system matrix on the free dofs, zero on the imposed ones;
+    a re-linearised copy gets a factor of its own; group -1 is the Jacobi diagonal. Both factor
+    layouts: node blocks (free dofs are whole nodes, TumorPositioning) and the scalar fallback."""
+    from sim_core import kernels
+    from sim_core.forces import stiffness_data
+    from tissue_env import batched
+
+    if layout == "scalar":
+        monkeypatch.setattr(batched._BlockFactor, "applies", staticmethod(lambda free: False))
+    monkeypatch.setattr(batched, "_preconditioners", batched.OrderedDict())  # factors made here, not cached
+    vector = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=4, vectorization_mode="vector_entry_point")
+    env = vector.unwrapped
+    vector.reset(seed=0)
+    integrator = env.integrator
+    assert integrator.solver == "reference"
+    assert len(integrator._group()) == 1  # the four copies start alike: one factor
+    assert (integrator._group()[0][0].ints[0] < 0) == (layout == "node blocks")
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        vector.step(rng.uniform(-1, 1, (4, 3)))
+    fixed, _, _ = env._batch_control()
+    copy = env.envs[2]
+    integrator._refresh(2, env.positions[2], env.dt, fixed[2])
+    groups = integrator._group()
+    assert sorted(len(rows) for _, rows in groups) == [1, 3]
+    lu_int, lu_float, group_of = integrator._pack_preconditioners()
+    group_of = group_of.copy()
+    group_of[3] = -1  # copy 3 on the Jacobi diagonal
+    dofs = 3 * env.n_nodes
+    vectors = rng.normal(size=(dofs, 4))
+    mask = np.ascontiguousarray(~fixed.reshape(4, dofs).T, dtype=float)
+    inverse_diagonal = rng.uniform(1.0, 2.0, (dofs, 4))
+    out = np.empty_like(vectors)
+    kernels._batched_precondition(lu_int, lu_float, group_of, np.ones(4, bool), inverse_diagonal, mask, vectors, out,
+                                  np.empty(4, np.int64), np.empty((dofs, 4)), np.empty((3, 4)))
+    free = np.flatnonzero(mask[:, 0])
+    for index, positions in ((0, copy.state.positions), (2, env.positions[2])):
+        # copy 0 still has the start-of-episode factor, copy 2 the one at its current state
+        data = stiffness_data(copy.model, positions, volume=False, clamp=True, stiffness_scale=env.dt ** 2,
+                              damping_scale=env.dt, mass_scale=1.0)
+        matrix = copy.model.pattern.matrix(data).tocsr()[free][:, free].tocsc()
+        expected = batched.spla.spsolve(matrix, vectors[free, index])
+        np.testing.assert_allclose(out[free, index], expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
+        assert np.all(out[mask[:, index] == 0, index] == 0.0)
+    np.testing.assert_allclose(out[:, 3], mask[:, 3] * inverse_diagonal[:, 3] * vectors[:, 3], rtol=1e-15)
+    vector.close()
+
+
+def test_measurement_shares_the_next_steps_force_pass():
+    """TumorPositioning's vector env measures with the next implicit step's force pass
+    (``BatchedImplicitEuler.linearise`` plus the damping forces): the same nodal forces as a full
+    pass with velocities up to rounding, and the step from that state does not compute it again."""
+    from sim_core.forces import ForceWorkspace
+
+    vector = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=3, vectorization_mode="vector_entry_point")
+    env = vector.unwrapped
+    assert env.share_force_pass
+    vector.reset(seed=2)
+    rng = np.random.default_rng(2)
+    for _ in range(4):
+        vector.step(rng.uniform(-1, 1, (3, 3)))
+    flat = np.ascontiguousarray(env.positions.reshape(-1, 3))
+    measured = env._measure(env._tool_mask)["forces"].reshape(-1, 3)
+    full = ForceWorkspace(env.stack.model, implicit=False).compute(
+        flat, np.ascontiguousarray(env.velocities.reshape(-1, 3))) + env.stack.model.gravity_force
+    np.testing.assert_allclose(measured, full, rtol=0, atol=1e-12 * np.abs(full).max())
+    integrator = env.integrator
+    cached = integrator._linearised
+    integrator.linearise(flat)  # the measured state: cached, no second pass
+    assert integrator._linearised is cached
+    integrator.linearise(flat + 1e-6)  # another state: a new pass
+    assert integrator._linearised is not cached
+    vector.close()

@@ -24,15 +24,25 @@ Preconditioner (solver "factorised", the default): each copy's own sparse LU of 
 matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator), kept across steps
 and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does, and the copies' BiCGSTABs run
 one after the other in one compiled call (``kernels.solve_copies_lu``): no copy waits for the
-slowest, 1-5 iterations per copy. Solver "reference": the exact inverse of the copy's system
-matrix at the start of its episode. Copies that start alike share it (one pass over the matrix serves them all), and
-it stays close to the current matrix while the tissue moves a few millimetres: 4-7 iterations.
-When it no longer fits (large deformation, a probe contact that changes the imposed dofs), the
-copy that needed the most iterations (more than ``refresh_iterations``) is re-linearised at its
-current state, one per step, and a copy that has not converged after ``first_pass`` iterations is
-re-linearised and solved again. ``solver="jacobi"`` uses sim_core's Jacobi diagonal instead.
-The trajectories equal those of N single environments up to the solvers' tolerance
-(tests/test_env_vector.py). SI units.
+slowest, 1-5 iterations per copy. Solver "reference": the sparse LU of the copy's system matrix at
+the start of its episode, applied by triangular solves: in dense 3 x 3 node blocks when the free
+dofs are whole nodes (``_BlockFactor``: SuperLU without pivoting on a node ordering), else as the
+factorised solver's scalar factor. Copies that start alike share one factor (one cache entry), and
+the copies of a group are solved together: each block of L and U is read once and updates the rows
+of all their right-hand sides (``kernels._batched_precondition``), so a shared factor costs about
+one pass for all N copies (measured at TumorPositioning's 6^3 block, 855 free dofs, 1.7e5 entries
+in L + U: 0.45 ms for 16 copies and 0.08 ms for one, against 2.1 ms for 16 copies with the dense
+inverse this replaces, which also took 0.15 s to build against 5-10 ms for the LU). The start
+matrix stays close to the current one while the tissue moves a few millimetres: 4-7 iterations. When it no longer fits (large
+deformation, a probe contact that changes the imposed dofs), the copy that needed the most
+iterations (more than ``refresh_iterations``) is re-linearised at its current state, one per step,
+and a copy that has not converged after ``first_pass`` iterations is re-linearised and solved
+again; a re-linearised copy leaves its group (a factor of its own, an extra pass per application,
+and a factorisation: measured slower overall with ``refresh_iterations`` 5 or 6 than with 8).
+The step's force pass at a state is computed once (``BatchedImplicitEuler.linearise``): a vector
+env that measures with it (``share_force_pass``) gives the next step its forces and linearisation.
+``solver="jacobi"`` uses sim_core's Jacobi diagonal instead. The trajectories equal those of N
+single environments up to the solvers' tolerance (tests/test_env_vector.py). SI units.
 """
 
 from __future__ import annotations
@@ -62,9 +72,6 @@ _preconditioners: OrderedDict = OrderedDict()
 _factors: OrderedDict = OrderedDict()
 #: The batched implicit step's linear solvers (``BatchedImplicitEuler``).
 SOLVERS = ("factorised", "reference", "jacobi")
-#: Rows per dense product in the preconditioner: OpenBLAS runs products this small on one thread,
-#: larger ones on all cores, which was measured 10-50x slower on a loaded 2-core machine.
-BLAS_ROWS = 4
 
 
 class ModelStack:
@@ -198,17 +205,92 @@ def _digest(array) -> bytes:
     return hashlib.blake2b(np.ascontiguousarray(array).tobytes(), digest_size=16).digest()
 
 
-def _inverse_system(model, positions, dt, fixed):
-    """(free dofs, transposed dense inverse) of the implicit system matrix on the free dofs."""
-    free = np.flatnonzero(~fixed.ravel())
+def _system_factor(model, positions, dt, fixed):
+    """The packed sparse LU (``_CopyFactor``) of the implicit system matrix M + dt D + dt^2 K (K at
+    ``positions`` (n, 3) m, geometric terms clamped as the integrator does) on the dofs not in
+    ``fixed`` (n, 3); the identity (no factor) when the matrix is singular (a diverging state)."""
+    free = np.flatnonzero(~np.asarray(fixed, dtype=bool).ravel())
     data = stiffness_data(model, positions, volume=False, clamp=True, stiffness_scale=dt * dt,
                           damping_scale=dt, mass_scale=1.0)
-    factor = spla.splu(model.pattern.matrix(data).tocsr()[free][:, free].tocsc())
-    # column by column: SuperLU's one-vector solves stay on one thread (np.linalg.inv and
-    # many-column solves use threaded BLAS, measured 10-50x slower on a loaded 2-core machine)
-    identity = np.eye(len(free))
-    inverse = np.stack([factor.solve(identity[:, j]) for j in range(len(free))], axis=1)
-    return free, np.ascontiguousarray(inverse.T)
+    matrix = model.pattern.matrix(data).tocsr()[free][:, free].tocsc()
+    if _BlockFactor.applies(free):
+        try:
+            with np.errstate(all="ignore"):
+                factor = _BlockFactor(matrix, free)
+            if np.all(np.isfinite(factor.floats)):
+                return factor
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):
+            pass
+    try:
+        with np.errstate(all="ignore"):
+            factor = _CopyFactor(matrix, free)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError):
+        return _CopyFactor()
+    if not np.all(np.isfinite(factor.floats)):
+        return _CopyFactor()
+    factor.lu = factor.lower = factor.upper = None  # only the packed arrays are used
+    return factor
+
+
+class _BlockFactor:
+    """A sparse LU of a system matrix whose free dofs are whole nodes, in dense 3 x 3 node blocks,
+    packed for ``kernels._block_lu_solve`` (``ints``, ``floats``): P A P^T = L U with P a symmetric
+    permutation of whole nodes (SuperLU's minimum degree ordering of the node graph, MMD on A + A^T)
+    and no pivoting (the implicit system matrix M + dt D + dt^2 K is dominated by its diagonal), so
+    that L and U keep the node blocks. The fill is that of SuperLU's scalar ordering (1.65e5 entries
+    at TumorPositioning's 6^3 block, in 1.9e4 blocks), and the substitutions read one index per 9
+    values: 4x faster than the scalar factor for one right-hand side, 1.3x for 16.
+
+    Args:
+        matrix: (k, k) CSC system matrix on the free dofs.
+        free: (k,) the free dofs, whole nodes in order (``applies``).
+    Raises np.linalg.LinAlgError when SuperLU pivots or the blocks lose their diagonal."""
+
+    #: node orderings per free set (they depend only on the block's pattern and the free set)
+    _orders: OrderedDict = OrderedDict()
+
+    @staticmethod
+    def applies(free) -> bool:
+        """Whether the free dofs ``free`` (sorted) are whole nodes."""
+        free = np.asarray(free)
+        if free.size == 0 or free.size % 3:
+            return False
+        triples = free.reshape(-1, 3)
+        return bool(np.all(triples[:, 0] % 3 == 0) and np.all(triples == triples[:, :1] + np.arange(3)))
+
+    def __init__(self, matrix, free):
+        k = matrix.shape[0]
+        nb = k // 3
+        key = (free.tobytes(), matrix.indptr.tobytes(), matrix.indices.tobytes())
+        node_order = self._orders.get(key)
+        if node_order is None:
+            coo = matrix.tocoo()
+            graph = sp.csc_matrix((np.ones(coo.nnz), (coo.row // 3, coo.col // 3)), shape=(nb, nb))
+            graph.data[:] = 1.0
+            graph = (graph + sp.diags(np.full(nb, float(nb)))).tocsc()
+            ordering = spla.splu(graph, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                 options=dict(SymmetricMode=True))
+            node_order = np.argsort(ordering.perm_c)
+            self._orders[key] = node_order
+            if len(self._orders) > PRECONDITIONER_CACHE_SIZE:
+                self._orders.popitem(last=False)
+        order = (3 * node_order[:, None] + np.arange(3)).ravel()
+        permuted = matrix.tocsr()[order][:, order].tocsc()
+        lu = spla.splu(permuted, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+        identity = np.arange(k)
+        if not (np.array_equal(lu.perm_r, identity) and np.array_equal(lu.perm_c, identity)):
+            raise np.linalg.LinAlgError("the node-block LU pivoted")
+        lower = lu.L.tocsr().tobsr(blocksize=(3, 3))
+        upper = lu.U.tocsr().tobsr(blocksize=(3, 3))
+        lower.sort_indices()
+        upper.sort_indices()
+        rows = np.arange(nb)
+        if not (np.array_equal(lower.indices[lower.indptr[1:] - 1], rows)
+                and np.array_equal(upper.indices[upper.indptr[:-1]], rows)):
+            raise np.linalg.LinAlgError("node-block LU without its diagonal blocks")
+        self.ints = np.concatenate([[-k, nb, len(lower.indices), len(upper.indices)], lower.indptr, lower.indices,
+                                    upper.indptr, upper.indices, free[order]]).astype(np.int64)
+        self.floats = np.concatenate([lower.data.ravel(), upper.data.ravel()])
 
 
 class _FreePattern:
@@ -308,12 +390,17 @@ class _LUPattern:
 
 class BatchedImplicitEuler:
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
-    copy run in lockstep (see the module docstring).
+    copy, run in lockstep (solvers "reference", "jacobi") or one copy after the other
+    ("factorised"); see the module docstring.
 
     Args:
         stack: the ``ModelStack``.
         tolerance: relative residual ||r|| / ||b|| each copy's linear solve reaches.
         max_iterations: cap on each copy's solver iterations.
+        refresh_iterations: solver "reference": a step whose slowest copy needs more iterations
+            re-linearises that copy's preconditioner (0: never).
+        solver: "factorised", "reference" or "jacobi" (``SOLVERS``).
+        amortise: solver "factorised": see ``self.amortise``.
     """
 
     def __init__(self, stack: ModelStack, tolerance: float = 1e-4, max_iterations: int = 200,
@@ -345,6 +432,7 @@ class BatchedImplicitEuler:
         self._ones = np.ones((dofs, count))
         self._packed = None
         self._packed_groups = None
+        self._linearised = None  # (stack version, positions) of the workspace's last force pass
         if solver == "factorised":
             identity = _CopyFactor()
             self._factors = [None] * count
@@ -370,9 +458,10 @@ class BatchedImplicitEuler:
     # -- preconditioner ------------------------------------------------------------------------------
     def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
         """Start an episode of copy ``index``: clear its warm start and (solver "reference") set its
-        preconditioner, the inverse of its system matrix M + dt D + dt^2 K (K at ``positions``
+        preconditioner, the sparse LU of its system matrix M + dt D + dt^2 K (K at ``positions``
         (n, 3) m, the episode's start; geometric terms clamped as the integrator does) on the dofs
-        not in ``fixed`` (n, 3). Shared (cached) between copies and episodes that start alike."""
+        not in ``fixed`` (n, 3) (``_system_factor``). Shared (cached) between copies and episodes that
+        start alike: the copies holding the same factor form one group, solved together."""
         self.warm[index] = 0.0
         if self.solver == "jacobi":
             return
@@ -395,7 +484,7 @@ class BatchedImplicitEuler:
             return
         entry = _preconditioners.get(key)
         if entry is None:
-            entry = _preconditioners[key] = _inverse_system(model, positions, dt, fixed)
+            entry = _preconditioners[key] = _system_factor(model, positions, dt, fixed)
             if len(_preconditioners) > PRECONDITIONER_CACHE_SIZE:
                 _preconditioners.popitem(last=False)
         else:
@@ -411,8 +500,8 @@ class BatchedImplicitEuler:
         """Re-linearise copy ``index``'s preconditioner at its current ``positions``: after large
         tool motions the start matrix is a poorer approximation and its solver needs more
         iterations, which all copies wait for (measured: 6 -> 20 iterations over 150 random steps
-        without refresh, about 7 with it)."""
-        self._use(index, _inverse_system(self.stack.models[index], positions, dt, fixed))
+        without refresh, about 7 with it). The copy gets a factor of its own (it leaves its group)."""
+        self._use(index, _system_factor(self.stack.models[index], positions, dt, fixed))
         self.refreshes += 1
 
     def _group(self):
@@ -422,20 +511,6 @@ class BatchedImplicitEuler:
                 groups.setdefault(id(entry), (entry, []))[1].append(index)
             self._groups = [(entry, np.array(indices)) for entry, indices in groups.values()]
         return self._groups
-
-    def _precondition(self, vectors, mask):
-        out = np.zeros_like(vectors)
-        for (free, inverse_t), rows in self._group():
-            every = len(rows) == len(vectors)
-            reduced = vectors[:, free] if every else vectors[rows][:, free]
-            product = np.concatenate([reduced[k:k + BLAS_ROWS] @ inverse_t
-                                      for k in range(0, len(rows), BLAS_ROWS)])
-            if every:
-                out[:, free] = product
-            else:
-                out[rows[:, None], free] = product
-        out *= mask
-        return out
 
     # -- factorised preconditioner (solver "factorised") ---------------------------------------------
     def _set_factor(self, index, factor, free):
@@ -599,28 +674,39 @@ class BatchedImplicitEuler:
 
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
-        """The kernel's view of the copies' preconditioners: (data, offsets, free, counts, group_of)."""
+        """The kernel's view of the copies' preconditioners: (lu_int, lu_float, group_of), the packed
+        LUs of the groups of copies that share one (``kernels._batched_precondition``; group -1:
+        Jacobi)."""
         count = self.stack.count
         if self.solver != "reference":
             if self._packed is None:
-                self._packed = (np.zeros(1), np.zeros(1, dtype=np.int64), np.zeros((0, 1), dtype=np.int64),
-                                np.zeros(0, dtype=np.int64), np.full(count, -1, dtype=np.int64))
+                identity = _CopyFactor()
+                self._packed = (TypedList([identity.ints]), TypedList([identity.floats]),
+                                np.full(count, -1, dtype=np.int64))
             return self._packed
         groups = self._group()
         if self._packed is None or self._packed_groups is not groups:
-            sizes = [len(free) for (free, _), _ in groups]
-            offsets = np.concatenate([[0], np.cumsum([k * k for k in sizes])]).astype(np.int64)
-            data = np.empty(max(int(offsets[-1]), 1))
-            free_rows = np.zeros((len(groups), max(max(sizes), 1)), dtype=np.int64)
             group_of = np.full(count, -1, dtype=np.int64)
-            for g, ((free, inverse_t), rows) in enumerate(groups):
-                k = len(free)
-                data[offsets[g]:offsets[g + 1]] = inverse_t.T.ravel()  # row-major P = inverse
-                free_rows[g, :k] = free
+            for g, (_, rows) in enumerate(groups):
                 group_of[rows] = g
-            self._packed = (data, offsets[:-1].copy(), free_rows, np.array(sizes, dtype=np.int64), group_of)
+            self._packed = (TypedList([factor.ints for factor, _ in groups]),
+                            TypedList([factor.floats for factor, _ in groups]), group_of)
             self._packed_groups = groups
         return self._packed
+
+    def linearise(self, positions):
+        """The step's force pass over the stacked model at ``positions`` (N n, 3) m: internal forces
+        without damping (N n, 3) N, with the clamped geometric stiffness and volume terms of the
+        implicit system in ``self.workspace``. Computed once per state: a step from positions that
+        were already linearised (by the vector env's measurement of the previous step) reuses it."""
+        stack = self.stack
+        cached = self._linearised
+        if cached is not None and cached[0] == stack.version and np.array_equal(cached[1], positions):
+            return self.workspace.forces
+        forces = self.workspace.compute(positions, None, geometric=True,
+                                        volume_jacobian=stack.model.has_volume_forces)
+        self._linearised = (stack.version, positions.copy())
+        return forces
 
     def simulate(self, positions, velocities, fixed, target, dt, active):
         """One step of every copy in ``active`` (N,) bool; the others keep their state.
@@ -642,7 +728,7 @@ class BatchedImplicitEuler:
         workspace = self.workspace
         # one fused pass over the stacked model: forces without damping, clamped geometric stiffness,
         # volume terms
-        forces = workspace.compute(x0, None, geometric=True, volume_jacobian=implicit_volume) + model.gravity_force
+        forces = self.linearise(x0) + model.gravity_force
         reference = stack.reference
         n_springs, n_elements = stack.n_springs, stack.n_elements
 

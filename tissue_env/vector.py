@@ -22,10 +22,13 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "auto"
 preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
-steps per CPU second, median of 3 interleaved rounds on a loaded 2-core machine): Palpation 3.2x
-and Retraction 3.2x (per-copy sparse LUs, solver "factorised"), TumorPositioning 1.8x (its
-resets, a static solve for the goal, cost the same in both modes and are 17 % of the vector env's
-time; solver "reference").
+steps per CPU second, median of 3 interleaved rounds on a loaded 2-core machine):
+TumorPositioning 2.5x (725 against 296; solver "reference", one node-block LU shared by the
+copies, and the measurement's force pass shared with the next step; 1.3x, 377 against 293, with
+the dense inverse before). Its resets, a static solve for the goal, cost the same in both modes
+and are now 37 % of the vector env's time (16 % of sync's), which bounds the ratio. Palpation
+1.2x and Retraction 1.1x (per-copy sparse LUs, solver "factorised") since the sphere probe's and
+the floor's active-set contacts and Retraction's (8, 2, 4) default (3.1x each before those).
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from sim_core import kernels
 from sim_core.model import State
 
 from .base import OBS_LIMIT
-from .batched import ModelStack, make_batched_integrator, new_monitor
+from .batched import BatchedImplicitEuler, ModelStack, make_batched_integrator, new_monitor
 
 
 class TissueVectorEnv(VectorEnv):
@@ -59,9 +62,15 @@ class TissueVectorEnv(VectorEnv):
     env_class = None
     #: How the batched implicit step solves each copy's linear system (``tissue_env.batched``):
     #: "factorised" (each copy's sparse LU kept across steps, the copies solved one after the
-    #: other), "reference" (BiCGSTAB preconditioned by the start-of-episode system inverse, in
-    #: lockstep) or "jacobi" (the Jacobi diagonal, in lockstep).
+    #: other), "reference" (BiCGSTAB preconditioned by the sparse LU of the start-of-episode system
+    #: matrix, shared by the copies that start alike, in lockstep) or "jacobi" (the Jacobi diagonal,
+    #: in lockstep).
     linear_solver = "factorised"
+    #: The measurement's force pass is also the next implicit step's (``BatchedImplicitEuler.linearise``
+    #: at the new state, plus the springs' damping forces): one pass over the stacked model per step
+    #: instead of two. The reaction force then differs from the single env's by rounding only; off for
+    #: tasks whose contact decisions read the sign of nodal forces.
+    share_force_pass = False
     #: solver "factorised": None, or the iterations beyond the fresh count after which a copy's
     #: factor is refreshed (``BatchedImplicitEuler``'s ``amortise``; for scenes whose matrix changes
     #: fast and factorises cheaply, e.g. Retraction)
@@ -93,6 +102,7 @@ class TissueVectorEnv(VectorEnv):
 
         self.stack = ModelStack(env.model, count)
         self._forces = ForceWorkspace(self.stack.model, implicit=False)  # the measurements' fused force pass
+        self._no_tension = np.zeros(len(self.stack.model.springs))
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
                                                   self.linear_solver, self.refactor_amortise)
         self.mesh = env.mesh
@@ -313,10 +323,11 @@ class TissueVectorEnv(VectorEnv):
         return reasons
 
     def _spring_lengths(self, positions):
-        flat = positions.reshape(-1, 3)
+        """(N, S) spring lengths, m, of the stacked positions (N, n, 3) (one compiled pass)."""
         springs = self.stack.model.springs
-        vector = flat[springs[:, 1]] - flat[springs[:, 0]]
-        return np.sqrt(np.einsum("ij,ij->i", vector, vector)).reshape(self.num_envs, -1)
+        length = np.empty(len(springs))
+        kernels.spring_lengths(np.ascontiguousarray(positions.reshape(-1, 3), dtype=float), springs, length)
+        return length.reshape(self.num_envs, -1)
 
     # -- measurements, observation, info -------------------------------------------------------------
     def _measure(self, tool_mask):
@@ -326,8 +337,14 @@ class TissueVectorEnv(VectorEnv):
         flat = positions.reshape(-1, 3)
         model = self.stack.model
         with np.errstate(all="ignore"):
-            forces = self._forces.compute(np.ascontiguousarray(flat, dtype=float),
-                                          np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float))
+            flat = np.ascontiguousarray(flat, dtype=float)
+            flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
+            if self.share_force_pass and isinstance(self.integrator, BatchedImplicitEuler):
+                forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
+                kernels.scatter_springs(model.springs, self.integrator.workspace.unit, self._no_tension,
+                                        model.damping, flat_velocities, True, forces)  # + damping
+            else:
+                forces = self._forces.compute(flat, flat_velocities)
             forces = forces + model.gravity_force
             forces = forces.reshape(count, -1, 3)
             reaction = np.where(tool_mask, -forces, 0.0).sum(axis=1)
