@@ -273,11 +273,14 @@ class RetractionVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``RetractionEnv``)."""
 
     env_class = RetractionEnv
-    # The flap swings through large rotations and the floor contact changes the imposed set most
-    # steps, so per-copy factors were re-made about every other copy-step (509 in 960): the Jacobi
-    # lockstep is faster here (env steps per CPU second at N = 16: 469-480 against 345-346 with
-    # per-copy sparse LUs, "factorised" with amortise 6).
-    linear_solver = "jacobi"
+    # The flap swings through large rotations: its matrix changes fast and factorises cheaply
+    # (a few hundred free dofs), so a copy's factor is refreshed once its extra iterations add up.
+    # With the floor contact changing the imposed set most steps, factors are re-made about every
+    # other copy-step (509 in 960) and this env runs at 0.8x sync. The Jacobi lockstep ran 1.1x
+    # (469-480 against 345-346 env steps per CPU s) but its trajectories strayed up to 7x further
+    # from the exact ones than the single env's in one CI run (this chaotic flap, random actions),
+    # against 0.01-0.03 (normalised units) for the factors: kept.
+    refactor_amortise = 6
 
     def __init__(self, num_envs=1, **kwargs):
         super().__init__(num_envs, **kwargs)
