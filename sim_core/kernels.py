@@ -1107,6 +1107,37 @@ def batched_apply_operator(data, scales, mask, vector, out):
     _batched_apply(data, scales, mask, vector, out)
 
 
+@njit(cache=True, inline="always")
+def _lu_offsets(ints):
+    """Offsets in a packed sparse LU's ``ints`` ([k, nnz_L, nnz_U, L indptr (k + 1), L indices,
+    U indptr (k + 1), U indices, gather (k), free (k), perm_c (k)], see ``_lu_apply``): (nnz_L,
+    L indptr, L indices, U indptr, U indices, gather, free, perm_c)."""
+    k = ints[0]
+    nnz_l = ints[1]
+    lp = 3
+    li = lp + k + 1
+    up = li + nnz_l
+    ui = up + k + 1
+    gather = ui + ints[2]
+    return nnz_l, lp, li, up, ui, gather, gather + k, gather + 2 * k
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _subtract_block(values, base, buffer, j, a0, a1, a2, used):
+    """a -= B x for columns t < ``used``: B the row-major 3x3 block values[base:base + 9], x the
+    rows j, j + 1, j + 2 of ``buffer`` (the node-block triangular solves' inner update)."""
+    b00, b01, b02 = values[base], values[base + 1], values[base + 2]
+    b10, b11, b12 = values[base + 3], values[base + 4], values[base + 5]
+    b20, b21, b22 = values[base + 6], values[base + 7], values[base + 8]
+    for t in range(used):
+        x0 = buffer[j, t]
+        x1 = buffer[j + 1, t]
+        x2 = buffer[j + 2, t]
+        a0[t] -= b00 * x0 + b01 * x1 + b02 * x2
+        a1[t] -= b10 * x0 + b11 * x1 + b12 * x2
+        a2[t] -= b20 * x0 + b21 * x1 + b22 * x2
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulator):
     """out[:, columns[:used]] = A^-1 vector[:, columns[:used]] through a packed node-block sparse LU
@@ -1141,18 +1172,7 @@ def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulato
             a2[t] = buffer[i + 2, t]
         last = ints[lp + block_row + 1] - 1
         for q in range(ints[lp + block_row], last):
-            j = 3 * ints[li + q]
-            base = 9 * q
-            b00, b01, b02 = values[base], values[base + 1], values[base + 2]
-            b10, b11, b12 = values[base + 3], values[base + 4], values[base + 5]
-            b20, b21, b22 = values[base + 6], values[base + 7], values[base + 8]
-            for t in range(used):
-                x0 = buffer[j, t]
-                x1 = buffer[j + 1, t]
-                x2 = buffer[j + 2, t]
-                a0[t] -= b00 * x0 + b01 * x1 + b02 * x2
-                a1[t] -= b10 * x0 + b11 * x1 + b12 * x2
-                a2[t] -= b20 * x0 + b21 * x1 + b22 * x2
+            _subtract_block(values, 9 * q, buffer, 3 * ints[li + q], a0, a1, a2, used)
         base = 9 * last
         for t in range(used):
             y0 = a0[t] / values[base]
@@ -1169,18 +1189,7 @@ def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulato
             a2[t] = buffer[i + 2, t]
         first = ints[up + block_row]
         for q in range(first + 1, ints[up + block_row + 1]):
-            j = 3 * ints[ui + q]
-            base = u_values + 9 * q
-            b00, b01, b02 = values[base], values[base + 1], values[base + 2]
-            b10, b11, b12 = values[base + 3], values[base + 4], values[base + 5]
-            b20, b21, b22 = values[base + 6], values[base + 7], values[base + 8]
-            for t in range(used):
-                x0 = buffer[j, t]
-                x1 = buffer[j + 1, t]
-                x2 = buffer[j + 2, t]
-                a0[t] -= b00 * x0 + b01 * x1 + b02 * x2
-                a1[t] -= b10 * x0 + b11 * x1 + b12 * x2
-                a2[t] -= b20 * x0 + b21 * x1 + b22 * x2
+            _subtract_block(values, u_values + 9 * q, buffer, 3 * ints[ui + q], a0, a1, a2, used)
         base = u_values + 9 * first
         for t in range(used):
             y2 = a2[t] / values[base + 8]
@@ -1232,14 +1241,7 @@ def _batched_precondition(lu_int, lu_float, group_of, running, inverse_diagonal,
                 for t in range(used):
                     out[i, columns[t]] = vector[i, columns[t]]
             continue
-        nnz_l = ints[1]
-        lp = 3
-        li = lp + k + 1
-        up = li + nnz_l
-        ui = up + k + 1
-        gather = ui + ints[2]
-        free = gather + k
-        perm_c = free + k
+        nnz_l, lp, li, up, ui, gather, free, perm_c = _lu_offsets(ints)
         for j in range(k):
             row = ints[gather + j]
             for t in range(used):
@@ -1465,14 +1467,7 @@ def _lu_apply(ints, values, mask, vector, out, buffer):
         for i in range(vector.shape[0]):
             out[i] = mask[i] * vector[i]
         return
-    nnz_l = ints[1]
-    lp = 3
-    li = lp + k + 1
-    up = li + nnz_l
-    ui = up + k + 1
-    gather = ui + ints[2]
-    free = gather + k
-    perm_c = free + k
+    nnz_l, lp, li, up, ui, gather, free, perm_c = _lu_offsets(ints)
     for j in range(k):
         buffer[j] = vector[ints[gather + j]]
     for j in range(k):
