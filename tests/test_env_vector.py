@@ -217,7 +217,7 @@ def test_factorised_refactorisation_matches_superlu():
     assert structure.valid
     k = int(structure.ints[0])  # packed: ..., gather (k), free (k), perm_c (k)
     free = structure.ints[len(structure.ints) - 2 * k:len(structure.ints) - k]
-    pattern = batched._FreePattern(vector.stack.reference, free)
+    pattern = batched._FreeStructure(vector.stack.reference, free)
     values = integrator._values.copy()  # the last factorisation's matrix, in the block's pattern
     values[vector.stack.reference.pattern.diagonal_positions] *= 1.5  # another matrix, same structure
     matrix = batched.sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)

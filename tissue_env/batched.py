@@ -58,7 +58,7 @@ from numba.typed import List as TypedList
 from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
-from sim_core.integrators import REFACTOR_MIN, DivergenceMonitor, SymplecticEuler
+from sim_core.integrators import REFACTOR_MIN, DivergenceMonitor, SymplecticEuler, _FreeStructure
 from sim_core.model import Control, Model, State
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
@@ -293,19 +293,6 @@ class _BlockFactor:
         self.floats = np.concatenate([lower.data.ravel(), upper.data.ravel()])
 
 
-class _FreePattern:
-    """The CSC structure of one copy's system matrix on its free dofs (``free``) and the positions of
-    its entries in the block's ``BlockPattern`` data (as sim_core's ``_FreeStructure``)."""
-
-    def __init__(self, model: Model, free: np.ndarray):
-        pattern = model.pattern
-        self.free = free
-        order = pattern.matrix(np.arange(1, pattern.nnz + 1, dtype=float)).tocsr()[free][:, free].tocsc()
-        order.sort_indices()
-        self.take = order.data.astype(np.int64) - 1
-        self.indices, self.indptr, self.shape = order.indices, order.indptr, order.shape
-
-
 class _CopyFactor:
     """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner) of one copy's free-dof
     system matrix, packed for ``kernels.solve_copies_lu`` (``ints``, ``floats``); ``threshold``: the
@@ -352,7 +339,7 @@ class _LUPattern:
     ``kernels.refactor_lu`` needs to factorise another matrix of the same structure without SuperLU;
     ``valid`` once checked against SuperLU's own factor."""
 
-    def __init__(self, free_pattern: _FreePattern, factor: _CopyFactor, values: np.ndarray):
+    def __init__(self, free_pattern: _FreeStructure, factor: _CopyFactor, values: np.ndarray):
         lu, lower, upper = factor.lu, factor.lower, factor.upper
         self.ints = factor.ints
         k = free_pattern.shape[0]
@@ -546,7 +533,7 @@ class BatchedImplicitEuler:
         if pattern is None:
             if len(self._patterns) >= 4 * count:
                 self._patterns.clear()
-            pattern = self._patterns[key] = _FreePattern(reference, np.flatnonzero(free))
+            pattern = self._patterns[key] = _FreeStructure(reference, np.flatnonzero(free))
         structure = self._lu_patterns.get(key)
         if structure is None:
             structure = self._lu_structure(pattern, values)
