@@ -20,7 +20,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels
-from .forces import external_forces, internal_forces, stiffness_data
+from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
+from .integrators import _FreeStructure, _pattern_arrays
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
@@ -217,11 +218,60 @@ def ramp_load(advance, load_steps: int, max_load_steps: int, fast_iterations: in
     return done >= 1.0 - 1e-12, iterations, increments, residual, message
 
 
+def tangent_stiffness(model: Model, positions: np.ndarray) -> sp.csr_matrix:
+    """(3 N, 3 N) CSR tangent stiffness K (N/m) at ``positions`` (N, 3) m: ``stiffness_data(model,
+    positions)`` (springs with their unclamped geometric term, the corrections' full coupling, the
+    volume forces' rank-one term, hourglass), assembled by the compiled kernels
+    (``kernels.operator_matrix_data``, the implicit step's assembly): equal to rounding (2e-15
+    relative, tests/test_static.py) and 3.5x faster at 6x6x6. Models whose corrections push along
+    the rest directions (``correction_mode="fixed"``) use ``stiffness_data``."""
+    return model.pattern.matrix(_tangent_data(model, positions)).tocsr()
+
+
+def _tangent_data(model, positions):
+    if model.correction_mode not in (None, "projected"):
+        return stiffness_data(model, positions)
+    workspace = _WORKSPACES.get(model)
+    if workspace is None:
+        workspace = _WORKSPACES[model] = ForceWorkspace(model, implicit=True)
+    workspace.compute(np.ascontiguousarray(positions, dtype=float), None, geometric=True,
+                      volume_jacobian=model.has_volume_forces)
+    np.divide(workspace.tension, workspace.length, out=workspace.geometric)  # Newton's tangent: not clamped
+    scales = (0.0, 0.0, 1.0, 1.0 if model.correction_mode else 0.0, 1.0 if model.has_volume_forces else 0.0,
+              1.0 if model.hourglass is not None else 0.0)
+    values = np.empty(model.pattern.nnz)
+    kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
+                                 _pattern_arrays(model)[3], model.pattern.diagonal_positions, values)
+    return values
+
+
+def _free_tangent(model, positions, free):
+    """(K, K_ff): the tangent (CSR, all dofs) and its free-dof block (CSC, ``free`` (k,) dofs)."""
+    values = _tangent_data(model, positions)
+    structures = _STRUCTURES.setdefault(model, {})
+    key = free.tobytes()
+    structure = structures.get(key)
+    if structure is None:
+        if len(structures) >= 8:
+            structures.clear()
+        structure = structures[key] = _FreeStructure(model, free)
+    reduced = sp.csc_matrix((values[structure.take], structure.indices, structure.indptr), shape=structure.shape)
+    return model.pattern.matrix(values).tocsr(), reduced
+
+
+_WORKSPACES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_STRUCTURES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
 def _factorise(model, positions, free, damping):
-    stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()
-    reduced = stiffness[free][:, free]
+    """(K, sparse LU of K_ff + damping |diag(K_ff)|) at ``positions``. SuperLU with the minimum
+    degree ordering on K + K^T in symmetric mode, pivoting only below a tenth of the column's
+    largest entry: 1.7x faster than its default pivoting at 6x6x6 (8.4 against 14.3 ms, 28% less
+    fill), the same residual (1e-13)."""
+    stiffness, reduced = _free_tangent(model, positions, free)
     matrix = (reduced + sp.diags(damping * np.abs(reduced.diagonal()))).tocsc()
-    return stiffness, spla.splu(matrix, permc_spec="MMD_AT_PLUS_A")
+    return stiffness, spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1,
+                                options=dict(SymmetricMode=True))
 
 
 def _predict(model, positions, free, fixed, target, applied, cache=None):
@@ -340,7 +390,7 @@ def zero_energy_modes(model: Model, control: Control | None = None, positions=No
     control = model.new_control() if control is None else control
     positions = model.rest_positions if positions is None else positions
     free = _free_dofs(control)
-    stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
+    stiffness = tangent_stiffness(model, positions)[free][:, free]
     symmetric = 0.5 * (stiffness + stiffness.T)
     scale = float(np.mean(np.abs(symmetric.diagonal())))
     n_modes = min(n_modes, len(free) - 2)
@@ -355,7 +405,7 @@ def lowest_eigenvalue(model: Model, control: Control, positions: np.ndarray) -> 
     """Smallest eigenvalue (N/m) of the symmetric part of the constrained tangent stiffness
     (Lanczos, smallest algebraic); values within 1e-8 of the largest diagonal entry count as 0."""
     free = _free_dofs(control)
-    stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
+    stiffness = tangent_stiffness(model, positions)[free][:, free]
     symmetric = 0.5 * (stiffness + stiffness.T)
     value = float(spla.eigsh(symmetric, k=1, which="SA", tol=1e-6, maxiter=50 * len(free))[0][0])
     return 0.0 if abs(value) < 1e-8 * float(np.abs(symmetric.diagonal()).max()) else value

@@ -71,3 +71,21 @@ def test_goal_does_not_depend_on_the_cache_state():
         assert np.linalg.norm(goal - cold.goal) < 1e-6
     assert warm._goal_factors.hits >= 5
     copy.deepcopy(warm)  # the LU cache does not block copies
+
+
+def test_compiled_tangent_is_the_numpy_tangent():
+    """``static.tangent_stiffness`` (the compiled assembly of the implicit step, geometric term not
+    clamped) equals ``forces.stiffness_data`` (numpy) to 1e-12 at a deformed state with compressed
+    springs, for the full model (projected corrections, volume forces, hourglass control)."""
+    from sim_core.forces import stiffness_data
+    from sim_core.static import tangent_stiffness
+
+    env, control, start = _goal_problem((0.004, -0.01, 0.006))
+    result = solve_static(env.model, control, initial=start, tolerance=1e-6)
+    positions = result.positions + np.random.default_rng(0).normal(scale=2e-4, size=start.shape)
+    model = env.model
+    assert model.correction_mode == "projected" and model.has_volume_forces and model.hourglass is not None
+    reference = model.pattern.matrix(stiffness_data(model, positions)).toarray()
+    compiled = tangent_stiffness(model, positions).toarray()
+    assert np.abs(compiled - reference).max() < 1e-12 * np.abs(reference).max()
+    assert (reference < 0).any()  # a tangent with negative entries: the geometric term is not clamped
