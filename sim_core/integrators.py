@@ -20,6 +20,7 @@ from . import kernels
 from .forces import ForceWorkspace, stiffness_data
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
+from .sparse import NodeBlockLU
 
 
 @dataclass
@@ -435,27 +436,82 @@ _PATTERN_ARRAYS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class _Factor:
-    """Sparse LU (SuperLU, minimum-degree ordering on A + A^T, symmetric mode: the matrix is
-    symmetric up to the corrections' coupling) of the free-dof system matrix."""
+    """Sparse LU of the free-dof system matrix. A node-block LU (``sparse.NodeBlockLU``) of the
+    matrix on the whole nodes that hold a free dof, the imposed dofs among them decoupled (their
+    rows and columns zero, their diagonal kept), whose inverse on the free dofs is that of the
+    free-dof matrix: its substitutions read one index per 3 x 3 block, 1.9x faster than SuperLU's
+    scalar solve at TumorPositioning's 6^3 (0.22 against 0.42 ms), and its numeric factorisation
+    (compiled, on a structure kept per node set) 1.4x faster (5.8 against 8.1 ms; 2.6x at
+    Retraction's 8x2x4). Where it fails, SuperLU's scalar LU (minimum-degree ordering on A + A^T,
+    symmetric mode: the matrix is symmetric up to the corrections' coupling)."""
 
     def __init__(self, model, key, structure: _FreeStructure, values: np.ndarray):
         self.model, self.key, self.structure = model, key, structure
         #: (n_dofs,) the system matrix's diagonal (for ``_Restricted``'s Jacobi part)
         self.diagonal = values[model.pattern.diagonal_positions]
+        self.threshold = REFACTOR_MIN
+        self.block = self.lu = None
+        free = np.zeros(model.pattern.n_dofs, bool)
+        free[structure.free] = True
+        self._mask = free.astype(float)
+        self.block = node_block_factor(model, values, free)
+        if self.block is not None:
+            self._buffer = np.empty(-int(self.block.ints[0]))
+            return
         matrix = sp.csc_matrix((values[structure.take], structure.indices, structure.indptr), shape=structure.shape)
         self.lu = spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                             options=dict(SymmetricMode=True))
-        self.threshold = REFACTOR_MIN
 
     def set_baseline(self, iterations: int):
         self.threshold = max(REFACTOR_MIN, 2 * int(iterations))
 
     def apply(self, vector: np.ndarray, out: np.ndarray):
         """out = P^-1 vector (zero on the imposed dofs)."""
+        if self.block is not None:
+            kernels.block_lu_apply(self.block.ints, self.block.floats, self._mask, vector, out, self._buffer)
+            return out
         free = self.structure.free
         out[:] = 0.0
         out[free] = self.lu.solve(vector[free])
         return out
+
+
+def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray):
+    """``NodeBlockLU`` of the system matrix with the model's pattern ``values`` on the whole nodes
+    that hold a dof of ``free`` ((3 N,) bool), the imposed dofs among them decoupled (rows and
+    columns zero, diagonal kept): its inverse on the free dofs is that of the free-dof matrix,
+    and its structure depends only on the node set, so a contact that imposes single dofs keeps
+    it. None where the factorisation fails (a zero or non-finite pivot)."""
+    node_dofs = np.flatnonzero(np.repeat(free.reshape(-1, 3).any(axis=1), 3))
+    if len(node_dofs) == 0:
+        return None
+    whole = _node_structure(model, node_dofs)
+    local = free[node_dofs]
+    data = values[whole.take]
+    data[~((local[whole.indices] & local[whole.columns]) | (whole.indices == whole.columns))] = 0.0
+    matrix = sp.csc_matrix((data, whole.indices, whole.indptr), shape=whole.shape)
+    try:
+        with np.errstate(all="ignore"):
+            return NodeBlockLU(matrix, node_dofs)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError):
+        return None
+
+
+def _node_structure(model, node_dofs):
+    """``_FreeStructure`` of the dofs ``node_dofs`` (whole nodes), with each entry's column
+    (``columns``), cached per model and node set."""
+    cache = _NODE_STRUCTURES.setdefault(model, {})
+    key = node_dofs.tobytes()
+    structure = cache.get(key)
+    if structure is None:
+        if len(cache) >= 8:
+            cache.clear()
+        structure = cache[key] = _FreeStructure(model, node_dofs)
+        structure.columns = np.repeat(np.arange(len(node_dofs)), np.diff(structure.indptr))
+    return structure
+
+
+_NODE_STRUCTURES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class _Restricted:

@@ -1141,7 +1141,7 @@ def _subtract_block(values, base, buffer, j, a0, a1, a2, used):
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulator):
     """out[:, columns[:used]] = A^-1 vector[:, columns[:used]] through a packed node-block sparse LU
-    (``tissue_env.batched._BlockFactor``): P A P^T = L U with P a permutation of whole nodes and L, U
+    (``sparse.NodeBlockLU``): P A P^T = L U with P a permutation of whole nodes and L, U
     in block CSR of dense 3 x 3 blocks (L's diagonal block last in its block row, U's first).
     ``ints``: [-k, nb, blocks of L, blocks of U, L indptr (nb + 1), L block columns, U indptr (nb + 1),
     U block columns, order (k): the dof at each position of P], ``values``: [L blocks, U blocks]
@@ -1202,6 +1202,142 @@ def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulato
         row = ints[order + j]
         for t in range(used):
             out[row, columns[t]] = buffer[j, t]
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr, u_indices, out, work):
+    """Numeric LU without pivoting, P A P^T = L U, of a matrix of dense 3 x 3 blocks on a given
+    fill pattern (``sparse.NodeBlockLU``). A: block CSR (a_indptr, a_indices, a_values: 9
+    row-major values per block, the rows and columns already permuted). L: block CSR whose rows
+    hold the strictly lower block columns, sorted, then the diagonal block; U: block CSR whose rows
+    hold the diagonal block, then the upper block columns. Row-oriented (row i is scattered into
+    ``work`` (9 nb,), eliminated with the earlier rows' U, and gathered). Writes out = [L blocks,
+    U blocks] (``block_lu_apply``'s layout; L's diagonal blocks unit lower triangular, U's upper
+    triangular). Returns False when a pivot is zero or not finite."""
+    nb = a_indptr.shape[0] - 1
+    u0 = 9 * l_indptr[nb]
+    for i in range(nb):
+        for q in range(l_indptr[i], l_indptr[i + 1]):
+            w = 9 * l_indices[q]
+            for e in range(9):
+                work[w + e] = 0.0
+        for q in range(u_indptr[i], u_indptr[i + 1]):
+            w = 9 * u_indices[q]
+            for e in range(9):
+                work[w + e] = 0.0
+        for q in range(a_indptr[i], a_indptr[i + 1]):
+            w = 9 * a_indices[q]
+            for e in range(9):
+                work[w + e] += a_values[9 * q + e]
+        for q in range(l_indptr[i], l_indptr[i + 1] - 1):
+            k = l_indices[q]
+            d = u0 + 9 * u_indptr[k]  # U_kk
+            w = 9 * k
+            lq = 9 * q
+            for r in range(3):  # L_ik = W_k U_kk^-1
+                x0 = work[w + 3 * r] / out[d]
+                x1 = (work[w + 3 * r + 1] - x0 * out[d + 1]) / out[d + 4]
+                x2 = (work[w + 3 * r + 2] - x0 * out[d + 2] - x1 * out[d + 5]) / out[d + 8]
+                out[lq + 3 * r] = x0
+                out[lq + 3 * r + 1] = x1
+                out[lq + 3 * r + 2] = x2
+            for p in range(u_indptr[k] + 1, u_indptr[k + 1]):  # W_j -= L_ik U_kj
+                b = u0 + 9 * p
+                w = 9 * u_indices[p]
+                for r in range(3):
+                    l0, l1, l2 = out[lq + 3 * r], out[lq + 3 * r + 1], out[lq + 3 * r + 2]
+                    for c in range(3):
+                        work[w + 3 * r + c] -= l0 * out[b + c] + l1 * out[b + 3 + c] + l2 * out[b + 6 + c]
+        w = 9 * i  # the diagonal block: 3 x 3 LU without pivoting
+        d00, d01, d02 = work[w], work[w + 1], work[w + 2]
+        l10 = work[w + 3] / d00
+        l20 = work[w + 6] / d00
+        d11 = work[w + 4] - l10 * d01
+        d12 = work[w + 5] - l10 * d02
+        l21 = (work[w + 7] - l20 * d01) / d11
+        d22 = work[w + 8] - l20 * d02 - l21 * d12
+        if not (np.isfinite(l10) and np.isfinite(l20) and np.isfinite(l21) and np.isfinite(d22) and d22 != 0.0):
+            return False
+        lq = 9 * (l_indptr[i + 1] - 1)
+        for e in range(9):
+            out[lq + e] = 0.0
+        out[lq] = out[lq + 4] = out[lq + 8] = 1.0
+        out[lq + 3] = l10
+        out[lq + 6] = l20
+        out[lq + 7] = l21
+        d = u0 + 9 * u_indptr[i]
+        for e in range(9):
+            out[d + e] = 0.0
+        out[d], out[d + 1], out[d + 2] = d00, d01, d02
+        out[d + 4], out[d + 5], out[d + 8] = d11, d12, d22
+        for p in range(u_indptr[i] + 1, u_indptr[i + 1]):  # U_ij = L_ii^-1 W_j
+            b = u0 + 9 * p
+            w = 9 * u_indices[p]
+            for c in range(3):
+                y0 = work[w + c]
+                y1 = work[w + 3 + c] - l10 * y0
+                out[b + c] = y0
+                out[b + 3 + c] = y1
+                out[b + 6 + c] = work[w + 6 + c] - l20 * y0 - l21 * y1
+    return True
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def block_lu_apply(ints, values, mask, vector, out, buffer):
+    """out = mask * A^-1 vector (n,) through a packed node-block LU (``_block_lu_solve``'s layout)
+    for one right-hand side, with the block rows' products in registers (1.9x faster than
+    ``_block_lu_solve`` with one column); the dofs the factor does not hold get 0. ``buffer`` (k,)
+    scratch."""
+    k = -ints[0]
+    nb = ints[1]
+    nnz_l = ints[2]
+    lp = 4
+    li = lp + nb + 1
+    up = li + nnz_l
+    ui = up + nb + 1
+    order = ui + ints[3]
+    u_values = 9 * nnz_l
+    for j in range(k):
+        buffer[j] = vector[ints[order + j]]
+    for block_row in range(nb):  # L y = b
+        i = 3 * block_row
+        a0, a1, a2 = buffer[i], buffer[i + 1], buffer[i + 2]
+        last = ints[lp + block_row + 1] - 1
+        for q in range(ints[lp + block_row], last):
+            j = 3 * ints[li + q]
+            x0, x1, x2 = buffer[j], buffer[j + 1], buffer[j + 2]
+            base = 9 * q
+            a0 -= values[base] * x0 + values[base + 1] * x1 + values[base + 2] * x2
+            a1 -= values[base + 3] * x0 + values[base + 4] * x1 + values[base + 5] * x2
+            a2 -= values[base + 6] * x0 + values[base + 7] * x1 + values[base + 8] * x2
+        base = 9 * last
+        y0 = a0 / values[base]
+        y1 = (a1 - values[base + 3] * y0) / values[base + 4]
+        buffer[i] = y0
+        buffer[i + 1] = y1
+        buffer[i + 2] = (a2 - values[base + 6] * y0 - values[base + 7] * y1) / values[base + 8]
+    for block_row in range(nb - 1, -1, -1):  # U x = y
+        i = 3 * block_row
+        a0, a1, a2 = buffer[i], buffer[i + 1], buffer[i + 2]
+        first = ints[up + block_row]
+        for q in range(first + 1, ints[up + block_row + 1]):
+            j = 3 * ints[ui + q]
+            x0, x1, x2 = buffer[j], buffer[j + 1], buffer[j + 2]
+            base = u_values + 9 * q
+            a0 -= values[base] * x0 + values[base + 1] * x1 + values[base + 2] * x2
+            a1 -= values[base + 3] * x0 + values[base + 4] * x1 + values[base + 5] * x2
+            a2 -= values[base + 6] * x0 + values[base + 7] * x1 + values[base + 8] * x2
+        base = u_values + 9 * first
+        y2 = a2 / values[base + 8]
+        y1 = (a1 - values[base + 5] * y2) / values[base + 4]
+        buffer[i] = (a0 - values[base + 1] * y1 - values[base + 2] * y2) / values[base]
+        buffer[i + 1] = y1
+        buffer[i + 2] = y2
+    for i in range(out.shape[0]):
+        out[i] = 0.0
+    for j in range(k):
+        row = ints[order + j]
+        out[row] = mask[row] * buffer[j]
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
@@ -1466,6 +1602,9 @@ def _lu_apply(ints, values, mask, vector, out, buffer):
     if k == 0:
         for i in range(vector.shape[0]):
             out[i] = mask[i] * vector[i]
+        return
+    if k < 0:  # a node-block factor (``sparse.NodeBlockLU``)
+        block_lu_apply(ints, values, mask, vector, out, buffer)
         return
     nnz_l, lp, li, up, ui, gather, free, perm_c = _lu_offsets(ints)
     for j in range(k):

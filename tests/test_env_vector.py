@@ -199,12 +199,14 @@ def test_every_batched_solver_gives_the_single_env_trajectories(solver):
     sync.close()
 
 
-def test_factorised_refactorisation_matches_superlu():
-    """A numeric refactorisation on a known LU structure (kernels.refactor_lu) gives SuperLU's
-    factor of the new matrix, and the packed factor solves the system (kernels._lu_apply)."""
+def test_factorised_refactorisation_matches_superlu(monkeypatch):
+    """Where the node-block LU fails (forced here), a numeric refactorisation on a known scalar LU
+    structure (kernels.refactor_lu) gives SuperLU's factor of the new matrix, and the packed factor
+    solves the system (kernels._lu_apply)."""
     from sim_core import kernels
     from tissue_env import batched
 
+    monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free: None)
     batched._factors.clear()  # no first-step factor from an earlier test: the first step factorises
     vector = gym.make_vec("tissue_env/Palpation-v0", num_envs=2, vectorization_mode="vector_entry_point")
     vector.reset(seed=0)

@@ -21,12 +21,13 @@ sim_core's) and convergence mask. No Python loop over copies in the step (but fo
 factorisations of solver "factorised").
 
 Preconditioner (solver "factorised", the default): each copy's own sparse LU of its free-dof system
-matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator), kept across steps
+matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks,
+``sparse.NodeBlockLU`` through ``integrators.node_block_factor``, else SuperLU's scalar LU), kept across steps
 and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does, and the copies' BiCGSTABs run
 one after the other in one compiled call (``kernels.solve_copies_lu``): no copy waits for the
 slowest, 1-5 iterations per copy. Solver "reference": the sparse LU of the copy's system matrix at
 the start of its episode, applied by triangular solves: in dense 3 x 3 node blocks when the free
-dofs are whole nodes (``_BlockFactor``: SuperLU without pivoting on a node ordering), else as the
+dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a node ordering), else as the
 factorised solver's scalar factor. Copies that start alike share one factor (one cache entry), and
 the copies of a group are solved together: each block of L and U is read once and updates the rows
 of all their right-hand sides (``kernels._batched_precondition``), so a shared factor costs about
@@ -58,7 +59,8 @@ from numba.typed import List as TypedList
 from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
-from sim_core.integrators import REFACTOR_MIN, DivergenceMonitor, SymplecticEuler, _FreeStructure
+from sim_core.integrators import REFACTOR_MIN, DivergenceMonitor, SymplecticEuler, _FreeStructure, node_block_factor
+from sim_core.sparse import NodeBlockLU as _BlockFactor
 from sim_core.model import Control, Model, State
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
@@ -230,67 +232,6 @@ def _system_factor(model, positions, dt, fixed):
         return _CopyFactor()
     factor.lu = factor.lower = factor.upper = None  # only the packed arrays are used
     return factor
-
-
-class _BlockFactor:
-    """A sparse LU of a system matrix whose free dofs are whole nodes, in dense 3 x 3 node blocks,
-    packed for ``kernels._block_lu_solve`` (``ints``, ``floats``): P A P^T = L U with P a symmetric
-    permutation of whole nodes (SuperLU's minimum degree ordering of the node graph, MMD on A + A^T)
-    and no pivoting (the implicit system matrix M + dt D + dt^2 K is dominated by its diagonal), so
-    that L and U keep the node blocks. The fill is that of SuperLU's scalar ordering (1.65e5 entries
-    at TumorPositioning's 6^3 block, in 1.9e4 blocks), and the substitutions read one index per 9
-    values: 4x faster than the scalar factor for one right-hand side, 1.3x for 16.
-
-    Args:
-        matrix: (k, k) CSC system matrix on the free dofs.
-        free: (k,) the free dofs, whole nodes in order (``applies``).
-    Raises np.linalg.LinAlgError when SuperLU pivots or the blocks lose their diagonal."""
-
-    #: node orderings per free set (they depend only on the block's pattern and the free set)
-    _orders: OrderedDict = OrderedDict()
-
-    @staticmethod
-    def applies(free) -> bool:
-        """Whether the free dofs ``free`` (sorted) are whole nodes."""
-        free = np.asarray(free)
-        if free.size == 0 or free.size % 3:
-            return False
-        triples = free.reshape(-1, 3)
-        return bool(np.all(triples[:, 0] % 3 == 0) and np.all(triples == triples[:, :1] + np.arange(3)))
-
-    def __init__(self, matrix, free):
-        k = matrix.shape[0]
-        nb = k // 3
-        key = (free.tobytes(), matrix.indptr.tobytes(), matrix.indices.tobytes())
-        node_order = self._orders.get(key)
-        if node_order is None:
-            coo = matrix.tocoo()
-            graph = sp.csc_matrix((np.ones(coo.nnz), (coo.row // 3, coo.col // 3)), shape=(nb, nb))
-            graph.data[:] = 1.0
-            graph = (graph + sp.diags(np.full(nb, float(nb)))).tocsc()
-            ordering = spla.splu(graph, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                 options=dict(SymmetricMode=True))
-            node_order = np.argsort(ordering.perm_c)
-            self._orders[key] = node_order
-            if len(self._orders) > PRECONDITIONER_CACHE_SIZE:
-                self._orders.popitem(last=False)
-        order = (3 * node_order[:, None] + np.arange(3)).ravel()
-        permuted = matrix.tocsr()[order][:, order].tocsc()
-        lu = spla.splu(permuted, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-        identity = np.arange(k)
-        if not (np.array_equal(lu.perm_r, identity) and np.array_equal(lu.perm_c, identity)):
-            raise np.linalg.LinAlgError("the node-block LU pivoted")
-        lower = lu.L.tocsr().tobsr(blocksize=(3, 3))
-        upper = lu.U.tocsr().tobsr(blocksize=(3, 3))
-        lower.sort_indices()
-        upper.sort_indices()
-        rows = np.arange(nb)
-        if not (np.array_equal(lower.indices[lower.indptr[1:] - 1], rows)
-                and np.array_equal(upper.indices[upper.indptr[:-1]], rows)):
-            raise np.linalg.LinAlgError("node-block LU without its diagonal blocks")
-        self.ints = np.concatenate([[-k, nb, len(lower.indices), len(upper.indices)], lower.indptr, lower.indices,
-                                    upper.indptr, upper.indices, free[order]]).astype(np.int64)
-        self.floats = np.concatenate([lower.data.ravel(), upper.data.ravel()])
 
 
 class _CopyFactor:
@@ -528,6 +469,20 @@ class BatchedImplicitEuler:
         values = self._values
         kernels.operator_matrix_data(single, system, reference.spring_positions, reference.element_positions,
                                      self._hg_positions, reference.pattern.diagonal_positions, values)
+        block = node_block_factor(stack.models[index], values, free)
+        if block is not None:  # the node-block LU, its structure kept per node set
+            factor = _CopyFactor.refactored(block, block.floats)
+        else:
+            factor = self._scalar_factor(values, free)
+        self.factorisations += 1
+        self._set_factor(index, factor, free)
+        return factor
+
+    def _scalar_factor(self, values, free):
+        """SuperLU's scalar factor of the system matrix (pattern ``values``) on the ``free`` dofs,
+        numeric only for a free set seen before (``_LUPattern``); the identity where it fails."""
+        reference = self.stack.reference
+        count = self.stack.count
         key = free.tobytes()
         pattern = self._patterns.get(key)
         if pattern is None:
@@ -555,8 +510,6 @@ class BatchedImplicitEuler:
                 factor.lu = factor.lower = factor.upper = None
             except (RuntimeError, ValueError, np.linalg.LinAlgError):
                 factor = _CopyFactor()  # singular (a diverging state): no preconditioner
-        self.factorisations += 1
-        self._set_factor(index, factor, free)
         return factor
 
     def _copies_first(self):
