@@ -22,13 +22,13 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "auto"
 preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
-steps per CPU second, median of 3 interleaved rounds on a loaded 2-core machine):
-TumorPositioning 2.5x (725 against 296; solver "reference", one node-block LU shared by the
-copies, and the measurement's force pass shared with the next step; 1.3x, 377 against 293, with
-the dense inverse before). Its resets, a static solve for the goal, cost the same in both modes
-and are now 37 % of the vector env's time (16 % of sync's), which bounds the ratio. Palpation
-1.2x and Retraction 1.1x (per-copy sparse LUs, solver "factorised") since the sphere probe's and
-the floor's active-set contacts and Retraction's (8, 2, 4) default (3.1x each before those).
+steps per CPU second, median of 3 interleaved rounds on a shared VM with CPU steal):
+TumorPositioning 1.7x (377 against 216; solver "reference", one node-block LU shared by the
+copies, and the measurement's force pass shared with the next step), Palpation 1.5x (429 against
+290) and Retraction 1.6x (471 against 312), both with per-copy node-block LUs (solver
+"factorised"). Each copy's step is its own LU solves and operator products, which batching does
+not share; the vector env saves the Python work around them. TumorPositioning's resets, a static
+solve for the goal, cost the same in both modes and are 26% of the vector env's time.
 """
 
 from __future__ import annotations
