@@ -485,7 +485,7 @@ def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray):
     node_dofs = np.flatnonzero(np.repeat(free.reshape(-1, 3).any(axis=1), 3))
     if len(node_dofs) == 0:
         return None
-    whole = _node_structure(model, node_dofs)
+    whole = free_structure(model, node_dofs)
     local = free[node_dofs]
     data = values[whole.take]
     data[~((local[whole.indices] & local[whole.columns]) | (whole.indices == whole.columns))] = 0.0
@@ -497,21 +497,21 @@ def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray):
         return None
 
 
-def _node_structure(model, node_dofs):
-    """``_FreeStructure`` of the dofs ``node_dofs`` (whole nodes), with each entry's column
-    (``columns``), cached per model and node set."""
-    cache = _NODE_STRUCTURES.setdefault(model, {})
-    key = node_dofs.tobytes()
+def free_structure(model: Model, dofs: np.ndarray) -> _FreeStructure:
+    """``_FreeStructure`` of the dofs ``dofs`` (sorted), with each entry's column (``columns``),
+    cached per model (a few dof sets each)."""
+    cache = _STRUCTURES.setdefault(model, {})
+    key = dofs.tobytes()
     structure = cache.get(key)
     if structure is None:
         if len(cache) >= 8:
             cache.clear()
-        structure = cache[key] = _FreeStructure(model, node_dofs)
-        structure.columns = np.repeat(np.arange(len(node_dofs)), np.diff(structure.indptr))
+        structure = cache[key] = _FreeStructure(model, dofs)
+        structure.columns = np.repeat(np.arange(len(dofs)), np.diff(structure.indptr))
     return structure
 
 
-_NODE_STRUCTURES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_STRUCTURES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class _Restricted:

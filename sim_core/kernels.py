@@ -1138,6 +1138,18 @@ def _subtract_block(values, base, buffer, j, a0, a1, a2, used):
         a2[t] -= b20 * x0 + b21 * x1 + b22 * x2
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _block_offsets(ints):
+    """A packed node-block LU's header (``_block_lu_solve``): (k, nb, L indptr, L block columns,
+    U indptr, U block columns, order) offsets in ``ints`` and the offset of U's values."""
+    nb = ints[1]
+    nnz_l = ints[2]
+    li = 4 + nb + 1
+    up = li + nnz_l
+    ui = up + nb + 1
+    return -ints[0], nb, 4, li, up, ui, ui + ints[3], 9 * nnz_l
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulator):
     """out[:, columns[:used]] = A^-1 vector[:, columns[:used]] through a packed node-block sparse LU
@@ -1148,15 +1160,7 @@ def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulato
     (9 row-major values each). Row-oriented substitutions: a block row accumulates the products
     of its blocks with the solved rows of all right-hand sides (``buffer`` (k, N), the copy index
     last; ``accumulator`` (3, N)), one index per 9 values."""
-    k = -ints[0]
-    nb = ints[1]
-    nnz_l = ints[2]
-    lp = 4
-    li = lp + nb + 1
-    up = li + nnz_l
-    ui = up + nb + 1
-    order = ui + ints[3]
-    u_values = 9 * nnz_l
+    k, nb, lp, li, up, ui, order, u_values = _block_offsets(ints)
     for j in range(k):
         row = ints[order + j]
         for t in range(used):
@@ -1288,15 +1292,7 @@ def block_lu_apply(ints, values, mask, vector, out, buffer):
     for one right-hand side, with the block rows' products in registers (1.9x faster than
     ``_block_lu_solve`` with one column); the dofs the factor does not hold get 0. ``buffer`` (k,)
     scratch."""
-    k = -ints[0]
-    nb = ints[1]
-    nnz_l = ints[2]
-    lp = 4
-    li = lp + nb + 1
-    up = li + nnz_l
-    ui = up + nb + 1
-    order = ui + ints[3]
-    u_values = 9 * nnz_l
+    k, nb, lp, li, up, ui, order, u_values = _block_offsets(ints)
     for j in range(k):
         buffer[j] = vector[ints[order + j]]
     for block_row in range(nb):  # L y = b

@@ -21,7 +21,7 @@ import scipy.sparse.linalg as spla
 
 from . import kernels
 from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
-from .integrators import _FreeStructure, _pattern_arrays
+from .integrators import _pattern_arrays, free_structure
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
@@ -248,19 +248,12 @@ def _tangent_data(model, positions):
 def _free_tangent(model, positions, free):
     """(K, K_ff): the tangent (CSR, all dofs) and its free-dof block (CSC, ``free`` (k,) dofs)."""
     values = _tangent_data(model, positions)
-    structures = _STRUCTURES.setdefault(model, {})
-    key = free.tobytes()
-    structure = structures.get(key)
-    if structure is None:
-        if len(structures) >= 8:
-            structures.clear()
-        structure = structures[key] = _FreeStructure(model, free)
+    structure = free_structure(model, free)
     reduced = sp.csc_matrix((values[structure.take], structure.indices, structure.indptr), shape=structure.shape)
     return model.pattern.matrix(values).tocsr(), reduced
 
 
 _WORKSPACES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-_STRUCTURES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 def _factorise(model, positions, free, damping):
