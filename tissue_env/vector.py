@@ -44,7 +44,7 @@ from sim_core.forces import ForceWorkspace
 from sim_core import kernels
 from sim_core.model import State
 
-from .base import OBS_LIMIT
+from .base import observation_arrays
 from .batched import BatchedImplicitEuler, ModelStack, make_batched_integrator, new_monitor
 
 
@@ -377,14 +377,8 @@ class TissueVectorEnv(VectorEnv):
 
     def _observation(self, measures):
         features = self._features(measures)
-        arrays = OrderedDict()
-        for name in self._feature_sizes:
-            value = np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1)
-            value = np.clip(np.nan_to_num(value, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT), -OBS_LIMIT, OBS_LIMIT)
-            arrays[name] = value.astype(np.float32)
-        if self.envs[0].observation_type == "dict":
-            return dict(arrays)
-        return np.concatenate(list(arrays.values()), axis=1)
+        parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
+        return observation_arrays(parts, list(self._feature_sizes), self.envs[0].observation_type == "dict")
 
     def _stack_observations(self, observations, previous):
         """Batch the reset observations {row: obs} over ``previous`` (None: all rows given)."""
