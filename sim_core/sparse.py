@@ -3,6 +3,9 @@
 The pattern couples every pair of nodes that share an element (3x3 blocks per node pair), which
 contains every spring and every element matrix. Assembly is one ``np.bincount`` over precomputed
 positions in the CSR ``data`` array: no COO rebuild, no Python loop.
+
+``NodeBlockLU`` factorises such a matrix, restricted to whole nodes, in dense 3 x 3 node blocks:
+the implicit step's preconditioner (``integrators.node_block_factor``) and the vector envs'.
 """
 
 from __future__ import annotations
@@ -13,7 +16,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-#: node orderings kept by ``NodeBlockLU`` (one per free set and matrix pattern)
+from . import kernels
+
+#: symbolic structures (ordering, fill) kept by ``NodeBlockLU``, one per free set and matrix pattern
 ORDER_CACHE_SIZE = 64
 
 
@@ -104,8 +109,6 @@ class NodeBlockLU:
         return bool(np.all(triples[:, 0] % 3 == 0) and np.all(triples == triples[:, :1] + np.arange(3)))
 
     def __init__(self, matrix, free):
-        from . import kernels
-
         matrix = sp.csc_matrix(matrix)
         key = (np.asarray(free).tobytes(), matrix.indptr.tobytes(), matrix.indices.tobytes())
         structure = self._structures.get(key)
