@@ -225,6 +225,9 @@ def tangent_stiffness(model: Model, positions: np.ndarray) -> sp.csr_matrix:
     (``kernels.operator_matrix_data``, the implicit step's assembly): equal to rounding (2e-15
     relative, tests/test_static.py) and 3.5x faster at 6x6x6. Models whose corrections push along
     the rest directions (``correction_mode="fixed"``) use ``stiffness_data``."""
+    positions = np.asarray(positions, dtype=float)
+    if positions.shape != (model.n_nodes, 3) or not np.all(np.isfinite(positions)):
+        raise ValueError(f"positions must be a finite ({model.n_nodes}, 3) array in m, got shape {positions.shape}")
     return model.pattern.matrix(_tangent_data(model, positions)).tocsr()
 
 

@@ -5,6 +5,7 @@ import pickle
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import tissue_env  # noqa: F401  (registers the ids)
 from sim_core import solve_static
@@ -89,3 +90,7 @@ def test_compiled_tangent_is_the_numpy_tangent():
     compiled = tangent_stiffness(model, positions).toarray()
     assert np.abs(compiled - reference).max() < 1e-12 * np.abs(reference).max()
     assert (reference < 0).any()  # a tangent with negative entries: the geometric term is not clamped
+    with pytest.raises(ValueError, match="positions must be a finite"):
+        tangent_stiffness(model, positions[:-1])
+    with pytest.raises(ValueError, match="positions must be a finite"):
+        tangent_stiffness(model, np.full_like(positions, np.nan))
