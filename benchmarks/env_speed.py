@@ -1,11 +1,19 @@
 """Env steps per second of every tissue_env task at its defaults, and the time split.
 
-Usage: python benchmarks/env_speed.py [--steps 300]. Random actions, resets included in the total
-rate; the split (physics = integrator substeps and contact, observation = measurements and
-features, reward = reward terms and success) is from the step calls alone. One process, one core.
+Usage: python benchmarks/env_speed.py [--steps 300] [--rounds 1] [--output benchmarks/results/env_speed.json].
+Random actions, resets included in the total rate (per wall-clock second and per CPU second of
+this process, which counts other jobs on a shared machine less); the split (physics = integrator
+substeps and contact, observation = measurements and features, reward = reward terms and
+success) is from the step calls alone. With several rounds the tasks alternate within each round
+and every figure is the median over rounds. One process, one core. Results are written to
+``--output`` (JSON, replaced atomically) with the machine's description.
 """
 
 import argparse
+import json
+import os
+import platform
+import tempfile
 import time
 
 import gymnasium as gym
@@ -56,7 +64,7 @@ def measure(env_id, steps, seed=0):
     unwrapped._reward_terms = timed(unwrapped._reward_terms, split, "reward")
     unwrapped._is_success = timed(unwrapped._is_success, split, "reward")
     env.reset(seed=seed)
-    step_time, start = 0.0, time.perf_counter()
+    step_time, start, cpu_start = 0.0, time.perf_counter(), time.process_time()
     for _ in range(steps):
         tick = time.perf_counter()
         _, _, terminated, truncated, _ = env.step(env.action_space.sample())
@@ -64,6 +72,7 @@ def measure(env_id, steps, seed=0):
         if terminated or truncated:
             env.reset()
     total = time.perf_counter() - start
+    cpu = time.process_time() - cpu_start
     env.close()
     render_env = gym.make(env_id, render_mode="rgb_array")
     render_env.reset(seed=seed)
@@ -73,19 +82,36 @@ def measure(env_id, steps, seed=0):
         render_env.render()
     fps = 10 / (time.perf_counter() - tick)
     render_env.close()
-    return dict(env_id=env_id, steps_per_s=steps / total, step_only_per_s=steps / step_time,
+    return dict(env_id=env_id, steps_per_s=steps / total, steps_per_cpu_s=steps / cpu, step_only_per_s=steps / step_time,
                 render_fps=fps, **{f"{k}_ms": 1e3 * v / steps for k, v in split.items()})
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--rounds", type=int, default=1)
+    parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results", "env_speed.json"))
     args = parser.parse_args()
-    print(f"{'env id':34s} {'steps/s':>8s} {'(no reset)':>10s} {'physics':>8s} {'obs':>6s} {'reward':>6s} {'render':>7s}")
-    for env_id in sorted(tissue_env.ENV_IDS):
-        r = measure(env_id, args.steps)
-        print(f"{env_id:34s} {r['steps_per_s']:8.0f} {r['step_only_per_s']:10.0f} {r['physics_ms']:6.2f}ms "
-              f"{r['observation_ms']:4.2f}ms {r['reward_ms']:4.2f}ms {r['render_fps']:5.1f}fps")
+    env_ids = sorted(tissue_env.ENV_IDS)
+    rounds = {env_id: [] for env_id in env_ids}
+    for _ in range(max(args.rounds, 1)):
+        for env_id in env_ids:
+            rounds[env_id].append(measure(env_id, args.steps))
+    results = [{key: (env_id if key == "env_id" else float(np.median([r[key] for r in rounds[env_id]])))
+                for key in rounds[env_id][0]} for env_id in env_ids]
+    print(f"{'env id':34s} {'steps/s':>8s} {'per CPU s':>9s} {'(no reset)':>10s} {'physics':>8s} {'obs':>6s} "
+          f"{'reward':>6s} {'render':>7s}")
+    for r in results:
+        print(f"{r['env_id']:34s} {r['steps_per_s']:8.0f} {r['steps_per_cpu_s']:9.0f} {r['step_only_per_s']:10.0f} "
+              f"{r['physics_ms']:6.2f}ms {r['observation_ms']:4.2f}ms {r['reward_ms']:4.2f}ms {r['render_fps']:5.1f}fps")
+    machine = dict(platform=platform.platform(), processor=platform.processor(), cpus=os.cpu_count(),
+                   python=platform.python_version(), numpy=np.__version__, load_average=list(os.getloadavg()))
+    payload = dict(steps=args.steps, rounds=args.rounds, machine=machine, results=results)
+    os.makedirs(os.path.dirname(os.path.abspath(args.output)), exist_ok=True)
+    handle, temporary = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.output)), suffix=".tmp")
+    with os.fdopen(handle, "w") as stream:
+        json.dump(payload, stream, indent=2)
+    os.replace(temporary, args.output)
 
 
 if __name__ == "__main__":
