@@ -123,8 +123,12 @@ class PalpationEnv(TissueEnv):
     first step 4 mm deep over the inclusion reads 0.97 (centre cell) to 1.64 (corners) times the
     stiffest other cell; held one step, as the scripted sweep does, 1.05 to 1.33 (at 3 mm some
     inclusions read below another cell). Requiring the map's press to be held made it too rare
-    for PPO (0-10% success). The pattern is fixed per cell; a contact that samples the probe
-    between the nodes (surface quadrature with a penalty) would remove it.
+    for PPO (0-10% success). A straight-down press at full speed, recorded at its first step 4 mm
+    deep as the map does (benchmarks/palpation_map.py), reads 49 N/m over a node and 101 N/m
+    between four nodes on the homogeneous slab, and the inclusion's cell 0.80-1.83 times the
+    stiffest other cell (below 1 for the 5 cells centred on nodes). The reading jumps with the
+    probe's position (48-247 N/m on a 3.75 mm grid), so no calibration grid corrects it; a contact
+    that samples the probe between the nodes (surface quadrature with a penalty) would remove it.
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
