@@ -9,7 +9,8 @@ records. Three measurements:
 
 1. a homogeneous slab (``inclusion_ratio=1``) on a 4 x 4 grid over one node period (7.5 mm)
    around the slab's centre: how the reading varies with where the nodes fall under the probe;
-2. the same slab at the 9 candidate cell centres;
+2. the same slab at the 9 candidate cell centres, and on a grid of half the node spacing over
+   the cells' centres +- 1 cm (where the map records presses);
 3. the inclusion at each cell in turn (the default 10x stiffer box): the reading of the
    inclusion's cell over the stiffest other cell, raw and divided by the homogeneous reading at
    each cell (a calibration on healthy tissue). Below 1, the map points to a wrong cell.
@@ -64,6 +65,10 @@ def main(argv=None):
     offsets = np.linspace(0.0, spacing, 4, endpoint=False)
     grid = np.array([[first_press(homogeneous, middle[0] + dx, middle[1] + dz)[0] for dz in offsets] for dx in offsets])
     cells = np.array([first_press(homogeneous, x, z)[0] for x, z in centres])
+    step = spacing / 2.0
+    xs = np.arange(centres[:, 0].min() - 0.01, centres[:, 0].max() + 0.01 + 1e-9, step)
+    zs = np.arange(centres[:, 1].min() - 0.01, centres[:, 1].max() + 0.01 + 1e-9, step)
+    area = np.array([[first_press(homogeneous, x, z)[0] for z in zs] for x in xs])
     env = gym.make(ENV_ID).unwrapped
     raw, calibrated = [], []
     for cell in range(len(centres)):
@@ -77,6 +82,8 @@ def main(argv=None):
         node_spacing_m=spacing, grid_offsets_m=offsets.tolist(), homogeneous_grid_n_per_m=grid.tolist(),
         homogeneous_grid_max_over_min=float(grid.max() / grid.min()), cell_centres_m=centres.tolist(),
         homogeneous_cells_n_per_m=cells.tolist(), homogeneous_cells_max_over_min=float(cells.max() / cells.min()),
+        area_step_m=step, area_x_m=xs.tolist(), area_z_m=zs.tolist(), homogeneous_area_n_per_m=area.tolist(),
+        homogeneous_area_range_n_per_m=[float(area.min()), float(area.max())],
         inclusion_over_stiffest_other_raw=raw, inclusion_over_stiffest_other_calibrated=calibrated,
     )
     print(f"homogeneous slab, one node period ({spacing * 1e3:.1f} mm) around the centre, N/m:")
@@ -84,6 +91,7 @@ def main(argv=None):
     print(f"  max/min {results['homogeneous_grid_max_over_min']:.2f}")
     print(f"homogeneous slab at the 9 cell centres, N/m: {np.round(cells, 1).tolist()} "
           f"(max/min {results['homogeneous_cells_max_over_min']:.2f})")
+    print(f"homogeneous slab on a {step * 1e3:.2f} mm grid over the cells +- 1 cm: {area.min():.0f}-{area.max():.0f} N/m")
     print(f"inclusion cell / stiffest other cell, raw:        {np.round(raw, 2).tolist()}")
     print(f"  divided by the homogeneous reading of each cell: {np.round(calibrated, 2).tolist()}")
     directory = os.path.dirname(os.path.abspath(args.output))

@@ -127,7 +127,7 @@ class PalpationEnv(TissueEnv):
     deep as the map does (benchmarks/palpation_map.py), reads 49 N/m over a node and 101 N/m
     between four nodes on the homogeneous slab, and the inclusion's cell 0.80-1.83 times the
     stiffest other cell (below 1 for the 5 cells centred on nodes). The reading jumps with the
-    probe's position (48-247 N/m on a 3.75 mm grid), so no calibration grid corrects it; a contact
+    probe's position (48-242 N/m on a 3.75 mm grid), so no calibration grid corrects it; a contact
     that samples the probe between the nodes (surface quadrature with a penalty) would remove it.
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
