@@ -218,7 +218,6 @@ class ImplicitEuler(SymplecticEuler):
         self._warm: np.ndarray | None = None
         self._warm_old: np.ndarray | None = None
         self._factor: _Factor | None = None
-        self._structures: dict = {}  # (model id, fixed digest) -> (model, free, CSC structure)
         self._auto_factorised: set = set()  # keys "auto" switched to the factorised preconditioner
         #: factorisations done so far (a diagnostic; the tests read it)
         self.factorisations = 0
@@ -345,21 +344,13 @@ class ImplicitEuler(SymplecticEuler):
         return iterations, residual
 
     def _factorise(self, model, key, data, system, mask):
-        structure = self._structure(model, key[2], mask)
+        structure = free_structure(model, np.flatnonzero(mask))
         values = np.empty(model.pattern.nnz)
         kernels.operator_matrix_data(data, system, model.spring_positions, model.element_positions,
                                      structure.hg_positions, model.pattern.diagonal_positions, values)
         self._factor = _Factor(model, key, structure, values)
         self.factorisations += 1
         return self._factor
-
-    def _structure(self, model, fixed_digest, mask):
-        entry = self._structures.get((id(model), fixed_digest))
-        if entry is None or entry.model is not model:
-            if len(self._structures) >= 8:
-                self._structures.clear()
-            entry = self._structures[(id(model), fixed_digest)] = _FreeStructure(model, np.flatnonzero(mask))
-        return entry
 
 
 #: ImplicitEuler's preconditioners. "jacobi": the diagonal of the mass, spring and hourglass terms
@@ -450,7 +441,7 @@ class _Factor:
         #: (n_dofs,) the system matrix's diagonal (for ``_Restricted``'s Jacobi part)
         self.diagonal = values[model.pattern.diagonal_positions]
         self.threshold = REFACTOR_MIN
-        self.block = self.lu = None
+        self.lu = None
         free = np.zeros(model.pattern.n_dofs, bool)
         free[structure.free] = True
         self._mask = free.astype(float)
