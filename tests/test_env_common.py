@@ -171,3 +171,18 @@ def test_scripted_controller_succeeds_and_beats_random(env_id):
     assert np.mean([info["is_success"] for _, _, info in scripted]) >= 0.8
     random = [run_episode(env, random_policy, seed) for seed in range(3)]
     assert np.mean([r for r, _, _ in scripted]) > np.mean([r for r, _, _ in random])
+
+
+def test_observation_arrays_sanitise_and_split():
+    """``observation_arrays`` (single and vector envs): NaN -> 0, +-inf and out-of-range values ->
+    +-OBS_LIMIT, float32; the dict form holds the same values, one contiguous array per feature."""
+    from tissue_env.base import OBS_LIMIT, observation_arrays
+
+    parts = [np.array([[1.0, np.nan], [np.inf, -2.0]]), np.array([[-np.inf], [3.0 * OBS_LIMIT]])]
+    flat = observation_arrays(parts, ["a", "b"], False)
+    expected = np.array([[1.0, 0.0, -OBS_LIMIT], [OBS_LIMIT, -2.0, OBS_LIMIT]], dtype=np.float32)
+    assert flat.dtype == np.float32 and np.array_equal(flat, expected)
+    split = observation_arrays(parts, ["a", "b"], True)
+    assert list(split) == ["a", "b"]
+    assert np.array_equal(split["a"], expected[:, :2]) and np.array_equal(split["b"], expected[:, 2:])
+    assert all(value.flags.c_contiguous and value.dtype == np.float32 for value in split.values())
