@@ -104,6 +104,9 @@ class Scene:
             "sphere" (hemispherical end) or "flat" (flat-ended cylinder), its lowest point at the
             top centre of the tool box plus the displacement; the tool box's surface nodes, at any
             x and z, are the contact candidates (frictionless active set, only u_y imposed).
+        probe_sampling: "projected" (default: the probe's indentation of the start surface projected
+            on the top nodes' basis functions, ``sim_core.contact.SurfaceProjection``; the tool box
+            must then lie on the top face) or "node" (the probe sampled at the nodes).
         displacements: tool displacements from rest (m): an (K, 3) array of independent cases, or a
             sequence of paths (each an (K_p, 3) array) solved in order by continuation, each path
             starting from the equilibrium under gravity with the tool at rest.
@@ -129,6 +132,7 @@ class Scene:
     tool_radius: float | None = None
     tool_components: tuple = (0, 1, 2)
     probe: str | None = None
+    probe_sampling: str = "projected"
     gravity: float = 9.81
     floor: bool = False
     inclusion_low: tuple | None = None
@@ -174,6 +178,8 @@ class Scene:
                 raise ValueError("a probe needs tool_radius (m), its radius")
             if self.floor:
                 raise ValueError("a scene has one contact obstacle: a probe or a floor, not both")
+        if self.probe_sampling not in contact_.SAMPLINGS:
+            raise ValueError(f"probe_sampling must be one of {contact_.SAMPLINGS}, got {self.probe_sampling!r}")
         if (self.inclusion_low is None) != (self.inclusion_high is None):
             raise ValueError("inclusion_low and inclusion_high must be given together")
         if self.inclusion_low is not None:
@@ -189,11 +195,23 @@ class Scene:
         set_("min_shape", min_shape)
 
     # -- contact ----------------------------------------------------------------------------
-    def obstacle(self):
-        """The scene's contact obstacle (``sim_core.contact``): the floor, the probe, or None."""
+    def obstacle(self, mesh=None, candidates=None, reference=None):
+        """The scene's contact obstacle (``sim_core.contact``): the floor, the probe, or None. A
+        probe with ``probe_sampling="projected"`` is projected on the top face of ``mesh`` at its
+        ``candidates`` (n,) bool, its indentation measured from the heights ``reference`` (n,) m
+        (default: rest)."""
         if self.floor:
             return contact_.Floor()
-        return None if self.probe is None else contact_.Probe(self.tool_radius, self.probe)
+        if self.probe is None:
+            return None
+        if self.probe_sampling == "node":
+            return contact_.Probe(self.tool_radius, self.probe)
+        if mesh is None:
+            raise ValueError("a projected probe needs the scene's mesh and contact candidates")
+        projection = contact_.SurfaceProjection.top_face(mesh, np.flatnonzero(candidates))
+        if reference is not None:
+            projection = projection.with_reference(reference)
+        return contact_.Probe(self.tool_radius, self.probe, projection)
 
     def probe_tip(self, displacement):
         """(3,) the probe's lowest point (m) at a tool displacement (m); None without a probe."""
@@ -416,7 +434,8 @@ def solve_scene(scene: Scene, shape, *, model="baudet", hourglass_control=0.0, v
     else:
         raise ValueError(f"model must be 'baudet' or 'fem-neohookean', got {model!r}")
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
-    obstacle, candidates = scene.obstacle(), _contact_candidates(scene, mesh.n_nodes, fixed, tool)
+    candidates = _contact_candidates(scene, mesh.n_nodes, fixed, tool)
+    obstacle = scene.obstacle(mesh, candidates)
     rest_volume = float(mesh.element_volumes().sum())
     results = dict(force=[], target=[], volume=[], converged=[], lowest=[])
     elapsed = 0.0
@@ -428,6 +447,8 @@ def solve_scene(scene: Scene, shape, *, model="baudet", hourglass_control=0.0, v
             solve, _tool_control(scene, base, nodes, tool, np.zeros(3)), None, obstacle, candidates,
             scene.probe_tip(np.zeros(3)), rest=nodes)
         rest_positions = rest_positions if ok else nodes.copy()
+        if scene.probe is not None:  # the indentation is measured from the start surface, as in Palpation
+            obstacle = scene.obstacle(mesh, candidates, rest_positions[:, 1])
     for path in scene.displacements:
         positions = rest_positions
         for displacement in path:
@@ -938,12 +959,15 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
                         volume_stiffness=volume_stiffness)
     solve, _ = _mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness, False)
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
-    obstacle, candidates = scene.obstacle(), _contact_candidates(scene, mesh.n_nodes, fixed, tool)
+    candidates = _contact_candidates(scene, mesh.n_nodes, fixed, tool)
+    obstacle = scene.obstacle(mesh, candidates)
     rest = nodes.copy()
     if scene.gravity > 0:
         rest, _, ok, _, _, _ = _solve_with_contact(solve, _tool_control(scene, base, nodes, tool, np.zeros(3)), None,
                                                    obstacle, candidates, scene.probe_tip(np.zeros(3)), rest=nodes)
         rest = rest if ok else nodes.copy()
+        if scene.probe is not None:
+            obstacle = scene.obstacle(mesh, candidates, rest[:, 1])
     rest_volume = float(mesh.element_volumes().sum())
     integrator = ImplicitEuler(tolerance=solver_tolerance, **(solver or {}))
     observed = dict(force=[], target=[], volume=[])

@@ -75,3 +75,62 @@ def test_sphere_probe_scene_converges_with_the_mesh_where_the_flat_one_did_not()
     with pytest.raises(ValueError, match="tool_radius"):
         Scene(size=0.05, young_modulus=5e3, poisson_ratio=0.45, tool_low=(0.02, 0.05, 0.02),
               tool_high=(0.03, 0.05, 0.03), displacements=[(0, -1e-3, 0)], target=(0.025, 0.025, 0.025), probe="sphere")
+
+
+@pytest.mark.parametrize("tip, volume, tolerance", [
+    ("sphere", lambda d, r: np.pi * d**2 * (3 * r - d) / 3, 0.015),  # the spherical cap under the surface
+    ("flat", lambda d, r: np.pi * r**2 * d, 0.06),  # its sharp edge: 1.8% with 8 midpoints
+])
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (0.00375, 0.00375), (0.0011, 0.0052)])
+def test_projected_probe_displaces_the_probe_s_volume_wherever_the_nodes_fall(tip, volume, tolerance, offset):
+    """Projected on the top nodes' hat functions (lumped L2), a probe 4 mm into a flat surface
+    imposes nodal indentations whose sum times the nodes' areas is the volume the probe displaces,
+    over a node, between four or anywhere (measured with 4 midpoints per element side: the sphere
+    within 1.3%, the flat probe 5%), and only on nodes whose faces the probe reaches. Sampled at the
+    nodes, the sphere displaces 0.58x its volume over a node and 1.33x between four."""
+    from sim_core.mesh import HexMesh
+
+    mesh = HexMesh.block((8, 4, 8), (0.0075, 0.0075, 0.0075))
+    top = np.flatnonzero(np.isclose(mesh.nodes[:, 1], 0.03))
+    probe = contact.Probe(0.009, tip, contact.SurfaceProjection.top_face(mesh, top))
+    tip_position = np.array([0.03 + offset[0], 0.03 - 0.004, 0.03 + offset[1]])
+    heights = probe.surface(mesh.nodes, tip_position)
+    pushed = np.isfinite(heights)
+    assert np.all(np.isin(np.flatnonzero(pushed), top))
+    r = np.hypot(mesh.nodes[:, 0] - tip_position[0], mesh.nodes[:, 2] - tip_position[2])
+    assert np.all(r[pushed] < 0.009 + np.hypot(0.0075, 0.0075))
+    area = 0.0075**2  # an interior node's share of the face
+    displaced = (0.03 - heights[pushed]).sum() * area
+    assert displaced == pytest.approx(volume(0.004, 0.009), rel=tolerance)
+    nodal = contact.Probe(0.009, tip).surface(mesh.nodes[top], tip_position)
+    sampled = (0.03 - nodal[nodal < 0.03]).sum() * area
+    assert offset == (0.0011, 0.0052) or abs(sampled / volume(0.004, 0.009) - 1) > 0.1
+
+
+def test_projected_probe_on_stacked_copies_and_its_reference():
+    """Stacked copies ((N, n, 3) positions, (N, 3) tips, an (N, n) reference) give each copy's own
+    projected surface, the same as one block; a surface 1 mm lower (a sagging start) is indented
+    less: its bounds are lower where the probe reaches above it; bad inputs name what is allowed."""
+    from sim_core.mesh import HexMesh
+
+    mesh = HexMesh.block((6, 2, 6), (0.01, 0.01, 0.01))
+    projection = contact.SurfaceProjection.top_face(mesh)
+    probe = contact.Probe(0.009, "sphere", projection)
+    tips = np.array([[0.03, 0.016, 0.03], [0.025, 0.017, 0.031]])
+    single = np.stack([probe.surface(mesh.nodes, tip) for tip in tips])
+    stacked = probe.surface(np.stack([mesh.nodes, mesh.nodes]), tips)
+    np.testing.assert_array_equal(stacked, single)
+    lower = contact.Probe(0.009, "sphere", projection.with_reference(np.stack([mesh.nodes[:, 1] - 0.001] * 2)))
+    lowered = lower.surface(np.stack([mesh.nodes, mesh.nodes]), tips)
+    centre = np.argmin(np.hypot(mesh.nodes[:, 0] - 0.03, mesh.nodes[:, 2] - 0.03) + 10 * (mesh.nodes[:, 1] < 0.02))
+    finite = np.isfinite(lowered)
+    assert np.all(np.isfinite(single[finite])) and np.all(lowered[finite] <= single[finite])
+    assert lowered[0, centre] < single[0, centre] - 1e-4
+    with pytest.raises(ValueError, match="heights"):
+        projection.with_reference(np.zeros(3))
+    with pytest.raises(ValueError, match="top face"):
+        contact.SurfaceProjection.top_face(mesh, [0])
+    with pytest.raises(ValueError, match="points"):
+        contact.SurfaceProjection.top_face(mesh, points=0)
+    with pytest.raises(ValueError, match="projection"):
+        contact.Probe(0.009, "sphere", projection="yes")

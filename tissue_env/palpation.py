@@ -12,21 +12,36 @@ from .base import TissueEnv, check_range, check_region, check_vector, nonnegativ
 from .vector import TissueVectorEnv
 
 
-def update_palpation_map(palpation_map, centres, tips, depth, stiffness, map_depth, radius, rows):
+def update_palpation_map(palpation_map, centres, tips, depth, reading, map_depth, radius, rows):
     """Record presses in the palpation maps (N, C) in place and return which rows (N,) probed a
     cell for the first time. A row probes the candidate cell whose centre (``centres`` (C, 2),
     x and z in m) is nearest its tip (``tips`` (N, 3), m) when that centre is within ``radius``
     (m), the tip is at least ``map_depth`` (m) deep (``depth`` (N,)) and the probe touches
-    (indentation ``stiffness`` (N,) N/m > 0); the cell keeps the stiffness of its first probe
-    (so that pressing deeper later, where the force-depth curve is stiffer, does not change the
-    ranking). Only ``rows`` (N,) bool are updated."""
+    (``reading`` (N,) > 0: the apparent modulus, Pa, depth-normalised so that a deeper press
+    reads the same tissue alike); the cell keeps the reading of its latest probe, so that a
+    press held still replaces the first step's (the first step of a press at full speed reads
+    the damping of the tissue it sets moving: 0.9-3.1x the held reading). Only ``rows`` (N,)
+    bool are updated."""
     distance = np.hypot(centres[None, :, 0] - tips[:, None, 0], centres[None, :, 1] - tips[:, None, 2])
     cell = np.argmin(distance, axis=1)
     index = np.arange(len(cell))
-    probed = rows & (depth >= map_depth - 1e-9) & (distance[index, cell] <= radius) & (stiffness > 0)
+    probed = rows & (depth >= map_depth - 1e-9) & (distance[index, cell] <= radius) & (reading > 0)
     new = probed & (palpation_map[index, cell] == 0)
-    palpation_map[index, cell] = np.where(new, stiffness, palpation_map[index, cell])
+    palpation_map[index, cell] = np.where(probed, reading, palpation_map[index, cell])
     return new
+
+
+def apparent_modulus(force, indentation, radius, tip):
+    """Apparent (Hertz) modulus E* = E / (1 - nu^2), Pa, of a probe's reading on an elastic
+    half-space: a sphere of ``radius`` (m) pushed ``indentation`` (m) with ``force`` (N):
+    F = 4/3 E* sqrt(R) d^1.5; a flat punch: F = 2 E* R d (Boussinesq). Arrays broadcast; 0 where
+    the indentation is below 0.1 mm or the force is not a push. On Palpation's homogeneous slab
+    (E* 6.3 kPa, 3 cm thick) it reads 4.6-5.3 kPa held 4-8 mm deep (F / d: 30-55 N/m)."""
+    force, indentation = np.asarray(force, dtype=float), np.asarray(indentation, dtype=float)
+    touching = (indentation > 1e-4) & (force > 0)
+    safe = np.where(touching, indentation, 1.0)
+    modulus = force / (4.0 / 3.0 * np.sqrt(radius) * safe**1.5) if tip == "sphere" else force / (2.0 * radius * safe)
+    return np.where(touching, modulus, 0.0)
 
 
 def map_features(palpation_map, centres, tips, length_scale, squeeze=False):
@@ -39,7 +54,7 @@ def map_features(palpation_map, centres, tips, length_scale, squeeze=False):
     stiffest = np.where(probed.any(axis=1)[:, None], offsets[index, np.argmax(palpation_map, axis=1)], 0.0)
     distance = np.where(probed, np.inf, np.hypot(offsets[..., 0], offsets[..., 1]))
     unprobed = np.where((~probed).any(axis=1)[:, None], offsets[index, np.argmin(distance, axis=1)], 0.0)
-    features = dict(palpation_map=palpation_map / 100.0, stiffest_offset=stiffest, unprobed_offset=unprobed)
+    features = dict(palpation_map=palpation_map / 1000.0, stiffest_offset=stiffest, unprobed_offset=unprobed)
     return {key: value[0] for key, value in features.items()} if squeeze else features
 
 
@@ -55,9 +70,14 @@ class PalpationEnv(TissueEnv):
     is the box's at every shape, wherever the nodes fall). A probe with a hemispherical end of radius
     ``probe_radius`` (default 9 mm; ``probe_tip="flat"``: a flat-ended cylinder) indents the top
     surface with a frictionless contact (``sim_core.contact``, an active set inside the implicit
-    step): the top nodes on or under the probe's surface have their height imposed on it (x and z
-    free: Hertz's boundary condition), a node the tissue pulls away from the probe is released,
-    and a node that went into the probe during a step is put back on its surface and joins. The
+    step): the probe's indentation of the start surface (the slab at equilibrium under gravity)
+    is projected on the top nodes' bilinear basis functions (``probe_sampling="projected"``: each
+    node is bounded by the hat-weighted average of the probe's surface over the faces around it,
+    so the displaced volume is the probe's wherever the nodes fall; ``"node"``: by the probe's
+    surface over the node itself, as in earlier versions); the top nodes on or over their bound
+    have their height imposed on it (x and z free: Hertz's boundary condition), a node the tissue
+    pulls away from the probe is released, and a node that went through its bound during a step
+    is put back on it and joins. The
     probe radius, the inclusion and its candidate positions are physical sizes: ``shape`` only sets
     the resolution (a finer mesh models the same scene with more elements and contact nodes). With
     the flat probe of earlier versions the observations did not converge with the mesh (the fine
@@ -105,7 +125,7 @@ class PalpationEnv(TissueEnv):
     | 12    | number of top nodes in contact with the probe      | count                 |
     | 13    | indentation stiffness, vertical force / depth      | N/m / 100 (0 if none) |
     | 14    | steps the success press has been held / hold_steps | 1 (0 when not pressing) |
-    | 15 .. 15+C-1 | palpation map: indentation stiffness of the first probe of each candidate cell | N/m / 100 (0 = not probed yet) |
+    | 15 .. 15+C-1 | palpation map: apparent modulus of the latest press on each candidate cell | kPa (0 = not probed yet) |
     | 15+C, 16+C   | offset (x, z) from the tip to the stiffest probed cell | cm (0 if none) |
     | 17+C, 18+C   | offset (x, z) from the tip to the nearest cell not probed yet | cm (0 if none) |
 
@@ -113,22 +133,22 @@ class PalpationEnv(TissueEnv):
     probed when the tip is ``map_depth`` = 4 mm deep or more with its axis within 1 cm of the
     cell's centre, nearest centre first); it never reveals the inclusion. Without it a memoryless
     policy cannot tell which places it has already pressed: PPO and SAC stayed at the random
-    policy's success rate (benchmarks/results/training.json before the map).
+    policy's success rate (benchmarks/results/training.json before the map). A cell holds the
+    reading of its latest press: the apparent (Hertz) modulus E* = 3 F / (4 sqrt(R) d^1.5)
+    (``apparent_modulus``; F the probe's vertical force, d its depth under the start surface),
+    which reads the same tissue alike at any depth (4.6-5.3 kPa held 4-8 mm deep on the
+    homogeneous slab, E* = E / (1 - nu^2) = 6.3 kPa for a half-space; F / d rises 1.5x), so a deeper
+    press does not outrank a shallower one, and a press held still replaces the first step of a
+    press at full speed, which reads the damping of the tissue it sets moving (0.9-3.1x the held
+    reading at the same place).
 
-    A shallow press is resolved by few contact nodes (at 3 mm the 9 mm sphere touches a disc of
-    about 5-7 mm radius: one to four nodes at the default 7.5 mm spacing), so the stiffness a cell
-    reads depends on where the nodes fall under the probe. Measured on a homogeneous slab
-    (``inclusion_ratio=1``), a press held one step: the 9 cells read 23-35 N/m at 3 mm (max/min
-    1.57; 1.24 at (12, 6, 12)) and 1.16 at 4 mm. Hence the map's 4 mm: at the default shape, the
-    first step 4 mm deep over the inclusion reads 0.97 (centre cell) to 1.64 (corners) times the
-    stiffest other cell; held one step, as the scripted sweep does, 1.05 to 1.33 (at 3 mm some
-    inclusions read below another cell). Requiring the map's press to be held made it too rare
-    for PPO (0-10% success). A straight-down press at full speed, recorded at its first step 4 mm
-    deep as the map does (benchmarks/palpation_map.py), reads 49 N/m over a node and 101 N/m
-    between four nodes on the homogeneous slab, and the inclusion's cell 0.80-1.83 times the
-    stiffest other cell (below 1 for the 5 cells centred on nodes). The reading jumps with the
-    probe's position (48-242 N/m on a 3.75 mm grid), so no calibration grid corrects it; a contact
-    that samples the probe between the nodes (surface quadrature with a penalty) would remove it.
+    How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
+    tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within
+    1.12 (max/min) over one node period, and the inclusion's cell reads 1.19-1.29 times the
+    stiffest other cell in all 9 placements. With the probe sampled at the nodes (``"node"``) a
+    coarse mesh felt a press over a node on that node and one between nodes on four: 1.47 over the
+    node period, and the inclusion's cell 0.76-1.9 times the stiffest other (below 1 in 4 of the 9
+    placements).
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
@@ -186,7 +206,7 @@ class PalpationEnv(TissueEnv):
     step (``PalpationVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
 
     Task keywords: ``inclusion_ratio``, ``probe_radius`` (m, default 0.009), ``probe_tip``
-    ("sphere", default, or "flat"),
+    ("sphere", default, or "flat"), ``probe_sampling`` ("projected", default, or "node"),
     ``inclusion_size`` (m, a number or (x, y, z), default (0.012, 0.01, 0.012): the inclusion box),
     ``inclusion_ratio_range`` (None or (low, high): a ratio drawn per reset, the model is rebuilt),
     ``inclusion_region`` (None or ((x0, z0), (x1, z1)): fractions of the top face that hold the
@@ -212,7 +232,10 @@ class PalpationEnv(TissueEnv):
       volume share in the inclusion box; the probe has a hemispherical end and
       an active-set contact (``probe_tip``), and the defaults moved from (5, 3, 5), 20 ms, 1e-4 to
       (8, 4, 8), 40 ms, 1e-2, so that its observations converge with the mesh; the palpation map
-      records the first press 4 mm deep, it was 3 mm).
+      records the first press 4 mm deep, it was 3 mm; then the probe's indentation is projected
+      on the top nodes' basis functions (``probe_sampling``) and measured from the start surface,
+      and the map holds the apparent modulus of the latest press, kPa: it held the indentation
+      stiffness of the first press, N/m / 100).
     """
 
     default_shape = (8, 4, 8)
@@ -229,7 +252,7 @@ class PalpationEnv(TissueEnv):
     clearance = 0.002
 
     def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=0.009,
-                 probe_tip="sphere", inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,
+                 probe_tip="sphere", probe_sampling="projected", inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,
                  hold_steps=3, start_distance=0.02, success_bonus=10.0, time_penalty=0.05, force_limit=1.0, force_weight=1.0, map_depth=0.004,
                  explore_bonus=0.5, approach_weight=1.0, **kwargs):
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
@@ -239,7 +262,11 @@ class PalpationEnv(TissueEnv):
         if probe_tip not in contact.TIPS:
             raise ValueError(f"probe_tip must be one of {contact.TIPS}, got {probe_tip!r}")
         self.probe_tip = probe_tip
-        #: the probe as a contact obstacle (``sim_core.contact.Probe``)
+        if probe_sampling not in contact.SAMPLINGS:
+            raise ValueError(f"probe_sampling must be one of {contact.SAMPLINGS}, got {probe_sampling!r}")
+        self.probe_sampling = probe_sampling
+        #: the probe as a contact obstacle (``sim_core.contact.Probe``; projected on the mesh's top
+        #: face in ``_setup_scene``)
         self.probe = contact.Probe(self.probe_radius, probe_tip)
         self.inclusion_size = check_vector("inclusion_size", inclusion_size)
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
@@ -269,6 +296,9 @@ class PalpationEnv(TissueEnv):
         self._probe_candidates = np.zeros(self.mesh.n_nodes, bool)
         self._probe_candidates[self.top_nodes] = True
         self.contact = np.zeros(self.mesh.n_nodes, bool)
+        if self.probe_sampling == "projected":
+            self.probe = contact.Probe(self.probe_radius, self.probe_tip,
+                                       contact.SurfaceProjection.top_face(self.mesh, self.top_nodes))
         self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
         # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
         # surface, the axis over the central 80 % of the top face. ``workspace_low/high`` (what
@@ -362,6 +392,28 @@ class PalpationEnv(TissueEnv):
 
     def _start_hook(self):
         self._sweep = None
+        #: (n,) node heights at the episode's start (equilibrium under gravity), m: the surface
+        #: the indentation is measured from
+        self.start_heights = self.state.positions[:, 1].copy()
+        if self.probe.projection is not None:
+            self.probe = contact.Probe(self.probe_radius, self.probe_tip,
+                                       self.probe.projection.with_reference(self.start_heights))
+            self.control = self._control()
+
+    def start_surface(self, tips, heights):
+        """Height (m) of the start surface under each tip: bilinear in the top nodes' start
+        ``heights`` ((n,) or (N, n) m) at the tips' rest (x, z) ((N, 3) m)."""
+        nx, ny, nz = self.mesh.shape
+        spacing = self.mesh.spacing
+        u = np.clip(tips[:, 0] / spacing[0], 0.0, nx)
+        w = np.clip(tips[:, 2] / spacing[2], 0.0, nz)
+        i, k = np.minimum(u.astype(int), nx - 1), np.minimum(w.astype(int), nz - 1)
+        fu, fw = u - i, w - k
+        rows = np.arange(len(tips))
+        heights = np.broadcast_to(heights, (len(tips), self.mesh.n_nodes))
+        corner = lambda a, b: heights[rows, self.mesh.node_index(i + a, ny, k + b)]  # noqa: E731
+        return ((1 - fu) * (1 - fw) * corner(0, 0) + fu * (1 - fw) * corner(1, 0) + (1 - fu) * fw * corner(0, 1)
+                + fu * fw * corner(1, 1))
 
     def _tip(self):
         return self.probe_start + self.tool_offset
@@ -413,7 +465,7 @@ class PalpationEnv(TissueEnv):
         self.press_steps = self.press_steps + 1 if measures["pressing"] else 0
         measures["press_steps"] = self.press_steps
         new = update_palpation_map(self.palpation_map[None], self.cell_centres, self._tip()[None],
-                                   np.array([measures["depth"]]), np.array([measures["indentation_stiffness"]]),
+                                   np.array([measures["depth"]]), np.array([measures["apparent_modulus"]]),
                                    self.map_depth, self.success_radius, np.array([True]))
         measures["new_cell"] = bool(new[0])
         distance = measures["horizontal_distance"]
@@ -425,6 +477,10 @@ class PalpationEnv(TissueEnv):
         pushing = -measures["reaction_force"][1]  # downward force of the probe, N
         depth = measures["depth"]
         measures["indentation_stiffness"] = pushing / depth if depth > 1e-4 and len(self.contact_nodes) else 0.0
+        tip = self._tip()[None]
+        indentation = self.start_surface(tip, self.start_heights)[0] - tip[0, 1] if hasattr(self, "start_heights") else 0.0
+        measures["apparent_modulus"] = float(apparent_modulus(pushing if len(self.contact_nodes) else 0.0, indentation,
+                                                              self.probe_radius, self.probe_tip))
         return measures
 
     def _task_features(self, measures):
@@ -437,7 +493,7 @@ class PalpationEnv(TissueEnv):
     def _task_info(self, measures):
         return dict(depth=measures["depth"], horizontal_distance=measures["horizontal_distance"],
                     press_steps=measures["press_steps"], inclusion_centre=self.inclusion_centre.copy(),
-                    indentation_stiffness=measures["indentation_stiffness"])
+                    indentation_stiffness=measures["indentation_stiffness"], apparent_modulus=measures["apparent_modulus"])
 
     def _is_success(self, measures):
         return measures["press_steps"] >= self.hold_steps
@@ -457,7 +513,7 @@ class PalpationEnv(TissueEnv):
     # -- scripted sweep ------------------------------------------------------------------------------
     def scripted_action(self, probe_depth=0.004, settle_steps=1):
         """A sweep: press ``probe_depth`` over each candidate cell centre (a serpentine from the
-        end nearest the start), hold it ``settle_steps``, record the indentation stiffness (what the
+        end nearest the start), hold it ``settle_steps``, record the apparent modulus (what the
         palpation map records), then press ``success_depth`` + 1 mm over the stiffest one and hold
         it there."""
         if self._sweep is None:
@@ -488,7 +544,7 @@ class PalpationEnv(TissueEnv):
                 goal = np.array([goal_xz[0], surface - probe_depth, goal_xz[1]])
             else:  # pressed: record and go on
                 sweep["held"] = 0
-                sweep["stiffness"][cell] = self.measures["indentation_stiffness"]
+                sweep["stiffness"][cell] = self.measures["apparent_modulus"]
                 sweep["index"] += 1
                 sweep["phase"] = "move"
                 goal = np.array([tip[0], surface, tip[2]])
@@ -512,6 +568,12 @@ class PalpationVectorEnv(TissueVectorEnv):
         super().__init__(num_envs, **kwargs)
         env, count = self.envs[0], self.num_envs
         self.top_y, self.probe, self._probe_candidates = env.top_y, env.probe, env._probe_candidates
+        self._env = env
+        #: (N, n) each copy's start heights (``PalpationEnv.start_heights``), m, updated in place at
+        #: its reset: the projected probe's reference
+        self.start_heights = np.repeat(env.mesh.nodes[None, :, 1], count, axis=0)
+        if self.probe.projection is not None:
+            self.probe = contact.Probe(env.probe_radius, env.probe_tip, self.probe.projection.with_reference(self.start_heights))
         self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
         self.probe_start = np.zeros((count, 3))
         self.inclusion_centre = np.zeros((count, 3))
@@ -528,6 +590,7 @@ class PalpationVectorEnv(TissueVectorEnv):
 
     def _load_task(self, index, env):
         self.probe_start[index] = env.probe_start
+        self.start_heights[index] = env.start_heights
         self.inclusion_centre[index] = env.inclusion_centre
         self.press_steps[index] = env.press_steps
         self.palpation_map[index] = env.palpation_map
@@ -575,13 +638,17 @@ class PalpationVectorEnv(TissueVectorEnv):
         pushing, depth = -measures["reaction_force"][:, 1], measures["depth"]
         touching = (depth > 1e-4) & self.contact.any(axis=1)
         measures["indentation_stiffness"] = np.where(touching, pushing / np.where(touching, depth, 1.0), 0.0)
+        tips = self._tips()
+        indentation = self._env.start_surface(tips, self.start_heights) - tips[:, 1]
+        measures["apparent_modulus"] = apparent_modulus(np.where(self.contact.any(axis=1), pushing, 0.0), indentation,
+                                                        self._env.probe_radius, self._env.probe_tip)
         return measures
 
     def _batch_record(self, measures, rows):
         self.press_steps = np.where(rows, np.where(measures["pressing"], self.press_steps + 1, 0), self.press_steps)
         measures["press_steps"] = self.press_steps.copy()
         measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, self._tips(), measures["depth"],
-                                                    measures["indentation_stiffness"], self.map_depth,
+                                                    measures["apparent_modulus"], self.map_depth,
                                                     self.success_radius, rows)
         distance = measures["horizontal_distance"]
         measures["approach"] = np.where(rows, self.distance - distance, 0.0)
@@ -597,7 +664,8 @@ class PalpationVectorEnv(TissueVectorEnv):
     def _batch_task_info(self, measures):
         return dict(depth=measures["depth"].copy(), horizontal_distance=measures["horizontal_distance"].copy(),
                     press_steps=measures["press_steps"].copy(), inclusion_centre=self.inclusion_centre.copy(),
-                    indentation_stiffness=measures["indentation_stiffness"].copy())
+                    indentation_stiffness=measures["indentation_stiffness"].copy(),
+                    apparent_modulus=measures["apparent_modulus"].copy())
 
     def _batch_success(self, measures):
         return measures["press_steps"] >= self.hold_steps
