@@ -319,14 +319,15 @@ class ImplicitEuler(SymplecticEuler):
         assembled at the state of its last (re-)factorisation; re-factorises (and continues from the
         current iterate) when the solve needs more than ``max(REFACTOR_MIN, 2 x`` the iterations
         right after the last factorisation``)`` or the model, dt or scales changed. When only the
-        imposed set changed (a contact that holds other nodes) in at most RESTRICTED_MAX_CHANGED of
-        its dofs, the factorisation is kept and applied restricted to the new free dofs
-        (``_Restricted``), under the same iteration test."""
+        imposed set changed (a contact that holds other nodes), the factorisation is kept and applied
+        restricted to the new free dofs (``_Factor.restricted``: exact on the nodes it holds, Jacobi
+        on free dofs it lacks, at most RESTRICTED_MAX_CHANGED of its dofs), under the same iteration
+        test."""
         factor = self._factor
         fresh = factor is None or factor.model is not model or _system_key(factor.key) != _system_key(key)
         preconditioner = factor
         if not fresh and factor.key != key:
-            preconditioner = _Restricted(factor, mask)
+            preconditioner = factor.restricted(mask)
             fresh = preconditioner.changed > RESTRICTED_MAX_CHANGED * len(factor.structure.free)
         if fresh:
             preconditioner = factor = self._factorise(model, key, data, system, mask)
@@ -371,11 +372,13 @@ def auto_switch_iterations(n_free: int) -> int:
 
 #: "auto" stays with Jacobi above this many free dofs (LU fill and memory grow like dofs^(4/3)).
 AUTO_MAX_DOFS = 30000
-#: A factorisation serves another imposed set (``_Restricted``) when at most this share of its free
-#: dofs changed status; more, and factorising again is cheaper than the extra iterations. Measured
-#: (env steps per CPU second, random actions): Palpation at 8x4x8 (a probe contact, ~1000 dofs)
-#: 174 without reuse, 393 at 1%, 369 without a limit; Retraction at 8x2x4 (the floor, ~360 dofs)
-#: 367-382 without reuse, 400 at 1%, 319 without a limit.
+#: A factorisation serves another imposed set (``_Factor.restricted``) when at most this share of its
+#: free dofs gets Jacobi: dofs free now on nodes it does not hold (the SuperLU fallback,
+#: ``_Restricted``: every dof whose status changed). More, and factorising again is cheaper than the
+#: extra iterations. Measured with ``_Restricted`` (env steps per CPU second, random actions):
+#: Palpation at 8x4x8 (a probe contact, ~1000 dofs) 174 without reuse, 393 at 1%, 369 without a
+#: limit; Retraction at 8x2x4 (the floor, ~360 dofs) 367-382 without reuse, 400 at 1%, 319 without
+#: a limit. Imposed dofs on the nodes it holds (a contact's) are corrected exactly (``_Capacitance``).
 RESTRICTED_MAX_CHANGED = 0.01
 #: Re-factorise when a solve needs more than max(REFACTOR_MIN, 2 x the count right after factorising).
 REFACTOR_MIN = 8
@@ -427,27 +430,38 @@ _PATTERN_ARRAYS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class _Factor:
-    """Sparse LU of the free-dof system matrix. A node-block LU (``sparse.NodeBlockLU``) of the
-    matrix on the whole nodes that hold a free dof, the imposed dofs among them decoupled (their
-    rows and columns zero, their diagonal kept), whose inverse on the free dofs is that of the
-    free-dof matrix: its substitutions read one index per 3 x 3 block, 1.9x faster than SuperLU's
+    """Sparse LU of the system matrix, for the Krylov solves' preconditioner on the free dofs
+    (``restricted``: any imposed set). A node-block LU (``sparse.NodeBlockLU``) of the matrix on
+    the whole nodes that hold a free dof, their imposed dofs kept as they are (a contact imposes
+    single dofs: Palpation's probe and Retraction's floor impose y, x and z stay free): its inverse
+    restricted to an imposed set is exact through a capacitance correction on the imposed dofs
+    among those nodes (``_Capacitance``), whose columns of the inverse are solved once per
+    factorisation and kept, so a contact that moves keeps the factor and its iteration count. The
+    node-block LU's substitutions read one index per 3 x 3 block, 1.9x faster than SuperLU's
     scalar solve at TumorPositioning's 6^3 (0.22 against 0.42 ms), and its numeric factorisation
     (compiled, on a structure kept per node set) 1.4x faster (5.8 against 8.1 ms; 2.6x at
-    Retraction's 8x2x4). Where it fails, SuperLU's scalar LU (minimum-degree ordering on A + A^T,
-    symmetric mode: the matrix is symmetric up to the corrections' coupling)."""
+    Retraction's 8x2x4). Where it fails, SuperLU's scalar LU of the free-dof matrix (minimum-degree
+    ordering on A + A^T, symmetric mode: the matrix is symmetric up to the corrections' coupling),
+    restricted to another imposed set by ``_Restricted``."""
 
     def __init__(self, model, key, structure: _FreeStructure, values: np.ndarray):
         self.model, self.key, self.structure = model, key, structure
-        #: (n_dofs,) the system matrix's diagonal (for ``_Restricted``'s Jacobi part)
+        #: (n_dofs,) the system matrix's diagonal (for the Jacobi part on dofs the factor lacks)
         self.diagonal = values[model.pattern.diagonal_positions]
         self.threshold = REFACTOR_MIN
         self.lu = None
         free = np.zeros(model.pattern.n_dofs, bool)
         free[structure.free] = True
         self._mask = free.astype(float)
-        self.block = node_block_factor(model, values, free)
+        #: (n_dofs,) bool: the dofs the factor holds (whole nodes with a free dof)
+        self.covered = np.repeat(free.reshape(-1, 3).any(axis=1), 3)
+        self.block = node_block_factor(model, values, self.covered)
         if self.block is not None:
             self._buffer = np.empty(-int(self.block.ints[0]))
+            self._ones = self.covered.astype(float)
+            self._columns: dict = {}  # dof -> its column of the inverse (n_dofs,)
+            self._restricted: dict = {}  # imposed-set digest -> _Capacitance
+            self._own = self.restricted(self._mask)
             return
         matrix = sp.csc_matrix((values[structure.take], structure.indices, structure.indptr), shape=structure.shape)
         self.lu = spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
@@ -457,13 +471,87 @@ class _Factor:
         self.threshold = max(REFACTOR_MIN, 2 * int(iterations))
 
     def apply(self, vector: np.ndarray, out: np.ndarray):
-        """out = P^-1 vector (zero on the imposed dofs)."""
+        """out = P^-1 vector (zero on the imposed dofs) for the factorisation's own imposed set."""
         if self.block is not None:
-            kernels.block_lu_apply(self.block.ints, self.block.floats, self._mask, vector, out, self._buffer)
-            return out
+            return self._own.apply(vector, out)
         free = self.structure.free
         out[:] = 0.0
         out[free] = self.lu.solve(vector[free])
+        return out
+
+    def solve(self, vector: np.ndarray, out: np.ndarray):
+        """out = A_W^-1 vector on the covered dofs (the node-block LU without any restriction)."""
+        return kernels.block_lu_apply(self.block.ints, self.block.floats, self._ones, vector, out, self._buffer)
+
+    def columns(self, dofs: np.ndarray) -> np.ndarray:
+        """(n_dofs, len(dofs)) the columns ``dofs`` of the node-block LU's inverse, solved together
+        for those not kept yet."""
+        missing = [int(d) for d in dofs if int(d) not in self._columns]
+        if missing:
+            if len(self._columns) + len(missing) > CAPACITANCE_CACHE:
+                self._columns.clear()
+                missing = [int(d) for d in dofs]
+            n, count = len(self.covered), len(missing)
+            rhs = np.zeros((n, count))
+            rhs[missing, np.arange(count)] = 1.0
+            out = np.zeros((n, count))
+            k = -int(self.block.ints[0])
+            kernels._block_lu_solve(self.block.ints, self.block.floats, rhs, out, np.arange(count, dtype=np.int64),
+                                    count, np.empty((k, count)), np.empty((3, count)))
+            out *= self._ones[:, None]
+            for index, dof in enumerate(missing):
+                self._columns[dof] = out[:, index].copy()
+        return np.stack([self._columns[int(d)] for d in dofs], axis=1) if len(dofs) else np.zeros((len(self.covered), 0))
+
+    def restricted(self, mask: np.ndarray):
+        """The preconditioner for the free dofs ``mask`` (n_dofs,) float: exact (capacitance) on
+        the covered dofs, Jacobi on the free dofs the factor does not cover. Kept per imposed set."""
+        if self.block is None:
+            return _Restricted(self, mask)
+        digest = _digest(mask)
+        preconditioner = self._restricted.get(digest)
+        if preconditioner is None:
+            if len(self._restricted) >= 8:
+                self._restricted.clear()
+            preconditioner = self._restricted[digest] = _Capacitance(self, mask)
+        return preconditioner
+
+
+#: Columns of the inverse a factor keeps for its capacitance corrections (``_Factor.columns``), and
+#: the most dofs one correction handles (more: ``_Capacitance.changed`` asks for a new factor).
+CAPACITANCE_CACHE = 512
+CAPACITANCE_MAX = 96
+
+
+class _Capacitance:
+    """The node-block factor ``factor`` (the inverse B of the matrix on whole nodes) restricted to
+    the free dofs ``mask``: with c the covered dofs imposed now, (A_ff)^-1 r = (B r)_f - B_fc
+    (B_cc)^-1 (B r)_c exactly for r zero on c (the Krylov vectors are); Jacobi (the factorisation's
+    diagonal) on free dofs it does not cover."""
+
+    def __init__(self, factor: _Factor, mask: np.ndarray):
+        self.factor, self.mask = factor, mask
+        free = mask > 0
+        self.imposed = np.flatnonzero(factor.covered & ~free)
+        self.extra = np.flatnonzero(free & ~factor.covered)
+        self.inverse_diagonal = 1.0 / factor.diagonal[self.extra]
+        #: free dofs the factor lacks, and a correction too large to keep: ask for a new factor
+        self.changed = len(self.extra) + (len(factor.covered) if len(self.imposed) > CAPACITANCE_MAX else 0)
+        self.z = None
+        if len(self.imposed) and len(self.imposed) <= CAPACITANCE_MAX:
+            self.z = factor.columns(self.imposed)
+            try:
+                self.capacitance = np.linalg.inv(self.z[self.imposed])
+            except np.linalg.LinAlgError:
+                self.z, self.changed = None, len(factor.covered)
+
+    def apply(self, vector: np.ndarray, out: np.ndarray):
+        self.factor.solve(vector, out)
+        if self.z is not None:
+            out -= self.z @ (self.capacitance @ out[self.imposed])
+        out *= self.mask
+        if len(self.extra):
+            out[self.extra] = vector[self.extra] * self.inverse_diagonal
         return out
 
 

@@ -127,6 +127,39 @@ def test_keeps_the_factor_when_the_fixed_set_changes_and_refactorises_for_anothe
     assert integrator.factorisations == 3
 
 
+def test_a_moving_contact_keeps_the_factor_exact_through_its_capacitance_correction():
+    """A probe-like contact imposes the y dof of a few top nodes, a different set each step (x and
+    z free). The factor holds those nodes whole and corrects its inverse for the imposed dofs
+    (``_Capacitance``), which is exact: every step takes the iterations of a factor made for its
+    own imposed set, from the same state (at most one more) and the same solution (1e-9 m), with
+    one factorisation."""
+    model, control, _ = stiff_scene((6, 6, 6))
+    nodes = model.mesh.nodes
+    top = np.flatnonzero(np.isclose(nodes[:, 1], nodes[:, 1].max()))
+    centre = top[np.argsort(np.hypot(nodes[top, 0] - 0.025, nodes[top, 2] - 0.025))]
+    bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
+
+    def contact(step):
+        c = model.new_control()
+        c.impose(bottom, nodes[bottom])
+        held = centre[step % 3: step % 3 + 4 + step]  # 4-9 nodes, another set each step
+        c.impose(held, nodes[held] - [0.0, 0.0005 * step, 0.0], components=(1,))
+        return c
+
+    kept = ImplicitEuler(preconditioner="factorised", tolerance=1e-8)
+    state = model.new_state()
+    kept.simulate(model, state, state.copy(), 0.04, model.new_control().impose(bottom, nodes[bottom]))
+    for step in range(1, 6):
+        out, fresh_out = state.copy(), state.copy()
+        kept._warm = kept._warm_old = None  # the same start as a fresh integrator's
+        report = kept.simulate(model, state, out, 0.04, contact(step))
+        fresh = ImplicitEuler(preconditioner="factorised", tolerance=1e-8)
+        fresh_report = fresh.simulate(model, state, fresh_out, 0.04, contact(step))
+        assert report.iterations <= fresh_report.iterations + 1, (step, report.iterations, fresh_report.iterations)
+        assert np.abs(out.positions - fresh_out.positions).max() < 1e-9
+    assert kept.factorisations == 1
+
+
 def test_refactorises_when_iterations_grow():
     """A factor from the rest state serves a block pressed 12 mm down poorly (8 iterations without
     converging to 1e-8): re-factorised at that state, then 1 more iteration (measured)."""
