@@ -384,6 +384,7 @@ RESTRICTED_MAX_CHANGED = 0.01
 REFACTOR_MIN = 8
 
 
+
 def _digest(array) -> bytes:
     return hashlib.blake2b(np.ascontiguousarray(array).view(np.uint8), digest_size=16).digest()
 
@@ -432,11 +433,13 @@ _PATTERN_ARRAYS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 class _Factor:
     """Sparse LU of the system matrix, for the Krylov solves' preconditioner on the free dofs
     (``restricted``: any imposed set). A node-block LU (``sparse.NodeBlockLU``) of the matrix on
-    the whole nodes that hold a free dof, their imposed dofs kept as they are (a contact imposes
-    single dofs: Palpation's probe and Retraction's floor impose y, x and z stay free): its inverse
-    restricted to an imposed set is exact through a capacitance correction on the imposed dofs
-    among those nodes (``_Capacitance``), whose columns of the inverse are solved once per
-    factorisation and kept, so a contact that moves keeps the factor and its iteration count. The
+    the whole nodes that hold a free dof, the imposed dofs among them decoupled (rows and columns
+    zero, diagonal kept: a contact imposes single dofs, Palpation's probe and Retraction's floor
+    impose y, x and z stay free), so its inverse on the free dofs is that of the free-dof matrix.
+    Restricted to another imposed set it stays exact for the free dofs imposed now, through a
+    capacitance correction (``_Capacitance``) whose columns of the inverse are solved once per
+    factorisation and kept, so a contact that moves onto other nodes keeps the factor and its
+    iteration count; dofs free now but imposed at the factorisation get Jacobi. The
     node-block LU's substitutions read one index per 3 x 3 block, 1.9x faster than SuperLU's
     scalar solve at TumorPositioning's 6^3 (0.22 against 0.42 ms), and its numeric factorisation
     (compiled, on a structure kept per node set) 1.4x faster (5.8 against 8.1 ms; 2.6x at
@@ -453,10 +456,14 @@ class _Factor:
         free = np.zeros(model.pattern.n_dofs, bool)
         free[structure.free] = True
         self._mask = free.astype(float)
-        #: (n_dofs,) bool: the dofs the factor holds (whole nodes with a free dof)
-        self.covered = np.repeat(free.reshape(-1, 3).any(axis=1), 3)
-        self.block = node_block_factor(model, values, self.covered)
+        #: (n_dofs,) bool: the dofs the factor holds (its free dofs; the imposed dofs of the whole
+        #: nodes it covers are decoupled)
+        self.covered = free
+        self.block = node_block_factor(model, values, free)
+        #: a factorisation's cost in Krylov iterations (``_factorisation_cost``; see CHEAP_FACTOR)
+        self.cost = REFACTOR_MIN
         if self.block is not None:
+            self.cost = _factorisation_cost(self.block.ints)
             self._buffer = np.empty(-int(self.block.ints[0]))
             self._ones = self.covered.astype(float)
             self._columns: dict = {}  # dof -> its column of the inverse (n_dofs,)
@@ -480,7 +487,7 @@ class _Factor:
         return out
 
     def solve(self, vector: np.ndarray, out: np.ndarray):
-        """out = A_W^-1 vector on the covered dofs (the node-block LU without any restriction)."""
+        """out = A_f^-1 vector on the factorisation's free dofs (zero elsewhere)."""
         return kernels.block_lu_apply(self.block.ints, self.block.floats, self._ones, vector, out, self._buffer)
 
     def columns(self, dofs: np.ndarray) -> np.ndarray:
@@ -517,6 +524,22 @@ class _Factor:
         return preconditioner
 
 
+def _factorisation_cost(ints) -> float:
+    """A node-block LU's factorisation cost in BiCGSTAB iterations (two triangular solves and two
+    operator products each), from its structure: the block products of the factorisation,
+    sum over block rows of (L blocks x U blocks), against the blocks an iteration's solves read,
+    times 0.75. Measured (factorisation with its assembly against an iteration): Retraction 8x2x4
+    5, TumorPositioning 6^3 8, Palpation 8x4x8 13.5; this gives 6.0, 12.7, 14.0."""
+    nb, n_l, n_u = int(ints[1]), int(ints[2]), int(ints[3])
+    l_counts = np.diff(ints[4:5 + nb])
+    u_counts = np.diff(ints[5 + nb + n_l:6 + 2 * nb + n_l])
+    return 0.75 * float(l_counts @ u_counts) / max(n_l + n_u, 1)
+
+
+#: A factorisation that costs fewer iterations than this (``_factorisation_cost``) is renewed on a
+#: contact change of more than RESTRICTED_MAX_CHANGED of its dofs (Retraction's 8x2x4: 6.0;
+#: TumorPositioning's 6^3 12.7 and Palpation's 8x4x8 14.0 keep theirs, corrected exactly)
+CHEAP_FACTOR = 10.0
 #: Columns of the inverse a factor keeps for its capacitance corrections (``_Factor.columns``), and
 #: the most dofs one correction handles (more: ``_Capacitance.changed`` asks for a new factor).
 CAPACITANCE_CACHE = 512
@@ -524,10 +547,10 @@ CAPACITANCE_MAX = 96
 
 
 class _Capacitance:
-    """The node-block factor ``factor`` (the inverse B of the matrix on whole nodes) restricted to
-    the free dofs ``mask``: with c the covered dofs imposed now, (A_ff)^-1 r = (B r)_f - B_fc
+    """The node-block factor ``factor`` (the inverse B of the matrix on its free dofs) restricted to
+    the free dofs ``mask``: with c its free dofs imposed now, (A_ff)^-1 r = (B r)_f - B_fc
     (B_cc)^-1 (B r)_c exactly for r zero on c (the Krylov vectors are); Jacobi (the factorisation's
-    diagonal) on free dofs it does not cover."""
+    diagonal) on free dofs it does not hold."""
 
     def __init__(self, factor: _Factor, mask: np.ndarray):
         self.factor, self.mask = factor, mask
@@ -535,8 +558,14 @@ class _Capacitance:
         self.imposed = np.flatnonzero(factor.covered & ~free)
         self.extra = np.flatnonzero(free & ~factor.covered)
         self.inverse_diagonal = 1.0 / factor.diagonal[self.extra]
-        #: free dofs the factor lacks, and a correction too large to keep: ask for a new factor
+        #: free dofs the factor lacks (Jacobi), and a correction too large to keep: ask for a new
+        #: factor. A factorisation cheaper than CHEAP_FACTOR iterations counts every dof whose status
+        #: changed, as ``_Restricted`` does: there a fresh factor at the state of a large contact
+        #: change beats a kept one the state moved away from (Retraction's flap: 737 against 693
+        #: env steps/s)
         self.changed = len(self.extra) + (len(factor.covered) if len(self.imposed) > CAPACITANCE_MAX else 0)
+        if factor.cost < CHEAP_FACTOR:
+            self.changed = max(self.changed, int(np.count_nonzero(free != (factor._mask > 0))))
         self.z = None
         if len(self.imposed) and len(self.imposed) <= CAPACITANCE_MAX:
             self.z = factor.columns(self.imposed)
