@@ -20,8 +20,8 @@ def update_palpation_map(palpation_map, centres, tips, depth, reading, map_depth
     (``reading`` (N,) > 0: the apparent modulus, Pa, depth-normalised so that a deeper press
     reads the same tissue alike); the cell keeps the reading of its latest probe, so that a
     press held still replaces the first step's (the first step of a press at full speed reads
-    the damping of the tissue it sets moving: 0.9-3.1x the held reading). Only ``rows`` (N,)
-    bool are updated."""
+    0.53-1.84x the held reading at the same place: the damping of the tissue it sets moving, a
+    contact still forming). Only ``rows`` (N,) bool are updated."""
     distance = np.hypot(centres[None, :, 0] - tips[:, None, 0], centres[None, :, 1] - tips[:, None, 2])
     cell = np.argmin(distance, axis=1)
     index = np.arange(len(cell))
@@ -36,7 +36,7 @@ def apparent_modulus(force, indentation, radius, tip):
     half-space: a sphere of ``radius`` (m) pushed ``indentation`` (m) with ``force`` (N):
     F = 4/3 E* sqrt(R) d^1.5; a flat punch: F = 2 E* R d (Boussinesq). Arrays broadcast; 0 where
     the indentation is below 0.1 mm or the force is not a push. On Palpation's homogeneous slab
-    (E* 6.3 kPa, 3 cm thick) it reads 4.6-5.3 kPa held 4-8 mm deep (F / d: 30-55 N/m)."""
+    (E* 6.3 kPa, 3 cm thick) it reads 4.8-5.8 kPa held 4-8 mm deep (F / d: 30-58 N/m)."""
     force, indentation = np.asarray(force, dtype=float), np.asarray(indentation, dtype=float)
     touching = (indentation > 1e-4) & (force > 0)
     safe = np.where(touching, indentation, 1.0)
@@ -136,18 +136,19 @@ class PalpationEnv(TissueEnv):
     policy's success rate (benchmarks/results/training.json before the map). A cell holds the
     reading of its latest press: the apparent (Hertz) modulus E* = 3 F / (4 sqrt(R) d^1.5)
     (``apparent_modulus``; F the probe's vertical force, d its depth under the start surface),
-    which reads the same tissue alike at any depth (4.6-5.3 kPa held 4-8 mm deep on the
-    homogeneous slab, E* = E / (1 - nu^2) = 6.3 kPa for a half-space; F / d rises 1.5x), so a deeper
-    press does not outrank a shallower one, and a press held still replaces the first step of a
-    press at full speed, which reads the damping of the tissue it sets moving (0.9-3.1x the held
-    reading at the same place).
+    which reads the same tissue alike at any depth (held 4 and 8 mm deep at three places on the
+    homogeneous slab: 4.78-5.34 and 5.48-5.77 kPa, where F / d rises from 30-33 to 55-58 N/m;
+    E* = E / (1 - nu^2) = 6.3 kPa for a half-space), so a deeper press does not outrank a
+    shallower one, and a press held still replaces the first step of a press at full speed, which
+    reads 0.53-1.84x the held reading at the same place (the damping of the tissue it sets moving,
+    a contact still forming).
 
     How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
     tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within
-    1.12 (max/min) over one node period, and the inclusion's cell reads 1.19-1.29 times the
+    1.12 (max/min) over one node period, and the inclusion's cell reads 1.16-1.27 times the
     stiffest other cell in all 9 placements. With the probe sampled at the nodes (``"node"``) a
     coarse mesh felt a press over a node on that node and one between nodes on four: 1.47 over the
-    node period, and the inclusion's cell 0.76-1.9 times the stiffest other (below 1 in 4 of the 9
+    node period, and the inclusion's cell 0.73-1.82 times the stiffest other (below 1 in 5 of the 9
     placements).
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
