@@ -498,13 +498,7 @@ class _Factor:
             if len(self._columns) + len(missing) > CAPACITANCE_CACHE:
                 self._columns.clear()
                 missing = [int(d) for d in dofs]
-            n, count = len(self.covered), len(missing)
-            rhs = np.zeros((n, count))
-            rhs[missing, np.arange(count)] = 1.0
-            out = np.zeros((n, count))
-            k = -int(self.block.ints[0])
-            kernels._block_lu_solve(self.block.ints, self.block.floats, rhs, out, np.arange(count, dtype=np.int64),
-                                    count, np.empty((k, count)), np.empty((3, count)))
+            out = inverse_columns(self.block.ints, self.block.floats, missing, len(self.covered))
             out *= self._ones[:, None]
             for index, dof in enumerate(missing):
                 self._columns[dof] = out[:, index].copy()
@@ -522,6 +516,20 @@ class _Factor:
                 self._restricted.clear()
             preconditioner = self._restricted[digest] = _Capacitance(self, mask)
         return preconditioner
+
+
+def inverse_columns(ints, floats, dofs, n_dofs: int) -> np.ndarray:
+    """(n_dofs, len(dofs)) the columns ``dofs`` of the inverse of a packed node-block LU
+    (``sparse.NodeBlockLU``'s ``ints``, ``floats``), solved together (``kernels._block_lu_solve``);
+    zero on the dofs of the nodes the factor does not hold."""
+    count = len(dofs)
+    rhs = np.zeros((n_dofs, count))
+    rhs[dofs, np.arange(count)] = 1.0
+    out = np.zeros((n_dofs, count))
+    k = -int(ints[0])
+    kernels._block_lu_solve(ints, floats, rhs, out, np.arange(count, dtype=np.int64), count, np.empty((k, count)),
+                            np.empty((3, count)))
+    return out
 
 
 def _factorisation_cost(ints) -> float:

@@ -1587,16 +1587,40 @@ def _lu_apply(ints, values, mask, vector, out, buffer):
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _corrected_lu_apply(ints, values, mask, ones, correction, imposed, gathered, vector, out, buffer):
+    """out = mask * (y - correction @ y[imposed]) with y = A^-1 vector (``_lu_apply`` without mask):
+    a factor of a larger free set F restricted exactly to the free dofs ``mask`` (capacitance
+    correction, ``correction`` (3 n, k) = B[:, imposed] (B[imposed, imposed])^-1 with B the
+    factor's inverse and ``imposed`` (k,) the dofs of F imposed now; exact for a vector zero on
+    them). k = 0: ``_lu_apply`` with ``mask``. ``ones`` (3 n,) ones, ``gathered`` (>= k,) scratch."""
+    k = imposed.shape[0]
+    if k == 0:
+        _lu_apply(ints, values, mask, vector, out, buffer)
+        return
+    _lu_apply(ints, values, ones, vector, out, buffer)
+    for j in range(k):
+        gathered[j] = out[imposed[j]]
+    for i in range(out.shape[0]):
+        value = out[i]
+        for j in range(k):
+            value -= correction[i, j] * gathered[j]
+        out[i] = mask[i] * value
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
-                    lu_float, factor_of, work, solution, iterations, residual):
+                    lu_float, factor_of, corrections, imposed, work, solution, iterations, residual):
     """Each ``active`` copy's right-preconditioned BiCGSTAB (``solve_springs``' algorithm and stopping
     test ||r|| <= tolerance ||b||), one copy after the other (no lockstep: a copy costs its own
-    iterations), preconditioned by its sparse LU ``factor_of[c]`` (``_lu_apply``) and stopped after
-    ``limits[c]`` iterations. ``stacked``: ``apply_operator``'s data of the N-copy stacked model
-    (copies first: copy c's springs, elements and nodes are the c-th equal slices; topology arrays
-    springs, elements, edge_spring, hg_indptr, hg_indices of ONE copy), its hourglass values per
-    copy group ``hg_rows`` (G, nnz) and ``hg_group`` (N,). Vectors (N, 3 n); ``work`` (8, 3 n).
-    Writes solution (NaN rows for a non-finite right-hand side), iterations and residual (N,)."""
+    iterations), preconditioned by its sparse LU ``factor_of[c]`` restricted to its free dofs
+    ``mask[c]``, with the capacitance correction ``corrections[c]`` (3 n, k) for the dofs
+    ``imposed[c]`` (k,) that are free in the factor but imposed now (``_corrected_lu_apply``; k = 0:
+    the factor masked, ``_lu_apply``), and stopped after ``limits[c]`` iterations. ``stacked``:
+    ``apply_operator``'s data of the N-copy stacked model (copies first: copy c's springs, elements
+    and nodes are the c-th equal slices; topology arrays springs, elements, edge_spring, hg_indptr,
+    hg_indices of ONE copy), its hourglass values per copy group ``hg_rows`` (G, nnz) and
+    ``hg_group`` (N,). Vectors (N, 3 n); ``work`` (8, 3 n). Writes solution (NaN rows for a
+    non-finite right-hand side), iterations and residual (N,)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
      delta) = stacked
@@ -1606,6 +1630,7 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
     n_nodes = dofs // 3
     r, r_hat, p, v, s, t, p_hat, s_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     buffer = np.empty(dofs)
+    ones = np.ones(dofs)
     for c in range(n_copies):
         iterations[c] = 0
         residual[c] = 0.0
@@ -1621,6 +1646,9 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
         m = mask[c]
         ints = lu_int[factor_of[c]]
         values = lu_float[factor_of[c]]
+        correction = corrections[c]
+        held = imposed[c]
+        gathered = np.empty(held.shape[0])
         finite = True
         norm_b = 0.0
         for i in range(dofs):
@@ -1663,7 +1691,7 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
             rho = rho_new
             for i in range(dofs):
                 p[i] = r[i] + beta * (p[i] - omega * v[i])
-            _lu_apply(ints, values, m, p, p_hat, buffer)
+            _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, p, p_hat, buffer)
             _apply(data, scales, m, p_hat, v)
             denominator = 0.0
             for i in range(dofs):
@@ -1682,7 +1710,7 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
                     r[i] = s[i]
                 res = np.sqrt(ss) / norm_b
                 break
-            _lu_apply(ints, values, m, s, s_hat, buffer)
+            _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, s, s_hat, buffer)
             _apply(data, scales, m, s_hat, t)
             tt = 0.0
             ts = 0.0

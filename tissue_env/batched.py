@@ -18,12 +18,13 @@ with the copy index last ((3 n, N) vectors), so each spring, element and hourgla
 once for all copies, and ``kernels.batched_solve``, one compiled call that runs every copy's
 BiCGSTAB in lockstep, each with its own scalars, stopping test ||r|| <= tolerance ||b|| (as
 sim_core's) and convergence mask. No Python loop over copies in the step (but for the
-factorisations of solver "factorised").
+factorisations and capacitance corrections of solver "factorised").
 
 Preconditioner (solver "factorised", the default): each copy's own sparse LU of its free-dof system
 matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks,
 ``sparse.NodeBlockLU`` through ``integrators.node_block_factor``, else SuperLU's scalar LU), kept across steps
-and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does, and the copies' BiCGSTABs run
+and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does (a node-block LU restricted exactly
+to a contact's newly imposed dofs by a capacitance correction), and the copies' BiCGSTABs run
 one after the other in one compiled call (``kernels.solve_copies_lu``): no copy waits for the
 slowest, 1-5 iterations per copy. Solver "reference": the sparse LU of the copy's system matrix at
 the start of its episode, applied by triangular solves: in dense 3 x 3 node blocks when the free
@@ -59,7 +60,8 @@ from numba.typed import List as TypedList
 from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
-from sim_core.integrators import REFACTOR_MIN, DivergenceMonitor, SymplecticEuler, _FreeStructure, node_block_factor
+from sim_core.integrators import (CAPACITANCE_CACHE, CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, SymplecticEuler,
+                                  _FreeStructure, inverse_columns, node_block_factor)
 from sim_core.sparse import NodeBlockLU as _BlockFactor
 from sim_core.model import Control, Model, State
 
@@ -235,13 +237,14 @@ def _system_factor(model, positions, dt, fixed):
 
 
 class _CopyFactor:
-    """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner) of one copy's free-dof
-    system matrix, packed for ``kernels.solve_copies_lu`` (``ints``, ``floats``); ``threshold``: the
-    iterations after which a solve re-factorises it (see ``BatchedImplicitEuler.amortise``)."""
-
+    """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner, or a node-block LU
+    with ``refactored``) of one copy's free-dof system matrix, packed for
+    ``kernels.solve_copies_lu`` (``ints``, ``floats``); ``threshold``: the iterations after which a
+    solve re-factorises it (see ``BatchedImplicitEuler.amortise``)."""
 
     def __init__(self, matrix=None, free=None):
         self.set_baseline(0)
+        self._columns, self._corrections = {}, {}
         if matrix is None:
             self.ints, self.floats = np.zeros(1, dtype=np.int64), np.zeros(1)
             self.lu = self.lower = self.upper = None
@@ -266,8 +269,38 @@ class _CopyFactor:
     def refactored(cls, pattern, floats):
         factor = cls.__new__(cls)
         factor.set_baseline(0)
+        factor._columns, factor._corrections = {}, {}
         factor.ints, factor.floats = pattern.ints, floats
         return factor
+
+    def correction(self, imposed: np.ndarray, n_dofs: int):
+        """A node-block LU's capacitance correction (``kernels._corrected_lu_apply``) for the dofs
+        ``imposed`` (k,) sorted, free in the factor (F) but imposed now: (W, imposed) with
+        W = B[:, imposed] (B[imposed, imposed])^-1 (n_dofs, k), B the factor's inverse, so that
+        (B r - W (B r)[imposed]) on F minus ``imposed`` is the inverse of the matrix on those dofs
+        applied to r (exact for r zero on ``imposed``: ``integrators._Capacitance``). None where
+        B[imposed, imposed] is singular. Kept per imposed set (8 per factor), and B's columns per
+        dof (CAPACITANCE_CACHE per factor), solved together for those not kept yet."""
+        key = imposed.tobytes()
+        if key in self._corrections:
+            return self._corrections[key]
+        dofs = imposed.tolist()
+        missing = [d for d in dofs if d not in self._columns]
+        if missing:
+            if len(self._columns) + len(missing) > CAPACITANCE_CACHE:
+                self._columns.clear()
+                missing = dofs
+            for dof, column in zip(missing, inverse_columns(self.ints, self.floats, missing, n_dofs).T):
+                self._columns[dof] = column
+        z = np.stack([self._columns[d] for d in dofs], axis=1)
+        try:
+            entry = (np.ascontiguousarray(z @ np.linalg.inv(z[imposed])), imposed)
+        except np.linalg.LinAlgError:
+            entry = None
+        if len(self._corrections) >= 8:
+            self._corrections.clear()
+        self._corrections[key] = entry
+        return entry
 
     def set_baseline(self, iterations, amortise=None):
         self.baseline = int(iterations)
@@ -370,6 +403,11 @@ class BatchedImplicitEuler:
             self._lu_int = TypedList([identity.ints] * count)
             self._lu_float = TypedList([identity.floats] * count)
             self._factor_of = np.arange(count, dtype=np.int64)
+            #: each copy's capacitance correction (``_CopyFactor.correction``) as the kernel takes it
+            self._no_correction = (np.zeros((0, 0)), np.zeros(0, dtype=np.int64))
+            self._correction_of = [self._no_correction] * count
+            self._corrections = TypedList([self._no_correction[0]] * count)
+            self._imposed = TypedList([self._no_correction[1]] * count)
             self._patterns = {}
             self._lu_patterns = {}
             reference = stack.reference
@@ -478,6 +516,23 @@ class BatchedImplicitEuler:
         self._set_factor(index, factor, free)
         return factor
 
+    def _correct(self, indices, free_rows):
+        """Set the capacitance correction of the copies ``indices`` whose node-block factor's free set
+        holds dofs imposed now (``free_rows`` (N, 3 n) bool), at most CAPACITANCE_MAX (more: the
+        factor masked, as before); the others get none."""
+        dofs = free_rows.shape[1]
+        held = self._factor_free[indices] & ~free_rows[indices]
+        counts = np.count_nonzero(held, axis=1)
+        for row, index in enumerate(indices):
+            entry = None
+            factor = self._factors[index]
+            if 0 < counts[row] <= CAPACITANCE_MAX and factor.ints[0] < 0:
+                entry = factor.correction(np.flatnonzero(held[row]), dofs)
+            entry = entry or self._no_correction
+            if self._correction_of[index] is not entry:
+                self._correction_of[index] = entry
+                self._corrections[index], self._imposed[index] = entry
+
     def _scalar_factor(self, values, free):
         """SuperLU's scalar factor of the system matrix (pattern ``values``) on the ``free`` dofs,
         numeric only for a free set seen before (``_LUPattern``); the identity where it fails."""
@@ -552,11 +607,12 @@ class BatchedImplicitEuler:
         across steps (``ImplicitEuler``'s "factorised" rule, per copy), one compiled call solving the
         copies one after the other (``kernels.solve_copies_lu``: a copy costs its own iterations, no
         lockstep). A copy without a factor, or whose free dofs are not all in its factor's (a probe
-        contact released), is factorised at this step's linearisation, on the union of its free sets
-        (a contact that imposes more dofs keeps the factor: its masked inverse is a close
-        preconditioner); one that needs more than its factor's threshold is re-factorised here and
-        continues from its iterate. A factorisation of a free set seen before is numeric only
-        (``kernels.refactor_lu`` on the structure of the first SuperLU factor)."""
+        contact released), is factorised at this step's linearisation, on the union of its free sets;
+        a contact that imposes more dofs keeps the factor, restricted exactly to the free dofs by a
+        capacitance correction (``_correct``; a SuperLU factor, or more than CAPACITANCE_MAX dofs:
+        its masked inverse, a close preconditioner). One that needs more than its factor's threshold
+        is re-factorised here and continues from its iterate. A factorisation of a free set seen
+        before is numeric only (``kernels.refactor_lu`` on the structure of the first SuperLU factor)."""
         count = self.stack.count
         free_rows = free.T
         fresh = np.zeros(count, dtype=bool)
@@ -575,14 +631,15 @@ class BatchedImplicitEuler:
             fresh[index] = True
         limits = np.array([self.max_iterations if fresh[i] or factor is None else min(factor.threshold,
                            self.max_iterations) for i, factor in enumerate(self._factors)], dtype=np.int64)
+        self._correct(np.flatnonzero(active), free_rows)
         stacked, hg_rows, hg_group = self._copies_first()
         mask_rows = np.ascontiguousarray(mask.T)
         rhs_rows = np.ascontiguousarray(rhs.T)
         rows = np.zeros_like(rhs_rows)
         work = self._row_work
         kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active,
-                                self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of, work, rows,
-                                iterations, residual)
+                                self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of,
+                                self._corrections, self._imposed, work, rows, iterations, residual)
         stalled = (active & ~fresh & (residual > self.tolerance) & (iterations < self.max_iterations)
                    & np.all(np.isfinite(rows), axis=1))
         for index in np.flatnonzero(fresh):
@@ -597,13 +654,14 @@ class BatchedImplicitEuler:
         if stalled.any():
             for index in np.flatnonzero(stalled):
                 self._factorise(index, data, system, free_rows[index] | self._factor_free[index])
+            self._correct(np.flatnonzero(stalled), free_rows)
             again = np.zeros_like(rows)
             more = np.zeros(count, dtype=np.int64)
             more_residual = np.zeros(count)
             limits = (self.max_iterations - iterations).astype(np.int64)
             kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, rows, stalled,
-                                    self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of, work,
-                                    again, more, more_residual)
+                                    self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of,
+                                    self._corrections, self._imposed, work, again, more, more_residual)
             for index in np.flatnonzero(stalled):
                 self._factors[index].set_baseline(more[index], self.amortise)
             rows[stalled] = again[stalled]
