@@ -574,18 +574,20 @@ class _Capacitance:
         self.changed = len(self.extra) + (len(factor.covered) if len(self.imposed) > CAPACITANCE_MAX else 0)
         if factor.cost < CHEAP_FACTOR:
             self.changed = max(self.changed, int(np.count_nonzero(free != (factor._mask > 0))))
-        self.z = None
-        if len(self.imposed) and len(self.imposed) <= CAPACITANCE_MAX:
-            self.z = factor.columns(self.imposed)
-            try:
-                self.capacitance = np.linalg.inv(self.z[self.imposed])
-            except np.linalg.LinAlgError:
-                self.z, self.changed = None, len(factor.covered)
+        self.z = None  # W = B[:, c] (B_cc)^-1, solved at the first application (a set that asks
+        self._pending = 0 < len(self.imposed) <= CAPACITANCE_MAX  # for a new factor never needs it)
 
     def apply(self, vector: np.ndarray, out: np.ndarray):
+        if self._pending:
+            self._pending = False
+            z = self.factor.columns(self.imposed)
+            try:
+                self.z = z @ np.linalg.inv(z[self.imposed])
+            except np.linalg.LinAlgError:  # left masked: a close preconditioner
+                self.z = None
         self.factor.solve(vector, out)
         if self.z is not None:
-            out -= self.z @ (self.capacitance @ out[self.imposed])
+            out -= self.z @ out[self.imposed]
         out *= self.mask
         if len(self.extra):
             out[self.extra] = vector[self.extra] * self.inverse_diagonal
