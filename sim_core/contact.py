@@ -42,6 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
+
 TIPS = ("sphere", "flat")
 #: Where a probe is sampled: "projected" (its indentation projected on the surface nodes' basis
 #: functions, ``SurfaceProjection``) or "node" (at the nodes)
@@ -178,14 +180,15 @@ class Probe:
         if len(where[0]) == 0:
             return out
         node = where[-1]
-        tips = tip[where[:-1]] if tip.ndim > 1 else tip[None]
-        height = self._height(x[where][:, None] + projection.offsets[:, 0], z[where][:, None] + projection.offsets[:, 1],
-                              tips[:, None, :])
-        reference = (projection.reference[where] if projection.reference.ndim > 1 else projection.reference[node])[:, None]
-        weights = projection.weights[node]
-        below = height < reference
-        average = (weights * np.where(below, height, reference)).sum(axis=1)
-        out[where] = np.where((weights * below).sum(axis=1) > 0.0, average, np.inf)
+        tips = tip[where[:-1]] if tip.ndim > 1 else np.broadcast_to(tip, (len(node), 3))
+        reference = projection.reference[where] if projection.reference.ndim > 1 else projection.reference[node]
+        bound = np.empty(len(node))
+        kernels.projected_probe_surface(np.ascontiguousarray(x[where], dtype=float),
+                                        np.ascontiguousarray(z[where], dtype=float),
+                                        np.ascontiguousarray(tips, dtype=float), projection.weights[node],
+                                        projection.offsets, np.ascontiguousarray(reference, dtype=float),
+                                        float(self.radius), self.tip == "flat", bound)
+        out[where] = bound
         return out
 
 

@@ -1760,3 +1760,33 @@ def refactor_lu(values, take, b_indptr, b_indices, l_indptr, l_indices, l_map, u
             u_rows[p] = work[m]
             out[nnz_l + u_map[p]] = work[m]
             work[m] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def projected_probe_surface(x, z, tips, weights, offsets, reference, radius, flat, out):
+    """``contact.Probe``'s projected bound of each entry e (a node near a probe): the average over
+    the node's support, weighted by its hat function (``weights`` (E, Q), summing to 1), of
+    min(probe surface, ``reference[e]``) at the points (x[e], z[e]) + ``offsets`` (Q, 2) m, the
+    probe's lowest point at ``tips`` (E, 3) m, its surface tip_y + R - sqrt(R^2 - r^2) within
+    ``radius`` R of its axis (tip_y with ``flat``); +inf where it reaches below the reference at
+    no point. Writes ``out`` (E,) m."""
+    r2_max = radius * radius
+    for e in range(x.shape[0]):
+        total = 0.0
+        below = False
+        level = reference[e]
+        for q in range(offsets.shape[0]):
+            w = weights[e, q]
+            if w == 0.0:
+                continue
+            dx = x[e] + offsets[q, 0] - tips[e, 0]
+            dz = z[e] + offsets[q, 1] - tips[e, 2]
+            r2 = dx * dx + dz * dz
+            height = level
+            if r2 <= r2_max:
+                surface = tips[e, 1] if flat else tips[e, 1] + radius - np.sqrt(r2_max - r2)
+                if surface < level:
+                    height = surface
+                    below = True
+            total += w * height
+        out[e] = total if below else np.inf
