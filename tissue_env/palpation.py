@@ -45,9 +45,9 @@ def apparent_modulus(force, indentation, radius, tip):
 
 
 def map_features(palpation_map, centres, tips, length_scale, squeeze=False):
-    """Observation features of palpation maps (N, C): the map (N/m / 100, 0 where not probed
-    yet), the horizontal offset (cm) from the tip to the stiffest probed cell and to the nearest
-    cell not probed yet (zeros when there is none)."""
+    """Observation features of palpation maps (N, C) in Pa: the map (apparent modulus, kPa, 0 where
+    not probed yet), the horizontal offset (cm) from the tip to the stiffest probed cell and to the
+    nearest cell not probed yet (zeros when there is none)."""
     offsets = (centres[None] - tips[:, None][..., [0, 2]]) / length_scale  # (N, C, 2)
     index = np.arange(len(palpation_map))
     probed = palpation_map > 0
