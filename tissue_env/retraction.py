@@ -275,12 +275,13 @@ class RetractionVectorEnv(TissueVectorEnv):
     env_class = RetractionEnv
     # The flap swings through large rotations: its matrix changes fast and factorises cheaply
     # (a few hundred free dofs), so a copy's factor is refreshed once its extra iterations add up.
-    # With the floor contact changing the imposed set most steps, factors are re-made about every
-    # other copy-step (509 in 960) and this env runs at 0.8x sync. The Jacobi lockstep ran 1.1x
-    # (469-480 against 345-346 env steps per CPU s) but its trajectories strayed up to 7x further
-    # from the exact ones than the single env's in one CI run (this chaotic flap, random actions),
-    # against 0.01-0.03 (normalised units) for the factors: kept.
+    # The Jacobi lockstep ran faster in an early version, but its trajectories strayed up to 7x
+    # further from the exact ones than the single env's in one CI run (this chaotic flap, random
+    # actions), against 0.01-0.03 (normalised units) for the factors: kept. The measurement's force
+    # pass is the next step's (observations equal to 5e-17 with and without): N = 16, 1.5x -> 1.7x
+    # sync (749 -> 1150 env steps per CPU s, benchmarks/vector_env_speed.py).
     refactor_amortise = 6
+    share_force_pass = True
 
     def __init__(self, num_envs=1, **kwargs):
         super().__init__(num_envs, **kwargs)
