@@ -437,7 +437,7 @@ class _Factor:
     zero, diagonal kept: a contact imposes single dofs, Palpation's probe and Retraction's floor
     impose y, x and z stay free), so its inverse on the free dofs is that of the free-dof matrix.
     Restricted to another imposed set it stays exact for the free dofs imposed now, through a
-    capacitance correction (``_Capacitance``) whose columns of the inverse are solved once per
+    capacitance correction (``_Capacitance``) whose columns of the inverse are solved at first use per
     factorisation and kept, so a contact that moves onto other nodes keeps the factor and its
     iteration count; dofs free now but imposed at the factorisation get Jacobi. The
     node-block LU's substitutions read one index per 3 x 3 block, 1.9x faster than SuperLU's
