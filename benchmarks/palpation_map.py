@@ -15,7 +15,8 @@ held two steps (what the map holds once a press is held). For each probe samplin
 3. the inclusion at each cell in turn (the default 10x stiffer box): the reading of the
    inclusion's cell over the stiffest other cell. Below 1, the map points to a wrong cell.
 
-Results are written to ``--output`` (JSON, replaced atomically).
+Results are written to ``--output`` (JSON, replaced atomically) and drawn in ``--figure``
+(docs/figures/palpation_map.png); ``--plot-only`` redraws the figure from the JSON.
 """
 
 import argparse
@@ -84,10 +85,55 @@ def measure(sampling):
     return result
 
 
+def plot(results, path):
+    """Held readings on the homogeneous slab over one node period (both samplings, one colour
+    scale) and the inclusion's cell over the stiffest other cell in each placement."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 3, figsize=(12, 3.6), gridspec_kw=dict(width_ratios=[1, 1, 1.4]))
+    grids = {sampling: np.array(results[sampling]["held"]["homogeneous_grid_pa"]) / 1e3 for sampling in SAMPLINGS}
+    low, high = min(g.min() for g in grids.values()), max(g.max() for g in grids.values())
+    offsets = np.array(results[SAMPLINGS[0]]["grid_offsets_m"]) * 1e3
+    step = offsets[1] - offsets[0]
+    extent = (offsets[0] - step / 2, offsets[-1] + step / 2, offsets[0] - step / 2, offsets[-1] + step / 2)
+    for axis, sampling in zip(axes[:2], ("node", "projected")):
+        grid = grids[sampling]
+        image = axis.imshow(grid.T, origin="lower", extent=extent, vmin=low, vmax=high, cmap="viridis")
+        axis.set_title(f"{sampling}: max/min {grid.max() / grid.min():.2f}")
+        axis.set_xlabel("probe x from a node (mm)")
+        axis.set_ylabel("probe z from a node (mm)")
+    figure.colorbar(image, ax=axes[:2], label="held reading, apparent modulus (kPa)", shrink=0.85)
+    placements = np.arange(len(results["node"]["held"]["inclusion_over_stiffest_other"]))
+    for shift, sampling in ((-0.2, "node"), (0.2, "projected")):
+        axes[2].bar(placements + shift, results[sampling]["held"]["inclusion_over_stiffest_other"], width=0.4,
+                    label=sampling)
+    axes[2].axhline(1.0, color="k", lw=1)
+    axes[2].set_xlabel("inclusion placement (candidate cell)")
+    axes[2].set_ylabel("inclusion cell / stiffest other")
+    axes[2].set_title("held press over each cell centre")
+    axes[2].set_ylim(0.0, 2.2)
+    axes[2].legend(loc="upper center", ncol=2)
+    figure.suptitle("Palpation (8, 4, 8): a 9 mm sphere pressed 6 mm, held two steps "
+                    "(benchmarks/palpation_map.py)", fontsize=10)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    figure.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results", "palpation_map.json"))
+    parser.add_argument("--figure", default=os.path.join(os.path.dirname(__file__), "..", "docs", "figures",
+                                                         "palpation_map.png"))
+    parser.add_argument("--plot-only", action="store_true", help="redraw the figure from --output")
     args = parser.parse_args(argv)
+    if args.plot_only:
+        with open(args.output) as stream:
+            plot(json.load(stream), args.figure)
+        return 0
     results = {}
     for sampling in SAMPLINGS:
         results[sampling] = result = measure(sampling)
@@ -105,6 +151,7 @@ def main(argv=None):
     with os.fdopen(handle, "w") as stream:
         json.dump(results, stream, indent=2)
     os.replace(temporary, args.output)
+    plot(results, args.figure)
     return 0
 
 
