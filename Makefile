@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/stability.py
 	$(PY) benchmarks/env_accuracy.py
 	$(PY) benchmarks/vector_env_speed.py
+	$(PY) benchmarks/palpation_map.py
 	$(PY) benchmarks/speed_accuracy.py
 
 # MuJoCo flex and PyBullet soft body next to ours (optional extra, not needed by anything else)
