@@ -1730,38 +1730,6 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
         residual[c] = res
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
-def refactor_lu(values, take, b_indptr, b_indices, l_indptr, l_indices, l_map, u_indptr, u_indices, u_map, out,
-                work, u_rows):
-    """Numeric LU of a matrix whose LU structure is known (no pivoting: the symbolic factorisation of
-    an earlier SuperLU factor of the same structure and ordering), row by row (IKJ). The permuted
-    matrix B: CSR (b_indptr, b_indices), entry q = ``values[take[q]]``; L (unit lower, diagonal last
-    in each row) and U (diagonal first) CSR structures; ``l_map`` / ``u_map``: the positions of
-    their entries in ``out`` ([L data, U data] in CSC order, ``_lu_apply``'s layout).
-    ``work`` (k,) zeros (left zero), ``u_rows`` (nnz_U,) scratch."""
-    k = b_indptr.shape[0] - 1
-    nnz_l = l_indices.shape[0]
-    for i in range(k):
-        for q in range(b_indptr[i], b_indptr[i + 1]):
-            work[b_indices[q]] = values[take[q]]
-        last = l_indptr[i + 1] - 1
-        for q in range(l_indptr[i], last):
-            j = l_indices[q]
-            factor = work[j] / u_rows[u_indptr[j]]
-            work[j] = 0.0
-            out[l_map[q]] = factor
-            if factor != 0.0:
-                for p in range(u_indptr[j] + 1, u_indptr[j + 1]):
-                    work[u_indices[p]] -= factor * u_rows[p]
-        out[l_map[last]] = 1.0
-        work[i] = work[i]
-        for p in range(u_indptr[i], u_indptr[i + 1]):
-            m = u_indices[p]
-            u_rows[p] = work[m]
-            out[nnz_l + u_map[p]] = work[m]
-            work[m] = 0.0
-
-
 @njit(cache=True, error_model="numpy")
 def projected_probe_surface(x, z, tips, weights, offsets, reference, radius, flat, out):
     """``contact.Probe``'s projected bound of each entry e (a node near a probe): the average over

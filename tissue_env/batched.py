@@ -308,47 +308,6 @@ class _CopyFactor:
         self.threshold = max(REFACTOR_MIN, 2 * self.baseline) if amortise is None else self.baseline + 2 * amortise
 
 
-class _LUPattern:
-    """The structure of a ``_CopyFactor`` (ordering, L and U patterns) for one free set, with what
-    ``kernels.refactor_lu`` needs to factorise another matrix of the same structure without SuperLU;
-    ``valid`` once checked against SuperLU's own factor."""
-
-    def __init__(self, free_pattern: _FreeStructure, factor: _CopyFactor, values: np.ndarray):
-        lu, lower, upper = factor.lu, factor.lower, factor.upper
-        self.ints = factor.ints
-        k = free_pattern.shape[0]
-        positions = sp.csc_matrix((free_pattern.take + 1.0, free_pattern.indices, free_pattern.indptr),
-                                  shape=free_pattern.shape).tocsr()
-        permuted = positions[np.argsort(lu.perm_r)][:, np.argsort(lu.perm_c)].tocsr()  # B = Pr A Pc
-        permuted.sort_indices()
-        self.take = permuted.data.astype(np.int64) - 1
-        self.b_indptr, self.b_indices = permuted.indptr.astype(np.int64), permuted.indices.astype(np.int64)
-
-        def rows(matrix):
-            order = sp.csc_matrix((np.arange(1.0, matrix.nnz + 1), matrix.indices, matrix.indptr), shape=(k, k)).tocsr()
-            order.sort_indices()
-            return order.indptr.astype(np.int64), order.indices.astype(np.int64), order.data.astype(np.int64) - 1
-
-        self.l_indptr, self.l_indices, self.l_map = rows(lower)
-        self.u_indptr, self.u_indices, self.u_map = rows(upper)
-        self.work = np.zeros(k)
-        self.u_rows = np.empty(upper.nnz)
-        self.valid = True
-        check = self.refactor(values)
-        nnz_l = lower.nnz
-        self.valid = bool(np.all(np.isfinite(check))
-                          and np.max(np.abs(check[:nnz_l] - factor.floats[:nnz_l])) <= 1e-8
-                          and np.max(np.abs(check[nnz_l:] - factor.floats[nnz_l:]))
-                          <= 1e-8 * np.max(np.abs(factor.floats[nnz_l:])))
-
-    def refactor(self, values):
-        out = np.empty(self.l_indices.shape[0] + self.u_indices.shape[0])
-        self.work[:] = 0.0
-        kernels.refactor_lu(values, self.take, self.b_indptr, self.b_indices, self.l_indptr, self.l_indices,
-                            self.l_map, self.u_indptr, self.u_indices, self.u_map, out, self.work, self.u_rows)
-        return out
-
-
 class BatchedImplicitEuler:
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
     copy, run in lockstep (solvers "reference", "jacobi") or one copy after the other
@@ -409,7 +368,6 @@ class BatchedImplicitEuler:
             self._corrections = TypedList([self._no_correction[0]] * count)
             self._imposed = TypedList([self._no_correction[1]] * count)
             self._patterns = {}
-            self._lu_patterns = {}
             reference = stack.reference
             hg_indptr, hg_indices, _ = reference.hourglass_arrays
             rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
@@ -534,37 +492,22 @@ class BatchedImplicitEuler:
                 self._corrections[index], self._imposed[index] = entry
 
     def _scalar_factor(self, values, free):
-        """SuperLU's scalar factor of the system matrix (pattern ``values``) on the ``free`` dofs,
-        numeric only for a free set seen before (``_LUPattern``); the identity where it fails."""
-        reference = self.stack.reference
-        count = self.stack.count
+        """SuperLU's scalar factor of the system matrix (pattern ``values``) on the ``free`` dofs, for
+        where the node-block LU fails (a zero or non-finite pivot: only diverging states were seen
+        to); the identity where SuperLU fails too."""
         key = free.tobytes()
         pattern = self._patterns.get(key)
         if pattern is None:
-            if len(self._patterns) >= 4 * count:
+            if len(self._patterns) >= 4 * self.stack.count:
                 self._patterns.clear()
-            pattern = self._patterns[key] = _FreeStructure(reference, np.flatnonzero(free))
-        structure = self._lu_patterns.get(key)
-        if structure is None:
-            structure = self._lu_structure(pattern, values)
-            if len(self._lu_patterns) >= 4 * count:
-                self._lu_patterns.clear()
-            self._lu_patterns[key] = structure
-        factor = None
-        if structure is not None and structure.valid:
-            # the same structure as an earlier factor: numeric refactorisation only
+            pattern = self._patterns[key] = _FreeStructure(self.stack.reference, np.flatnonzero(free))
+        matrix = sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
+        try:
             with np.errstate(all="ignore"):
-                floats = structure.refactor(values)
-            if np.all(np.isfinite(floats)):
-                factor = _CopyFactor.refactored(structure, floats)
-        if factor is None:
-            matrix = sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
-            try:
-                with np.errstate(all="ignore"):
-                    factor = _CopyFactor(matrix, pattern.free)
-                factor.lu = factor.lower = factor.upper = None
-            except (RuntimeError, ValueError, np.linalg.LinAlgError):
-                factor = _CopyFactor()  # singular (a diverging state): no preconditioner
+                factor = _CopyFactor(matrix, pattern.free)
+            factor.lu = factor.lower = factor.upper = None
+        except (RuntimeError, ValueError, np.linalg.LinAlgError):
+            factor = _CopyFactor()  # singular (a diverging state): no preconditioner
         return factor
 
     def _copies_first(self):
@@ -584,24 +527,6 @@ class BatchedImplicitEuler:
             self._first = (stack.version, (stacked, hg_rows, values["hourglass_group"]))
         return self._first[1]
 
-    @staticmethod
-    def _lu_structure(pattern, values):
-        """The LU structure of a free set: SuperLU's factor of the matrix with every stored entry made
-        generic (``values`` plus a small deterministic perturbation: SuperLU's factor leaves out the
-        entries that come out exactly zero, which another matrix of the structure may fill), checked
-        against ``kernels.refactor_lu``; None when SuperLU fails."""
-        noise = np.random.default_rng(0).uniform(-1.0, 1.0, len(values))
-        generic = values + 1e-6 * np.max(np.abs(values)) * noise
-        matrix = sp.csc_matrix((generic[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
-        try:
-            with np.errstate(all="ignore"):
-                factor = _CopyFactor(matrix, pattern.free)
-            if not np.all(np.isfinite(factor.floats)):
-                return None
-            return _LUPattern(pattern, factor, generic)
-        except (RuntimeError, ValueError, np.linalg.LinAlgError):
-            return None
-
     def _solve_factorised(self, data, system, mask, rhs, guess_rows, active, free, solution, iterations, residual):
         """Every active copy's BiCGSTAB preconditioned by the sparse LU of its own system matrix, kept
         across steps (``ImplicitEuler``'s "factorised" rule, per copy), one compiled call solving the
@@ -611,8 +536,7 @@ class BatchedImplicitEuler:
         a contact that imposes more dofs keeps the factor, restricted exactly to the free dofs by a
         capacitance correction (``_correct``; a SuperLU factor, or more than CAPACITANCE_MAX dofs:
         its masked inverse, a close preconditioner). One that needs more than its factor's threshold
-        is re-factorised here and continues from its iterate. A factorisation of a free set seen
-        before is numeric only (``kernels.refactor_lu`` on the structure of the first SuperLU factor)."""
+        is re-factorised here and continues from its iterate."""
         count = self.stack.count
         free_rows = free.T
         fresh = np.zeros(count, dtype=bool)
