@@ -384,7 +384,6 @@ RESTRICTED_MAX_CHANGED = 0.01
 REFACTOR_MIN = 8
 
 
-
 def _digest(array) -> bytes:
     return hashlib.blake2b(np.ascontiguousarray(array).view(np.uint8), digest_size=16).digest()
 
@@ -465,8 +464,8 @@ class _Factor:
         if self.block is not None:
             self.cost = _factorisation_cost(self.block.ints)
             self._buffer = np.empty(-int(self.block.ints[0]))
-            self._ones = self.covered.astype(float)
-            self._columns: dict = {}  # dof -> its column of the inverse (n_dofs,)
+            #: its inverse's columns and capacitance corrections (``InverseColumns``)
+            self.inverse = InverseColumns(self.block.ints, self.block.floats, len(free))
             self._restricted: dict = {}  # imposed-set digest -> _Capacitance
             self._own = self.restricted(self._mask)
             return
@@ -486,24 +485,6 @@ class _Factor:
         out[free] = self.lu.solve(vector[free])
         return out
 
-    def solve(self, vector: np.ndarray, out: np.ndarray):
-        """out = A_f^-1 vector on the factorisation's free dofs (zero elsewhere)."""
-        return kernels.block_lu_apply(self.block.ints, self.block.floats, self._ones, vector, out, self._buffer)
-
-    def columns(self, dofs: np.ndarray) -> np.ndarray:
-        """(n_dofs, len(dofs)) the columns ``dofs`` of the node-block LU's inverse, solved together
-        for those not kept yet."""
-        missing = [int(d) for d in dofs if int(d) not in self._columns]
-        if missing:
-            if len(self._columns) + len(missing) > CAPACITANCE_CACHE:
-                self._columns.clear()
-                missing = [int(d) for d in dofs]
-            out = inverse_columns(self.block.ints, self.block.floats, missing, len(self.covered))
-            out *= self._ones[:, None]
-            for index, dof in enumerate(missing):
-                self._columns[dof] = out[:, index].copy()
-        return np.stack([self._columns[int(d)] for d in dofs], axis=1) if len(dofs) else np.zeros((len(self.covered), 0))
-
     def restricted(self, mask: np.ndarray):
         """The preconditioner for the free dofs ``mask`` (n_dofs,) float: exact (capacitance) on
         the covered dofs, Jacobi on the free dofs the factor does not cover. Kept per imposed set."""
@@ -518,18 +499,47 @@ class _Factor:
         return preconditioner
 
 
-def inverse_columns(ints, floats, dofs, n_dofs: int) -> np.ndarray:
-    """(n_dofs, len(dofs)) the columns ``dofs`` of the inverse of a packed node-block LU
-    (``sparse.NodeBlockLU``'s ``ints``, ``floats``), solved together (``kernels._block_lu_solve``);
-    zero on the dofs of the nodes the factor does not hold."""
-    count = len(dofs)
-    rhs = np.zeros((n_dofs, count))
-    rhs[dofs, np.arange(count)] = 1.0
-    out = np.zeros((n_dofs, count))
-    k = -int(ints[0])
-    kernels._block_lu_solve(ints, floats, rhs, out, np.arange(count, dtype=np.int64), count, np.empty((k, count)),
-                            np.empty((3, count)))
-    return out
+class InverseColumns:
+    """Columns of the inverse B of a packed node-block LU (``sparse.NodeBlockLU``'s ``ints``,
+    ``floats``) over ``n_dofs`` dofs, kept per dof (at most CAPACITANCE_CACHE) and solved together
+    for those not kept yet (``kernels._block_lu_solve``), and the capacitance correction of an
+    imposed set built from them. Shared by ``ImplicitEuler``'s factors (``_Capacitance``) and the
+    batched vector envs' per-copy factors."""
+
+    def __init__(self, ints, floats, n_dofs: int):
+        self.ints, self.floats, self.n_dofs = ints, floats, int(n_dofs)
+        self._columns: dict = {}  # dof -> its column of B (n_dofs,)
+
+    def columns(self, dofs) -> np.ndarray:
+        """(n_dofs, len(dofs)) the columns ``dofs`` of B (zero on the dofs the factor does not
+        hold, and on those it decouples)."""
+        dofs = [int(d) for d in dofs]
+        missing = [d for d in dofs if d not in self._columns]
+        if missing:
+            if len(self._columns) + len(missing) > CAPACITANCE_CACHE:
+                self._columns.clear()
+                missing = dofs
+            count = len(missing)
+            rhs = np.zeros((self.n_dofs, count))
+            rhs[missing, np.arange(count)] = 1.0
+            out = np.zeros((self.n_dofs, count))
+            k = -int(self.ints[0])
+            kernels._block_lu_solve(self.ints, self.floats, rhs, out, np.arange(count, dtype=np.int64), count,
+                                    np.empty((k, count)), np.empty((3, count)))
+            for index, dof in enumerate(missing):
+                self._columns[dof] = out[:, index].copy()
+        return np.stack([self._columns[d] for d in dofs], axis=1) if dofs else np.zeros((self.n_dofs, 0))
+
+    def correction(self, imposed: np.ndarray):
+        """W = B[:, c] (B[c, c])^-1 (n_dofs, k) C-contiguous for the dofs c = ``imposed`` (k,), free
+        in the factor but imposed now: (B r - W (B r)[c]) restricted to the other free dofs is the
+        inverse of the matrix on them applied to r, exactly for r zero on c
+        (``kernels._corrected_lu_apply``). None where B[c, c] is singular."""
+        z = self.columns(imposed)
+        try:
+            return np.ascontiguousarray(z @ np.linalg.inv(z[imposed]))
+        except np.linalg.LinAlgError:
+            return None
 
 
 def _factorisation_cost(ints) -> float:
@@ -548,7 +558,7 @@ def _factorisation_cost(ints) -> float:
 #: contact change of more than RESTRICTED_MAX_CHANGED of its dofs (Retraction's 8x2x4: 6.0;
 #: TumorPositioning's 6^3 12.7 and Palpation's 8x4x8 14.0 keep theirs, corrected exactly)
 CHEAP_FACTOR = 10.0
-#: Columns of the inverse a factor keeps for its capacitance corrections (``_Factor.columns``), and
+#: Columns of the inverse a factor keeps for its capacitance corrections (``InverseColumns``), and
 #: the most dofs one correction handles (more: ``_Capacitance.changed`` asks for a new factor).
 CAPACITANCE_CACHE = 512
 CAPACITANCE_MAX = 96
@@ -573,22 +583,22 @@ class _Capacitance:
         #: env steps/s)
         self.changed = len(self.extra) + (len(factor.covered) if len(self.imposed) > CAPACITANCE_MAX else 0)
         if factor.cost < CHEAP_FACTOR:
-            self.changed = max(self.changed, int(np.count_nonzero(free != (factor._mask > 0))))
-        self.z = None  # W = B[:, c] (B_cc)^-1, solved at the first application (a set that asks
-        self._pending = 0 < len(self.imposed) <= CAPACITANCE_MAX  # for a new factor never needs it)
+            self.changed = max(self.changed, int(np.count_nonzero(free != factor.covered)))
+        # W = B[:, c] (B_cc)^-1, solved at the first application (a set that asks for a new factor
+        # never needs it); none (the factor masked, a close preconditioner) where B_cc is singular
+        self._pending = 0 < len(self.imposed) <= CAPACITANCE_MAX
+        self._correction, self._held = np.zeros((len(mask), 0)), np.zeros(0, dtype=np.int64)
+        self._ones, self._gathered = np.ones(len(mask)), np.empty(len(self.imposed))
 
     def apply(self, vector: np.ndarray, out: np.ndarray):
+        factor = self.factor
         if self._pending:
             self._pending = False
-            z = self.factor.columns(self.imposed)
-            try:
-                self.z = z @ np.linalg.inv(z[self.imposed])
-            except np.linalg.LinAlgError:  # left masked: a close preconditioner
-                self.z = None
-        self.factor.solve(vector, out)
-        if self.z is not None:
-            out -= self.z @ out[self.imposed]
-        out *= self.mask
+            correction = factor.inverse.correction(self.imposed)
+            if correction is not None:
+                self._correction, self._held = correction, self.imposed
+        kernels._corrected_lu_apply(factor.block.ints, factor.block.floats, self.mask, self._ones, self._correction,
+                                    self._held, self._gathered, vector, out, factor._buffer)
         if len(self.extra):
             out[self.extra] = vector[self.extra] * self.inverse_diagonal
         return out

@@ -60,8 +60,8 @@ from numba.typed import List as TypedList
 from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
-from sim_core.integrators import (CAPACITANCE_CACHE, CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, SymplecticEuler,
-                                  _FreeStructure, inverse_columns, node_block_factor)
+from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, InverseColumns, SymplecticEuler,
+                                  _FreeStructure, node_block_factor)
 from sim_core.sparse import NodeBlockLU as _BlockFactor
 from sim_core.model import Control, Model, State
 
@@ -244,7 +244,7 @@ class _CopyFactor:
 
     def __init__(self, matrix=None, free=None):
         self.set_baseline(0)
-        self._columns, self._corrections = {}, {}
+        self._inverse, self._corrections = None, {}
         if matrix is None:
             self.ints, self.floats = np.zeros(1, dtype=np.int64), np.zeros(1)
             self.lu = self.lower = self.upper = None
@@ -269,38 +269,24 @@ class _CopyFactor:
     def refactored(cls, pattern, floats):
         factor = cls.__new__(cls)
         factor.set_baseline(0)
-        factor._columns, factor._corrections = {}, {}
+        factor._inverse, factor._corrections = None, {}
         factor.ints, factor.floats = pattern.ints, floats
         return factor
 
     def correction(self, imposed: np.ndarray, n_dofs: int):
-        """A node-block LU's capacitance correction (``kernels._corrected_lu_apply``) for the dofs
-        ``imposed`` (k,) sorted, free in the factor (F) but imposed now: (W, imposed) with
-        W = B[:, imposed] (B[imposed, imposed])^-1 (n_dofs, k), B the factor's inverse, so that
-        (B r - W (B r)[imposed]) on F minus ``imposed`` is the inverse of the matrix on those dofs
-        applied to r (exact for r zero on ``imposed``: ``integrators._Capacitance``). None where
-        B[imposed, imposed] is singular. Kept per imposed set (8 per factor), and B's columns per
-        dof (CAPACITANCE_CACHE per factor), solved together for those not kept yet."""
+        """A node-block LU's capacitance correction for the dofs ``imposed`` (k,) sorted, free in the
+        factor but imposed now: (W, imposed) for ``kernels._corrected_lu_apply``, W from
+        ``integrators.InverseColumns.correction`` (its columns kept per dof); None where it is
+        singular. Kept per imposed set (8 per factor)."""
         key = imposed.tobytes()
-        if key in self._corrections:
-            return self._corrections[key]
-        dofs = imposed.tolist()
-        missing = [d for d in dofs if d not in self._columns]
-        if missing:
-            if len(self._columns) + len(missing) > CAPACITANCE_CACHE:
-                self._columns.clear()
-                missing = dofs
-            for dof, column in zip(missing, inverse_columns(self.ints, self.floats, missing, n_dofs).T):
-                self._columns[dof] = column
-        z = np.stack([self._columns[d] for d in dofs], axis=1)
-        try:
-            entry = (np.ascontiguousarray(z @ np.linalg.inv(z[imposed])), imposed)
-        except np.linalg.LinAlgError:
-            entry = None
-        if len(self._corrections) >= 8:
-            self._corrections.clear()
-        self._corrections[key] = entry
-        return entry
+        if key not in self._corrections:
+            if self._inverse is None:
+                self._inverse = InverseColumns(self.ints, self.floats, n_dofs)
+            correction = self._inverse.correction(imposed)
+            if len(self._corrections) >= 8:
+                self._corrections.clear()
+            self._corrections[key] = None if correction is None else (correction, imposed)
+        return self._corrections[key]
 
     def set_baseline(self, iterations, amortise=None):
         self.baseline = int(iterations)
