@@ -579,8 +579,8 @@ class _Capacitance:
         #: free dofs the factor lacks (Jacobi), and a correction too large to keep: ask for a new
         #: factor. A factorisation cheaper than CHEAP_FACTOR iterations counts every dof whose status
         #: changed, as ``_Restricted`` does: there a fresh factor at the state of a large contact
-        #: change beats a kept one the state moved away from (Retraction's flap: 737 against 693
-        #: env steps/s)
+        #: change beats a kept one the state moved away from (Retraction's flap, 800 random steps:
+        #: 5794 operator products with this rule, 10928 keeping its factors)
         self.changed = len(self.extra) + (len(factor.covered) if len(self.imposed) > CAPACITANCE_MAX else 0)
         if factor.cost < CHEAP_FACTOR:
             self.changed = max(self.changed, int(np.count_nonzero(free != factor.covered)))

@@ -297,6 +297,9 @@ class PalpationEnv(TissueEnv):
         self._probe_candidates = np.zeros(self.mesh.n_nodes, bool)
         self._probe_candidates[self.top_nodes] = True
         self.contact = np.zeros(self.mesh.n_nodes, bool)
+        #: (n,) node heights at the episode's start (equilibrium under gravity; the rest heights
+        #: until the first reset), m: the surface the indentation is measured from
+        self.start_heights = nodes[:, 1].copy()
         if self.probe_sampling == "projected":
             self.probe = contact.Probe(self.probe_radius, self.probe_tip,
                                        contact.SurfaceProjection.top_face(self.mesh, self.top_nodes))
@@ -393,13 +396,12 @@ class PalpationEnv(TissueEnv):
 
     def _start_hook(self):
         self._sweep = None
-        #: (n,) node heights at the episode's start (equilibrium under gravity), m: the surface
-        #: the indentation is measured from
         self.start_heights = self.state.positions[:, 1].copy()
         if self.probe.projection is not None:
+            # (the reset's control, made before, holds no contact either way: the probe starts
+            # ``clearance`` above the rest surface, where every bound is +inf)
             self.probe = contact.Probe(self.probe_radius, self.probe_tip,
                                        self.probe.projection.with_reference(self.start_heights))
-            self.control = self._control()
 
     def start_surface(self, tips, heights):
         """Height (m) of the start surface under each tip: bilinear in the top nodes' start
@@ -479,7 +481,7 @@ class PalpationEnv(TissueEnv):
         depth = measures["depth"]
         measures["indentation_stiffness"] = pushing / depth if depth > 1e-4 and len(self.contact_nodes) else 0.0
         tip = self._tip()[None]
-        indentation = self.start_surface(tip, self.start_heights)[0] - tip[0, 1] if hasattr(self, "start_heights") else 0.0
+        indentation = self.start_surface(tip, self.start_heights)[0] - tip[0, 1]
         measures["apparent_modulus"] = float(apparent_modulus(pushing if len(self.contact_nodes) else 0.0, indentation,
                                                               self.probe_radius, self.probe_tip))
         return measures
@@ -572,7 +574,6 @@ class PalpationVectorEnv(TissueVectorEnv):
         super().__init__(num_envs, **kwargs)
         env, count = self.envs[0], self.num_envs
         self.top_y, self.probe, self._probe_candidates = env.top_y, env.probe, env._probe_candidates
-        self._env = env
         #: (N, n) each copy's start heights (``PalpationEnv.start_heights``), m, updated in place at
         #: its reset: the projected probe's reference
         self.start_heights = np.repeat(env.mesh.nodes[None, :, 1], count, axis=0)
@@ -643,9 +644,10 @@ class PalpationVectorEnv(TissueVectorEnv):
         touching = (depth > 1e-4) & self.contact.any(axis=1)
         measures["indentation_stiffness"] = np.where(touching, pushing / np.where(touching, depth, 1.0), 0.0)
         tips = self._tips()
-        indentation = self._env.start_surface(tips, self.start_heights) - tips[:, 1]
+        env = self.envs[0]
+        indentation = env.start_surface(tips, self.start_heights) - tips[:, 1]
         measures["apparent_modulus"] = apparent_modulus(np.where(self.contact.any(axis=1), pushing, 0.0), indentation,
-                                                        self._env.probe_radius, self._env.probe_tip)
+                                                        env.probe_radius, env.probe_tip)
         return measures
 
     def _batch_record(self, measures, rows):
