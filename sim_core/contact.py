@@ -25,11 +25,12 @@ projection)``), by the probe's indentation of the rest surface projected on the 
 basis functions: a node's bound is the average, weighted by its hat function over the faces
 around it, of min(probe surface, the node's rest height). Sampled at the nodes, a coarse mesh
 feels a probe pressed over a node on that node alone and one pressed between nodes on four of
-them: at Palpation's 7.5 mm spacing a 9 mm sphere 4 mm deep read 45-72 N/m across one node period
-(linear static, max/min 1.5-1.6). Projected, the displaced volume of each face is the probe's, the
-reading varies by 1.07-1.13 over the node period at 3-6 mm and converges with the mesh to the
-node-sampled fine model's (within 7% at 24 x 12 x 24; benchmarks/palpation_map.py,
-tests/test_contact.py). This is a lumped L2 (mortar-like) projection of the indentation: it
+them: at Palpation's 7.5 mm spacing a 9 mm sphere 4 mm deep displaces 0.58x its volume over a node
+and 1.33x between four (tests/test_contact.py), and held presses read a homogeneous slab 1.47
+max/min over one node period. Projected, it displaces its own volume within 1.3% wherever the
+nodes fall, held presses read the slab within 1.12 (benchmarks/palpation_map.py), and Palpation's
+fine model converges to 5.7 / 9.9 / 7.6% (force / target / volume, 10 against 12 elements across;
+benchmarks/env_accuracy.py). This is a lumped L2 (mortar-like) projection of the indentation: it
 bounds each node by the weighted indentation over its support instead of pointwise.
 
 All functions work on one block ((n, 3) positions) or a stack of copies ((N, n, 3) positions with
@@ -93,8 +94,8 @@ class SurfaceProjection:
     def top_face(cls, mesh, nodes=None, points: int = 4) -> "SurfaceProjection":
         """The projection on the top face (y maximal) of a structured block ``mesh``
         (``HexMesh.block``): ``nodes`` (default: the top face's) are those the probe may touch,
-        ``points`` midpoints per element side (4: the reading moved by 1% from 8 in the linear
-        static study of the module's docstring, 2 by 7%)."""
+        ``points`` midpoints per element side (a 9 mm sphere 4 mm into a 7.5 mm mesh displaces its
+        volume within 4.3% with 2, 1.3% with 4, 0.1% with 8; tests/test_contact.py's measure)."""
         if mesh.spacing is None:
             raise ValueError("a surface projection needs a structured block (HexMesh.block): its mesh has no spacing")
         if isinstance(points, bool) or not float(points).is_integer() or int(points) < 1:
@@ -121,8 +122,8 @@ class SurfaceProjection:
     def with_reference(self, heights) -> "SurfaceProjection":
         """The same projection measuring the indentation from ``heights`` (m): (n,) or, for
         stacked copies, (N, n) (the surface at the start of an episode, at equilibrium under
-        gravity: measured from the rest heights, a probe pressed into a slab sagging 0.67 mm
-        started to push only about 2 mm below the rest surface)."""
+        gravity: measured from the rest heights, a probe pressed into a sagging slab (Palpation's:
+        0.67 mm at its centre) pushes only once its averaged indentation exceeds the sag)."""
         heights = np.asarray(heights, dtype=float)
         if heights.shape[-1:] != self.reference.shape or not np.all(np.isfinite(heights)):
             raise ValueError(f"heights must be finite with a last axis of {self.reference.shape[0]} nodes, "
