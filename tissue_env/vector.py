@@ -22,13 +22,14 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "auto"
 preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
-steps per CPU second, median of 3 interleaved rounds on a shared VM with CPU steal):
-TumorPositioning 1.7x (377 against 216; solver "reference", one node-block LU shared by the
-copies, and the measurement's force pass shared with the next step), Palpation 1.5x (429 against
-290) and Retraction 1.6x (471 against 312), both with per-copy node-block LUs (solver
-"factorised"). Each copy's step is its own LU solves and operator products, which batching does
-not share; the vector env saves the Python work around them. TumorPositioning's resets, a static
-solve for the goal, cost the same in both modes and are 26% of the vector env's time.
+steps per CPU second, median of 3 interleaved rounds on a shared VM): TumorPositioning 1.8x (788
+against 441; solver "reference", one node-block LU shared by the copies), Palpation 1.3x (632
+against 499) and Retraction 1.7x (1078 against 629), both with per-copy node-block LUs
+capacitance-corrected for their contacts (solver "factorised"); every task measures with the next
+step's force pass (``share_force_pass``). Each copy's step is its own LU solves and operator
+products, which batching does not share; the vector env saves the Python work around them.
+TumorPositioning's resets, a static solve for the goal, cost the same in both modes and are 21%
+of the vector env's time.
 """
 
 from __future__ import annotations
