@@ -134,6 +134,10 @@ def test_projected_probe_on_stacked_copies_and_its_reference():
         contact.SurfaceProjection.top_face(mesh, points=0)
     with pytest.raises(ValueError, match="projection"):
         contact.Probe(0.009, "sphere", projection="yes")
+    with pytest.raises(ValueError, match="probe_sampling"):
+        Scene(size=0.03, young_modulus=5e3, poisson_ratio=0.45, tool_low=(0.015, 0.03, 0.015),
+              tool_high=(0.015, 0.03, 0.015), tool_radius=0.009, tool_components=(1,), probe="sphere",
+              probe_sampling="mortar", displacements=[(0, -0.002, 0)], target=(0.015, 0.015, 0.015))
 
 
 @pytest.mark.parametrize("tip", ["sphere", "flat"])

@@ -211,6 +211,7 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
 
 @pytest.mark.parametrize("kwargs, words", [
     (dict(probe_tip="cone"), ("probe_tip", "sphere", "flat")),
+    (dict(probe_sampling="mortar"), ("probe_sampling", "projected", "node")),
     (dict(inclusion_size=-0.01), ("inclusion_size",)),
     (dict(inclusion_size=(0.012, 0.012)), ("inclusion_size",)),
     (dict(inclusion_size=(0.012, 0.0, 0.012)), ("inclusion_size",)),

@@ -160,6 +160,30 @@ def test_a_moving_contact_keeps_the_factor_exact_through_its_capacitance_correct
     assert kept.factorisations == 1
 
 
+def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one_is_kept():
+    """CHEAP_FACTOR: a factorisation estimated to cost fewer than 10 iterations (a thin 6x1x3 flap,
+    like Retraction's) is made again when a contact imposes more than 1% of its dofs, where a
+    fresh factor beats a kept one the state has moved from; the 6^3 block's (about 12.7) is kept
+    and corrected (test above). Both steps are solved to the tolerance."""
+    from sim_core import integrators
+
+    for shape, cheap in (((6, 1, 3), True), ((6, 6, 6), False)):
+        model = build_model(HexMesh.block(shape, 0.01), Material(5e3, 0.45, 1060.0), hourglass_control=1.0,
+                            volume_stiffness=100.0)
+        nodes = model.mesh.nodes
+        bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
+        top = np.flatnonzero(np.isclose(nodes[:, 1], nodes[:, 1].max()))
+        integrator = ImplicitEuler(preconditioner="factorised", tolerance=1e-8)
+        state = model.new_state()
+        base = model.new_control().impose(bottom, nodes[bottom])
+        integrator.simulate(model, state, state.copy(), 0.04, base)
+        assert (integrator._factor.cost < integrators.CHEAP_FACTOR) == cheap
+        held = base.copy().impose(top[:6], nodes[top[:6]] - [0.0, 0.0005, 0.0], components=(1,))
+        report = integrator.simulate(model, state, state.copy(), 0.04, held)
+        assert report.residual <= 1e-8
+        assert integrator.factorisations == (2 if cheap else 1)
+
+
 def test_refactorises_when_iterations_grow():
     """A factor from the rest state serves a block pressed 12 mm down poorly (8 iterations without
     converging to 1e-8): re-factorised at that state, then 1 more iteration (measured)."""
