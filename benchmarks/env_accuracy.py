@@ -15,9 +15,15 @@ mass-spring setting (hourglass_control and volume_stiffness read from ``TissueEn
     env step, dt in {10, 20, 40} ms, substeps in {1, 2}) whose observations, when a scripted tool
     reaches each tested displacement at the env's max_step per env step (no hold), stay within the
     tolerance of the static equilibrium at that tool position (the dynamic lag).
-(c) the env's speed (steps/s with resets, random actions, one core) at every candidate shape, and
-    the budgeted choice: the most accurate candidate that keeps 300 steps/s (issue 4's floor),
-    which is how an env's default shape is chosen.
+(c) the env's speed (steps per CPU second with resets, random actions, one process; the median of
+    3 rounds that take every candidate shape in turn, so that a shared machine's changing speed
+    falls on all of them alike) at every candidate shape, and the budgeted choice: the most
+    accurate candidate that keeps 300 steps/s (issue 4's floor) with a 1.25x margin, i.e. measures
+    at least 375 here, which is how an env's default shape is chosen. The margin is for this
+    shared machine's speed from run to run: in two runs of this benchmark on one day (the second
+    with tests running on the other core), Retraction at (12, 2, 6) measured 356 and 257 steps/s
+    and at (10, 2, 5) 532 and 427, TumorPositioning at (7, 7, 7) 322 (and 283 in another
+    measurement), so a shape measured just over 300 falls under it in another period.
 (b) constitutive accuracy: the chosen mesh and the env's default mesh against the
     ``fem-neohookean`` reference on a finer mesh (relative errors and per-case absolute errors in
     N, mm and percentage points). The mass-spring law departs from neo-Hookean at these strains,
@@ -125,10 +131,11 @@ def absolute_errors(case_errors, reference):
 
 
 TASKS = {
-    # name: (scenes, env default shape, env max_step (m), fem reference n, fine-model n, candidate n)
-    "TumorPositioning": (tumor_scenes, (6, 6, 6), 0.002, 8, 16, (2, 3, 4, 5, 6, 7, 8, 12)),
-    "Palpation": (palpation_scenes, (8, 4, 8), 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
-    "Retraction": (retraction_scenes, (8, 2, 4), 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
+    # name: (scenes, env max_step (m), fem reference n, fine-model n, candidate n); the env's default
+    # shape is read from its class (``env_default_shape``)
+    "TumorPositioning": (tumor_scenes, 0.002, 8, 16, (2, 3, 4, 5, 6, 7, 8, 12)),
+    "Palpation": (palpation_scenes, 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
+    "Retraction": (retraction_scenes, 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
 }
 QUICK = {  # --quick (tests): coarse references and few candidates
     "TumorPositioning": (4, 4, (2, 3)),
@@ -139,8 +146,20 @@ DTS, SUBSTEPS = (0.01, 0.02, 0.04), (1, 2)
 ENV_SUBSTEPS = 1
 #: env steps per second (resets included, one core) a default must keep: issue 4's floor
 SPEED_FLOOR = 300.0
+#: a default must measure SPEED_MARGIN x SPEED_FLOOR here to keep the floor in a slower period of
+#: the shared machine (see the module docstring)
+SPEED_MARGIN = 1.25
+#: interleaved rounds of the env speed measurement (medians)
+SPEED_ROUNDS = 3
 ENV_IDS = {"TumorPositioning": "tissue_env/TumorPositioning-v0", "Palpation": "tissue_env/Palpation-v0",
            "Retraction": "tissue_env/Retraction-v0"}
+
+
+def env_default_shape(name):
+    from tissue_env import PalpationEnv, RetractionEnv, TumorPositioningEnv
+
+    return tuple(dict(TumorPositioning=TumorPositioningEnv, Palpation=PalpationEnv,
+                      Retraction=RetractionEnv)[name].default_shape)
 
 
 def env_default_dt(name):
@@ -156,9 +175,10 @@ def env_solver_tolerance(name):
                 Retraction=RetractionEnv)[name].default_solver_tolerance
 
 
-def env_speed(env_id, shape, steps=300, seed=0):
+def env_speed(env_id, shape, steps=300, seed=0, clock=None):
     """Env steps per second (resets included, random actions, this process) of ``env_id`` at
-    ``shape`` with its other defaults; None when the env rejects the shape."""
+    ``shape`` with its other defaults, by ``clock`` (default wall time; ``time.process_time``: per
+    CPU second of this process); None when the env rejects the shape."""
     import gymnasium as gym
 
     from benchmarks.env_speed import random_steps_per_s
@@ -167,10 +187,29 @@ def env_speed(env_id, shape, steps=300, seed=0):
         env = gym.make(env_id, shape=tuple(int(s) for s in shape))
     except ValueError:
         return None
-    return random_steps_per_s(env, steps, seed)
+    return random_steps_per_s(env, steps, seed, clock=clock)
 
 
-def budget_choice(candidates, speeds, floor=SPEED_FLOOR):
+def env_speeds(env_id, shapes, rounds=SPEED_ROUNDS, steps=300, seed=0):
+    """{shape string: median env steps per CPU second, or None} of ``env_id`` at each of ``shapes``,
+    measured in ``rounds`` interleaved rounds (every shape once per round, in turn), so that a
+    shared machine's changing speed falls on every shape alike; CPU time of this process, so that
+    other jobs count less. The budgeted choice compares these with SPEED_FLOOR."""
+    samples = {"x".join(map(str, shape)): [] for shape in shapes}
+    for _ in range(rounds):
+        for shape in shapes:
+            key = "x".join(map(str, shape))
+            if samples[key] is None:
+                continue
+            rate = env_speed(env_id, shape, steps, seed, clock=time.process_time)
+            if rate is None:
+                samples[key] = None
+            else:
+                samples[key].append(rate)
+    return {key: None if rates is None else float(np.median(rates)) for key, rates in samples.items()}
+
+
+def budget_choice(candidates, speeds, floor=SPEED_FLOOR * SPEED_MARGIN):
     """The most accurate candidate (smallest worst error against the fine model; converged and
     stable) whose env keeps ``floor`` steps/s: how the defaults are chosen ("model no more than a
     scene needs" under a speed budget). ``speeds``: {shape string: steps/s or None}."""
@@ -237,9 +276,10 @@ def run(quick=False, tasks=None):
     start = time.perf_counter()
     if tasks:  # the other tasks' results as they were
         out["tasks"] = {name: task for name, task in json.loads(path.read_text())["tasks"].items()}
-    for name, (make, default_shape, max_step, fem_resolution, fine_resolution, resolutions) in TASKS.items():
+    for name, (make, max_step, fem_resolution, fine_resolution, resolutions) in TASKS.items():
         if tasks and name not in tasks:
             continue
+        default_shape = env_default_shape(name)
         default_dt = env_default_dt(name)
         solver_tolerance = env_solver_tolerance(name)
         if quick:
@@ -263,12 +303,10 @@ def run(quick=False, tasks=None):
                                                           volume=r.volume.tolist(), stable=[bool(v) for v in r.stable])
                                                      for s, r in zip(scenes, fine[0])])
         # env speed at every candidate shape, and the budgeted choice (the most accurate that keeps
-        # SPEED_FLOOR steps/s): how the env defaults are chosen
-        speeds = {}
-        for c in choice.candidates:
-            key = "x".join(map(str, c.shape))
-            if key not in speeds and c.errors is not None:
-                speeds[key] = None if quick else env_speed(ENV_IDS[name], c.shape)
+        # SPEED_FLOOR steps/s with SPEED_MARGIN): how the env defaults are chosen
+        shapes = list(dict.fromkeys(tuple(c.shape) for c in choice.candidates if c.errors is not None))
+        speeds = ({"x".join(map(str, shape)): None for shape in shapes} if quick
+                  else env_speeds(ENV_IDS[name], shapes))
         budget = budget_choice(choice.candidates, speeds)
         # stepping on the chosen meshes and on the env's default mesh
         stepping, recommendation = {}, {}
@@ -309,7 +347,7 @@ def run(quick=False, tasks=None):
         default_step = stepping["x".join(map(str, default_shape))]
         env_dt = next(c for c in default_step["candidates"] if c["dt"] == default_dt and c["substeps"] == ENV_SUBSTEPS)
         budget_summary = None if budget is None else dict(
-            budget.summary(), steps_per_s=speeds["x".join(map(str, budget.shape))], floor=SPEED_FLOOR,
+            budget.summary(), steps_per_s=speeds["x".join(map(str, budget.shape))], floor=SPEED_FLOOR * SPEED_MARGIN, issue_floor=SPEED_FLOOR,
             is_env_default=tuple(budget.shape) == tuple(default_shape))
         default_disc = next((c.summary() for c in choice.candidates if tuple(c.shape) == tuple(default_shape)), None)
         out["tasks"][name] = dict(
