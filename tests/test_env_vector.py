@@ -207,6 +207,8 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     from tissue_env import batched
 
     monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free: None)
+    # the fused factorisations (kernels.factor_copies) fail too: every copy takes _factorise's path
+    monkeypatch.setattr(batched.BatchedImplicitEuler, "_block_structure", lambda self, key, nodes: None)
     batched._factors.clear()  # no first-step factor from an earlier test: the first step factorises
     vector = gym.make_vec("tissue_env/Palpation-v0", num_envs=2, vectorization_mode="vector_entry_point")
     vector.reset(seed=0)

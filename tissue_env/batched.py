@@ -24,7 +24,8 @@ Preconditioner (solver "factorised", the default): each copy's own sparse LU of 
 matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks,
 ``sparse.NodeBlockLU`` through ``integrators.node_block_factor``, else SuperLU's scalar LU), kept across steps
 and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does (a node-block LU restricted exactly
-to a contact's newly imposed dofs by a capacitance correction), and the copies' BiCGSTABs run
+to a contact's newly imposed dofs by a capacitance correction; the copies a step re-factorises are
+assembled and factorised in one compiled call, ``kernels.factor_copies``), and the copies' BiCGSTABs run
 one after the other in one compiled call (``kernels.solve_copies_lu``): no copy waits for the
 slowest, 1-5 iterations per copy. Solver "reference": the sparse LU of the copy's system matrix at
 the start of its episode, applied by triangular solves: in dense 3 x 3 node blocks when the free
@@ -61,8 +62,8 @@ from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
 from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, InverseColumns, SymplecticEuler,
-                                  _FreeStructure, node_block_factor)
-from sim_core.sparse import NodeBlockLU as _BlockFactor
+                                  _FreeStructure, free_structure, node_block_factor)
+from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure
 from sim_core.model import Control, Model, State
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
@@ -205,6 +206,31 @@ def stacked_internal_forces(stack: ModelStack, positions, velocities=None, sprin
     return forces
 
 
+class StackedForceWorkspace(ForceWorkspace):
+    """``sim_core.forces.ForceWorkspace`` of a ``ModelStack``'s stacked model whose hourglass term is
+    one pass over ONE copy's hourglass matrix for all copies (``kernels.stacked_hourglass_subtract``,
+    the copies with equal matrices sharing a column of values): the stacked CSR matrix is N times a
+    copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
+    1.8x slower per copy than a single env's. Same forces up to rounding."""
+
+    def __init__(self, stack: ModelStack, implicit: bool = True):
+        super().__init__(stack.model, implicit=implicit)
+        self.stack = stack
+        self._displacement = np.empty((3 * stack.n_nodes, stack.count))
+
+    def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False):
+        forces = super().compute(positions, velocities, hourglass=False, geometric=geometric,
+                                 volume_jacobian=volume_jacobian)
+        if hourglass and self.has_hourglass:
+            stack = self.stack
+            values = stack.copies_last()
+            hg_indptr, hg_indices, _ = stack.reference.hourglass_arrays
+            kernels.stacked_hourglass_subtract(hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"],
+                                               np.ascontiguousarray(positions, dtype=float), self.rest_positions,
+                                               forces, self._displacement)
+        return forces
+
+
 def _digest(array) -> bytes:
     return hashlib.blake2b(np.ascontiguousarray(array).tobytes(), digest_size=16).digest()
 
@@ -294,6 +320,39 @@ class _CopyFactor:
         self.threshold = max(REFACTOR_MIN, 2 * self.baseline) if amortise is None else self.baseline + 2 * amortise
 
 
+def _edge_incidence(model: Model):
+    """(node_edge, node_sign) (M, 8, 3) for ``kernels.operator_matrix_data_blocks``: the spring of each
+    element's axis group g (edges 4 g .. 4 g + 3 of ``edge_spring``) through its local node k, and
+    +1 where k is the spring's first node, -1 where it is its second; empty (0, 8, 3) arrays where
+    a node is not on exactly one edge of each group (then ``operator_matrix_data`` assembles)."""
+    elements, springs, edge_spring = model.mesh.elements, model.springs, model.edge_spring
+    count = len(elements)
+    node_edge = np.full((count, 8, 3), -1, dtype=np.int64)
+    node_sign = np.zeros((count, 8, 3))
+    rows = np.arange(count)
+    for e in range(12):
+        spring = edge_spring[:, e]
+        for end, sign in ((0, 1.0), (1, -1.0)):
+            local = elements == springs[spring, end][:, None]  # (M, 8)
+            if not np.all(local.sum(axis=1) == 1):
+                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+            k = np.argmax(local, axis=1)
+            if np.any(node_edge[rows, k, e // 4] >= 0):
+                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+            node_edge[rows, k, e // 4] = spring
+            node_sign[rows, k, e // 4] = sign
+    if np.any(node_edge < 0):
+        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+    return node_edge, node_sign
+
+
+class _Header:
+    """The packed integer header ``ints`` of a node-block structure (``_CopyFactor.refactored``)."""
+
+    def __init__(self, ints):
+        self.ints = ints
+
+
 class BatchedImplicitEuler:
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
     copy, run in lockstep (solvers "reference", "jacobi") or one copy after the other
@@ -331,7 +390,7 @@ class BatchedImplicitEuler:
         self._preconditioners = [None] * count
         self._groups = None
         self.last_iterations = np.zeros(count, dtype=int)
-        self.workspace = ForceWorkspace(stack.model, implicit=True)
+        self.workspace = StackedForceWorkspace(stack, implicit=True)
         self._elongation = np.empty((stack.n_springs, count))
         self._delta = np.empty((stack.n_springs, count))
         self._work = np.empty((8, dofs, count))
@@ -354,6 +413,8 @@ class BatchedImplicitEuler:
             self._corrections = TypedList([self._no_correction[0]] * count)
             self._imposed = TypedList([self._no_correction[1]] * count)
             self._patterns = {}
+            self._structures = {}  # kernels.factor_copies' structure per node set (_block_structure)
+            self._incidence = _edge_incidence(stack.reference)
             reference = stack.reference
             hg_indptr, hg_indices, _ = reference.hourglass_arrays
             rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
@@ -362,6 +423,8 @@ class BatchedImplicitEuler:
             self._values = np.empty(reference.pattern.nnz)
             self._row_work = np.empty((8, dofs))
             self._first = None
+            self._blocks = None  # _hourglass_blocks: (stack version, arrays)
+            self._block_map = None
             #: factorisations done so far (a diagnostic)
             self.factorisations = 0
 
@@ -460,6 +523,73 @@ class BatchedImplicitEuler:
         self._set_factor(index, factor, free)
         return factor
 
+    def _factorise_copies(self, indices, data, system, covers):
+        """``_factorise`` of the copies ``indices`` (T,) on their ``covers`` (T, 3 n) bool, the node-block
+        LUs of the copies with one node set in one compiled call (``kernels.factor_copies``: the same
+        assembly and numeric factorisation, the same floats, without a Python round trip per copy);
+        a copy whose node-block LU fails (a zero or non-finite pivot) goes through ``_factorise``
+        (SuperLU's scalar factor). Returns the copies' new factors (T,)."""
+        factors = [None] * len(indices)
+        if len(indices) == 0:
+            return factors
+        nodes = covers.reshape(len(indices), -1, 3).any(axis=2)
+        groups = {}
+        for t in range(len(indices)):
+            groups.setdefault(nodes[t].tobytes(), []).append(t)
+        stacked, hg_rows, hg_group = self._copies_first()
+        reference = self.stack.reference
+        for key, members in groups.items():
+            members = np.array(members)
+            structure = self._block_structure(key, nodes[members[0]])
+            ok = np.zeros(len(members), dtype=bool)
+            if structure is not None:
+                (node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices,
+                 ints, a_values, work, header) = structure
+                kernels.factor_copies(stacked, system, hg_rows, hg_group, reference.spring_positions,
+                                      reference.element_positions, self._hg_positions,
+                                      reference.pattern.diagonal_positions, indices[members], covers[members],
+                                      node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr, l_indices,
+                                      u_indptr, u_indices, ints, self._values, a_values, work, self._lu_int,
+                                      self._lu_float, ok, *self._incidence)
+            for t, done in zip(members, ok):
+                index = int(indices[t])
+                if done:  # the kernel set the copy's entries of _lu_int and _lu_float
+                    factor = _CopyFactor.refactored(header, self._lu_float[index])
+                    self._factors[index] = factor
+                    self._factor_free[index] = covers[t]
+                    self.factorisations += 1
+                else:
+                    factor = self._factorise(index, data, system, covers[t])
+                factors[t] = factor
+        return factors
+
+    def _block_structure(self, key, nodes):
+        """``kernels.factor_copies``' structure for the whole nodes ``nodes`` (n,) bool (``key`` their
+        bytes), kept per node set; None where it has no node or its symbolic factor fails."""
+        if key in self._structures:
+            return self._structures[key]
+        node_dofs = np.flatnonzero(np.repeat(nodes, 3))
+        structure = None
+        if len(node_dofs):
+            whole = free_structure(self.stack.reference, node_dofs)
+            matrix = sp.csc_matrix((np.ones(len(whole.take)), whole.indices, whole.indptr), shape=whole.shape)
+            try:
+                (a_indptr, a_indices, a_map, l_indptr, l_indices, u_indptr, u_indices,
+                 ints) = _block_structure(matrix, node_dofs)
+            except (RuntimeError, ValueError, np.linalg.LinAlgError):
+                pass
+            else:
+                as_int = lambda array: np.ascontiguousarray(array, dtype=np.int64)  # noqa: E731
+                ints = as_int(ints)
+                structure = (as_int(node_dofs), as_int(whole.take), as_int(whole.indices), as_int(whole.columns),
+                             as_int(a_map), as_int(a_indptr), as_int(a_indices), as_int(l_indptr), as_int(l_indices),
+                             as_int(u_indptr), as_int(u_indices), ints, np.empty(9 * len(a_indices)),
+                             np.empty(9 * (len(a_indptr) - 1)), _Header(ints))
+        if len(self._structures) >= 4 * self.stack.count:
+            self._structures.clear()
+        self._structures[key] = structure
+        return structure
+
     def _correct(self, indices, free_rows):
         """Set the capacitance correction of the copies ``indices`` whose node-block factor's free set
         holds dofs imposed now (``free_rows`` (N, 3 n) bool), at most CAPACITANCE_MAX (more: the
@@ -513,6 +643,33 @@ class BatchedImplicitEuler:
             self._first = (stack.version, (stacked, hg_rows, values["hourglass_group"]))
         return self._first[1]
 
+    def _hourglass_blocks(self):
+        """``kernels.solve_copies_lu``'s node-block (BSR) form of the copies' hourglass matrices:
+        (block indptr (n + 1,), block columns (nb,), values (G, 9 nb) per group of ``_copies_first``'s
+        hg_rows), rebuilt after ``ModelStack.assign``."""
+        stack = self.stack
+        if self._blocks is None or self._blocks[0] != stack.version:
+            if self._block_map is None:  # the position in the CSR data of each block entry (-1: none)
+                single = stack.reference.hourglass
+                if single is None:
+                    self._block_map = (np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
+                                       np.zeros(0, np.int64))
+                else:
+                    probe = sp.csr_matrix((np.arange(1.0, single.nnz + 1.0), single.indices, single.indptr),
+                                          shape=single.shape)
+                    blocks = sp.bsr_matrix(probe, blocksize=(3, 3))
+                    blocks.sort_indices()
+                    self._block_map = (blocks.indptr.astype(np.int64), blocks.indices.astype(np.int64),
+                                       blocks.data.reshape(-1).astype(np.int64) - 1)
+            indptr, indices, positions = self._block_map
+            _, hg_rows, _ = self._copies_first()
+            values = np.zeros((len(hg_rows), len(positions)))
+            if len(positions):
+                stored = positions >= 0
+                values[:, stored] = hg_rows[:, positions[stored]]
+            self._blocks = (stack.version, (indptr, indices, values))
+        return self._blocks[1]
+
     def _solve_factorised(self, data, system, mask, rhs, guess_rows, active, free, solution, iterations, residual):
         """Every active copy's BiCGSTAB preconditioned by the sparse LU of its own system matrix, kept
         across steps (``ImplicitEuler``'s "factorised" rule, per copy), one compiled call solving the
@@ -528,9 +685,9 @@ class BatchedImplicitEuler:
         fresh = np.zeros(count, dtype=bool)
         missing = np.array([factor is None for factor in self._factors]) | self._stale
         uncovered = np.any(free_rows & ~self._factor_free, axis=1)
-        for index in np.flatnonzero(active & (missing | uncovered)):
-            cover = free_rows[index] | (self._factor_free[index] if not missing[index] else False)
-            factor = self._factorise(index, data, system, cover)
+        todo = np.flatnonzero(active & (missing | uncovered))
+        covers = free_rows[todo] | (self._factor_free[todo] & ~missing[todo, None])
+        for index, factor in zip(todo, self._factorise_copies(todo, data, system, covers)):
             pending = self._pending[index]
             if pending is not None and np.array_equal(pending[1], free_rows[index]) and factor.ints[0] > 0:
                 _factors[pending[0]] = factor
@@ -543,13 +700,14 @@ class BatchedImplicitEuler:
                            self.max_iterations) for i, factor in enumerate(self._factors)], dtype=np.int64)
         self._correct(np.flatnonzero(active), free_rows)
         stacked, hg_rows, hg_group = self._copies_first()
+        blocks = self._hourglass_blocks()
         mask_rows = np.ascontiguousarray(mask.T)
         rhs_rows = np.ascontiguousarray(rhs.T)
         rows = np.zeros_like(rhs_rows)
         work = self._row_work
         kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active,
                                 self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of,
-                                self._corrections, self._imposed, work, rows, iterations, residual)
+                                self._corrections, self._imposed, work, rows, iterations, residual, *blocks)
         stalled = (active & ~fresh & (residual > self.tolerance) & (iterations < self.max_iterations)
                    & np.all(np.isfinite(rows), axis=1))
         for index in np.flatnonzero(fresh):
@@ -562,8 +720,8 @@ class BatchedImplicitEuler:
             if factor.excess > self.amortise:
                 self._stale[index] = True
         if stalled.any():
-            for index in np.flatnonzero(stalled):
-                self._factorise(index, data, system, free_rows[index] | self._factor_free[index])
+            again_rows = np.flatnonzero(stalled)
+            self._factorise_copies(again_rows, data, system, free_rows[again_rows] | self._factor_free[again_rows])
             self._correct(np.flatnonzero(stalled), free_rows)
             again = np.zeros_like(rows)
             more = np.zeros(count, dtype=np.int64)
@@ -571,7 +729,7 @@ class BatchedImplicitEuler:
             limits = (self.max_iterations - iterations).astype(np.int64)
             kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, rows, stalled,
                                     self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of,
-                                    self._corrections, self._imposed, work, again, more, more_residual)
+                                    self._corrections, self._imposed, work, again, more, more_residual, *blocks)
             for index in np.flatnonzero(stalled):
                 self._factors[index].set_baseline(more[index], self.amortise)
             rows[stalled] = again[stalled]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim_core import kernels
 from sim_core.model import Control
 
 from .base import TissueEnv, check_range, nonnegative_scalar, positive_scalar
@@ -287,7 +288,8 @@ class RetractionVectorEnv(TissueVectorEnv):
     def __init__(self, num_envs=1, **kwargs):
         super().__init__(num_envs, **kwargs)
         env, count = self.envs[0], self.num_envs
-        self.tool_nodes, self.tool_rest, self._footprint = env.tool_nodes, env.tool_rest, env._footprint
+        self.tool_nodes, self.tool_rest = env.tool_nodes, env.tool_rest
+        self._footprint = np.ascontiguousarray(env._footprint, dtype=np.int64)
         tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
         tool_mask[self.tool_nodes] = True
         self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
@@ -337,8 +339,11 @@ class RetractionVectorEnv(TissueVectorEnv):
         return positions[:, self.tool_nodes].mean(axis=1)
 
     def _batch_task_measures(self, positions):
-        quads = positions[:, self._footprint][..., [0, 2]]  # (N, Q, 4, 2)
-        exposed = 1.0 - np.mean(covered(self.target_points, quads), axis=1)
+        # covered(self.target_points, positions[:, self._footprint][..., [0, 2]]) in one compiled pass
+        hidden = np.empty(self.target_points.shape[:2], dtype=bool)
+        kernels.covered_points(self.target_points, np.ascontiguousarray(positions, dtype=float), self._footprint,
+                               hidden)
+        exposed = 1.0 - np.mean(hidden, axis=1)
         footprint = np.stack([positions[..., 0].min(axis=1), positions[..., 0].max(axis=1)], axis=1)
         return dict(exposed_fraction=exposed, footprint=footprint)
 

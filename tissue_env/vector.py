@@ -22,14 +22,17 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "auto"
 preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
-steps per CPU second, median of 3 interleaved rounds on a shared VM): TumorPositioning 1.8x (788
-against 441; solver "reference", one node-block LU shared by the copies), Palpation 1.3x (632
-against 499) and Retraction 1.7x (1078 against 629), both with per-copy node-block LUs
+steps per CPU second, median of 3 interleaved rounds on a shared VM): TumorPositioning 2.4x (999
+against 440; solver "reference", one node-block LU shared by the copies), Palpation 1.8x (916
+against 502) and Retraction 2.8x (1898 against 680; its (8, 2, 4) flap), both with per-copy node-block LUs
 capacitance-corrected for their contacts (solver "factorised"); every task measures with the next
-step's force pass (``share_force_pass``). Each copy's step is its own LU solves and operator
-products, which batching does not share; the vector env saves the Python work around them.
-TumorPositioning's resets, a static solve for the goal, cost the same in both modes and are 21%
-of the vector env's time.
+step's force pass (``share_force_pass``). The force pass reads one copy's hourglass matrix for all
+copies (``batched.StackedForceWorkspace``), the per-copy solves read it in node blocks, and the
+copies a step re-factorises are assembled and factorised in one compiled call
+(``kernels.factor_copies``). Each copy's step is its own LU solves and operator products, which
+batching does not share; the vector env saves the Python work around them. TumorPositioning's
+resets, a static solve for the goal, cost the same in both modes and are 27% of the vector env's
+time.
 """
 
 from __future__ import annotations
@@ -41,12 +44,11 @@ from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
-from sim_core.forces import ForceWorkspace
 from sim_core import kernels
 from sim_core.model import State
 
 from .base import observation_arrays
-from .batched import BatchedImplicitEuler, ModelStack, make_batched_integrator, new_monitor
+from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator, new_monitor
 
 
 class TissueVectorEnv(VectorEnv):
@@ -102,7 +104,7 @@ class TissueVectorEnv(VectorEnv):
         self.action_space = batch_space(env.action_space, count)
 
         self.stack = ModelStack(env.model, count)
-        self._forces = ForceWorkspace(self.stack.model, implicit=False)  # the measurements' fused force pass
+        self._forces = StackedForceWorkspace(self.stack, implicit=False)  # the measurements' fused force pass
         self._no_tension = np.zeros(len(self.stack.model.springs))
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
                                                   self.linear_solver, self.refactor_amortise)

@@ -1,0 +1,158 @@
+"""The batched vector envs' fused factorisations (``BatchedImplicitEuler._factorise_copies``,
+``kernels.factor_copies``) give the same factors as the per-copy path (``_factorise``)."""
+
+import gymnasium as gym
+import numpy as np
+
+import tissue_env  # noqa: F401
+
+
+def _stepped(env_id, count=4, steps=12, seed=3):
+    envs = gym.make_vec(env_id, num_envs=count, vectorization_mode="vector_entry_point")
+    rng = np.random.default_rng(seed)
+    envs.reset(seed=seed)
+    for _ in range(steps):
+        envs.step(rng.uniform(-1, 1, (count, 3)).astype(np.float32))
+    return envs.unwrapped
+
+
+def _system(integrator, dt):
+    return (1.0, dt, dt * dt, dt * dt, dt * dt, dt * dt)
+
+
+def test_fused_factorisations_equal_the_per_copy_factors():
+    envs = _stepped("tissue_env/Retraction-v0")
+    integrator = envs.integrator
+    count, dofs = envs.num_envs, 3 * envs.n_nodes
+    fixed, _, _ = envs._batch_control()
+    free = ~fixed.reshape(count, dofs)
+    rng = np.random.default_rng(0)
+    covers = free.copy()
+    covers[1] |= ~np.asarray(envs._fixed[1]).reshape(-1)  # the floor contact released
+    covers[2] &= rng.uniform(size=dofs) > 0.1  # single dofs imposed inside free nodes (decoupled)
+    assert np.any(covers[2] != free[2])
+    system = _system(integrator, envs.dt)
+    assert integrator._incidence[0].shape == (envs.stack.n_elements, 8, 3)  # the per-node-pair coupling assembly
+    expected = []
+    for index in range(count):
+        factor = integrator._factorise(index, None, system, covers[index])
+        expected.append((factor.ints, factor.floats.copy()))
+    before = integrator.factorisations
+    factors = integrator._factorise_copies(np.arange(count), None, system, covers)
+    assert integrator.factorisations == before + count
+    for index, factor in enumerate(factors):
+        ints, floats = expected[index]
+        assert factor.ints[0] < 0  # node-block LUs
+        assert np.array_equal(factor.ints, ints)
+        # the same assembly and elimination (the compiler may contract or reorder the compiled
+        # elimination's floating-point operations differently inside the fused kernel: rounding)
+        np.testing.assert_allclose(factor.floats, floats, rtol=1e-12, atol=1e-12 * np.abs(floats).max())
+        assert np.shares_memory(integrator._lu_float[index], factor.floats)
+        assert np.array_equal(integrator._lu_int[index], ints)
+        assert np.array_equal(integrator._factor_free[index], covers[index])
+    # the copies' factors differ (their states do): a kernel that mixed copies up would fail above
+    assert not np.allclose(factors[0].floats, factors[3].floats)
+
+
+def test_a_failed_block_factor_falls_back_to_the_scalar_factor(monkeypatch):
+    envs = _stepped("tissue_env/Retraction-v0", count=2, steps=3)
+    integrator = envs.integrator
+    dofs = 3 * envs.n_nodes
+    fixed, _, _ = envs._batch_control()
+    covers = ~fixed.reshape(2, dofs)
+    system = _system(integrator, envs.dt)
+    integrator._structures.clear()
+    monkeypatch.setattr(integrator, "_block_structure", lambda key, nodes: None)
+    import tissue_env.batched as batched
+    monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free: None)
+    factors = integrator._factorise_copies(np.arange(2), None, system, covers)
+    for index, factor in enumerate(factors):
+        assert factor.ints[0] == np.count_nonzero(covers[index])  # SuperLU's scalar factor
+        assert integrator._lu_int[index] is factor.ints
+
+
+def test_covered_points_kernel_matches_covered():
+    from sim_core import kernels
+    from tissue_env.retraction import covered
+    rng = np.random.default_rng(1)
+    count, n_nodes = 3, 40
+    quads = rng.integers(0, n_nodes, (30, 4)).astype(np.int64)
+    positions = rng.uniform(-1.0, 1.0, (count, n_nodes, 3))
+    positions[1, 5] = positions[1, 6]  # degenerate quads (repeated corners)
+    positions[2, 7, 0] = np.nan  # a non-finite corner covers nothing
+    points = rng.uniform(-1.0, 1.0, (count, 50, 2))
+    points[0, :4] = positions[0, quads[0], :][:, [0, 2]]  # on corners: on the boundary counts as inside
+    expected = covered(points, positions[:, quads][..., [0, 2]])
+    out = np.empty((count, 50), dtype=bool)
+    kernels.covered_points(points, positions, quads, out)
+    assert np.array_equal(out, expected)
+    assert 0 < expected.sum() < expected.size
+
+
+def test_vector_retraction_exposure_equals_the_single_envs():
+    envs = _stepped("tissue_env/Retraction-v0", count=3, steps=20, seed=5)
+    measures = envs._batch_task_measures(envs.positions)
+    for index in range(3):
+        single = envs.envs[index]
+        single.target_points = envs.target_points[index]
+        expected = single._task_measures(envs.positions[index])
+        assert measures["exposed_fraction"][index] == expected["exposed_fraction"]
+
+
+def test_stacked_force_workspace_equals_the_stacked_models_force_pass():
+    """StackedForceWorkspace's hourglass term (one copy's matrix read once for all copies, a column of
+    values per group of equal matrices) gives the stacked model's forces (ForceWorkspace) to rounding."""
+    from sim_core.forces import ForceWorkspace
+    from tissue_env.batched import StackedForceWorkspace
+    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
+    stack = envs.stack
+    assert len(stack.hourglass_groups()) > 1  # copies with different hourglass matrices
+    positions = np.ascontiguousarray(envs.positions.reshape(-1, 3))
+    velocities = np.ascontiguousarray(envs.velocities.reshape(-1, 3))
+    rest = stack.model.rest_positions.reshape(envs.num_envs, -1, 3)
+    assert np.abs(envs.positions - rest).max() > 1e-4  # deformed: the hourglass term is not zero
+    for implicit, args in ((True, dict(velocities=None, geometric=True, volume_jacobian=True)),
+                           (False, dict(velocities=velocities))):
+        expected = ForceWorkspace(stack.model, implicit=implicit)
+        workspace = StackedForceWorkspace(stack, implicit=implicit)
+        want = expected.compute(positions, **args).copy()
+        got = workspace.compute(positions, **args)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+        without = expected.compute(positions, args["velocities"], hourglass=False).copy()
+        assert np.abs(want - without).max() > 1e-3 * np.abs(want).max()  # the term this checks matters
+        if implicit:
+            np.testing.assert_array_equal(workspace.geometric, expected.geometric)
+            np.testing.assert_array_equal(workspace.volume_coefficient, expected.volume_coefficient)
+
+
+def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
+    """kernels._apply_blocks with BatchedImplicitEuler._hourglass_blocks (the node-block form of each
+    copy's hourglass matrix, solve_copies_lu's operator) equals apply_operator with the copy's CSR
+    matrix (to rounding), for copies with different hourglass matrices."""
+    from sim_core import kernels
+    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=4, seed=0)
+    integrator, stack = envs.integrator, envs.stack
+    assert len(stack.hourglass_groups()) > 1
+    stacked, hg_rows, hg_group = integrator._copies_first()
+    indptr, indices, values = integrator._hourglass_blocks()
+    assert values.shape == (len(hg_rows), 9 * len(indices))
+    springs, elements, nodes = len(stack.reference.springs), stack.n_elements, stack.n_nodes
+    dt = envs.dt
+    system = (1.0, dt, dt * dt, dt * dt, dt * dt, dt * dt)
+    rng = np.random.default_rng(0)
+    for c in range(envs.num_envs):
+        def part(array, size):
+            return array[c * size:(c + 1) * size]
+        sizes = (None, springs, springs, springs, springs, nodes, None, None, elements, elements, elements,
+                 elements, elements, None, None, None, springs, springs)
+        data = tuple(array if size is None else part(array, size) for array, size in zip(stacked, sizes))
+        data = data[:15] + (hg_rows[hg_group[c]],) + data[16:]
+        vector = rng.normal(size=3 * nodes)
+        mask = (rng.uniform(size=3 * nodes) > 0.2).astype(float)
+        expected, out = np.empty_like(vector), np.empty_like(vector)
+        kernels.apply_operator(data, system, mask, vector, expected)
+        kernels._apply_blocks(data, system, np.ones(3 * nodes), indptr, indices, values[hg_group[c]], mask, vector,
+                              out)
+        np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+        hourglass = dt * dt * (stack.models[c].hourglass @ vector)  # the term this checks matters
+        assert np.abs(hourglass).max() > 1e-3 * np.abs(expected).max()
