@@ -33,6 +33,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/env_speed.py
 	$(PY) benchmarks/stability.py
 	$(PY) benchmarks/env_accuracy.py
+	$(PY) benchmarks/dynamic_convergence.py
+	$(PY) benchmarks/dynamic_convergence.py --constant-viscosity --output benchmarks/results/dynamic_convergence_constant_viscosity.json
+	$(PY) benchmarks/dynamic_convergence.py --damping-ratio 3 --output benchmarks/results/dynamic_convergence_damping3.json
 	$(PY) benchmarks/vector_env_speed.py
 	$(PY) benchmarks/palpation_map.py
 	$(PY) benchmarks/speed_accuracy.py

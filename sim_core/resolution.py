@@ -941,14 +941,15 @@ def _int_at_least(name, value, low):
 
 
 def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass_control, volume_stiffness,
-                   solver_tolerance, solver=None):
+                   solver_tolerance, solver=None, damping_ratio=1.0):
     """Observed quantities of ``scene`` as an environment produces them: from the static rest state
     (gravity, tool at rest) the tool moves towards each tested displacement by at most ``max_step``
     per component per env step (a scripted controller at full speed; the displacements of a path
     in order), each env step being ``substeps`` implicit Euler steps of ``dt`` (floor: y projected
     after each step, the floor nodes held at y = 0 in the step, as Retraction does), then is held
     ``hold_steps`` env steps; the observation
-    is taken then. Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""
+    is taken then. ``damping_ratio``: ``build_model``'s multiplier of the critical spring damping.
+    Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""
     from .forces import external_forces, internal_forces
     from .integrators import ImplicitEuler
     from .model import State
@@ -956,7 +957,7 @@ def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglas
     mesh, material, fixed, tool, target_nodes, weights = scene.discretise(shape)
     nodes = mesh.nodes
     model = build_model(mesh, material, gravity=(0.0, -scene.gravity, 0.0), hourglass_control=hourglass_control,
-                        volume_stiffness=volume_stiffness)
+                        volume_stiffness=volume_stiffness, damping_ratio=damping_ratio)
     solve, _ = _mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness, False)
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
     candidates = _contact_candidates(scene, mesh.n_nodes, fixed, tool)
