@@ -17,7 +17,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels
-from .forces import ForceWorkspace, stiffness_data
+from .forces import ForceWorkspace, hourglass_blocks, stiffness_data
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 from .sparse import NodeBlockLU
@@ -254,7 +254,8 @@ class ImplicitEuler(SymplecticEuler):
         # rhs = dt f(x0, v0) - dt^2 K v0 - A known, with f(x0, v0) = f_0 - D v0 (f_0 without damping),
         # is dt f_0 + M v0 - A (v0 + known): one operator product instead of two.
         product = np.empty(n)
-        kernels.apply_operator(data, system, np.ones(n), moved, product)
+        blocks = hourglass_blocks(model)
+        _operator(data, blocks, system, np.ones(n), moved, product)
         rhs = dt * forces.reshape(-1) + _pattern_arrays(model)[4] * v0.reshape(-1) - product
         mask = free.astype(float)
         # Warm start: the last two steps' dv extrapolated linearly (measured on sim_core.bench's sagging
@@ -282,11 +283,11 @@ class ImplicitEuler(SymplecticEuler):
                 # so that the step is exactly the "factorised" one.
                 self._auto_factorised.add(_system_key(key))
                 more, residual = self._solve_factorised(model, key, data, system, mask, rhs, guess,
-                                                        self.max_iterations - iterations, symmetric, dv)
+                                                        self.max_iterations - iterations, symmetric, dv, blocks)
                 iterations += more
         else:
             iterations, residual = self._solve_factorised(model, key, data, system, mask, rhs, guess,
-                                                          self.max_iterations, symmetric, dv)
+                                                          self.max_iterations, symmetric, dv, blocks)
         self._warm_old = self._warm
         self._warm = dv
         dv = np.where(free, dv, known)
@@ -314,7 +315,8 @@ class ImplicitEuler(SymplecticEuler):
         self._factor = factor
         self._auto_factorised |= keys
 
-    def _solve_factorised(self, model, key, data, system, mask, rhs, guess, max_iterations, symmetric, out):
+    def _solve_factorised(self, model, key, data, system, mask, rhs, guess, max_iterations, symmetric, out,
+                          blocks=None):
         """Krylov solve preconditioned by the sparse LU of the system matrix on the free dofs,
         assembled at the state of its last (re-)factorisation; re-factorises (and continues from the
         current iterate) when the solve needs more than ``max(REFACTOR_MIN, 2 x`` the iterations
@@ -333,11 +335,11 @@ class ImplicitEuler(SymplecticEuler):
             preconditioner = factor = self._factorise(model, key, data, system, mask)
         limit = max_iterations if fresh else min(max_iterations, factor.threshold)
         iterations, residual = _krylov(data, system, mask, rhs * mask, guess, preconditioner, self.tolerance, limit,
-                                       symmetric, out)
+                                       symmetric, out, blocks)
         if not fresh and residual > self.tolerance and iterations < max_iterations:
             factor = self._factorise(model, key, data, system, mask)  # at this step's linearisation
             more, residual = _krylov(data, system, mask, rhs * mask, out.copy(), factor, self.tolerance,
-                                     max_iterations - iterations, symmetric, out)
+                                     max_iterations - iterations, symmetric, out, blocks)
             factor.set_baseline(more)
             return iterations + more, residual
         if fresh:
@@ -671,11 +673,22 @@ def _system_key(key):
     return key[0], key[1], key[3]
 
 
-def _krylov(data, scales, mask, rhs, guess, factor: _Factor, tolerance, max_iterations, symmetric, x):
+def _operator(data, blocks, scales, mask, vector, out):
+    """out = mask * A vector (``kernels.apply_operator``; with ``blocks`` (``hourglass_blocks``) the
+    hourglass term in node blocks, ``kernels.apply_operator_blocks``)."""
+    if blocks is None:
+        kernels.apply_operator(data, scales, mask, vector, out)
+    else:
+        indptr, indices, values, ones = blocks
+        kernels.apply_operator_blocks(data, scales, ones, indptr, indices, values, mask, vector, out)
+
+
+def _krylov(data, scales, mask, rhs, guess, factor: _Factor, tolerance, max_iterations, symmetric, x, blocks=None):
     """``kernels.solve_springs``'s CG (symmetric) or right-preconditioned BiCGSTAB, same stopping
     test ||r|| <= tolerance ||b||, with ``factor`` as the preconditioner; a numpy loop around the
     compiled operator product (a few iterations: the loop's overhead is small against the products
-    and the triangular solves). Writes ``x``; returns (iterations, relative residual)."""
+    and the triangular solves), its hourglass term in node blocks when ``blocks`` is given
+    (``hourglass_blocks``). Writes ``x``; returns (iterations, relative residual)."""
     n = rhs.shape[0]
     v = np.empty(n)
     x[:] = guess * mask
@@ -683,7 +696,7 @@ def _krylov(data, scales, mask, rhs, guess, factor: _Factor, tolerance, max_iter
     if norm_b == 0.0:
         x[:] = 0.0
         return 0, 0.0
-    kernels.apply_operator(data, scales, mask, x, v)
+    _operator(data, blocks, scales, mask, x, v)
     r = rhs * mask - v
     residual = float(np.linalg.norm(r)) / norm_b
     iterations = 0
@@ -693,7 +706,7 @@ def _krylov(data, scales, mask, rhs, guess, factor: _Factor, tolerance, max_iter
         p = z.copy()
         rz = float(r @ z)
         while residual > tolerance and iterations < max_iterations:
-            kernels.apply_operator(data, scales, mask, p, v)
+            _operator(data, blocks, scales, mask, p, v)
             curvature = float(p @ v)
             if curvature <= 0.0:
                 break
@@ -723,7 +736,7 @@ def _krylov(data, scales, mask, rhs, guess, factor: _Factor, tolerance, max_iter
         p *= beta
         p += r
         factor.apply(p, p_hat)
-        kernels.apply_operator(data, scales, mask, p_hat, v)
+        _operator(data, blocks, scales, mask, p_hat, v)
         denominator = float(r_hat @ v)
         if denominator == 0.0:
             break
@@ -736,7 +749,7 @@ def _krylov(data, scales, mask, rhs, guess, factor: _Factor, tolerance, max_iter
             residual = float(np.linalg.norm(r)) / norm_b
             break
         factor.apply(s, s_hat)
-        kernels.apply_operator(data, scales, mask, s_hat, t)
+        _operator(data, blocks, scales, mask, s_hat, t)
         tt = float(t @ t)
         omega = float(t @ s) / tt if tt > 0 else 0.0
         x += alpha * p_hat

@@ -1641,6 +1641,36 @@ def _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_bloc
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
+def hourglass_subtract_blocks(indptr, indices, data, positions, rest_positions, forces):
+    """forces (n, 3) -= K_hg (x - X) with K_hg in node blocks (``forces.hourglass_blocks``: block
+    indptr (n + 1,), node columns (nb,), row-major 3 x 3 values (9 nb,)); ``model_forces``'
+    hourglass term (the same sums up to their order)."""
+    for i in range(indptr.shape[0] - 1):
+        t0 = 0.0
+        t1 = 0.0
+        t2 = 0.0
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            b = 9 * q
+            d0 = positions[j, 0] - rest_positions[j, 0]
+            d1 = positions[j, 1] - rest_positions[j, 1]
+            d2 = positions[j, 2] - rest_positions[j, 2]
+            t0 += data[b] * d0 + data[b + 1] * d1 + data[b + 2] * d2
+            t1 += data[b + 3] * d0 + data[b + 4] * d1 + data[b + 5] * d2
+            t2 += data[b + 6] * d0 + data[b + 7] * d1 + data[b + 8] * d2
+        forces[i, 0] -= t0
+        forces[i, 1] -= t1
+        forces[i, 2] -= t2
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def apply_operator_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out):
+    """``apply_operator`` with the hourglass term read from the node-block (BSR) form of the
+    hourglass matrix (``_apply_blocks``; the single envs' implicit step, ``ImplicitEuler``)."""
+    _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
 def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
                     lu_float, factor_of, corrections, imposed, work, solution, iterations, residual,
                     hg_block_indptr, hg_block_indices, hg_block_rows):

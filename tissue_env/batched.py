@@ -60,7 +60,7 @@ from numba.typed import List as TypedList
 
 from sim_core import HexMesh
 from sim_core import kernels
-from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
+from sim_core.forces import ForceWorkspace, forget_hourglass_blocks, internal_forces, stiffness_data
 from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, InverseColumns, SymplecticEuler,
                                   _FreeStructure, free_structure, node_block_factor)
 from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure
@@ -149,6 +149,7 @@ class ModelStack:
             stacked.hourglass.data[data] = model.hourglass.data
             if stacked.hourglass_arrays[2] is not stacked.hourglass.data:
                 stacked.hourglass_arrays[2][data] = model.hourglass.data
+            forget_hourglass_blocks(stacked)  # its hourglass values changed in place
             key = _digest(model.hourglass.data)
             self._hourglass_by_key.setdefault(key, model.hourglass)
             self._hourglass_keys[index] = key
