@@ -126,9 +126,9 @@ class RetractionEnv(TissueEnv):
 
     #: The most accurate shape that keeps 300 env steps/s with a 1.25x margin
     #: (benchmarks/env_accuracy.py): static tool force / flap centre / volume change within
-    #: 12.5 / 7.1 / 59% of the (24, 4, 12) model, against 18 / 8 / 93% for the previous (8, 2, 4)
-    #: and 36 / 11 / 158% for (6, 1, 3).
-    default_shape = (10, 2, 5)
+    #: 9.3 / 6.0 / 39% of the (24, 4, 12) model, against 12.5 / 7.1 / 59% at (10, 2, 5),
+    #: 18 / 8 / 93% at (8, 2, 4) and 36 / 11 / 158% at (6, 1, 3).
+    default_shape = (12, 2, 6)
     default_size = (0.06, 0.008, 0.03)
     default_max_step = 0.005
     min_shape = (2, 1, 1)

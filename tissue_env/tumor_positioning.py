@@ -38,8 +38,8 @@ class TumorPositioningEnv(TissueEnv):
     A block of liver-like tissue (5 x 5 x 5 cm, 6 x 6 x 6 hexahedra of 8.3 mm, Baudet mass-spring
     model of ``sim_core``) rests with its bottom face (y = 0) attached to the body. A tool grasps the
     top-surface nodes in the ``tool_size`` = 2.5 cm square at the centre of the top face (all
-    components imposed: 3 x 3 nodes spanning 1.67 cm at the default shape, 5 x 5 spanning the full
-    2.5 cm at (8, 8, 8)). A tumour is a material point inside the block (followed by trilinear
+    components imposed: 4 x 4 nodes spanning 2.14 cm at the default shape, 3 x 3 spanning 1.67 cm
+    at (6, 6, 6), 5 x 5 spanning the full 2.5 cm at (8, 8, 8)). A tumour is a material point inside the block (followed by trilinear
     interpolation of its element's nodes). The agent moves the grasped patch so that the tumour
     reaches a goal position: indirect positioning, as when an organ is pushed or pulled to bring a
     lesion into a radiation field or onto a needle path. Goals are reachable by construction: a
@@ -50,11 +50,12 @@ class TumorPositioningEnv(TissueEnv):
     solves to a relative residual of 1e-2 (``solver_tolerance``), gravity on, hourglass control 1,
     volume stiffness x100 (``tissue_env.base``). The defaults are measured
     (``benchmarks/env_accuracy.py``, ``benchmarks/env_speed.py``, README "Environments"): the
-    default shape is the most accurate one that keeps 300 env steps/s on one core. Against the same
-    model on a 16^3 mesh its static tool force, tumour displacement and volume change are within
-    10.4%, 6.4% and 6.4% (4^3, the previous default: 31%, 10.9%, 31.7%; 7^3: 3.6% at about half the
-    speed); the lag behind the static equilibrium of a tool moving at full speed is within 4.6%,
-    1.2% and 3.6%. The loose solver tolerance leaves these lags unchanged (an inexact solve keeps the
+    default shape is the most accurate one that keeps 300 env steps/s on one core with a 1.25x
+    margin. Against the same model on a 16^3 mesh its static tool force, tumour displacement and
+    volume change are within 2.3%, 2.4% and 3.6% (the previous defaults: 6^3 10.4%, 6.4%, 6.4%;
+    4^3 31%, 10.9%, 31.7%), its observations with the tool at full speed within 3.6%, 2.5% and 4.0%
+    of the 16^3 mesh's (``benchmarks/dynamic_convergence.py``); the lag behind the static
+    equilibrium of a tool moving at full speed is within 4.3%, 0.8% and 3.2%. The loose solver tolerance leaves these lags unchanged (an inexact solve keeps the
     equilibria) and runs about 25% faster; no divergence in 100 random-action episodes. After a tool
     move the tumour settles to the static equilibrium within a few steps (tested).
 
@@ -148,7 +149,7 @@ class TumorPositioningEnv(TissueEnv):
       ``tool_size``: the grasped patch is a physical square, no longer 1.5 elements around the centre).
     """
 
-    default_shape = (6, 6, 6)
+    default_shape = (7, 7, 7)
     default_size = (0.05, 0.05, 0.05)
     default_dt = 0.04
     default_solver_tolerance = 1e-2
