@@ -986,6 +986,25 @@ def _volume_forces(positions, elements, rest_volume, kappa, forces, jacobian, co
 # Every per-copy array has the copy as its last axis ((S, N), (S, 3, N), (3 n, N) ...), so each loop over
 # springs, elements or hourglass entries reads its indices once for all N copies (the inner loop over
 # copies is contiguous). Same formulas as ``spring_operator`` / ``solve_springs``.
+@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, vector, row, total):
+    """total (N,) = row ``row`` of each copy's hourglass matrix (CSR ``hg_indptr``, ``hg_indices`` of
+    one copy, values ``hg_data[:, hg_group[c]]`` (nnz, G)) times that copy's column of ``vector``
+    (dofs, N); with one matrix for every copy (G = 1) the inner loop is contiguous (vectorised)."""
+    for c in range(total.shape[0]):
+        total[c] = 0.0
+    shared = hg_data.shape[1] == 1
+    for k in range(hg_indptr[row], hg_indptr[row + 1]):
+        col = hg_indices[k]
+        if shared:
+            value = hg_data[k, 0]
+            for c in range(total.shape[0]):
+                total[c] += value * vector[col, c]
+        else:
+            for c in range(total.shape[0]):
+                total[c] += hg_data[k, hg_group[c]] * vector[col, c]
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_scale, damping_scale,
                             stiffness_scale, elements, edge_spring, correction_matrix, axis_rest_length,
@@ -1070,18 +1089,8 @@ def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, 
             out[3 * b + 2, c] += f2
     if hg_scale != 0.0:
         total = np.empty(n_copies)
-        shared = hg_data.shape[1] == 1  # one matrix for every copy: a contiguous (vectorised) inner loop
         for row in range(hg_indptr.shape[0] - 1):
-            total[:] = 0.0
-            for k in range(hg_indptr[row], hg_indptr[row + 1]):
-                col = hg_indices[k]
-                if shared:
-                    value = hg_data[k, 0]
-                    for c in range(n_copies):
-                        total[c] += value * vector[col, c]
-                else:
-                    for c in range(n_copies):
-                        total[c] += hg_data[k, hg_group[c]] * vector[col, c]
+            _copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, vector, row, total)
             for c in range(n_copies):
                 out[row, c] += hg_scale * total[c]
     for i in range(out.shape[0]):
@@ -1670,6 +1679,23 @@ def apply_operator_blocks(data, scales, ones, hg_block_indptr, hg_block_indices,
     _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out)
 
 
+@njit(cache=True, inline="always")
+def _copy_data(stacked, hg_rows, hg_group, c):
+    """``apply_operator``'s data of copy ``c`` of a stacked model (copies first; ``solve_copies_lu``,
+    ``factor_copies``): its slices of the per-spring, per-node and per-element arrays, the shared
+    topology, and its group's hourglass values ``hg_rows[hg_group[c]]``."""
+    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
+     delta) = stacked
+    n_springs, n_elements, n_nodes = springs.shape[0], elements.shape[0], mass.shape[0] // hg_group.shape[0]
+    a, b = c * n_springs, (c + 1) * n_springs
+    e0, e1 = c * n_elements, (c + 1) * n_elements
+    return (springs, unit[a:b], stiffness[a:b], damping[a:b], geometric[a:b], mass[c * n_nodes:(c + 1) * n_nodes],
+            elements, edge_spring, correction_matrix[e0:e1], axis_rest_length[e0:e1], volume_coefficient[e0:e1],
+            volume_direction[e0:e1], volume_gradient[e0:e1], hg_indptr, hg_indices, hg_rows[hg_group[c]],
+            elongation[a:b], delta[a:b])
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST)
 def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
                     lu_float, factor_of, corrections, imposed, work, solution, iterations, residual,
@@ -1692,9 +1718,6 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
      delta) = stacked
     n_copies, dofs = rhs.shape
-    n_springs = springs.shape[0]
-    n_elements = elements.shape[0]
-    n_nodes = dofs // 3
     r, r_hat, p, v, s, t, p_hat, s_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     buffer = np.empty(dofs)
     ones = np.ones(dofs)
@@ -1704,12 +1727,7 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
         if not active[c]:
             continue
         x = solution[c]
-        a, b = c * n_springs, (c + 1) * n_springs
-        e0, e1 = c * n_elements, (c + 1) * n_elements
-        data = (springs, unit[a:b], stiffness[a:b], damping[a:b], geometric[a:b], mass[c * n_nodes:(c + 1) * n_nodes],
-                elements, edge_spring, correction_matrix[e0:e1], axis_rest_length[e0:e1], volume_coefficient[e0:e1],
-                volume_direction[e0:e1], volume_gradient[e0:e1], hg_indptr, hg_indices, hg_rows[hg_group[c]],
-                elongation[a:b], delta[a:b])
+        data = _copy_data(stacked, hg_rows, hg_group, c)
         m = mask[c]
         blocks = hg_block_rows[hg_group[c]]
         ints = lu_int[factor_of[c]]
@@ -1892,18 +1910,11 @@ def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
      delta) = stacked
-    n_springs = springs.shape[0]
     n_elements = elements.shape[0]
-    n_nodes = diagonal_positions.shape[0] // 3
     n_floats = 9 * (l_indices.shape[0] + u_indices.shape[0])
     for t in range(copies.shape[0]):
         c = copies[t]
-        a, b = c * n_springs, (c + 1) * n_springs
-        e0, e1 = c * n_elements, (c + 1) * n_elements
-        data = (springs, unit[a:b], stiffness[a:b], damping[a:b], geometric[a:b], mass[c * n_nodes:(c + 1) * n_nodes],
-                elements, edge_spring, correction_matrix[e0:e1], axis_rest_length[e0:e1], volume_coefficient[e0:e1],
-                volume_direction[e0:e1], volume_gradient[e0:e1], hg_indptr, hg_indices, hg_rows[hg_group[c]],
-                elongation[a:b], delta[a:b])
+        data = _copy_data(stacked, hg_rows, hg_group, c)
         if node_edge.shape[0] == n_elements:
             operator_matrix_data_blocks(data, scales, spring_positions, element_positions, hg_positions,
                                         diagonal_positions, node_edge, node_sign, values)
@@ -1978,18 +1989,7 @@ def stacked_hourglass_subtract(hg_indptr, hg_indices, hg_data, hg_group, positio
         for i in range(dofs):
             displacement[i, c] = x[c * dofs + i] - rest[c * dofs + i]
     total = np.empty(n_copies)
-    shared = hg_data.shape[1] == 1
     for row in range(dofs):
-        for c in range(n_copies):
-            total[c] = 0.0
-        for k in range(hg_indptr[row], hg_indptr[row + 1]):
-            col = hg_indices[k]
-            if shared:
-                value = hg_data[k, 0]
-                for c in range(n_copies):
-                    total[c] += value * displacement[col, c]
-            else:
-                for c in range(n_copies):
-                    total[c] += hg_data[k, hg_group[c]] * displacement[col, c]
+        _copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, displacement, row, total)
         for c in range(n_copies):
             flat[c * dofs + row] -= total[c]
