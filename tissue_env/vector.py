@@ -22,19 +22,19 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "auto"
 preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
-steps per CPU second, median of 3 interleaved rounds on a shared VM; the README's run):
-TumorPositioning 2.3x (1093 against 470; solver "reference", one node-block LU shared by the
-copies), Palpation 1.8x (940 against 539) and Retraction 1.6x at its (10, 2, 5) default (730
-against 464; 2.8x at (8, 2, 4), where a factorisation costs less), both with per-copy node-block
-LUs capacitance-corrected for their contacts (solver "factorised"); every task measures with the next
+steps per CPU second, median of 3 interleaved rounds on a shared VM; the README's run, at the
+defaults): TumorPositioning 1.7x at (7, 7, 7) (585 against 335; solver "reference", one node-block
+LU shared by the copies), Palpation 1.4x (993 against 710) and Retraction 1.1x at (12, 2, 6) (375
+against 327; 2.8x at (8, 2, 4) before the single envs' hourglass speed-up), both with per-copy
+node-block LUs capacitance-corrected for their contacts (solver "factorised"); every task measures with the next
 step's force pass (``share_force_pass``). The force pass reads one copy's hourglass matrix for all
 copies (``batched.StackedForceWorkspace``), the per-copy solves read it in node blocks, and the
 copies a step re-factorises are assembled and factorised in one compiled call
 (``kernels.factor_copies``). Each copy's step is its own LU solves, operator products and
-factorisations (Retraction's floor re-factorises at about two steps in three, 42% of its vector
+factorisations (Retraction's floor re-factorises at about two steps in three, 46% of its vector
 env's time), which batching does not share; the vector env saves the Python work and memory
 traffic around them. TumorPositioning's
-resets, a static solve for the goal, cost the same in both modes and are 27% of the vector env's
+resets, a static solve for the goal, cost the same in both modes and are 31% of the vector env's
 time.
 """
 
