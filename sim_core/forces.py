@@ -110,6 +110,19 @@ def spring_state(model: Model, positions: np.ndarray) -> tuple[SpringState, np.n
 _CORRECTION_KIND = {None: 0, "projected": 1, "fixed": 2}
 
 
+def hourglass_block_map(matrix):
+    """The node-block (BSR, 3 x 3) layout of a CSR matrix with 3 dofs per node: (block indptr
+    (N + 1,), block columns (nb,), positions (9 nb,) int64: the index in ``matrix.data`` of each
+    row-major block value, -1 for the zeros a block adds). Values of another matrix of the same
+    pattern are ``data[positions]`` where positions >= 0 (``tissue_env.batched``'s per-copy
+    hourglass values)."""
+    probe = sp.csr_matrix((np.arange(1.0, matrix.nnz + 1.0), matrix.indices, matrix.indptr), shape=matrix.shape)
+    blocks = sp.bsr_matrix(probe, blocksize=(3, 3))
+    blocks.sort_indices()
+    return (blocks.indptr.astype(np.int64), blocks.indices.astype(np.int64),
+            blocks.data.reshape(-1).astype(np.int64) - 1)
+
+
 def hourglass_blocks(model: Model):
     """The node-block (BSR, 3 x 3) form of ``model.hourglass`` for ``kernels.apply_operator_blocks``:
     (block indptr (N + 1,), block columns (nb,), row-major block values (9 nb,), ones (3 N,)), or
@@ -122,10 +135,11 @@ def hourglass_blocks(model: Model):
     if cached is _MISSING:
         cached = None
         if model.hourglass is not None:
-            blocks = sp.bsr_matrix(model.hourglass, blocksize=(3, 3))
-            blocks.sort_indices()
-            cached = (blocks.indptr.astype(np.int64), blocks.indices.astype(np.int64),
-                      np.ascontiguousarray(blocks.data, dtype=float).reshape(-1), np.ones(model.hourglass.shape[0]))
+            indptr, indices, positions = hourglass_block_map(model.hourglass)
+            values = np.zeros(len(positions))
+            stored = positions >= 0
+            values[stored] = model.hourglass.data[positions[stored]]
+            cached = (indptr, indices, values, np.ones(model.hourglass.shape[0]))
         _HOURGLASS_BLOCKS[model] = cached
     return cached
 
@@ -180,18 +194,18 @@ class ForceWorkspace:
         model = self.model
         use_velocity = velocities is not None
         hg_indptr, hg_indices, hg_data = self.hourglass_arrays
-        blocks = hourglass_blocks(model) if hourglass and self.has_hourglass else None
+        # the hourglass term is added below, its matrix read in node blocks (hourglass_blocks)
         kernels.model_forces(
             positions, velocities if use_velocity else positions, use_velocity, model.springs, model.stiffness,
             model.rest_length, model.damping, model.mesh.elements, model.edge_spring, model.correction_matrix,
             model.axis_rest_length, self.correction_kind, model.rest_edge_direction, model.rest_volume,
             model.volume_stiffness, self.has_volume, hg_indptr, hg_indices, hg_data, self.rest_positions,
-            hourglass and self.has_hourglass and blocks is None, self.length, self.unit, self.tension, self.push,
-            self.forces, geometric, self.geometric, volume_jacobian and self.has_volume, self.volume_coefficient,
-            self.volume_direction, self.volume_gradient)
-        if blocks is not None:  # f -= K_hg (x - X), the matrix read in node blocks
-            kernels.hourglass_subtract_blocks(blocks[0], blocks[1], blocks[2], positions, self.rest_positions,
-                                              self.forces)
+            False, self.length, self.unit, self.tension, self.push, self.forces, geometric, self.geometric,
+            volume_jacobian and self.has_volume, self.volume_coefficient, self.volume_direction, self.volume_gradient)
+        if hourglass and self.has_hourglass:  # f -= K_hg (x - X)
+            indptr, indices, values, _ = hourglass_blocks(model)
+            kernels.bsr3_matvec_add(indptr, indices, values, (positions - self.rest_positions).reshape(-1), -1.0,
+                                    self.forces.reshape(-1))
         return self.forces
 
 

@@ -1616,6 +1616,27 @@ def _corrected_lu_apply(ints, values, mask, ones, correction, imposed, gathered,
         out[i] = mask[i] * value
 
 
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def bsr3_matvec_add(indptr, indices, data, vector, scale, out):
+    """out += scale * A @ vector for a matrix of 3 x 3 node blocks (``forces.hourglass_blocks``:
+    block indptr (n + 1,), node columns (nb,), row-major block values (9 nb,); flat dof vectors):
+    one index and three vector loads per 9 values (``csr_matvec_add`` reads one per value)."""
+    for i in range(indptr.shape[0] - 1):
+        t0 = 0.0
+        t1 = 0.0
+        t2 = 0.0
+        for q in range(indptr[i], indptr[i + 1]):
+            j = 3 * indices[q]
+            b = 9 * q
+            x0, x1, x2 = vector[j], vector[j + 1], vector[j + 2]
+            t0 += data[b] * x0 + data[b + 1] * x1 + data[b + 2] * x2
+            t1 += data[b + 3] * x0 + data[b + 4] * x1 + data[b + 5] * x2
+            t2 += data[b + 6] * x0 + data[b + 7] * x1 + data[b + 8] * x2
+        out[3 * i] += scale * t0
+        out[3 * i + 1] += scale * t1
+        out[3 * i + 2] += scale * t2
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out):
     """``_apply`` with the hourglass term read from the node-block (BSR) form of the hourglass matrix
@@ -1629,47 +1650,10 @@ def _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_bloc
                     elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
                     volume_coefficient, volume_direction, volume_gradient, scales[4],
                     hg_indptr, hg_indices, hg_data, 0.0, ones, vector, out, elongation, delta)
-    hg_scale = scales[5]
-    if hg_scale != 0.0:
-        for i in range(hg_block_indptr.shape[0] - 1):
-            t0 = 0.0
-            t1 = 0.0
-            t2 = 0.0
-            for q in range(hg_block_indptr[i], hg_block_indptr[i + 1]):
-                j = 3 * hg_block_indices[q]
-                b = 9 * q
-                x0, x1, x2 = vector[j], vector[j + 1], vector[j + 2]
-                t0 += hg_block_data[b] * x0 + hg_block_data[b + 1] * x1 + hg_block_data[b + 2] * x2
-                t1 += hg_block_data[b + 3] * x0 + hg_block_data[b + 4] * x1 + hg_block_data[b + 5] * x2
-                t2 += hg_block_data[b + 6] * x0 + hg_block_data[b + 7] * x1 + hg_block_data[b + 8] * x2
-            out[3 * i] += hg_scale * t0
-            out[3 * i + 1] += hg_scale * t1
-            out[3 * i + 2] += hg_scale * t2
+    if scales[5] != 0.0:
+        bsr3_matvec_add(hg_block_indptr, hg_block_indices, hg_block_data, vector, scales[5], out)
     for i in range(out.shape[0]):
         out[i] *= mask[i]
-
-
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
-def hourglass_subtract_blocks(indptr, indices, data, positions, rest_positions, forces):
-    """forces (n, 3) -= K_hg (x - X) with K_hg in node blocks (``forces.hourglass_blocks``: block
-    indptr (n + 1,), node columns (nb,), row-major 3 x 3 values (9 nb,)); ``model_forces``'
-    hourglass term (the same sums up to their order)."""
-    for i in range(indptr.shape[0] - 1):
-        t0 = 0.0
-        t1 = 0.0
-        t2 = 0.0
-        for q in range(indptr[i], indptr[i + 1]):
-            j = indices[q]
-            b = 9 * q
-            d0 = positions[j, 0] - rest_positions[j, 0]
-            d1 = positions[j, 1] - rest_positions[j, 1]
-            d2 = positions[j, 2] - rest_positions[j, 2]
-            t0 += data[b] * d0 + data[b + 1] * d1 + data[b + 2] * d2
-            t1 += data[b + 3] * d0 + data[b + 4] * d1 + data[b + 5] * d2
-            t2 += data[b + 6] * d0 + data[b + 7] * d1 + data[b + 8] * d2
-        forces[i, 0] -= t0
-        forces[i, 1] -= t1
-        forces[i, 2] -= t2
 
 
 @njit(cache=True, error_model="numpy", fastmath=_FAST)

@@ -1,5 +1,5 @@
 """The hourglass matrix in 3 x 3 node blocks (``forces.hourglass_blocks``): the single envs' operator
-products (``kernels.apply_operator_blocks``) and force passes (``kernels.hourglass_subtract_blocks``)
+products (``kernels.apply_operator_blocks``) and force passes (``kernels.bsr3_matvec_add``)
 read it so, and must give the scalar CSR results up to rounding; a model whose hourglass values
 change in place (``ModelStack.assign``) must not keep stale blocks."""
 

@@ -60,7 +60,8 @@ from numba.typed import List as TypedList
 
 from sim_core import HexMesh
 from sim_core import kernels
-from sim_core.forces import ForceWorkspace, forget_hourglass_blocks, internal_forces, stiffness_data
+from sim_core.forces import (ForceWorkspace, forget_hourglass_blocks, hourglass_block_map, internal_forces,
+                             stiffness_data)
 from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, InverseColumns, SymplecticEuler,
                                   _FreeStructure, free_structure, node_block_factor)
 from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure
@@ -293,11 +294,12 @@ class _CopyFactor:
         self.lu, self.lower, self.upper = lu, lower, upper
 
     @classmethod
-    def refactored(cls, pattern, floats):
+    def refactored(cls, ints, floats):
+        """A node-block LU's packed ``ints`` and ``floats`` as a factor."""
         factor = cls.__new__(cls)
         factor.set_baseline(0)
         factor._inverse, factor._corrections = None, {}
-        factor.ints, factor.floats = pattern.ints, floats
+        factor.ints, factor.floats = ints, floats
         return factor
 
     def correction(self, imposed: np.ndarray, n_dofs: int):
@@ -345,13 +347,6 @@ def _edge_incidence(model: Model):
     if np.any(node_edge < 0):
         return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
     return node_edge, node_sign
-
-
-class _Header:
-    """The packed integer header ``ints`` of a node-block structure (``_CopyFactor.refactored``)."""
-
-    def __init__(self, ints):
-        self.ints = ints
 
 
 class BatchedImplicitEuler:
@@ -517,7 +512,7 @@ class BatchedImplicitEuler:
                                      self._hg_positions, reference.pattern.diagonal_positions, values)
         block = node_block_factor(stack.models[index], values, free)
         if block is not None:  # the node-block LU, its structure kept per node set
-            factor = _CopyFactor.refactored(block, block.floats)
+            factor = _CopyFactor.refactored(block.ints, block.floats)
         else:
             factor = self._scalar_factor(values, free)
         self.factorisations += 1
@@ -545,7 +540,7 @@ class BatchedImplicitEuler:
             ok = np.zeros(len(members), dtype=bool)
             if structure is not None:
                 (node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices,
-                 ints, a_values, work, header) = structure
+                 ints, a_values, work) = structure
                 kernels.factor_copies(stacked, system, hg_rows, hg_group, reference.spring_positions,
                                       reference.element_positions, self._hg_positions,
                                       reference.pattern.diagonal_positions, indices[members], covers[members],
@@ -555,7 +550,7 @@ class BatchedImplicitEuler:
             for t, done in zip(members, ok):
                 index = int(indices[t])
                 if done:  # the kernel set the copy's entries of _lu_int and _lu_float
-                    factor = _CopyFactor.refactored(header, self._lu_float[index])
+                    factor = _CopyFactor.refactored(ints, self._lu_float[index])
                     self._factors[index] = factor
                     self._factor_free[index] = covers[t]
                     self.factorisations += 1
@@ -585,7 +580,7 @@ class BatchedImplicitEuler:
                 structure = (as_int(node_dofs), as_int(whole.take), as_int(whole.indices), as_int(whole.columns),
                              as_int(a_map), as_int(a_indptr), as_int(a_indices), as_int(l_indptr), as_int(l_indices),
                              as_int(u_indptr), as_int(u_indices), ints, np.empty(9 * len(a_indices)),
-                             np.empty(9 * (len(a_indptr) - 1)), _Header(ints))
+                             np.empty(9 * (len(a_indptr) - 1)))
         if len(self._structures) >= 4 * self.stack.count:
             self._structures.clear()
         self._structures[key] = structure
@@ -652,16 +647,8 @@ class BatchedImplicitEuler:
         if self._blocks is None or self._blocks[0] != stack.version:
             if self._block_map is None:  # the position in the CSR data of each block entry (-1: none)
                 single = stack.reference.hourglass
-                if single is None:
-                    self._block_map = (np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
-                                       np.zeros(0, np.int64))
-                else:
-                    probe = sp.csr_matrix((np.arange(1.0, single.nnz + 1.0), single.indices, single.indptr),
-                                          shape=single.shape)
-                    blocks = sp.bsr_matrix(probe, blocksize=(3, 3))
-                    blocks.sort_indices()
-                    self._block_map = (blocks.indptr.astype(np.int64), blocks.indices.astype(np.int64),
-                                       blocks.data.reshape(-1).astype(np.int64) - 1)
+                self._block_map = ((np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
+                                    np.zeros(0, np.int64)) if single is None else hourglass_block_map(single))
             indptr, indices, positions = self._block_map
             _, hg_rows, _ = self._copies_first()
             values = np.zeros((len(hg_rows), len(positions)))
