@@ -222,6 +222,29 @@ class ImplicitEuler(SymplecticEuler):
         self._auto_factorised: set = set()  # keys "auto" switched to the factorised preconditioner
         #: factorisations done so far (a diagnostic; the tests read it)
         self.factorisations = 0
+        self._linearised = None  # (model, positions) of the workspace's force pass made by ``linearise``
+
+    def _implicit_volume(self, model: Model) -> bool:
+        """Whether the step treats the volume forces implicitly (their rank-one stiffness in the system)."""
+        return self.corrections == "implicit" and model.has_volume_forces
+
+    def linearise(self, model: Model, positions: np.ndarray) -> ForceWorkspace:
+        """The step's force pass at ``positions`` (N, 3) m: the workspace whose ``forces`` (N, 3) N
+        are the internal forces without damping (no gravity, no control force) and whose spring
+        lengths, unit vectors, clamped geometric stiffness and volume terms are the implicit
+        system's there. The next ``simulate`` of ``model`` from the same positions reuses this pass
+        instead of computing it again (an environment measures its state with it: one force pass
+        per step instead of two). The arrays are the workspace's: read them before the next step."""
+        x0 = np.ascontiguousarray(positions, dtype=float)
+        workspace = self._workspace(model, implicit=True)
+        if not self._reuses(model, x0):
+            workspace.compute(x0, None, geometric=True, volume_jacobian=self._implicit_volume(model))
+            self._linearised = (model, x0.copy())
+        return workspace
+
+    def _reuses(self, model, x0) -> bool:
+        cached = self._linearised
+        return cached is not None and cached[0] is model and np.array_equal(cached[1], x0)
 
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None) -> StepReport:
         dt = _check_dt(dt)
@@ -230,11 +253,12 @@ class ImplicitEuler(SymplecticEuler):
         v0 = np.ascontiguousarray(state_in.velocities, dtype=float)
         coupled = self.corrections == "implicit" and model.correction_mode is not None
         # Volume forces' rank-one stiffness, with the other non-symmetric terms (BiCGSTAB only).
-        implicit_volume = self.corrections == "implicit" and model.has_volume_forces
-        workspace = self._workspace(model, implicit=True)
+        implicit_volume = self._implicit_volume(model)
         # one fused pass: the forces without damping, the springs' clamped geometric stiffness, the
-        # volume terms
-        forces = workspace.compute(x0, None, geometric=True, volume_jacobian=implicit_volume)
+        # volume terms (``linearise``'s, when it was made at these positions)
+        workspace = self.linearise(model, x0)
+        forces = workspace.forces
+        self._linearised = None  # its forces are changed in place below
         forces += model.gravity_force + control.force
         has_hourglass = model.hourglass is not None
         data = workspace.operator_data

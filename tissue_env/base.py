@@ -28,7 +28,8 @@ from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.forces import ForceWorkspace, external_forces
-from sim_core.integrators import PRECONDITIONERS, make_integrator
+from sim_core import kernels
+from sim_core.integrators import PRECONDITIONERS, ImplicitEuler, make_integrator
 from sim_core.model import State
 
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
@@ -466,14 +467,21 @@ class TissueEnv(gym.Env):
     def _measure(self, state) -> dict:
         positions = state.positions
         model = self.model
-        workspace = self._measure_workspace
-        if workspace is None or workspace.model is not model:  # one per model: nothing allocated per step
-            workspace = self._measure_workspace = ForceWorkspace(model, implicit=False)
         try:
             with np.errstate(all="ignore"):
-                forces = workspace.compute(np.ascontiguousarray(positions, dtype=float),
-                                           np.ascontiguousarray(state.velocities, dtype=float))
-                forces = forces + external_forces(model, self.control)
+                x = np.ascontiguousarray(positions, dtype=float)
+                velocities = np.ascontiguousarray(state.velocities, dtype=float)
+                if isinstance(self.integrator, ImplicitEuler):
+                    # the next step's force pass (``ImplicitEuler.linearise``), plus the damping
+                    workspace = self.integrator.linearise(model, x)
+                    forces = workspace.forces + external_forces(model, self.control)
+                    kernels.scatter_springs(model.springs, workspace.unit, np.zeros(len(model.springs)),
+                                            model.damping, velocities, True, forces)
+                else:
+                    workspace = self._measure_workspace
+                    if workspace is None or workspace.model is not model:  # one per model
+                        workspace = self._measure_workspace = ForceWorkspace(model, implicit=False)
+                    forces = workspace.compute(x, velocities) + external_forces(model, self.control)
             length = workspace.length  # the spring lengths of this fused pass
         except ArithmeticError:  # a degenerate (last healthy) state: report no force rather than crash
             forces = np.zeros_like(positions)
