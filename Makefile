@@ -38,6 +38,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/dynamic_convergence.py --damping-ratio 3 --output benchmarks/results/dynamic_convergence_damping3.json
 	$(PY) benchmarks/vector_env_speed.py
 	$(PY) benchmarks/palpation_map.py
+	$(PY) benchmarks/task_gallery.py
 	$(PY) benchmarks/speed_accuracy.py
 
 # MuJoCo flex and PyBullet soft body next to ours (optional extra, not needed by anything else)
