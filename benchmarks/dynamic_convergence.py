@@ -9,7 +9,7 @@ benchmark measures that one against the same dynamic run on a fine mesh: the sce
 ``env_accuracy`` (same scenes,
 displacements, tool speed ``max_step`` per env step, the env's dt, one substep, its solver
 tolerance), the scripted tool reaching each tested displacement at full speed without holding
-(``sim_core.resolution._dynamic_scene``), observations taken on arrival: tool force, target
+(``sim_core.resolution.dynamic_scene``), observations taken on arrival: tool force, target
 displacement and relative volume change; errors max |q - q_fine| / max |q_fine| over the
 displacements, as in env_accuracy. Each shape's lag (its dynamic against its own static
 observations) is reported too.
@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.env_accuracy import (  # noqa: E402
     TASKS, env_default_dt, env_default_shape, env_defaults, env_solver_tolerance,
 )
-from sim_core.resolution import _dynamic_scene, scene_errors, solve_scene  # noqa: E402
+from sim_core.resolution import dynamic_scene, scene_errors, solve_scene  # noqa: E402
 
 #: shapes compared by default (the env default among them); the fine dynamic reference is
 #: env_accuracy's fine model (its resolution n, ``Scene.shape``)
@@ -64,7 +64,7 @@ def dynamic(scenes, shape, dt, max_step, solver_tolerance, alpha, kappa, damping
     or raises RuntimeError naming the diverging scene."""
     solutions, steps, seconds = [], 0, 0.0
     for scene in scenes:
-        solution, count, _, elapsed, reason = _dynamic_scene(
+        solution, count, _, elapsed, reason = dynamic_scene(
             scene, shape, dt=dt, substeps=1, max_step=max_step, hold_steps=0, hourglass_control=alpha,
             volume_stiffness=kappa, solver_tolerance=solver_tolerance, solver=dict(preconditioner="auto"),
             damping_ratio=damping_ratio)

@@ -940,8 +940,8 @@ def _int_at_least(name, value, low):
     return number
 
 
-def _dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass_control, volume_stiffness,
-                   solver_tolerance, solver=None, damping_ratio=1.0):
+def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass_control, volume_stiffness,
+                  solver_tolerance, solver=None, damping_ratio=1.0):
     """Observed quantities of ``scene`` as an environment produces them: from the static rest state
     (gravity, tool at rest) the tool moves towards each tested displacement by at most ``max_step``
     per component per env step (a scripted controller at full speed; the displacements of a path
@@ -1066,7 +1066,7 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
                   for s in scenes]
     errors, case_errors, steps, iterations, elapsed = {}, {q: [] for q in QUANTITIES}, 0, 0, 0.0
     for scene_, reference in zip(scenes, static):
-        solution, n, its, seconds, reason = _dynamic_scene(
+        solution, n, its, seconds, reason = dynamic_scene(
             scene_, shape, dt=dt, substeps=substeps, max_step=max_step, hold_steps=hold_steps,
             hourglass_control=alpha, volume_stiffness=kappa, solver_tolerance=solver_tolerance, solver=solver)
         steps, iterations, elapsed = steps + n, iterations + its, elapsed + seconds
