@@ -31,11 +31,13 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/step_speed.py
 	$(PY) benchmarks/env_speed.py
+	$(PY) benchmarks/env_speed.py --integrator static --steps 100 --output benchmarks/results/env_speed_static.json
 	$(PY) benchmarks/stability.py
 	$(PY) benchmarks/env_accuracy.py
 	$(PY) benchmarks/dynamic_convergence.py
 	$(PY) benchmarks/dynamic_convergence.py --constant-viscosity --output benchmarks/results/dynamic_convergence_constant_viscosity.json
 	$(PY) benchmarks/dynamic_convergence.py --damping-ratio 3 --output benchmarks/results/dynamic_convergence_damping3.json
+	$(PY) benchmarks/dynamic_convergence.py --integrator static --output benchmarks/results/dynamic_convergence_static.json
 	$(PY) benchmarks/vector_env_speed.py
 	$(PY) benchmarks/palpation_map.py
 	$(PY) benchmarks/task_gallery.py

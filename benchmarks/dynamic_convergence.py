@@ -14,13 +14,18 @@ displacement and relative volume change; errors max |q - q_fine| / max |q_fine| 
 displacements, as in env_accuracy. Each shape's lag (its dynamic against its own static
 observations) is reported too.
 
+``--integrator static`` steps every run (each shape's and the fine mesh's) by a static
+equilibrium per env step (``sim_core.static.QuasiStatic``, the envs' ``integrator="static"``)
+instead of implicit Euler: no lag, so its errors against the fine mesh are the static
+discretisation errors, at the cost per env step it reports (``seconds_per_step``).
+
 ``--damping-ratio R`` multiplies every spring's critical damping 2 sqrt(m k) by R (the fine run's
 too); ``--constant-viscosity`` sets R = h_default / h per shape (h the cube root of an element's
 volume), which keeps the viscosity of the env's default mesh: a spring's damping scales like h^2,
 the viscous stress it makes like h, so without it a finer mesh is less viscous.
 
 Usage: python benchmarks/dynamic_convergence.py [--task NAME ...] [--shapes NX,NY,NZ ...]
-       [--fine NX,NY,NZ] [--damping-ratio R | --constant-viscosity]
+       [--fine NX,NY,NZ] [--damping-ratio R | --constant-viscosity] [--integrator implicit|static]
 Writes benchmarks/results/dynamic_convergence.json (``--output``; atomically; --task keeps the
 other tasks' results) and prints a table.
 """
@@ -59,15 +64,16 @@ def element_size(scene, shape):
     return float(np.prod(size / np.asarray(shape, dtype=float)) ** (1.0 / 3.0))
 
 
-def dynamic(scenes, shape, dt, max_step, solver_tolerance, alpha, kappa, damping_ratio=1.0):
+def dynamic(scenes, shape, dt, max_step, solver_tolerance, alpha, kappa, damping_ratio=1.0, integrator="implicit"):
     """The env-like dynamic observations of every scene at ``shape``: (solutions, env steps, seconds)
     or raises RuntimeError naming the diverging scene."""
     solutions, steps, seconds = [], 0, 0.0
     for scene in scenes:
         solution, count, _, elapsed, reason = dynamic_scene(
             scene, shape, dt=dt, substeps=1, max_step=max_step, hold_steps=0, hourglass_control=alpha,
-            volume_stiffness=kappa, solver_tolerance=solver_tolerance, solver=dict(preconditioner="auto"),
-            damping_ratio=damping_ratio)
+            volume_stiffness=kappa, solver_tolerance=solver_tolerance,
+            solver=dict(preconditioner="auto") if integrator == "implicit" else None,
+            damping_ratio=damping_ratio, integrator=integrator)
         if reason is not None:
             raise RuntimeError(f"{scene.name} at {shape} diverged: {reason}")
         solutions.append(solution)
@@ -86,7 +92,7 @@ def errors(solutions, references):
     return worst
 
 
-def run(task, shapes=None, fine=None, damping_ratio=1.0, constant_viscosity=False):
+def run(task, shapes=None, fine=None, damping_ratio=1.0, constant_viscosity=False, integrator="implicit"):
     make, max_step, _, fine_resolution, _ = TASKS[task]
     scenes = make()
     shapes = [tuple(s) for s in (shapes or SHAPES[task])]
@@ -99,18 +105,22 @@ def run(task, shapes=None, fine=None, damping_ratio=1.0, constant_viscosity=Fals
         return default_size / element_size(scenes[0], shape) if constant_viscosity else float(damping_ratio)
 
     clock = time.perf_counter()
-    references, fine_steps, fine_seconds = dynamic(scenes, fine, dt, max_step, tolerance, alpha, kappa, ratio(fine))
+    references, fine_steps, fine_seconds = dynamic(scenes, fine, dt, max_step, tolerance, alpha, kappa, ratio(fine),
+                                                   integrator)
     rows = []
     for shape in shapes:
-        solutions, steps, seconds = dynamic(scenes, shape, dt, max_step, tolerance, alpha, kappa, ratio(shape))
+        solutions, steps, seconds = dynamic(scenes, shape, dt, max_step, tolerance, alpha, kappa, ratio(shape),
+                                            integrator)
         static = [solve_scene(scene, shape, hourglass_control=alpha, volume_stiffness=kappa, check_stability=False)
                   for scene in scenes]
         rows.append(dict(shape=list(shape), errors=errors(solutions, references), lag=errors(solutions, static),
                          damping_ratio=ratio(shape), env_steps=steps, seconds=seconds,
+                         seconds_per_step=seconds / max(steps, 1),
                          is_env_default=shape == env_default_shape(task),
                          volume=[s.volume.tolist() for s in solutions],
                          force_norm=[np.linalg.norm(s.force, axis=1).tolist() for s in solutions]))
-    return dict(task=task, dt=dt, substeps=1, max_step=max_step, solver_tolerance=tolerance, hourglass_control=alpha,
+    return dict(task=task, integrator=integrator, dt=dt, substeps=1, max_step=max_step, solver_tolerance=tolerance,
+                hourglass_control=alpha,
                 volume_stiffness=kappa, damping="constant viscosity" if constant_viscosity else float(damping_ratio),
                 fine_damping_ratio=ratio(fine), fine_shape=list(fine), fine_seconds=fine_seconds, fine_env_steps=fine_steps,
                 fine_volume=[r.volume.tolist() for r in references],
@@ -122,13 +132,14 @@ def table(results):
     print("dynamic observations (tool at full speed, no hold) against the fine mesh's, and the lag (against the "
           "shape's own static equilibrium); errors in % (force / target / volume)")
     for name, result in results.items():
-        print(f"{name}: fine {tuple(result['fine_shape'])}, dt {result['dt'] * 1e3:.0f} ms, "
-              f"max_step {result['max_step'] * 1e3:.0f} mm, damping {result['damping']}")
+        print(f"{name}: fine {tuple(result['fine_shape'])}, {result.get('integrator', 'implicit')}, "
+              f"dt {result['dt'] * 1e3:.0f} ms, max_step {result['max_step'] * 1e3:.0f} mm, damping {result['damping']}")
         for row in result["shapes"]:
             e, lag = row["errors"], row["lag"]
             print(f"  {str(tuple(row['shape'])):14s} vs fine {100 * e['force']:6.1f} {100 * e['target']:6.1f} "
                   f"{100 * e['volume']:6.1f}   lag {100 * lag['force']:6.1f} {100 * lag['target']:6.1f} "
                   f"{100 * lag['volume']:6.1f}   damping x{row['damping_ratio']:.2f}"
+                  f"   {1e3 * row['seconds'] / max(row['env_steps'], 1):6.2f} ms/step"
                   f"{'   env default' if row['is_env_default'] else ''}")
 
 
@@ -149,6 +160,8 @@ def main(argv=None):
                          help="multiplier of the critical spring damping, every shape (default 1)")
     damping.add_argument("--constant-viscosity", action="store_true",
                          help="damping ratio h_default / h per shape: the default mesh's viscosity")
+    parser.add_argument("--integrator", choices=("implicit", "static"), default="implicit",
+                        help="env-step physics of every run (default implicit: the envs' default)")
     parser.add_argument("--output", default=str(PATH), help="JSON file to write")
     args = parser.parse_args(argv)
     if not args.damping_ratio >= 0.0:
@@ -159,7 +172,7 @@ def main(argv=None):
         parser.error("--shapes and --fine need exactly one --task")
     results = json.loads(path.read_text()) if path.is_file() and args.task else {}
     for name in tasks:
-        results[name] = run(name, args.shapes, args.fine, args.damping_ratio, args.constant_viscosity)
+        results[name] = run(name, args.shapes, args.fine, args.damping_ratio, args.constant_viscosity, args.integrator)
         print(f"{name}: {results[name]['wall_time']:.0f} s", flush=True)
     results = {name: results[name] for name in TASKS if name in results}
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,7 @@
 """Env steps per second of every tissue_env task at its defaults, and the time split.
 
-Usage: python benchmarks/env_speed.py [--steps 300] [--rounds 1] [--output benchmarks/results/env_speed.json].
+Usage: python benchmarks/env_speed.py [--steps 300] [--rounds 1] [--integrator static]
+       [--output benchmarks/results/env_speed.json].
 Random actions, resets included in the total rate (per wall-clock second and per CPU second of
 this process, which counts other jobs on a shared machine less); the split (physics = integrator
 substeps and contact, observation = measurements and features, reward = reward terms and
@@ -51,8 +52,8 @@ def random_steps_per_s(env, steps=300, seed=0, clock=None):
     return rate
 
 
-def measure(env_id, steps, seed=0):
-    env = gym.make(env_id)
+def measure(env_id, steps, seed=0, **kwargs):
+    env = gym.make(env_id, **kwargs)
     unwrapped = env.unwrapped
     env.reset(seed=seed)
     env.action_space.seed(seed)
@@ -75,7 +76,7 @@ def measure(env_id, steps, seed=0):
     total = time.perf_counter() - start
     cpu = time.process_time() - cpu_start
     env.close()
-    render_env = gym.make(env_id, render_mode="rgb_array")
+    render_env = gym.make(env_id, render_mode="rgb_array", **kwargs)
     render_env.reset(seed=seed)
     render_env.render()
     tick = time.perf_counter()
@@ -91,13 +92,16 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--rounds", type=int, default=1)
+    parser.add_argument("--integrator", choices=("implicit", "static", "explicit"), default=None,
+                        help="the envs' integrator keyword (default: theirs, implicit)")
     parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results", "env_speed.json"))
     args = parser.parse_args()
+    kwargs = {} if args.integrator is None else dict(integrator=args.integrator)
     env_ids = sorted(tissue_env.ENV_IDS)
     rounds = {env_id: [] for env_id in env_ids}
     for _ in range(max(args.rounds, 1)):
         for env_id in env_ids:
-            rounds[env_id].append(measure(env_id, args.steps))
+            rounds[env_id].append(measure(env_id, args.steps, **kwargs))
     results = [{key: (env_id if key == "env_id" else float(np.median([r[key] for r in rounds[env_id]])))
                 for key in rounds[env_id][0]} for env_id in env_ids]
     print(f"{'env id':34s} {'steps/s':>8s} {'per CPU s':>9s} {'(no reset)':>10s} {'physics':>8s} {'obs':>6s} "
@@ -107,7 +111,8 @@ def main():
               f"{r['physics_ms']:6.2f}ms {r['observation_ms']:4.2f}ms {r['reward_ms']:4.2f}ms {r['render_fps']:5.1f}fps")
     machine = dict(platform=platform.platform(), processor=platform.processor(), cpus=os.cpu_count(),
                    python=platform.python_version(), numpy=np.__version__, load_average=list(os.getloadavg()))
-    payload = dict(steps=args.steps, rounds=args.rounds, machine=machine, results=results)
+    payload = dict(steps=args.steps, rounds=args.rounds, integrator=args.integrator or "implicit", machine=machine,
+                   results=results)
     os.makedirs(os.path.dirname(os.path.abspath(args.output)), exist_ok=True)
     handle, temporary = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.output)), suffix=".tmp")
     with os.fdopen(handle, "w") as stream:

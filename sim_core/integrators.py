@@ -794,9 +794,14 @@ INTEGRATORS = {"explicit": SymplecticEuler, "implicit": ImplicitEuler}
 
 
 def make_integrator(name: str, **options):
-    """Integrator by name: "explicit" (symplectic Euler) or "implicit" (Baraff-Witkin Euler)."""
+    """Integrator by name: "explicit" (symplectic Euler), "implicit" (Baraff-Witkin Euler) or "static"
+    (``sim_core.static.QuasiStatic``: a static equilibrium per step)."""
+    if name == "static":
+        from .static import QuasiStatic
+
+        return QuasiStatic(**options)
     if name not in INTEGRATORS:
-        raise ValueError(f"integrator must be one of {tuple(INTEGRATORS)}, got {name!r}")
+        raise ValueError(f"integrator must be one of {tuple(INTEGRATORS) + ('static',)}, got {name!r}")
     return INTEGRATORS[name](**options)
 
 

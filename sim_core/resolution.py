@@ -941,7 +941,7 @@ def _int_at_least(name, value, low):
 
 
 def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass_control, volume_stiffness,
-                  solver_tolerance, solver=None, damping_ratio=1.0):
+                  solver_tolerance, solver=None, damping_ratio=1.0, integrator="implicit"):
     """Observed quantities of ``scene`` as an environment produces them: from the static rest state
     (gravity, tool at rest) the tool moves towards each tested displacement by at most ``max_step``
     per component per env step (a scripted controller at full speed; the displacements of a path
@@ -949,10 +949,14 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
     after each step, the floor nodes held at y = 0 in the step, as Retraction does), then is held
     ``hold_steps`` env steps; the observation
     is taken then. ``damping_ratio``: ``build_model``'s multiplier of the critical spring damping.
+    ``integrator``: "implicit" (``ImplicitEuler`` with ``solver_tolerance`` and the ``solver``
+    keywords) or "static" (``sim_core.static.QuasiStatic``, the ``solver`` keywords: an equilibrium
+    per step, as the envs' ``integrator="static"``).
     Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""
     from .forces import external_forces, internal_forces
-    from .integrators import ImplicitEuler
+    from .integrators import make_integrator
     from .model import State
+    from .static import STATIC_CONTACT_PASSES, same_contact
 
     mesh, material, fixed, tool, target_nodes, weights = scene.discretise(shape)
     nodes = mesh.nodes
@@ -970,7 +974,27 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
         if scene.probe is not None:
             obstacle = scene.obstacle(mesh, candidates, rest[:, 1])
     rest_volume = float(mesh.element_volumes().sum())
-    integrator = ImplicitEuler(tolerance=solver_tolerance, **(solver or {}))
+    if integrator not in ("implicit", "static"):
+        raise ValueError(f"integrator must be 'implicit' or 'static', got {integrator!r}")
+    options = dict(solver or {}) if integrator == "static" else dict(tolerance=solver_tolerance, **(solver or {}))
+    stepper = make_integrator(integrator, **options)
+    passes = STATIC_CONTACT_PASSES if integrator == "static" else 1
+
+    def formed(state, offset, contact):
+        """The step's control at ``state``: the tool, and the contact's active set updated (nodes
+        touching join, nodes the tissue pulls away leave) with their heights imposed."""
+        control = _tool_control(scene, base, nodes, tool, offset)
+        if obstacle is None:
+            return control, contact
+        tip = scene.probe_tip(offset)
+        net = internal_forces(model, state.positions, state.velocities) + external_forces(model, control)
+        contact = contact_.update(obstacle, contact, state.positions, net, candidates, tip)
+        held = np.flatnonzero(contact)
+        if len(held):
+            target = state.positions[held].copy()
+            target[:, 1] = contact_.targets(obstacle, state.positions, contact, tip)[held]
+            control.impose(held, target, components=(1,))
+        return control, contact
     observed = dict(force=[], target=[], volume=[])
     env_steps, iterations, reason = 0, 0, None
     clock = time.perf_counter()
@@ -988,28 +1012,28 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
             for k in range(moves + hold_steps):
                 if k < moves:
                     offset = offset + np.clip(displacement - offset, -max_step, max_step)
-                control = _tool_control(scene, base, nodes, tool, offset)
                 tip = scene.probe_tip(offset)
-                if obstacle is not None:
-                    net = internal_forces(model, state.positions, state.velocities) + external_forces(model, control)
-                    contact = contact_.update(obstacle, contact, state.positions, net, candidates, tip)
-                    held = np.flatnonzero(contact)
-                    if len(held):
-                        target = state.positions[held].copy()
-                        target[:, 1] = contact_.targets(obstacle, state.positions, contact, tip)[held]
-                        control.impose(held, target, components=(1,))
+                control, contact = formed(state, offset, contact)
                 for _ in range(substeps):
-                    with np.errstate(all="ignore"):
-                        report = integrator.simulate(model, state, scratch, dt, control)
-                    iterations += report.iterations
-                    reason = report.unstable_reason
-                    if reason is None and not np.all(np.isfinite(scratch.positions)):
-                        reason = "non-finite positions"
-                    if reason is not None:
-                        return None, env_steps, iterations, time.perf_counter() - clock, reason
-                    if obstacle is not None:
-                        contact |= contact_.project(obstacle, scratch.positions, scratch.velocities, candidates, tip)
-                    state, scratch = scratch, state
+                    for attempt in range(passes):
+                        with np.errstate(all="ignore"):
+                            report = stepper.simulate(model, state, scratch, dt, control)
+                        iterations += report.iterations
+                        reason = report.unstable_reason
+                        if reason is None and not np.all(np.isfinite(scratch.positions)):
+                            reason = "non-finite positions"
+                        if reason is not None:
+                            return None, env_steps, iterations, time.perf_counter() - clock, reason
+                        if obstacle is not None:
+                            contact |= contact_.project(obstacle, scratch.positions, scratch.velocities, candidates, tip)
+                        state, scratch = scratch, state
+                        if obstacle is None or attempt + 1 == passes:
+                            break
+                        # quasi-static: the active set iterated within the step, as TissueEnv._advance
+                        previous = control
+                        control, contact = formed(state, offset, contact)
+                        if same_contact(previous, control):
+                            break
                 env_steps += 1
             positions = state.positions
             forces = internal_forces(model, positions, state.velocities) + external_forces(model, control)

@@ -193,6 +193,72 @@ def solve_static(
                         iterations, increments, reaction, message, lowest)
 
 
+#: most static solves per step while a contact's active set changes (``tissue_env.base.TissueEnv._advance``,
+#: ``sim_core.resolution.dynamic_scene``), and how far (m) the imposed heights may still move for
+#: the set to count as settled (the static scenes' ``slide_tolerance``: a held node slides along
+#: the obstacle, and its height follows)
+STATIC_CONTACT_PASSES = 25
+STATIC_SLIDE_TOLERANCE = 1e-7
+
+
+def same_contact(previous: Control, control: Control, tolerance: float = STATIC_SLIDE_TOLERANCE) -> bool:
+    """Whether two controls impose the same components at positions within ``tolerance`` m: a
+    contact's active set has settled (no node joined or left, the held heights stopped moving)."""
+    if not np.array_equal(previous.fixed, control.fixed):
+        return False
+    fixed = control.fixed
+    return bool(np.all(np.abs(control.target[fixed] - previous.target[fixed]) <= tolerance))
+
+
+class QuasiStatic:
+    """Quasi-static stepping: each step is the static equilibrium (``solve_static``) under the
+    step's control, solved from the previous positions, so the state has no inertia, damping or
+    lag behind the tool: the observations at every tool position are those of the static scene.
+    The same ``simulate`` interface as the integrators (``sim_core.integrators``); ``dt`` (s) only
+    advances the clock, and the velocities are zero (a sequence of equilibria).
+
+    Args:
+        tolerance: relative force residual of each equilibrium (``solve_static``).
+        max_iterations: Newton iterations per load increment before it is halved.
+        max_load_steps: a step whose imposed displacement needs more increments than this is
+            reported as a failure (``StepReport.unstable_reason``): no equilibrium was found
+            near the previous one (past a buckling load, or an inverted element).
+    A step costs a few Newton iterations, each a tangent assembly and a sparse factorisation (or a
+    chord iteration with the last one): slower than one implicit Euler step (measured in
+    benchmarks/dynamic_convergence.py --integrator static), for observations without lag.
+    """
+
+    name = "static"
+
+    def __init__(self, tolerance: float = 1e-6, max_iterations: int = 20, max_load_steps: int = 8, monitor: bool = True):
+        if not tolerance > 0:
+            raise ValueError(f"tolerance must be > 0, got {tolerance}")
+        if int(max_iterations) < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
+        if int(max_load_steps) < 1:
+            raise ValueError(f"max_load_steps must be >= 1, got {max_load_steps}")
+        self.tolerance, self.max_iterations, self.max_load_steps = float(tolerance), int(max_iterations), int(max_load_steps)
+        self.monitor = monitor
+
+    def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None):
+        from .integrators import StepReport, _check_dt
+
+        dt = _check_dt(dt)
+        control = model.new_control() if control is None else control
+        result = solve_static(model, control, initial=state_in.positions, tolerance=self.tolerance,
+                              max_iterations=self.max_iterations, max_load_steps=self.max_load_steps,
+                              chord_contraction=0.5)
+        positions = result.positions
+        reason = None
+        if not result.converged:
+            reason = f"static solve did not converge ({result.message})"
+        elif self.monitor and kernels.any_inverted(np.ascontiguousarray(positions, dtype=float), model.mesh.elements,
+                                                   CORNER_NEIGHBOURS, CORNER_SIGN):
+            reason = "inverted element (non-positive corner Jacobian)"
+        state_out.positions, state_out.velocities, state_out.time = positions, np.zeros_like(positions), state_in.time + dt
+        return StepReport(int(result.iterations), float(result.residual), reason)
+
+
 def ramp_load(advance, load_steps: int, max_load_steps: int, fast_iterations: int):
     """Adaptive load stepping from level 0 to 1: ``advance(level) -> (ok, residual, iterations)``
     solves one level (keeping its state on success). A failed increment is halved, one that took at

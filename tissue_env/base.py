@@ -26,17 +26,17 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sim_core import HexMesh, Material, build_model, solve_static
+from sim_core import HexMesh, Material, build_model, kernels, solve_static
 from sim_core.forces import ForceWorkspace, external_forces
-from sim_core import kernels
 from sim_core.integrators import PRECONDITIONERS, ImplicitEuler, make_integrator
 from sim_core.model import State
+from sim_core.static import STATIC_CONTACT_PASSES, same_contact
 
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
 #: by a healthy simulation, that keeps every observation inside the observation space.
 OBS_LIMIT = 100.0
 OBSERVATION_TYPES = ("state", "deformation", "dict")
-INTEGRATORS = ("implicit", "explicit")
+INTEGRATORS = ("implicit", "explicit", "static")
 MODEL_CACHE_SIZE = 16
 
 
@@ -146,7 +146,11 @@ class TissueEnv(gym.Env):
         density: kg/m^3 (default 1060).
         shape: (nx, ny, nz) hexahedra of the block.
         size: (Lx, Ly, Lz) block extent in m (a float gives a cube).
-        integrator: "implicit" (default, linearised implicit Euler) or "explicit" (symplectic Euler,
+        integrator: "implicit" (default, linearised implicit Euler), "static" (a static equilibrium
+            per env step, ``sim_core.static.QuasiStatic``, with a contact's active set iterated
+            to convergence within the step: observations without the dynamic lag, those of the
+            static scene at every tool position, at 10-50x the cost of an implicit step; single
+            envs and ``vectorization_mode="sync"``/``"async"``) or "explicit" (symplectic Euler,
             needs dt below about 1 ms; for experiments on stability).
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
             substeps: physics steps per env step (default 1).
@@ -436,31 +440,54 @@ class TissueEnv(gym.Env):
         return self._observation(self.measures), reward, bool(terminated), False, info
 
     def _advance(self, control):
-        """Run the substeps; on divergence keep the last healthy state and return the reason."""
-        state = self.state
+        """Run the substeps; on divergence keep the last healthy state and return the reason.
+
+        With ``integrator="static"`` a substep is a static equilibrium, and a contact's active set
+        (Palpation's probe, Retraction's floor) is iterated within it: after each solve the task
+        projects the nodes that went through the obstacle (``_after_substep``) and re-forms its
+        control at the new state (``_control``: nodes the tissue pulls away are released, held
+        heights follow the nodes' sliding), and the equilibrium is solved again until the imposed
+        set and heights settle (``sim_core.static.same_contact``; at most STATIC_CONTACT_PASSES
+        solves), so the state is the equilibrium of the contact problem at the tool's position.
+        The implicit integrator updates the set once per step: the dynamics carry it along."""
+        passes = STATIC_CONTACT_PASSES if self.integrator_name == "static" else 1
         for _ in range(self.substeps):
-            scratch = self._scratch
-            try:
-                with np.errstate(all="ignore"):
-                    report = self.integrator.simulate(self.model, state, scratch, self.dt, control)
-                reason = report.unstable_reason
-            except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as error:
-                reason = f"physics error: {error}"
-            if reason is None and not (np.all(np.isfinite(scratch.positions)) and np.all(np.isfinite(scratch.velocities))):
-                reason = "non-finite positions or velocities"
-            if reason is None:
-                self._after_substep(scratch)
-                # A zero-length spring (two nodes on top of each other, e.g. a diverging explicit run
-                # projected on the floor) has no direction: the state is no longer usable.
-                a, b = self.model.springs[:, 0], self.model.springs[:, 1]
-                length = np.linalg.norm(scratch.positions[b] - scratch.positions[a], axis=1)
-                if not np.all(length > 1e-6 * self.model.rest_length):
-                    reason = "collapsed spring (zero length)"
-            if reason is not None:
-                self._scratch = state.copy()
-                return reason
-            self.state, self._scratch = scratch, state
-            state = scratch
+            for attempt in range(passes):
+                reason = self._substep(control)
+                if reason is not None:
+                    return reason
+                if attempt + 1 == passes:
+                    break
+                self.measures = self._measure(self.state)  # the forces that release contact nodes
+                previous, control = control, self._control()
+                self.control = control
+                if same_contact(previous, control):
+                    break
+        return None
+
+    def _substep(self, control):
+        """One integrator step from ``self.state``; returns the reason of a divergence (the state kept)."""
+        state, scratch = self.state, self._scratch
+        try:
+            with np.errstate(all="ignore"):
+                report = self.integrator.simulate(self.model, state, scratch, self.dt, control)
+            reason = report.unstable_reason
+        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as error:
+            reason = f"physics error: {error}"
+        if reason is None and not (np.all(np.isfinite(scratch.positions)) and np.all(np.isfinite(scratch.velocities))):
+            reason = "non-finite positions or velocities"
+        if reason is None:
+            self._after_substep(scratch)
+            # A zero-length spring (two nodes on top of each other, e.g. a diverging explicit run
+            # projected on the floor) has no direction: the state is no longer usable.
+            a, b = self.model.springs[:, 0], self.model.springs[:, 1]
+            length = np.linalg.norm(scratch.positions[b] - scratch.positions[a], axis=1)
+            if not np.all(length > 1e-6 * self.model.rest_length):
+                reason = "collapsed spring (zero length)"
+        if reason is not None:
+            self._scratch = state.copy()
+            return reason
+        self.state, self._scratch = scratch, state
         return None
 
     # -- measurements, observation, info -----------------------------------------------------------

@@ -900,7 +900,8 @@ def make_batched_integrator(name: str, stack: ModelStack, tolerance: float, solv
         return BatchedImplicitEuler(stack, tolerance=tolerance, solver=solver, amortise=amortise)
     if name == "explicit":
         return BatchedSymplecticEuler(stack)
-    raise ValueError(f"integrator must be 'implicit' or 'explicit', got {name!r}")
+    raise ValueError(f"the batched vector env steps integrator 'implicit' or 'explicit', got {name!r}; "
+                     "for 'static' use gym.make_vec(..., vectorization_mode='sync') or 'async'")
 
 
 def new_monitor(model: Model) -> DivergenceMonitor:
