@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Training budget (env steps) per task and algorithm, chosen from pilot runs.
 BUDGET = {
     "tissue_env/TumorPositioning-v0": {"ppo": 15000, "sac": 8000},
-    "tissue_env/Palpation-v0": {"ppo": 180000, "sac": 20000},
+    "tissue_env/Palpation-v0": {"ppo": 180000, "sac": 60000},
     "tissue_env/Retraction-v0": {"ppo": 30000, "sac": 15000},
 }
 
