@@ -149,7 +149,7 @@ class TissueEnv(gym.Env):
         integrator: "implicit" (default, linearised implicit Euler), "static" (a static equilibrium
             per env step, ``sim_core.static.QuasiStatic``, with a contact's active set iterated
             to convergence within the step: observations without the dynamic lag, those of the
-            static scene at every tool position, at 10-50x the cost of an implicit step; single
+            static scene at every tool position, at 2-5x the cost of an implicit step; single
             envs and ``vectorization_mode="sync"``/``"async"``) or "explicit" (symplectic Euler,
             needs dt below about 1 ms; for experiments on stability).
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
