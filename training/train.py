@@ -5,7 +5,7 @@
 
 The run folder runs/<env>/<algo>/seed<S>-<timestamp>/ holds config.json, model.zip,
 vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation), checkpoints/
-(model and normaliser, so an interrupted run resumes without loss with --resume), tb/ (tensorboard)
+(model, normaliser and an off-policy replay buffer, so an interrupted run resumes without loss with --resume), tb/ (tensorboard)
 and result.json. The folder's path is printed as the last line.
 """
 
@@ -133,11 +133,31 @@ def _latest_checkpoint(run_dir: Path):
     return best
 
 
+def _checkpoint_callback():
+    """SB3's CheckpointCallback that also saves an off-policy model's replay buffer (so that a
+    resumed SAC / TD3 run continues with its transitions) and keeps only the latest buffer (one
+    is up to buffer_size transitions: tens of MB)."""
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    class Checkpoints(CheckpointCallback):
+        def _on_step(self) -> bool:
+            result = super()._on_step()
+            buffers = sorted(Path(self.save_path).glob("model_replay_buffer_*_steps.pkl"),
+                             key=lambda path: int(re.search(r"_(\d+)_steps", path.name).group(1)))
+            for old in buffers[:-1]:
+                old.unlink(missing_ok=True)
+            return result
+
+    return Checkpoints
+
+
 def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = True) -> Path:
     import numpy as np
     import torch
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import CallbackList, EvalCallback
     from stable_baselines3.common.noise import NormalActionNoise
+
+    _Checkpoints = _checkpoint_callback()
 
     torch.set_num_threads(int(config["threads"]))
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -159,6 +179,9 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     if checkpoint is not None:
         model = algo_cls.load(str(checkpoint[1]), env=train_env, tensorboard_log=str(run_dir / "tb"))
         done = model.num_timesteps
+        buffer = run_dir / "checkpoints" / f"model_replay_buffer_{checkpoint[0]}_steps.pkl"
+        if buffer.is_file():  # off-policy: continue with the transitions collected so far
+            model.load_replay_buffer(str(buffer))
     else:
         if noise_std is not None:
             n_actions = train_env.action_space.shape[0]
@@ -173,8 +196,8 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     eval_freq = config.get("eval_freq") or max(total // 10, 1)
     checkpoint_freq = config.get("checkpoint_freq") or max(total // 10, 1)
     callbacks = CallbackList([
-        CheckpointCallback(save_freq=max(checkpoint_freq // n_envs, 1), save_path=str(run_dir / "checkpoints"),
-                           name_prefix="model", save_vecnormalize=True),
+        _Checkpoints(save_freq=max(checkpoint_freq // n_envs, 1), save_path=str(run_dir / "checkpoints"),
+                     name_prefix="model", save_vecnormalize=True, save_replay_buffer=True),
         EvalCallback(eval_env, n_eval_episodes=int(config.get("eval_episodes", 5)),
                      eval_freq=max(eval_freq // n_envs, 1), log_path=str(run_dir), best_model_save_path=None,
                      deterministic=True, verbose=0),
