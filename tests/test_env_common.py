@@ -30,8 +30,9 @@ def run(env_id, seed, actions, **kwargs):
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_gymnasium_check_env_without_warnings(env_id):
-    env = gym.make(env_id).unwrapped
+@pytest.mark.parametrize("integrator", ["implicit", "static"])
+def test_gymnasium_check_env_without_warnings(env_id, integrator):
+    env = gym.make(env_id, integrator=integrator).unwrapped
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         gym_check_env(env, skip_render_check=True)
