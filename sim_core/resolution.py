@@ -385,6 +385,15 @@ def _tool_force(scene, tool, contact, reaction):
     return np.where(imposed, reaction, 0.0).sum(axis=0)
 
 
+def _from_surface(obstacle, heights):
+    """``obstacle`` with a projected probe's indentation measured from the node heights ``heights``
+    (n,) m (its projection kept: ``SurfaceProjection.with_reference``); other obstacles as they are."""
+    projection = getattr(obstacle, "projection", None)
+    if projection is None:
+        return obstacle
+    return contact_.Probe(obstacle.radius, obstacle.tip, projection.with_reference(heights))
+
+
 def _solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, rest=None, max_rounds=25,
                         tolerance=1e-9, slide_tolerance=1e-7):
     """Static solve with a frictionless obstacle (``sim_core.contact``: the floor y >= 0 or a probe
@@ -447,8 +456,8 @@ def solve_scene(scene: Scene, shape, *, model="baudet", hourglass_control=0.0, v
             solve, _tool_control(scene, base, nodes, tool, np.zeros(3)), None, obstacle, candidates,
             scene.probe_tip(np.zeros(3)), rest=nodes)
         rest_positions = rest_positions if ok else nodes.copy()
-        if scene.probe is not None:  # the indentation is measured from the start surface, as in Palpation
-            obstacle = scene.obstacle(mesh, candidates, rest_positions[:, 1])
+        # the indentation is measured from the start surface, as in Palpation
+        obstacle = _from_surface(obstacle, rest_positions[:, 1])
     for path in scene.displacements:
         positions = rest_positions
         for displacement in path:
@@ -971,8 +980,7 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
         rest, _, ok, _, _, _ = _solve_with_contact(solve, _tool_control(scene, base, nodes, tool, np.zeros(3)), None,
                                                    obstacle, candidates, scene.probe_tip(np.zeros(3)), rest=nodes)
         rest = rest if ok else nodes.copy()
-        if scene.probe is not None:
-            obstacle = scene.obstacle(mesh, candidates, rest[:, 1])
+        obstacle = _from_surface(obstacle, rest[:, 1])
     rest_volume = float(mesh.element_volumes().sum())
     if integrator not in ("implicit", "static"):
         raise ValueError(f"integrator must be 'implicit' or 'static', got {integrator!r}")
