@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/vector_env_speed.py
 	$(PY) benchmarks/palpation_map.py
 	$(PY) benchmarks/task_gallery.py
+	$(PY) benchmarks/lag_figure.py
 	$(PY) benchmarks/speed_accuracy.py
 
 # MuJoCo flex and PyBullet soft body next to ours (optional extra, not needed by anything else)
