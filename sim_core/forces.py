@@ -167,6 +167,7 @@ class ForceWorkspace:
         self.tension = np.empty(n_springs)
         self.push = np.zeros((n_elements, 3))
         self.forces = np.empty((n_nodes, 3))
+        self._zero_tension = np.zeros(n_springs)  # add_damping's elastic part
         # the implicit step's arrays (empty placeholders for a forces-only workspace)
         n_springs, n_elements, n_nodes = (n_springs, n_elements, n_nodes) if implicit else (0, 0, 0)
         self.geometric = np.zeros(n_springs)
@@ -207,6 +208,15 @@ class ForceWorkspace:
             kernels.bsr3_matvec_add(indptr, indices, values, (positions - self.rest_positions).reshape(-1), -1.0,
                                     self.forces.reshape(-1))
         return self.forces
+
+
+    def add_damping(self, velocities: np.ndarray, forces: np.ndarray) -> np.ndarray:
+        """forces (N, 3) N += the springs' damping forces at ``velocities`` (N, 3) m/s along the unit
+        vectors of the last ``compute``: a pass without damping (an implicit step's, reused by
+        a measurement) completed to the damped forces without a second pass."""
+        kernels.scatter_springs(self.model.springs, self.unit, self._zero_tension, self.model.damping, velocities, True,
+                                forces)
+        return forces
 
 
 def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None,

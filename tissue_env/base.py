@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sim_core import HexMesh, Material, build_model, kernels, solve_static
+from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.forces import ForceWorkspace, external_forces
 from sim_core.integrators import PRECONDITIONERS, ImplicitEuler, make_integrator
 from sim_core.model import State
@@ -501,9 +501,7 @@ class TissueEnv(gym.Env):
                 if isinstance(self.integrator, ImplicitEuler):
                     # the next step's force pass (``ImplicitEuler.linearise``), plus the damping
                     workspace = self.integrator.linearise(model, x)
-                    forces = workspace.forces + external_forces(model, self.control)
-                    kernels.scatter_springs(model.springs, workspace.unit, np.zeros(len(model.springs)),
-                                            model.damping, velocities, True, forces)
+                    forces = workspace.add_damping(velocities, workspace.forces + external_forces(model, self.control))
                 else:
                     workspace = self._measure_workspace
                     if workspace is None or workspace.model is not model:  # one per model

@@ -108,7 +108,6 @@ class TissueVectorEnv(VectorEnv):
 
         self.stack = ModelStack(env.model, count)
         self._forces = StackedForceWorkspace(self.stack, implicit=False)  # the measurements' fused force pass
-        self._no_tension = np.zeros(len(self.stack.model.springs))
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
                                                   self.linear_solver, self.refactor_amortise)
         self.mesh = env.mesh
@@ -347,8 +346,7 @@ class TissueVectorEnv(VectorEnv):
             flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
             if self.share_force_pass and isinstance(self.integrator, BatchedImplicitEuler):
                 forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
-                kernels.scatter_springs(model.springs, self.integrator.workspace.unit, self._no_tension,
-                                        model.damping, flat_velocities, True, forces)  # + damping
+                self.integrator.workspace.add_damping(flat_velocities, forces)
             else:
                 forces = self._forces.compute(flat, flat_velocities)
             forces = forces + model.gravity_force
