@@ -267,9 +267,10 @@ class QuasiStatic:
         self.tolerance, self.max_iterations, self.max_load_steps = float(tolerance), int(max_iterations), int(max_load_steps)
         self.monitor = monitor
         self._factors = _KeptTangent()
+        self._monitor = None  # the integrators' DivergenceMonitor of the last model stepped
 
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None):
-        from .integrators import StepReport, _check_dt
+        from .integrators import DivergenceMonitor, StepReport, _check_dt
 
         dt = _check_dt(dt)
         control = model.new_control() if control is None else control
@@ -279,13 +280,14 @@ class QuasiStatic:
         if result.iterations > REUSE_ITERATIONS:
             self._factors.clear()  # the state moved away from the kept tangent: a fresh one next step
         positions = result.positions
+        state_out.positions, state_out.velocities, state_out.time = positions, np.zeros_like(positions), state_in.time + dt
         reason = None
         if not result.converged:
             reason = f"static solve did not converge ({result.message})"
-        elif self.monitor and kernels.any_inverted(np.ascontiguousarray(positions, dtype=float), model.mesh.elements,
-                                                   CORNER_NEIGHBOURS, CORNER_SIGN):
-            reason = "inverted element (non-positive corner Jacobian)"
-        state_out.positions, state_out.velocities, state_out.time = positions, np.zeros_like(positions), state_in.time + dt
+        elif self.monitor:  # the integrators' checks, element inversion at every step (an equilibrium can jump)
+            if self._monitor is None or self._monitor.model is not model:
+                self._monitor = DivergenceMonitor(model)
+            reason = self._monitor.check(state_out, force_inversion_check=True)
         return StepReport(int(result.iterations), float(result.residual), reason)
 
 

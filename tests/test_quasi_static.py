@@ -125,3 +125,15 @@ def test_kept_tangent_saves_factorisations_not_accuracy(monkeypatch):
     assert len(calls) < steps  # a factorisation per step (or more) without the kept tangent
     fresh = static.solve_static(model, control, initial=model.rest_positions, tolerance=1e-10)
     np.testing.assert_allclose(state.positions, fresh.positions, rtol=0, atol=1e-6 * 0.005)
+
+
+def test_an_inverted_equilibrium_is_reported_not_returned_silently():
+    mesh = HexMesh.block((1, 1, 1), spacing=0.01)
+    model = build_model(mesh, Material(5e3, 0.45, 1060.0))
+    target = mesh.nodes.copy()
+    target[mesh.nodes[:, 1] > 0.005, 1] = -0.01  # the top face imposed below the bottom one
+    control = model.new_control().impose(np.arange(mesh.n_nodes), target)
+    state, out = model.new_state(), model.new_state()
+    report = QuasiStatic().simulate(model, state, out, 0.01, control)
+    assert report.unstable and "inverted element" in report.unstable_reason
+    assert QuasiStatic(monitor=False).simulate(model, state, out, 0.01, control).unstable_reason is None
