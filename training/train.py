@@ -124,10 +124,15 @@ def _normalise(train_env, eval_env, run_dir, normalize, resume_stats=None):
     return train_env, eval_env
 
 
+def _steps(path: Path) -> int:
+    """The env steps in a checkpoint file's name (model_<steps>_steps.zip, model_replay_buffer_<steps>_steps.pkl)."""
+    return int(re.search(r"_(\d+)_steps", path.name).group(1))
+
+
 def _latest_checkpoint(run_dir: Path):
     best = None
     for path in (run_dir / "checkpoints").glob("model_*_steps.zip"):
-        steps = int(re.search(r"model_(\d+)_steps", path.name).group(1))
+        steps = _steps(path)
         if best is None or steps > best[0]:
             best = (steps, path)
     return best
@@ -142,10 +147,10 @@ def _checkpoint_callback():
     class Checkpoints(CheckpointCallback):
         def _on_step(self) -> bool:
             result = super()._on_step()
-            buffers = sorted(Path(self.save_path).glob("model_replay_buffer_*_steps.pkl"),
-                             key=lambda path: int(re.search(r"_(\d+)_steps", path.name).group(1)))
-            for old in buffers[:-1]:
-                old.unlink(missing_ok=True)
+            if self.n_calls % self.save_freq == 0:  # a checkpoint was written at this call
+                buffers = sorted(Path(self.save_path).glob("model_replay_buffer_*_steps.pkl"), key=_steps)
+                for old in buffers[:-1]:
+                    old.unlink(missing_ok=True)
             return result
 
     return Checkpoints
