@@ -195,11 +195,11 @@ class Scene:
         set_("min_shape", min_shape)
 
     # -- contact ----------------------------------------------------------------------------
-    def obstacle(self, mesh=None, candidates=None, reference=None):
+    def obstacle(self, mesh=None, candidates=None):
         """The scene's contact obstacle (``sim_core.contact``): the floor, the probe, or None. A
         probe with ``probe_sampling="projected"`` is projected on the top face of ``mesh`` at its
-        ``candidates`` (n,) bool, its indentation measured from the heights ``reference`` (n,) m
-        (default: rest)."""
+        ``candidates`` (n,) bool, its indentation measured from the rest heights (``_from_surface``
+        measures it from another surface)."""
         if self.floor:
             return contact_.Floor()
         if self.probe is None:
@@ -208,10 +208,8 @@ class Scene:
             return contact_.Probe(self.tool_radius, self.probe)
         if mesh is None:
             raise ValueError("a projected probe needs the scene's mesh and contact candidates")
-        projection = contact_.SurfaceProjection.top_face(mesh, np.flatnonzero(candidates))
-        if reference is not None:
-            projection = projection.with_reference(reference)
-        return contact_.Probe(self.tool_radius, self.probe, projection)
+        return contact_.Probe(self.tool_radius, self.probe,
+                              contact_.SurfaceProjection.top_face(mesh, np.flatnonzero(candidates)))
 
     def probe_tip(self, displacement):
         """(3,) the probe's lowest point (m) at a tool displacement (m); None without a probe."""
