@@ -965,6 +965,8 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
     from .model import State
     from .static import STATIC_CONTACT_PASSES, same_contact
 
+    if integrator not in ("implicit", "static"):
+        raise ValueError(f"integrator must be 'implicit' or 'static', got {integrator!r}")
     mesh, material, fixed, tool, target_nodes, weights = scene.discretise(shape)
     nodes = mesh.nodes
     model = build_model(mesh, material, gravity=(0.0, -scene.gravity, 0.0), hourglass_control=hourglass_control,
@@ -980,8 +982,6 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
         rest = rest if ok else nodes.copy()
         obstacle = _from_surface(obstacle, rest[:, 1])
     rest_volume = float(mesh.element_volumes().sum())
-    if integrator not in ("implicit", "static"):
-        raise ValueError(f"integrator must be 'implicit' or 'static', got {integrator!r}")
     options = dict(solver or {}) if integrator == "static" else dict(tolerance=solver_tolerance, **(solver or {}))
     stepper = make_integrator(integrator, **options)
     passes = STATIC_CONTACT_PASSES if integrator == "static" else 1

@@ -137,3 +137,12 @@ def test_an_inverted_equilibrium_is_reported_not_returned_silently():
     report = QuasiStatic().simulate(model, state, out, 0.01, control)
     assert report.unstable and "inverted element" in report.unstable_reason
     assert QuasiStatic(monitor=False).simulate(model, state, out, 0.01, control).unstable_reason is None
+
+
+def test_dynamic_scene_names_its_integrators():
+    alpha, kappa = env_defaults()
+    with pytest.raises(ValueError, match="integrator must be 'implicit' or 'static', got 'explicit'"):
+        dynamic_scene(palpation_scenes()[0], (4, 2, 4), dt=0.04, substeps=1, max_step=0.004, hold_steps=0,
+                      hourglass_control=alpha, volume_stiffness=kappa, solver_tolerance=1e-2, integrator="explicit")
+    with pytest.raises(ValueError, match="integrator must be one of"):
+        make_integrator("quasistatic")
