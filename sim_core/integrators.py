@@ -569,7 +569,7 @@ class InverseColumns:
         (``kernels._corrected_lu_apply``). None where B[c, c] is singular."""
         z = self.columns(imposed)
         try:
-            return np.ascontiguousarray(z @ np.linalg.inv(z[imposed]))
+            return kernels.serial_product(np.ascontiguousarray(z), np.linalg.inv(z[imposed]))
         except np.linalg.LinAlgError:
             return None
 
