@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 
+import numba
 import numpy as np
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -54,6 +55,20 @@ from .base import observation_arrays
 from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator, new_monitor
 
 
+def _thread_count(threads) -> int:
+    """The vector env's thread count (see ``TissueVectorEnv``), checked; starts numba's pool with
+    sleeping idle threads (``kernels.start_threads``) when it uses more than one."""
+    available = numba.config.NUMBA_NUM_THREADS
+    if threads is None:
+        threads = available
+    elif isinstance(threads, bool) or not float(threads).is_integer() or not 1 <= int(threads) <= available:
+        raise ValueError(f"threads must be None or an integer from 1 to {available} (numba's NUMBA_NUM_THREADS, "
+                         f"the cores it found), got {threads!r}")
+    if int(threads) > 1:
+        kernels.start_threads()
+    return int(threads)
+
+
 class TissueVectorEnv(VectorEnv):
     """Base class of the tasks' vector environments (see the module docstring).
 
@@ -61,6 +76,10 @@ class TissueVectorEnv(VectorEnv):
         num_envs: number of copies N.
         max_episode_steps: truncation length (the registered one when built by ``make_vec``),
             None for none.
+        threads: threads of the batched step's per-copy factorisations and solves (numba's pool;
+            the copies are independent, so the results are the same for any count): None for
+            numba's default (every core, or ``NUMBA_NUM_THREADS``), 1 to keep to one core (several
+            env processes on one machine, e.g. RLlib env runners).
         **kwargs: the task's constructor keywords, the same for every copy.
     """
 
@@ -83,9 +102,11 @@ class TissueVectorEnv(VectorEnv):
     refactor_amortise = None
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None, **kwargs):
+    def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None, threads: int | None = None,
+                 **kwargs):
         if isinstance(num_envs, bool) or not float(num_envs).is_integer() or int(num_envs) < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        self.threads = _thread_count(threads)
         if max_episode_steps is not None and int(max_episode_steps) < 1:
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_episode_steps!r}")
         if kwargs.get("render_mode") == "human":
@@ -231,6 +252,14 @@ class TissueVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started:
             raise RuntimeError("call reset() before step()")
+        previous = numba.get_num_threads()
+        numba.set_num_threads(self.threads)
+        try:
+            return self._step(actions)
+        finally:
+            numba.set_num_threads(previous)
+
+    def _step(self, actions):
         count = self.num_envs
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (count, 3):
