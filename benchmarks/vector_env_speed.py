@@ -1,20 +1,25 @@
 """Env steps per second of the batched vector envs against gymnasium's SyncVectorEnv.
 
 Usage: python benchmarks/vector_env_speed.py [--num-envs 16 ...] [--steps 100] [--rounds 3] [--env ID ...]
-       [--no-reset] [--output benchmarks/results/vector_env_speed.json]
+       [--no-reset] [--async] [--output benchmarks/results/vector_env_speed.json]
 
 For each task with a ``vector_entry_point`` and each N: ``gym.make_vec(id, num_envs=N,
-vectorization_mode="sync")`` (N single envs stepped one after the other) against
-``vectorization_mode="vector_entry_point"`` (one batched physics step, ``tissue_env.vector``),
-same seeds and the same random actions, one process, registered episode lengths (random actions
-end almost every episode by truncation, so resets are included; ``--no-reset`` adds a regime with
-``max_episode_steps`` = 10^6). Both modes reset a copy by the task env's own ``reset`` (the same
-code and cost), timed separately: the share of resets is reported.
+vectorization_mode="sync")`` (N single envs stepped one after the other, one core) against
+``vectorization_mode="vector_entry_point"`` (one batched physics step, ``tissue_env.vector``), once
+with ``threads=1`` (one core: what batching alone gives) and once with numba's default threads (every
+core: the per-copy factorisations and solves in parallel), same seeds and the same random actions,
+one process, registered episode lengths (random actions end almost every episode by truncation, so
+resets are included; ``--no-reset`` adds a regime with ``max_episode_steps`` = 10^6). ``--async``
+adds ``vectorization_mode="async"`` (one process per copy, wall time only). All modes reset a copy
+by the task env's own ``reset`` (the same code and cost), timed separately: the share of resets is
+reported.
 
-Rates are env steps (N x vector steps) per second of this process's CPU time, so that other jobs
-on a shared machine count less; the two modes alternate within every round (sync, vector, sync,
-vector ...) and the table gives the medians over ``--rounds`` rounds and the median of the
-per-round ratios. Results are written to ``--output`` (JSON, replaced atomically).
+Two rates per mode: env steps (N x vector steps) per second of wall time, the issue's measure and
+what a user waits for, and per second of this process's CPU time (all its threads), which other
+jobs on a shared machine disturb less. The modes alternate within every round (sync, vector ...)
+and the table gives the medians over ``--rounds`` rounds and the medians of the per-round ratios:
+wall ratios against sync for the threaded vector env, CPU ratios for ``threads=1``. Results are
+written to ``--output`` (JSON, replaced atomically).
 """
 
 import argparse
@@ -26,13 +31,17 @@ import tempfile
 import time
 
 import gymnasium as gym
+import numba
 import numpy as np
 
 import tissue_env
 from tissue_env.base import TissueEnv
 
 RESET_SECONDS = [0.0]
-MODES = ("sync", "vector_entry_point")
+#: (label, vectorization_mode, extra make_vec keywords)
+MODES = (("sync", "sync", {}), ("vector 1 thread", "vector_entry_point", dict(threads=1)),
+         ("vector", "vector_entry_point", {}))
+ASYNC = ("async", "async", {})
 
 
 def _timed_reset(reset):
@@ -50,23 +59,23 @@ TissueEnv.reset = _timed_reset(TissueEnv.reset)
 
 
 def rate(env_id, mode, num_envs, steps, seed=0, **kwargs):
-    """(env steps per CPU second, share of the time spent in resets) for ``steps`` vector steps of
-    random actions."""
+    """(env steps per wall second, per CPU second of this process, share of the CPU time spent in
+    resets) for ``steps`` vector steps of random actions."""
     envs = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode, **kwargs)
     rng = np.random.default_rng(seed)
     actions = rng.uniform(-1.0, 1.0, (steps, num_envs, 3)).astype(np.float32)
     envs.reset(seed=seed)
-    for action in actions[:3]:  # warm up: compiled kernels, caches
+    for action in actions[:3]:  # warm up: compiled kernels, caches, threads
         envs.step(action)
     envs.reset(seed=seed)
     RESET_SECONDS[0] = 0.0
-    start = time.process_time()
+    start, wall = time.process_time(), time.perf_counter()
     for action in actions:
         envs.step(action)
-    elapsed = time.process_time() - start
+    elapsed, wall = time.process_time() - start, time.perf_counter() - wall
     resets = RESET_SECONDS[0]
     envs.close()
-    return num_envs * steps / elapsed, resets / elapsed
+    return num_envs * steps / wall, num_envs * steps / elapsed, resets / elapsed
 
 
 def write_json(path, payload):
@@ -87,35 +96,45 @@ def main():
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--env", nargs="*", default=sorted(tissue_env.VECTOR_ENTRY_POINTS))
     parser.add_argument("--no-reset", action="store_true", help="also measure episodes that never end")
+    parser.add_argument("--async", dest="with_async", action="store_true",
+                        help="also measure vectorization_mode='async' (one process per copy; slow to start)")
     parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results", "vector_env_speed.json"))
     args = parser.parse_args()
     regimes = [("registered", {})] + ([("no reset", dict(max_episode_steps=10**6))] if args.no_reset else [])
-    print(f"{args.steps} vector steps, random actions, median of {args.rounds} interleaved rounds; "
-          "env steps per CPU second")
-    print(f"{'env id':32s} {'N':>3s} {'episodes':>10s} | {'sync':>6s} {'vector':>6s} {'ratio':>5s} | resets sync / vector")
+    modes = MODES + ((ASYNC,) if args.with_async else ())
+    print(f"{args.steps} vector steps, random actions, median of {args.rounds} interleaved rounds, "
+          f"{numba.config.NUMBA_NUM_THREADS} threads; env steps per wall second (per CPU second)")
+    print(f"{'env id':32s} {'N':>3s} {'episodes':>10s} | " + " | ".join(f"{label:>15s}" for label, _, _ in modes)
+          + " | vector / sync wall, 1 thread / sync CPU")
     rows = []
     for env_id in args.env:
         for num_envs in args.num_envs:
-            for label, kwargs in regimes:
-                results = {mode: [] for mode in MODES}
+            for regime, regime_kwargs in regimes:
+                results = {label: [] for label, _, _ in modes}
                 for _ in range(args.rounds):
-                    for mode in MODES:
-                        results[mode].append(rate(env_id, mode, num_envs, args.steps, **kwargs))
-                sync = np.array(results["sync"])
-                vector = np.array(results["vector_entry_point"])
-                row = dict(env_id=env_id, num_envs=num_envs, episodes=label, steps=args.steps, rounds=args.rounds,
-                           sync_steps_per_s=float(np.median(sync[:, 0])),
-                           vector_steps_per_s=float(np.median(vector[:, 0])),
-                           ratio=float(np.median(vector[:, 0] / sync[:, 0])),
-                           sync_reset_share=float(np.median(sync[:, 1])),
-                           vector_reset_share=float(np.median(vector[:, 1])),
-                           sync_rounds=sync[:, 0].tolist(), vector_rounds=vector[:, 0].tolist())
+                    for label, mode, kwargs in modes:
+                        results[label].append(rate(env_id, mode, num_envs, args.steps, **kwargs, **regime_kwargs))
+                runs = {label: np.array(values) for label, values in results.items()}
+                sync, single, vector = runs["sync"], runs["vector 1 thread"], runs["vector"]
+                row = dict(env_id=env_id, num_envs=num_envs, episodes=regime, steps=args.steps, rounds=args.rounds,
+                           threads=numba.config.NUMBA_NUM_THREADS,
+                           modes={label: dict(wall_steps_per_s=float(np.median(run[:, 0])),
+                                              cpu_steps_per_s=float(np.median(run[:, 1])),
+                                              reset_share=float(np.median(run[:, 2])),
+                                              wall_rounds=run[:, 0].tolist(), cpu_rounds=run[:, 1].tolist())
+                                  for label, run in runs.items()},
+                           wall_ratio=float(np.median(vector[:, 0] / sync[:, 0])),
+                           cpu_ratio_one_thread=float(np.median(single[:, 1] / sync[:, 1])))
+                if args.with_async:
+                    row["async_wall_ratio"] = float(np.median(vector[:, 0] / runs["async"][:, 0]))
                 rows.append(row)
-                print(f"{env_id:32s} {num_envs:3d} {label:>10s} | {row['sync_steps_per_s']:6.0f}"
-                      f" {row['vector_steps_per_s']:6.0f} {row['ratio']:4.1f}x |"
-                      f" {row['sync_reset_share']:5.0%} / {row['vector_reset_share']:5.0%}", flush=True)
+                cells = " | ".join(f"{row['modes'][label]['wall_steps_per_s']:6.0f} ({row['modes'][label]['cpu_steps_per_s']:5.0f})"
+                                   for label, _, _ in modes)
+                print(f"{env_id:32s} {num_envs:3d} {regime:>10s} | {cells} | {row['wall_ratio']:4.1f}x,"
+                      f" {row['cpu_ratio_one_thread']:4.1f}x", flush=True)
                 write_json(args.output, dict(
-                    benchmark="vector_env_speed", unit="env steps per CPU second (median of interleaved rounds)",
+                    benchmark="vector_env_speed",
+                    unit="env steps per wall second and per CPU second of the process (medians of interleaved rounds)",
                     machine=dict(cpus=os.cpu_count(), platform=platform.platform()),
                     load_average=os.getloadavg(), results=rows))
 

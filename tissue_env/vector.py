@@ -57,15 +57,15 @@ from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, ma
 
 def _thread_count(threads) -> int:
     """The vector env's thread count (see ``TissueVectorEnv``), checked; starts numba's pool with
-    sleeping idle threads (``kernels.start_threads``) when it uses more than one."""
+    sleeping idle threads (``kernels.start_threads``: the parallel kernels start it with one thread
+    too)."""
     available = numba.config.NUMBA_NUM_THREADS
     if threads is None:
         threads = available
     elif isinstance(threads, bool) or not float(threads).is_integer() or not 1 <= int(threads) <= available:
         raise ValueError(f"threads must be None or an integer from 1 to {available} (numba's NUMBA_NUM_THREADS, "
                          f"the cores it found), got {threads!r}")
-    if int(threads) > 1:
-        kernels.start_threads()
+    kernels.start_threads()
     return int(threads)
 
 

@@ -176,7 +176,8 @@ def make_tissue_env(env_id: str, env_config):
     """RLlib env creator. Imports tissue_env here, so that a fresh remote worker registers the
     gymnasium ids before ``gym.make``. RLlib adds ``num_envs`` to the config when it asks for a
     vector env (``gym_env_vectorize_mode=VECTOR_ENTRY_POINT``): then the task's batched vector env
-    is built."""
+    is built, on one thread unless ``env_config`` asks for more (``threads``): the env runners are
+    the parallel processes, as torch is kept to one thread in each."""
     import gymnasium as gym
 
     import tissue_env  # noqa: F401  (registers the tasks in this process)
@@ -185,6 +186,7 @@ def make_tissue_env(env_id: str, env_config):
     kwargs = dict(env_config or {})
     num_envs = kwargs.pop("num_envs", None)
     if num_envs is not None:
+        kwargs.setdefault("threads", 1)
         return gym.make_vec(env_id, num_envs=int(num_envs), vectorization_mode="vector_entry_point", **kwargs)
     return gym.make(env_id, **kwargs)
 
