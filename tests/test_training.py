@@ -105,3 +105,16 @@ def test_sac_checkpoints_keep_the_latest_replay_buffer_and_resume_with_it(tmp_pa
     # the transitions before the interruption were kept (SB3 saves a checkpoint before it stores that
     # step's transition: 199 + 99); without the saved buffer the resumed run would hold 99
     assert buffer.size() == 298
+
+
+def test_rllib_runners_build_their_vector_envs_on_one_thread():
+    """An RLlib env runner's batched vector env keeps to one thread (the runners are the parallel
+    processes) unless env_config asks for more; this needs no Ray."""
+    from training.rllib import make_tissue_env
+    env = make_tissue_env("tissue_env/Palpation-v0", {"num_envs": 2})
+    assert env.unwrapped.threads == 1
+    env.close()
+    if __import__("numba").config.NUMBA_NUM_THREADS >= 2:
+        env = make_tissue_env("tissue_env/Palpation-v0", {"num_envs": 2, "threads": 2})
+        assert env.unwrapped.threads == 2
+        env.close()

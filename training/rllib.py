@@ -139,9 +139,10 @@ def _validated(args):
     if args.address is not None and args.num_cpus is not None:
         raise UsageError("--num-cpus sizes the local Ray instance; it cannot be combined with --address")
     env_kwargs = parse_env_kwargs(args.env_kwargs)
-    if env_kwargs:  # fail here, not in a remote worker
+    if env_kwargs:  # fail here, not in a remote worker; the runners' vector env takes threads=
+        vector = args.num_envs_per_env_runner > 1
         try:
-            make_tissue_env(args.env, env_kwargs).close()
+            make_tissue_env(args.env, dict(env_kwargs, num_envs=2) if vector else env_kwargs).close()
         except (TypeError, ValueError) as error:
             raise UsageError(f"--env-kwargs rejected by {args.env}: {error}") from error
     hyperparams = rllib_hyperparams(args.env, args.config)
