@@ -78,6 +78,21 @@ def rate(env_id, mode, num_envs, steps, seed=0, **kwargs):
     return num_envs * steps / wall, num_envs * steps / elapsed, resets / elapsed
 
 
+def _summary(run, own_cpu):
+    """Medians of one mode's rounds (wall, CPU, reset share); the CPU rates only where the work is
+    this process's (not async's worker processes)."""
+    summary = dict(wall_steps_per_s=float(np.median(run[:, 0])), wall_rounds=run[:, 0].tolist())
+    if own_cpu:
+        summary.update(cpu_steps_per_s=float(np.median(run[:, 1])), cpu_rounds=run[:, 1].tolist(),
+                       reset_share=float(np.median(run[:, 2])))
+    return summary
+
+
+def _cell(summary):
+    cpu = summary.get("cpu_steps_per_s")
+    return f"{summary['wall_steps_per_s']:6.0f} " + (f"({cpu:5.0f})" if cpu is not None else "( wall)")
+
+
 def write_json(path, payload):
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
@@ -118,18 +133,13 @@ def main():
                 sync, single, vector = runs["sync"], runs["vector 1 thread"], runs["vector"]
                 row = dict(env_id=env_id, num_envs=num_envs, episodes=regime, steps=args.steps, rounds=args.rounds,
                            threads=numba.config.NUMBA_NUM_THREADS,
-                           modes={label: dict(wall_steps_per_s=float(np.median(run[:, 0])),
-                                              cpu_steps_per_s=float(np.median(run[:, 1])),
-                                              reset_share=float(np.median(run[:, 2])),
-                                              wall_rounds=run[:, 0].tolist(), cpu_rounds=run[:, 1].tolist())
-                                  for label, run in runs.items()},
+                           modes={label: _summary(run, label != "async") for label, run in runs.items()},
                            wall_ratio=float(np.median(vector[:, 0] / sync[:, 0])),
                            cpu_ratio_one_thread=float(np.median(single[:, 1] / sync[:, 1])))
                 if args.with_async:
                     row["async_wall_ratio"] = float(np.median(vector[:, 0] / runs["async"][:, 0]))
                 rows.append(row)
-                cells = " | ".join(f"{row['modes'][label]['wall_steps_per_s']:6.0f} ({row['modes'][label]['cpu_steps_per_s']:5.0f})"
-                                   for label, _, _ in modes)
+                cells = " | ".join(_cell(row["modes"][label]) for label, _, _ in modes)
                 print(f"{env_id:32s} {num_envs:3d} {regime:>10s} | {cells} | {row['wall_ratio']:4.1f}x,"
                       f" {row['cpu_ratio_one_thread']:4.1f}x", flush=True)
                 write_json(args.output, dict(

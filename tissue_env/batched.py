@@ -26,8 +26,9 @@ matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator
 and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does (a node-block LU restricted exactly
 to a contact's newly imposed dofs by a capacitance correction; the copies a step re-factorises are
 assembled and factorised in one compiled call, ``kernels.factor_copies``), and the copies' BiCGSTABs run
-one after the other in one compiled call (``kernels.solve_copies_lu``): no copy waits for the
-slowest, 1-5 iterations per copy. Solver "reference": the sparse LU of the copy's system matrix at
+in one compiled call (``kernels.solve_copies_lu``): no copy waits for the slowest, 1-5 iterations
+per copy. Both calls share the copies among numba's threads (``numba.get_num_threads()``, set by the
+vector env's ``threads``), each copy with its own scratch, so any thread count gives the same floats. Solver "reference": the sparse LU of the copy's system matrix at
 the start of its episode, applied by triangular solves: in dense 3 x 3 node blocks when the free
 dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a node ordering), else as the
 factorised solver's scalar factor. Copies that start alike share one factor (one cache entry), and

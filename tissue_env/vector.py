@@ -20,22 +20,21 @@ same episodes, and their trajectories agree up to the linear solvers' tolerance
 (tests/test_env_vector.py). Only the per-step work is batched. A task provides the vectorised
 counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
-Measured at N = 16 against ``vectorization_mode="sync"`` with the single envs' "auto"
-preconditioner (benchmarks/vector_env_speed.py, random actions, registered episode lengths, env
-steps per CPU second, median of 3 interleaved rounds on a shared VM; the README's run, at the
-defaults): TumorPositioning 1.7x at (7, 7, 7) (585 against 335; solver "reference", one node-block
-LU shared by the copies), Palpation 1.4x (993 against 710) and Retraction 1.1x at (12, 2, 6) (375
-against 327; 2.8x at (8, 2, 4) before the single envs' hourglass speed-up), both with per-copy
-node-block LUs capacitance-corrected for their contacts (solver "factorised"); every task measures with the next
-step's force pass (``share_force_pass``). The force pass reads one copy's hourglass matrix for all
-copies (``batched.StackedForceWorkspace``), the per-copy solves read it in node blocks, and the
-copies a step re-factorises are assembled and factorised in one compiled call
-(``kernels.factor_copies``). Each copy's step is its own LU solves, operator products and
-factorisations (Retraction's floor re-factorises at about two steps in three, 46% of its vector
-env's time), which batching does not share; the vector env saves the Python work and memory
-traffic around them. TumorPositioning's
-resets, a static solve for the goal, cost the same in both modes and are 31% of the vector env's
-time.
+Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
+actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
+README's run): env steps per wall second, sync -> vector env, TumorPositioning 379 -> 659 (1.7x),
+Palpation 780 -> 1396 (1.8x), Retraction 384 -> 1093 (2.9x); on one thread (``threads=1``) the
+vector env does 1.7 / 1.3 / 1.9x the sync env's steps per CPU second. TumorPositioning's copies
+are solved in lockstep with one node-block LU of the start matrix that they share (solver
+"reference"); Palpation's and Retraction's each have their own node-block LU, capacitance-corrected
+for their contacts (solver "factorised"), whose factorisations (``kernels.factor_copies``) and
+BiCGSTABs (``kernels.solve_copies_lu``) run on numba's threads, a copy per thread at a time (the
+lockstep gains nothing from threads: its cost is the shared factor's passes, read once for all
+copies). Every task measures with the next step's force pass (``share_force_pass``), the force pass
+reads one copy's hourglass matrix for all copies (``batched.StackedForceWorkspace``) and the per-copy
+solves read it in node blocks. What batching cannot share is each copy's own sparse algebra
+(Retraction's floor re-factorises at about two steps in three) and TumorPositioning's resets (a
+static solve for the goal, the same code in both modes, about 30% of its vector env's time).
 """
 
 from __future__ import annotations
