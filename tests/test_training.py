@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ENV = "tissue_env/TumorPositioning-v0"
@@ -118,3 +119,63 @@ def test_rllib_runners_build_their_vector_envs_on_one_thread():
         env = make_tissue_env("tissue_env/Palpation-v0", {"num_envs": 2, "threads": 2})
         assert env.unwrapped.threads == 2
         env.close()
+
+
+@pytest.mark.parametrize("env_id", ["tissue_env/Retraction-v0", "tissue_env/Palpation-v0"])
+def test_batched_vec_env_steps_the_episodes_of_make_vec_env(env_id):
+    """``training.vec_env.BatchedVecEnv`` (stable-baselines3 on the batched vector env) with seed s
+    draws the episodes of ``make_vec_env``'s DummyVecEnv with seed s and follows them (solver
+    tolerance 1e-9: observations within 1e-4), with SB3's same-step reset: the same dones, the
+    terminal observation and TimeLimit.truncated in the info, the next episode's first observation
+    returned, is_success reported (3 copies, episodes of 12 steps, 30 steps)."""
+    import functools
+
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from training.common import make_env
+    from training.vec_env import BatchedVecEnv
+
+    kwargs = dict(solver_tolerance=1e-9, max_episode_steps=12)
+    batched = BatchedVecEnv(env_id, 3, kwargs)
+    reference = make_vec_env(functools.partial(make_env, env_id), n_envs=3, seed=7, vec_env_cls=DummyVecEnv,
+                             env_kwargs=kwargs)
+    batched.seed(7)
+    np.testing.assert_array_equal(batched.reset(), reference.reset())
+    rng = np.random.default_rng(0)
+    ends = 0
+    for _ in range(30):
+        actions = rng.uniform(-1, 1, (3, 3)).astype(np.float32)
+        obs, rewards, dones, infos = batched.step(actions)
+        ref_obs, ref_rewards, ref_dones, ref_infos = reference.step(actions)
+        np.testing.assert_array_equal(dones, ref_dones)
+        np.testing.assert_allclose(obs, ref_obs, atol=1e-4, rtol=0)
+        np.testing.assert_allclose(rewards, ref_rewards, atol=1e-4, rtol=0)
+        for info, ref_info, done in zip(infos, ref_infos, dones):
+            assert info["is_success"] == ref_info["is_success"]
+            if done:
+                ends += 1
+                assert info["TimeLimit.truncated"] == ref_info["TimeLimit.truncated"]
+                np.testing.assert_allclose(info["terminal_observation"], ref_info["terminal_observation"], atol=1e-4)
+    assert ends >= 6
+    batched.close()
+    reference.close()
+
+
+def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_path):
+    """--vec-env batched trains PPO on the batched vector env; its VecMonitor CSV gets the episodes,
+    and a resumed run appends to it."""
+    common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "10000", "--checkpoint-freq", "128")
+    code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "2",
+                         "--n-envs", "2", "--vec-env", "batched", "--runs-dir", str(tmp_path), "--config",
+                         str(_small_config(tmp_path)), "--env-kwargs", '{"max_episode_steps": 16}', *common)
+    assert code == 0, err
+    run_dir = Path(out.strip().splitlines()[-1])
+    monitor = run_dir / "monitor" / "batched.monitor.csv"
+    first = monitor.read_text().splitlines()
+    assert len(first) - 2 >= 256 // 16 - 2  # header lines, then about one episode per 16 steps
+    assert json.loads((run_dir / "config.json").read_text())["vec_env"] == "batched"
+    code, out, err = run("training.train", "--resume", str(run_dir), "--timesteps", "384", *common)
+    assert code == 0, err
+    again = monitor.read_text().splitlines()
+    assert again[:len(first)] == first and len(again) > len(first)

@@ -1,7 +1,7 @@
 """Train a stable-baselines3 agent on a registered environment.
 
     python -m training.train --env tissue_env/TumorPositioning-v0 --algo ppo --timesteps 50000 --seed 0 [--n-envs 4]
-        [--config FILE] [--resume RUN_DIR] [--runs-dir runs] [--vec-env dummy|subproc] [--threads 1]
+        [--config FILE] [--resume RUN_DIR] [--runs-dir runs] [--vec-env dummy|subproc|batched] [--threads 1]
 
 The run folder runs/<env>/<algo>/seed<S>-<timestamp>/ holds config.json, model.zip,
 vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation), checkpoints/
@@ -41,9 +41,10 @@ def parse_args(argv=None):
     parser.add_argument("--resume", default=None, metavar="RUN_DIR",
                         help="continue an interrupted run from its latest checkpoint (--timesteps: new total)")
     parser.add_argument("--runs-dir", default="runs")
-    parser.add_argument("--vec-env", choices=("auto", "dummy", "subproc"), default="auto",
+    parser.add_argument("--vec-env", choices=("auto", "dummy", "subproc", "batched"), default="auto",
                         help="auto: SubprocVecEnv when --n-envs > 1 (PPO, 4 envs, 4096 steps on 2 idle "
-                             "cores: 9.5 s against 11.4 s with DummyVecEnv), else DummyVecEnv")
+                             "cores: 9.5 s against 11.4 s with DummyVecEnv), else DummyVecEnv; batched: the "
+                             "task's batched vector env in this process (training.vec_env.BatchedVecEnv)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: PPO ran 20x slower with 2)")
     parser.add_argument("--eval-freq", type=int, default=None, help="env steps between evaluations")
     parser.add_argument("--eval-episodes", type=int, default=5)
@@ -88,6 +89,12 @@ def _validated(args):
         run_dir = run_dir.with_name(f"seed{args.seed}-{stamp}-{suffix}")
         suffix += 1
     vec_env = args.vec_env if args.vec_env != "auto" else ("subproc" if n_envs > 1 else "dummy")
+    if vec_env == "batched":
+        import tissue_env
+
+        if args.env not in tissue_env.VECTOR_ENTRY_POINTS:
+            raise UsageError(f"--vec-env batched needs a task with a batched vector env, one of "
+                             f"{', '.join(sorted(tissue_env.VECTOR_ENTRY_POINTS))}; got {args.env}")
     config = dict(env=args.env, algo=args.algo, timesteps=args.timesteps, seed=args.seed, n_envs=n_envs,
                   vec_env=vec_env, threads=args.threads, env_kwargs=env_kwargs, hyperparams=hyperparams,
                   eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq)
@@ -101,9 +108,17 @@ def _make_envs(config, run_dir, seed_offset=0, resume=False):
     vec_cls = SubprocVecEnv if config["vec_env"] == "subproc" else DummyVecEnv
     monitor_dir = str(run_dir / "monitor")
     factory = functools.partial(make_env, config["env"])
-    train_env = make_vec_env(factory, n_envs=config["n_envs"], seed=config["seed"] + seed_offset,
-                             vec_env_cls=vec_cls, monitor_dir=monitor_dir, env_kwargs=config["env_kwargs"],
-                             monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
+    if config["vec_env"] == "batched":
+        from .vec_env import BatchedVecEnv, monitored
+
+        Path(monitor_dir).mkdir(parents=True, exist_ok=True)
+        train_env = monitored(BatchedVecEnv(config["env"], config["n_envs"], config["env_kwargs"]),
+                              str(Path(monitor_dir) / "batched"), append=resume)
+        train_env.seed(config["seed"] + seed_offset)
+    else:
+        train_env = make_vec_env(factory, n_envs=config["n_envs"], seed=config["seed"] + seed_offset,
+                                 vec_env_cls=vec_cls, monitor_dir=monitor_dir, env_kwargs=config["env_kwargs"],
+                                 monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
     eval_env = make_vec_env(factory, n_envs=1, seed=config["seed"] + 10_000, vec_env_cls=DummyVecEnv,
                             env_kwargs=config["env_kwargs"])
     return train_env, eval_env
