@@ -39,6 +39,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/dynamic_convergence.py --damping-ratio 3 --output benchmarks/results/dynamic_convergence_damping3.json
 	$(PY) benchmarks/dynamic_convergence.py --integrator static --output benchmarks/results/dynamic_convergence_static.json
 	$(PY) benchmarks/vector_env_speed.py
+	$(PY) benchmarks/vector_env_speed.py --async --rounds 2 --output benchmarks/results/vector_env_speed_async.json
+	$(PY) benchmarks/training_speed.py
 	$(PY) benchmarks/palpation_map.py
 	$(PY) benchmarks/task_gallery.py
 	$(PY) benchmarks/lag_figure.py
