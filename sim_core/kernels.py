@@ -7,6 +7,8 @@ tests compare these kernels with; formulas cite shared/physics.md. SI units.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 from numba import njit, prange
 
@@ -1685,15 +1687,16 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
                     lu_float, factor_of, corrections, imposed, work, solution, iterations, residual,
                     hg_block_indptr, hg_block_indices, hg_block_rows):
     """Each ``active`` copy's right-preconditioned BiCGSTAB (``solve_springs``' algorithm and stopping
-    test ||r|| <= tolerance ||b||), one copy after the other (no lockstep: a copy costs its own
-    iterations), preconditioned by its sparse LU ``factor_of[c]`` restricted to its free dofs
+    test ||r|| <= tolerance ||b||), the copies shared among numba's threads, each with its own
+    scratch (no lockstep: a copy costs its own iterations; ``work`` (8, 3 n) serves a single copy),
+    preconditioned by its sparse LU ``factor_of[c]`` restricted to its free dofs
     ``mask[c]``, with the capacitance correction ``corrections[c]`` (3 n, k) for the dofs
     ``imposed[c]`` (k,) that are free in the factor but imposed now (``_corrected_lu_apply``; k = 0:
     the factor masked, ``_lu_apply``), and stopped after ``limits[c]`` iterations. ``stacked``:
     ``apply_operator``'s data of the N-copy stacked model (copies first: copy c's springs, elements
     and nodes are the c-th equal slices; topology arrays springs, elements, edge_spring, hg_indptr,
     hg_indices of ONE copy), its hourglass values per copy group ``hg_rows`` (G, nnz) and
-    ``hg_group`` (N,). Vectors (N, 3 n); ``work`` (8, 3 n). Writes solution (NaN rows for a
+    ``hg_group`` (N,). Vectors (N, 3 n). Writes solution (NaN rows for a
     non-finite right-hand side), iterations and residual (N,). The operator products read the
     hourglass matrix in node blocks (``_apply_blocks``): ``hg_block_indptr``, ``hg_block_indices``
     and each group's block values ``hg_block_rows`` (G, 9 nb) (``hg_rows`` is the CSR form of the
@@ -1892,7 +1895,9 @@ def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_
     assembly is ``operator_matrix_data_blocks`` (the same matrix up to rounding, faster); empty
     (0, 8, 3): ``operator_matrix_data``. A factor that succeeds is a new array
     ``lu_float[c]``, with ``lu_int[c] = ints`` (the structure's packed header); ``ok[t]`` False (and
-    ``lu_int``/``lu_float`` untouched) where a pivot is zero or not finite."""
+    ``lu_int``/``lu_float`` untouched) where a pivot is zero or not finite. The copies are shared
+    among numba's threads, each with its own scratch (``values``, ``a_values``, ``work`` serve a
+    single copy); the factors are stored after the parallel loop."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
      delta) = stacked
@@ -2009,18 +2014,18 @@ def serial_product(a, b):
 
 @njit(cache=True, parallel=True)
 def _touch_threads(out):
+    """A parallel loop: its first call starts numba's thread pool (``start_threads``)."""
     for i in prange(out.shape[0]):
         out[i] = i
 
 
 def start_threads():
-    """Start numba's thread pool (the parallel kernels: ``factor_copies``, ``solve_copies_lu``,
-    ``batched_solve_chunks``) with waiting threads that sleep rather than spin: with numba's OpenMP
+    """Start numba's thread pool (the parallel kernels: ``factor_copies``, ``solve_copies_lu``) with
+    waiting threads that sleep rather than spin: with numba's OpenMP
     layer, GNU OpenMP reads ``OMP_WAIT_POLICY`` once, when it loads, and by default its idle threads
     spin between parallel regions (the vector envs at N = 16 then used 2.0 CPU s per wall second on
     2 cores, against 1.4-1.6 with PASSIVE at the same wall time). The variable is set for the load
     only, and only when the user has not set it; a pool already started is left as it is."""
-    import os
     unset = "OMP_WAIT_POLICY" not in os.environ
     if unset:
         os.environ["OMP_WAIT_POLICY"] = "PASSIVE"

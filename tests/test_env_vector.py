@@ -355,3 +355,17 @@ def test_threads_give_the_same_trajectories_bit_for_bit(env_id):
 def test_invalid_threads(threads):
     with pytest.raises(ValueError, match="threads must be None or an integer from 1 to"):
         gym.make_vec(VECTOR_IDS[0], num_envs=2, vectorization_mode="vector_entry_point", threads=threads)
+
+
+def test_starting_the_threads_leaves_the_environment_as_it_was(monkeypatch):
+    """``kernels.start_threads`` sets OMP_WAIT_POLICY=PASSIVE only while numba's pool loads: the
+    variable is absent afterwards when it was absent, and a user's own value is kept."""
+    import os
+
+    from sim_core import kernels
+    monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    kernels.start_threads()
+    assert "OMP_WAIT_POLICY" not in os.environ
+    monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
+    kernels.start_threads()
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
