@@ -41,6 +41,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/vector_env_speed.py
 	$(PY) benchmarks/vector_env_speed.py --async --rounds 2 --output benchmarks/results/vector_env_speed_async.json
 	$(PY) benchmarks/training_speed.py
+	$(PY) benchmarks/vector_figure.py
 	$(PY) benchmarks/palpation_map.py
 	$(PY) benchmarks/task_gallery.py
 	$(PY) benchmarks/lag_figure.py
