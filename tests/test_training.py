@@ -179,3 +179,15 @@ def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_
     assert code == 0, err
     again = monitor.read_text().splitlines()
     assert again[:len(first)] == first and len(again) > len(first)
+
+
+def test_batched_vec_env_input_errors():
+    """A task without a batched vector env, and per-copy reset options, are refused with what is allowed."""
+    from training.vec_env import BatchedVecEnv
+    with pytest.raises(ValueError, match="has no batched vector env; those with one"):
+        BatchedVecEnv("CartPole-v1", 2)
+    envs = BatchedVecEnv(ENV, 2)
+    envs.set_options([{"x": 1}, {}])
+    with pytest.raises(ValueError, match="same options"):
+        envs.reset()
+    envs.close()

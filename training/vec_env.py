@@ -50,7 +50,11 @@ class BatchedVecEnv(VecEnv):
     # -- stepping -------------------------------------------------------------------------------------
     def reset(self):
         seed = self._seeds[0]
-        observations, infos = self.vector_env.reset(seed=seed)
+        options = self._options[0]
+        if any(other != options for other in self._options):
+            raise ValueError("BatchedVecEnv resets every copy with the same options (set_options with one "
+                             f"dict); got {self._options}")
+        observations, infos = self.vector_env.reset(seed=seed, options=options or None)
         self.reset_infos = self._split(infos)
         self._reset_seeds()
         self._reset_options()
