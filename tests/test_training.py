@@ -163,9 +163,10 @@ def test_batched_vec_env_steps_the_episodes_of_make_vec_env(env_id):
 
 
 def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_path):
-    """--vec-env batched trains PPO on the batched vector env; its VecMonitor CSV gets the episodes,
-    and a resumed run appends to it."""
-    common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "10000", "--checkpoint-freq", "128")
+    """--vec-env batched trains PPO on the batched vector env with periodic evaluations (the eval env's
+    normaliser synchronised with the training env's); its VecMonitor CSV gets the episodes, and a
+    resumed run appends to it."""
+    common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "128", "--checkpoint-freq", "128")
     code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "2",
                          "--n-envs", "2", "--vec-env", "batched", "--runs-dir", str(tmp_path), "--config",
                          str(_small_config(tmp_path)), "--env-kwargs", '{"max_episode_steps": 16}', *common)
@@ -175,6 +176,7 @@ def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_
     first = monitor.read_text().splitlines()
     assert len(first) - 2 >= 256 // 16 - 2  # header lines, then about one episode per 16 steps
     assert json.loads((run_dir / "config.json").read_text())["vec_env"] == "batched"
+    assert len(np.load(run_dir / "evaluations.npz")["timesteps"]) >= 2
     code, out, err = run("training.train", "--resume", str(run_dir), "--timesteps", "384", *common)
     assert code == 0, err
     again = monitor.read_text().splitlines()
