@@ -31,14 +31,14 @@ BUDGET = {
 }
 
 
-def run_one(env_id: str, algo: str, seed: int, runs: Path) -> Path:
-    run_dir = runs / run_name(env_id) / algo / f"seed{seed}"
+def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy") -> Path:
+    run_dir = runs / run_name(env_id) / algo / (f"seed{seed}" if vec_env == "dummy" else f"seed{seed}-{vec_env}")
     if (run_dir / "result.json").is_file() and (run_dir / "model.zip").is_file():
         return run_dir
     hyperparams = load_hyperparams(algo, env_id)
     n_envs = int(hyperparams.pop("n_envs", 1))
     timesteps = BUDGET.get(env_id, {}).get(algo, 20000)
-    config = dict(env=env_id, algo=algo, timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env="dummy",
+    config = dict(env=env_id, algo=algo, timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env,
                   threads=1, env_kwargs={}, hyperparams=hyperparams, eval_freq=max(timesteps // 10, 1),
                   eval_episodes=10, checkpoint_freq=max(timesteps // 5, 1))
     resume = (run_dir / "config.json").is_file()
@@ -52,9 +52,15 @@ def main(argv=None) -> int:
     parser.add_argument("--algos", nargs="+", default=["ppo", "sac"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--vec-env", choices=("dummy", "batched"), default="dummy",
+                        help="the training envs (batched: training.vec_env.BatchedVecEnv; its runs, figures and "
+                             "--out default carry the suffix _batched)")
     parser.add_argument("--runs-dir", default=str(ROOT / "runs" / "benchmark"))
-    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "training.json"))
+    parser.add_argument("--out", default=None, help="default benchmarks/results/training[_batched].json")
     args = parser.parse_args(argv)
+    suffix = "" if args.vec_env == "dummy" else f"_{args.vec_env}"
+    if args.out is None:
+        args.out = str(ROOT / "benchmarks" / "results" / f"training{suffix}.json")
     runs = Path(args.runs_dir)
     out = Path(args.out)
     summary = json.loads(out.read_text()) if out.is_file() else {}
@@ -64,14 +70,14 @@ def main(argv=None) -> int:
             dirs, evaluations, walls = [], [], []
             for seed in args.seeds:
                 start = time.perf_counter()
-                run_dir = run_one(env_id, algo, seed, runs)
+                run_dir = run_one(env_id, algo, seed, runs, args.vec_env)
                 dirs.append(run_dir)
                 evaluations.append(evaluate(run_dir, args.episodes, seed=1000))
                 walls.append(json.loads((run_dir / "result.json").read_text())["wall_clock_s"])
                 print(f"  seed {seed}: success {evaluations[-1]['agent']['success_rate']:.0%} "
                       f"({time.perf_counter() - start:.0f} s)", flush=True)
             task = env_id.split("/")[-1]
-            plot(dirs, ROOT / "docs" / "figures" / f"learning_{task}_{algo}.png")
+            plot(dirs, ROOT / "docs" / "figures" / f"learning_{task}_{algo}{suffix}.png")
             key = f"{env_id} {algo}"
             summary[key] = dict(
                 env=env_id, algo=algo, seeds=args.seeds, timesteps=json.loads((dirs[0] / "config.json").read_text())["timesteps"],
@@ -79,8 +85,9 @@ def main(argv=None) -> int:
                 agent_success=[e["agent"]["success_rate"] for e in evaluations],
                 agent_return=[e["agent"]["mean_return"] for e in evaluations],
                 random=evaluations[0]["random"], scripted=evaluations[0]["scripted"],
+                vec_env=args.vec_env,
                 command=f"python -m training.benchmark --envs {env_id} --algos {algo} --seeds "
-                        + " ".join(map(str, args.seeds)),
+                        + " ".join(map(str, args.seeds)) + (f" --vec-env {args.vec_env}" if suffix else ""),
             )
             write_json(out, summary)
     print("\n| task | algo | success (mean over seeds) | return | random success / return | scripted success / return | train wall-clock |")

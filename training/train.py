@@ -122,9 +122,13 @@ def _make_envs(config, run_dir, seed_offset=0, resume=False):
     eval_env = make_vec_env(factory, n_envs=1, seed=config["seed"] + 10_000, vec_env_cls=DummyVecEnv,
                             env_kwargs=config["env_kwargs"])
     if config["vec_env"] == "batched":  # the same wrapper layers as the training env's, for EvalCallback's
-        from stable_baselines3.common.vec_env import VecMonitor  # normaliser synchronisation
+        import warnings  # normaliser synchronisation; the eval env's own Monitor keeps its statistics
 
-        eval_env = VecMonitor(eval_env)
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="The environment is already wrapped with a `Monitor`")
+            eval_env = VecMonitor(eval_env)
     return train_env, eval_env
 
 
