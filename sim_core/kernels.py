@@ -1682,6 +1682,112 @@ def _copy_data(stacked, hg_rows, hg_group, c):
             elongation[a:b], delta[a:b])
 
 
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
+                factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
+                hg_block_indices, hg_block_rows, ones, c):
+    """``solve_copies_lu``'s solve of copy ``c``, with ``work`` (8, 3 n) its own scratch."""
+    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
+     delta) = stacked
+    dofs = rhs.shape[1]
+    iterations[c] = 0
+    residual[c] = 0.0
+    if not active[c]:
+        return
+    own = work
+    r, r_hat, p, v, s, t, p_hat, s_hat = own[0], own[1], own[2], own[3], own[4], own[5], own[6], own[7]
+    buffer = np.empty(dofs)
+    x = solution[c]
+    data = _copy_data(stacked, hg_rows, hg_group, c)
+    m = mask[c]
+    blocks = hg_block_rows[hg_group[c]]
+    ints = lu_int[factor_of[c]]
+    values = lu_float[factor_of[c]]
+    correction = corrections[c]
+    held = imposed[c]
+    gathered = np.empty(held.shape[0])
+    finite = True
+    norm_b = 0.0
+    for i in range(dofs):
+        value = rhs[c, i] * m[i]
+        if not np.isfinite(value):
+            finite = False
+        s[i] = value
+        norm_b += value * value
+    if not finite:
+        for i in range(dofs):
+            x[i] = np.nan
+        residual[c] = np.inf
+        return
+    norm_b = np.sqrt(norm_b)
+    if norm_b == 0.0:
+        for i in range(dofs):
+            x[i] = 0.0
+        return
+    for i in range(dofs):
+        x[i] = guess[c, i] * m[i]
+    _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, x, v)
+    rr = 0.0
+    for i in range(dofs):
+        r[i] = s[i] - v[i]
+        rr += r[i] * r[i]
+        r_hat[i] = r[i]
+        p[i] = 0.0
+        v[i] = 0.0
+    res = np.sqrt(rr) / norm_b
+    rho = alpha = omega = 1.0
+    count = 0
+    limit = limits[c]
+    while res > tolerance and count < limit:
+        rho_new = 0.0
+        for i in range(dofs):
+            rho_new += r_hat[i] * r[i]
+        if rho_new == 0.0 or omega == 0.0:
+            break
+        beta = (rho_new / rho) * (alpha / omega)
+        rho = rho_new
+        for i in range(dofs):
+            p[i] = r[i] + beta * (p[i] - omega * v[i])
+        _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, p, p_hat, buffer)
+        _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, p_hat, v)
+        denominator = 0.0
+        for i in range(dofs):
+            denominator += r_hat[i] * v[i]
+        if not (np.isfinite(denominator) and denominator != 0.0):
+            break
+        alpha = rho / denominator
+        ss = 0.0
+        for i in range(dofs):
+            s[i] = r[i] - alpha * v[i]
+            ss += s[i] * s[i]
+        count += 1
+        if np.sqrt(ss) / norm_b <= tolerance:
+            for i in range(dofs):
+                x[i] += alpha * p_hat[i]
+                r[i] = s[i]
+            res = np.sqrt(ss) / norm_b
+            break
+        _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, s, s_hat, buffer)
+        _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, s_hat, t)
+        tt = 0.0
+        ts = 0.0
+        for i in range(dofs):
+            tt += t[i] * t[i]
+            ts += t[i] * s[i]
+        omega = ts / tt if tt > 0.0 else 0.0
+        rr = 0.0
+        for i in range(dofs):
+            x[i] += alpha * p_hat[i] + omega * s_hat[i]
+            r[i] = s[i] - omega * t[i]
+            rr += r[i] * r[i]
+        res = np.sqrt(rr) / norm_b
+        if not np.isfinite(res):
+            break
+    iterations[c] = count
+    residual[c] = res
+
+
 @njit(cache=True, error_model="numpy", fastmath=_FAST, parallel=True)
 def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
                     lu_float, factor_of, corrections, imposed, work, solution, iterations, residual,
@@ -1701,108 +1807,27 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
     hourglass matrix in node blocks (``_apply_blocks``): ``hg_block_indptr``, ``hg_block_indices``
     and each group's block values ``hg_block_rows`` (G, 9 nb) (``hg_rows`` is the CSR form of the
     same matrices)."""
-    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
-     delta) = stacked
     n_copies, dofs = rhs.shape
     ones = np.ones(dofs)
     for copy in prange(n_copies):  # the copies on all of numba's threads, each with its own scratch
-        c = np.int64(copy)
-        iterations[c] = 0
-        residual[c] = 0.0
-        if not active[c]:
-            continue
         own = work if n_copies == 1 else np.empty((8, dofs))
-        r, r_hat, p, v, s, t, p_hat, s_hat = own[0], own[1], own[2], own[3], own[4], own[5], own[6], own[7]
-        buffer = np.empty(dofs)
-        x = solution[c]
-        data = _copy_data(stacked, hg_rows, hg_group, c)
-        m = mask[c]
-        blocks = hg_block_rows[hg_group[c]]
-        ints = lu_int[factor_of[c]]
-        values = lu_float[factor_of[c]]
-        correction = corrections[c]
-        held = imposed[c]
-        gathered = np.empty(held.shape[0])
-        finite = True
-        norm_b = 0.0
-        for i in range(dofs):
-            value = rhs[c, i] * m[i]
-            if not np.isfinite(value):
-                finite = False
-            s[i] = value
-            norm_b += value * value
-        if not finite:
-            for i in range(dofs):
-                x[i] = np.nan
-            residual[c] = np.inf
-            continue
-        norm_b = np.sqrt(norm_b)
-        if norm_b == 0.0:
-            for i in range(dofs):
-                x[i] = 0.0
-            continue
-        for i in range(dofs):
-            x[i] = guess[c, i] * m[i]
-        _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, x, v)
-        rr = 0.0
-        for i in range(dofs):
-            r[i] = s[i] - v[i]
-            rr += r[i] * r[i]
-            r_hat[i] = r[i]
-            p[i] = 0.0
-            v[i] = 0.0
-        res = np.sqrt(rr) / norm_b
-        rho = alpha = omega = 1.0
-        count = 0
-        limit = limits[c]
-        while res > tolerance and count < limit:
-            rho_new = 0.0
-            for i in range(dofs):
-                rho_new += r_hat[i] * r[i]
-            if rho_new == 0.0 or omega == 0.0:
-                break
-            beta = (rho_new / rho) * (alpha / omega)
-            rho = rho_new
-            for i in range(dofs):
-                p[i] = r[i] + beta * (p[i] - omega * v[i])
-            _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, p, p_hat, buffer)
-            _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, p_hat, v)
-            denominator = 0.0
-            for i in range(dofs):
-                denominator += r_hat[i] * v[i]
-            if not (np.isfinite(denominator) and denominator != 0.0):
-                break
-            alpha = rho / denominator
-            ss = 0.0
-            for i in range(dofs):
-                s[i] = r[i] - alpha * v[i]
-                ss += s[i] * s[i]
-            count += 1
-            if np.sqrt(ss) / norm_b <= tolerance:
-                for i in range(dofs):
-                    x[i] += alpha * p_hat[i]
-                    r[i] = s[i]
-                res = np.sqrt(ss) / norm_b
-                break
-            _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, s, s_hat, buffer)
-            _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, s_hat, t)
-            tt = 0.0
-            ts = 0.0
-            for i in range(dofs):
-                tt += t[i] * t[i]
-                ts += t[i] * s[i]
-            omega = ts / tt if tt > 0.0 else 0.0
-            rr = 0.0
-            for i in range(dofs):
-                x[i] += alpha * p_hat[i] + omega * s_hat[i]
-                r[i] = s[i] - omega * t[i]
-                rr += r[i] * r[i]
-            res = np.sqrt(rr) / norm_b
-            if not np.isfinite(res):
-                break
-        iterations[c] = count
-        residual[c] = res
+        _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
+                    factor_of, corrections, imposed, own, solution, iterations, residual, hg_block_indptr,
+                    hg_block_indices, hg_block_rows, ones, np.int64(copy))
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST)
+def solve_copies_lu_serial(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
+                           lu_float, factor_of, corrections, imposed, work, solution, iterations, residual,
+                           hg_block_indptr, hg_block_indices, hg_block_rows):
+    """``solve_copies_lu`` in this thread only, the copies one after the other with the scratch
+    ``work`` (8, 3 n): for one thread, and in a forked process, where GNU OpenMP's pool must not be
+    used (``FORKED``)."""
+    ones = np.ones(rhs.shape[1])
+    for c in range(rhs.shape[0]):
+        _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
+                    factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
+                    hg_block_indices, hg_block_rows, ones, c)
 
 
 @njit(cache=True, error_model="numpy")
@@ -1898,40 +1923,62 @@ def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_
     ``lu_int``/``lu_float`` untouched) where a pivot is zero or not finite. The copies are shared
     among numba's threads, each with its own scratch (``values``, ``a_values``, ``work`` serve a
     single copy); the factors are stored after the parallel loop."""
-    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
-     delta) = stacked
-    n_elements = elements.shape[0]
-    n_floats = 9 * (l_indices.shape[0] + u_indices.shape[0])
     count = copies.shape[0]
-    outs = [np.empty(n_floats) for _ in range(count)]
+    outs = [np.empty(9 * (l_indices.shape[0] + u_indices.shape[0])) for _ in range(count)]
     for entry in prange(count):  # the copies on all of numba's threads, each with its own scratch
         t = np.int64(entry)
-        c = copies[t]
-        data = _copy_data(stacked, hg_rows, hg_group, c)
-        matrix = values if count == 1 else np.empty(values.shape[0])
-        if node_edge.shape[0] == n_elements:
-            operator_matrix_data_blocks(data, scales, spring_positions, element_positions, hg_positions,
-                                        diagonal_positions, node_edge, node_sign, matrix)
-        else:
-            operator_matrix_data(data, scales, spring_positions, element_positions, hg_positions,
-                                 diagonal_positions, matrix)
-        cover = covers[t]
-        blocks = a_values if count == 1 else np.zeros(a_values.shape[0])
-        if count == 1:
-            blocks[:] = 0.0
-        for q in range(take.shape[0]):
-            r = rows[q]
-            col = columns[q]
-            if r == col or (cover[node_dofs[r]] and cover[node_dofs[col]]):
-                blocks[a_map[q]] = matrix[take[q]]
-        scratch = work if count == 1 else np.empty(work.shape[0])
-        ok[t] = block_lu_factor(a_indptr, a_indices, blocks, l_indptr, l_indices, u_indptr, u_indices, outs[t],
-                                scratch)
+        own = count == 1
+        ok[t] = _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                             diagonal_positions, copies[t], covers[t], node_dofs, take, rows, columns, a_map,
+                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices,
+                             values if own else np.empty(values.shape[0]),
+                             a_values if own else np.empty(a_values.shape[0]),
+                             work if own else np.empty(work.shape[0]), outs[t], node_edge, node_sign)
     for t in range(count):
         if ok[t]:
             lu_int[copies[t]] = ints
             lu_float[copies[t]] = outs[t]
+
+
+@njit(cache=True, error_model="numpy")
+def factor_copies_serial(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                         diagonal_positions, copies, covers, node_dofs, take, rows, columns, a_map, a_indptr,
+                         a_indices, l_indptr, l_indices, u_indptr, u_indices, ints, values, a_values, work, lu_int,
+                         lu_float, ok, node_edge, node_sign):
+    """``factor_copies`` in this thread only, the copies one after the other with the scratch
+    ``values``, ``a_values``, ``work``: for one thread, and in a forked process, where GNU OpenMP's
+    pool must not be used (``FORKED``)."""
+    for t in range(copies.shape[0]):
+        out = np.empty(9 * (l_indices.shape[0] + u_indices.shape[0]))
+        ok[t] = _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                             diagonal_positions, copies[t], covers[t], node_dofs, take, rows, columns, a_map,
+                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices, values, a_values, work,
+                             out, node_edge, node_sign)
+        if ok[t]:
+            lu_int[copies[t]] = ints
+            lu_float[copies[t]] = out
+
+
+@njit(cache=True, error_model="numpy")
+def _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                 diagonal_positions, c, cover, node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
+                 l_indices, u_indptr, u_indices, values, a_values, work, out, node_edge, node_sign):
+    """``factor_copies``' factorisation of copy ``c`` on its cover ``cover`` (3 n,) into ``out``, with
+    ``values``, ``a_values`` and ``work`` its own scratch; False where a pivot is zero or not finite."""
+    data = _copy_data(stacked, hg_rows, hg_group, c)
+    if node_edge.shape[0] == stacked[6].shape[0]:  # one row per element: the node-pair assembly
+        operator_matrix_data_blocks(data, scales, spring_positions, element_positions, hg_positions,
+                                    diagonal_positions, node_edge, node_sign, values)
+    else:
+        operator_matrix_data(data, scales, spring_positions, element_positions, hg_positions, diagonal_positions,
+                             values)
+    a_values[:] = 0.0
+    for q in range(take.shape[0]):
+        r = rows[q]
+        col = columns[q]
+        if r == col or (cover[node_dofs[r]] and cover[node_dofs[col]]):
+            a_values[a_map[q]] = values[take[q]]
+    return block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr, u_indices, out, work)
 
 
 @njit(cache=True, error_model="numpy")
@@ -2017,6 +2064,14 @@ def _touch_threads(out):
     """A parallel loop: its first call starts numba's thread pool (``start_threads``)."""
     for i in prange(out.shape[0]):
         out[i] = i
+
+
+#: [True] in a process forked from this one (``os.register_at_fork``): GNU OpenMP's thread pool is
+#: not fork-safe (numba terminates a forked child that enters a parallel region of a pool its parent
+#: started), so the batched vector envs use the serial kernels there (``solve_copies_lu_serial``,
+#: ``factor_copies_serial``).
+FORKED = [False]
+os.register_at_fork(after_in_child=lambda: FORKED.__setitem__(0, True))
 
 
 def start_threads():

@@ -369,3 +369,36 @@ def test_starting_the_threads_leaves_the_environment_as_it_was(monkeypatch):
     monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
     kernels.start_threads()
     assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+
+
+def _forked_run(queue):
+    envs = gym.make_vec("tissue_env/Retraction-v0", num_envs=3, vectorization_mode="vector_entry_point")
+    obs, _ = envs.reset(seed=4)
+    for _ in range(8):
+        obs, *_ = envs.step(np.full((3, 3), 0.5, dtype=np.float32))
+    queue.put(obs)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two cores for numba's threads")
+def test_a_process_forked_after_the_threads_started_steps_a_vector_env():
+    """GNU OpenMP's pool is not fork-safe: numba terminates a forked child that enters a parallel
+    region of its parent's pool. A vector env in a forked process uses the serial kernels, and
+    steps as the parent's does on one thread (Retraction: factorisations and capacitance-corrected
+    solves every step)."""
+    import multiprocessing
+
+    envs = gym.make_vec("tissue_env/Retraction-v0", num_envs=3, vectorization_mode="vector_entry_point")
+    envs.reset(seed=4)
+    envs.step(np.zeros((3, 3), dtype=np.float32))  # the parent's pool runs
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_forked_run, args=(queue,))
+    child.start()
+    child.join(120)
+    assert child.exitcode == 0, f"the forked process ended with {child.exitcode}"
+    expected = gym.make_vec("tissue_env/Retraction-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                            threads=1)
+    obs, _ = expected.reset(seed=4)
+    for _ in range(8):
+        obs, *_ = expected.step(np.full((3, 3), 0.5, dtype=np.float32))
+    np.testing.assert_array_equal(queue.get(timeout=10), obs)

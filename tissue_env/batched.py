@@ -54,6 +54,7 @@ from __future__ import annotations
 import hashlib
 from collections import OrderedDict
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -382,6 +383,10 @@ class BatchedImplicitEuler:
         #: iterations before a stalled copy is re-linearised and solved again
         self.first_pass = min(30, self.max_iterations // 2)
         self.refreshes = 0
+        #: the per-copy kernels on numba's threads (``kernels.factor_copies``, ``kernels.solve_copies_lu``)
+        #: or in this thread (their ``_serial`` versions); None: threaded when numba has more than one
+        #: thread and this is not a forked process (``kernels.FORKED``). The vector env sets it.
+        self.parallel = None
         count, dofs = stack.count, 3 * stack.n_nodes
         self.warm = np.zeros((count, dofs))
         self._preconditioners = [None] * count
@@ -520,6 +525,13 @@ class BatchedImplicitEuler:
         self._set_factor(index, factor, free)
         return factor
 
+    def _kernel(self, name):
+        """``kernels.<name>`` on numba's threads, or its serial version (``self.parallel``)."""
+        parallel = self.parallel
+        if parallel is None:
+            parallel = numba.config.NUMBA_NUM_THREADS > 1 and not kernels.FORKED[0]
+        return getattr(kernels, name if parallel and not kernels.FORKED[0] else name + "_serial")
+
     def _factorise_copies(self, indices, data, system, covers):
         """``_factorise`` of the copies ``indices`` (T,) on their ``covers`` (T, 3 n) bool, the node-block
         LUs of the copies with one node set in one compiled call (``kernels.factor_copies``: the same
@@ -542,12 +554,12 @@ class BatchedImplicitEuler:
             if structure is not None:
                 (node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices,
                  ints, a_values, work) = structure
-                kernels.factor_copies(stacked, system, hg_rows, hg_group, reference.spring_positions,
-                                      reference.element_positions, self._hg_positions,
-                                      reference.pattern.diagonal_positions, indices[members], covers[members],
-                                      node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr, l_indices,
-                                      u_indptr, u_indices, ints, self._values, a_values, work, self._lu_int,
-                                      self._lu_float, ok, *self._incidence)
+                factorise = self._kernel("factor_copies")
+                factorise(stacked, system, hg_rows, hg_group, reference.spring_positions, reference.element_positions,
+                          self._hg_positions, reference.pattern.diagonal_positions, indices[members],
+                          covers[members], node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
+                          l_indices, u_indptr, u_indices, ints, self._values, a_values, work, self._lu_int,
+                          self._lu_float, ok, *self._incidence)
             for t, done in zip(members, ok):
                 index = int(indices[t])
                 if done:  # the kernel set the copy's entries of _lu_int and _lu_float
@@ -694,9 +706,10 @@ class BatchedImplicitEuler:
         rhs_rows = np.ascontiguousarray(rhs.T)
         rows = np.zeros_like(rhs_rows)
         work = self._row_work
-        kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active,
-                                self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of,
-                                self._corrections, self._imposed, work, rows, iterations, residual, *blocks)
+        solve = self._kernel("solve_copies_lu")
+        solve(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active, self.tolerance, limits,
+              self._lu_int, self._lu_float, self._factor_of, self._corrections, self._imposed, work, rows, iterations,
+              residual, *blocks)
         stalled = (active & ~fresh & (residual > self.tolerance) & (iterations < self.max_iterations)
                    & np.all(np.isfinite(rows), axis=1))
         for index in np.flatnonzero(fresh):
@@ -716,9 +729,9 @@ class BatchedImplicitEuler:
             more = np.zeros(count, dtype=np.int64)
             more_residual = np.zeros(count)
             limits = (self.max_iterations - iterations).astype(np.int64)
-            kernels.solve_copies_lu(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, rows, stalled,
-                                    self.tolerance, limits, self._lu_int, self._lu_float, self._factor_of,
-                                    self._corrections, self._imposed, work, again, more, more_residual, *blocks)
+            solve(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, rows, stalled, self.tolerance, limits,
+                  self._lu_int, self._lu_float, self._factor_of, self._corrections, self._imposed, work, again, more,
+                  more_residual, *blocks)
             for index in np.flatnonzero(stalled):
                 self._factors[index].set_baseline(more[index], self.amortise)
             rows[stalled] = again[stalled]

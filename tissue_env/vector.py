@@ -56,15 +56,16 @@ from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, ma
 
 def _thread_count(threads) -> int:
     """The vector env's thread count (see ``TissueVectorEnv``), checked; starts numba's pool with
-    sleeping idle threads (``kernels.start_threads``: the parallel kernels start it with one thread
-    too)."""
+    sleeping idle threads (``kernels.start_threads``) when it uses more than one (one thread, and a
+    forked process, use the serial kernels and never start it)."""
     available = numba.config.NUMBA_NUM_THREADS
     if threads is None:
         threads = available
     elif isinstance(threads, bool) or not float(threads).is_integer() or not 1 <= int(threads) <= available:
         raise ValueError(f"threads must be None or an integer from 1 to {available} (numba's NUMBA_NUM_THREADS, "
                          f"the cores it found), got {threads!r}")
-    kernels.start_threads()
+    if int(threads) > 1 and not kernels.FORKED[0]:
+        kernels.start_threads()
     return int(threads)
 
 
@@ -78,7 +79,9 @@ class TissueVectorEnv(VectorEnv):
         threads: threads of the batched step's per-copy factorisations and solves (numba's pool;
             the copies are independent, so the results are the same for any count): None for
             numba's default (every core, or ``NUMBA_NUM_THREADS``), 1 to keep to one core (several
-            env processes on one machine, e.g. RLlib env runners).
+            env processes on one machine, e.g. RLlib env runners). In a process forked from one
+            that may have started the pool, the env uses one thread: GNU OpenMP's pool is not
+            fork-safe (``kernels.FORKED``).
         **kwargs: the task's constructor keywords, the same for every copy.
     """
 
@@ -130,6 +133,7 @@ class TissueVectorEnv(VectorEnv):
         self._forces = StackedForceWorkspace(self.stack, implicit=False)  # the measurements' fused force pass
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
                                                   self.linear_solver, self.refactor_amortise)
+        self.integrator.parallel = self.threads > 1  # and not forked: set again at every step
         self.mesh = env.mesh
         self.n_nodes = env.mesh.n_nodes
         self.springs = env.model.springs
@@ -251,6 +255,10 @@ class TissueVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started:
             raise RuntimeError("call reset() before step()")
+        parallel = self.threads > 1 and not kernels.FORKED[0]
+        self.integrator.parallel = parallel
+        if not parallel:  # the serial kernels: numba's pool is not touched
+            return self._step(actions)
         previous = numba.get_num_threads()
         numba.set_num_threads(self.threads)
         try:
