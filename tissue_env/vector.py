@@ -29,8 +29,8 @@ are solved in lockstep with one node-block LU of the start matrix that they shar
 "reference"); Palpation's and Retraction's each have their own node-block LU, capacitance-corrected
 for their contacts (solver "factorised"), whose factorisations (``kernels.factor_copies``) and
 BiCGSTABs (``kernels.solve_copies_lu``) run on numba's threads, a copy per thread at a time (the
-lockstep gains nothing from threads: its cost is the shared factor's passes, read once for all
-copies). Every task measures with the next step's force pass (``share_force_pass``), the force pass
+lockstep gains nothing from threads: each pass reads the shared factor's blocks and the operator's
+springs once for all copies, so half the copies cost most of a whole pass). Every task measures with the next step's force pass (``share_force_pass``), the force pass
 reads one copy's hourglass matrix for all copies (``batched.StackedForceWorkspace``) and the per-copy
 solves read it in node blocks. What batching cannot share is each copy's own sparse algebra
 (Retraction's floor re-factorises at about two steps in three) and TumorPositioning's resets (a
