@@ -69,8 +69,8 @@ def main():
                        steps_per_s={mode: float(np.median(values)) for mode, values in runs.items()},
                        rounds_steps_per_s=runs)
             rows.append(row)
-            print(f"{env_id:32s} {n_envs:3d} | " + " | ".join(f"{row['steps_per_s'][mode]:8.0f}" for mode in args.modes),
-                  flush=True)
+            cells = " | ".join(f"{row['steps_per_s'][mode]:8.0f}" for mode in args.modes)
+            print(f"{env_id:32s} {n_envs:3d} | {cells}", flush=True)
             write_json(args.output, dict(benchmark="training_speed", unit="env steps per wall second of model.learn",
                                          machine=dict(cpus=os.cpu_count(), platform=platform.platform()),
                                          load_average=os.getloadavg(), results=rows))

@@ -54,7 +54,8 @@ def training_rates(results: Path):
     path = results / "training_speed.json"
     if not path.is_file():
         return {}
-    return {(short(row["env_id"]), row["n_envs"]): row["steps_per_s"] for row in json.loads(path.read_text())["results"]}
+    rows = json.loads(path.read_text())["results"]
+    return {(short(row["env_id"]), row["n_envs"]): row["steps_per_s"] for row in rows}
 
 
 def draw(results: Path, output: Path):

@@ -1687,16 +1687,12 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
                 factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
                 hg_block_indices, hg_block_rows, ones, c):
     """``solve_copies_lu``'s solve of copy ``c``, with ``work`` (8, 3 n) its own scratch."""
-    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
-     delta) = stacked
     dofs = rhs.shape[1]
     iterations[c] = 0
     residual[c] = 0.0
     if not active[c]:
         return
-    own = work
-    r, r_hat, p, v, s, t, p_hat, s_hat = own[0], own[1], own[2], own[3], own[4], own[5], own[6], own[7]
+    r, r_hat, p, v, s, t, p_hat, s_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     buffer = np.empty(dofs)
     x = solution[c]
     data = _copy_data(stacked, hg_rows, hg_group, c)
@@ -2074,11 +2070,17 @@ FORKED = [False]
 os.register_at_fork(after_in_child=lambda: FORKED.__setitem__(0, True))
 
 
+def threaded(threads: int) -> bool:
+    """Whether the parallel kernels (not their ``_serial`` versions) run for ``threads`` threads:
+    more than one, and not in a forked process (``FORKED``)."""
+    return threads > 1 and not FORKED[0]
+
+
 def start_threads():
     """Start numba's thread pool (the parallel kernels: ``factor_copies``, ``solve_copies_lu``) with
-    waiting threads that sleep rather than spin: with numba's OpenMP
-    layer, GNU OpenMP reads ``OMP_WAIT_POLICY`` once, when it loads, and by default its idle threads
-    spin between parallel regions (the vector envs at N = 16 then used 2.0 CPU s per wall second on
+    waiting threads that sleep rather than spin: with numba's OpenMP layer, GNU OpenMP reads
+    ``OMP_WAIT_POLICY`` once, when it loads, and by default its idle threads spin between parallel
+    regions (the vector envs at N = 16 then used 2.0 CPU s per wall second on
     2 cores, against 1.4-1.6 with PASSIVE at the same wall time). The variable is set for the load
     only, and only when the user has not set it; a pool already started is left as it is."""
     unset = "OMP_WAIT_POLICY" not in os.environ

@@ -28,7 +28,9 @@ to a contact's newly imposed dofs by a capacitance correction; the copies a step
 assembled and factorised in one compiled call, ``kernels.factor_copies``), and the copies' BiCGSTABs run
 in one compiled call (``kernels.solve_copies_lu``): no copy waits for the slowest, 1-5 iterations
 per copy. Both calls share the copies among numba's threads (``numba.get_num_threads()``, set by the
-vector env's ``threads``), each copy with its own scratch, so any thread count gives the same floats. Solver "reference": the sparse LU of the copy's system matrix at
+vector env's ``threads``), each copy with its own scratch, so any thread count gives the same floats
+(one thread, and a forked process: their ``_serial`` versions). Solver "reference": the sparse LU
+of the copy's system matrix at
 the start of its episode, applied by triangular solves: in dense 3 x 3 node blocks when the free
 dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a node ordering), else as the
 factorised solver's scalar factor. Copies that start alike share one factor (one cache entry), and
@@ -364,10 +366,14 @@ class BatchedImplicitEuler:
             re-linearises that copy's preconditioner (0: never).
         solver: "factorised", "reference" or "jacobi" (``SOLVERS``).
         amortise: solver "factorised": see ``self.amortise``.
+        threads: solver "factorised": more than one runs the per-copy kernels on numba's threads
+            (``kernels.threaded``; the count they use is ``numba.get_num_threads()``), one their
+            ``_serial`` versions; None: numba's ``NUMBA_NUM_THREADS``.
     """
 
     def __init__(self, stack: ModelStack, tolerance: float = 1e-4, max_iterations: int = 200,
-                 refresh_iterations: int = 8, solver: str = "reference", amortise: int | None = None):
+                 refresh_iterations: int = 8, solver: str = "reference", amortise: int | None = None,
+                 threads: int | None = None):
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         self.stack = stack
@@ -383,10 +389,7 @@ class BatchedImplicitEuler:
         #: iterations before a stalled copy is re-linearised and solved again
         self.first_pass = min(30, self.max_iterations // 2)
         self.refreshes = 0
-        #: the per-copy kernels on numba's threads (``kernels.factor_copies``, ``kernels.solve_copies_lu``)
-        #: or in this thread (their ``_serial`` versions); None: threaded when numba has more than one
-        #: thread and this is not a forked process (``kernels.FORKED``). The vector env sets it.
-        self.parallel = None
+        self.threads = numba.config.NUMBA_NUM_THREADS if threads is None else int(threads)
         count, dofs = stack.count, 3 * stack.n_nodes
         self.warm = np.zeros((count, dofs))
         self._preconditioners = [None] * count
@@ -526,11 +529,8 @@ class BatchedImplicitEuler:
         return factor
 
     def _kernel(self, name):
-        """``kernels.<name>`` on numba's threads, or its serial version (``self.parallel``)."""
-        parallel = self.parallel
-        if parallel is None:
-            parallel = numba.config.NUMBA_NUM_THREADS > 1 and not kernels.FORKED[0]
-        return getattr(kernels, name if parallel and not kernels.FORKED[0] else name + "_serial")
+        """``kernels.<name>`` on numba's threads, or its serial version (``kernels.threaded``)."""
+        return getattr(kernels, name if kernels.threaded(self.threads) else name + "_serial")
 
     def _factorise_copies(self, indices, data, system, covers):
         """``_factorise`` of the copies ``indices`` (T,) on their ``covers`` (T, 3 n) bool, the node-block
@@ -909,9 +909,9 @@ class BatchedSymplecticEuler:
 
 
 def make_batched_integrator(name: str, stack: ModelStack, tolerance: float, solver: str = "factorised",
-                            amortise: int | None = None):
+                            amortise: int | None = None, threads: int | None = None):
     if name == "implicit":
-        return BatchedImplicitEuler(stack, tolerance=tolerance, solver=solver, amortise=amortise)
+        return BatchedImplicitEuler(stack, tolerance=tolerance, solver=solver, amortise=amortise, threads=threads)
     if name == "explicit":
         return BatchedSymplecticEuler(stack)
     raise ValueError(f"the batched vector env steps integrator 'implicit' or 'explicit', got {name!r}; "

@@ -30,9 +30,10 @@ are solved in lockstep with one node-block LU of the start matrix that they shar
 for their contacts (solver "factorised"), whose factorisations (``kernels.factor_copies``) and
 BiCGSTABs (``kernels.solve_copies_lu``) run on numba's threads, a copy per thread at a time (the
 lockstep gains nothing from threads: each pass reads the shared factor's blocks and the operator's
-springs once for all copies, so half the copies cost most of a whole pass). Every task measures with the next step's force pass (``share_force_pass``), the force pass
-reads one copy's hourglass matrix for all copies (``batched.StackedForceWorkspace``) and the per-copy
-solves read it in node blocks. What batching cannot share is each copy's own sparse algebra
+springs once for all copies, so half the copies cost most of a whole pass). Every task measures
+with the next step's force pass (``share_force_pass``), the force pass reads one copy's hourglass
+matrix for all copies (``batched.StackedForceWorkspace``) and the per-copy solves read it in node
+blocks. What batching cannot share is each copy's own sparse algebra
 (Retraction's floor re-factorises at about two steps in three) and TumorPositioning's resets (a
 static solve for the goal, the same code in both modes, about 30% of its vector env's time).
 """
@@ -64,7 +65,7 @@ def _thread_count(threads) -> int:
     elif isinstance(threads, bool) or not float(threads).is_integer() or not 1 <= int(threads) <= available:
         raise ValueError(f"threads must be None or an integer from 1 to {available} (numba's NUMBA_NUM_THREADS, "
                          f"the cores it found), got {threads!r}")
-    if int(threads) > 1 and not kernels.FORKED[0]:
+    if kernels.threaded(int(threads)):
         kernels.start_threads()
     return int(threads)
 
@@ -132,8 +133,7 @@ class TissueVectorEnv(VectorEnv):
         self.stack = ModelStack(env.model, count)
         self._forces = StackedForceWorkspace(self.stack, implicit=False)  # the measurements' fused force pass
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
-                                                  self.linear_solver, self.refactor_amortise)
-        self.integrator.parallel = self.threads > 1  # and not forked: set again at every step
+                                                  self.linear_solver, self.refactor_amortise, self.threads)
         self.mesh = env.mesh
         self.n_nodes = env.mesh.n_nodes
         self.springs = env.model.springs
@@ -255,9 +255,7 @@ class TissueVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        parallel = self.threads > 1 and not kernels.FORKED[0]
-        self.integrator.parallel = parallel
-        if not parallel:  # the serial kernels: numba's pool is not touched
+        if not kernels.threaded(self.threads):  # the serial kernels: numba's pool is not touched
             return self._step(actions)
         previous = numba.get_num_threads()
         numba.set_num_threads(self.threads)
