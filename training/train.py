@@ -16,6 +16,7 @@ import functools
 import json
 import re
 import time
+import warnings
 from datetime import datetime
 from pathlib import Path
 
@@ -103,32 +104,29 @@ def _validated(args):
 
 def _make_envs(config, run_dir, seed_offset=0, resume=False):
     from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
-    vec_cls = SubprocVecEnv if config["vec_env"] == "subproc" else DummyVecEnv
-    monitor_dir = str(run_dir / "monitor")
+    monitor_dir = run_dir / "monitor"
     factory = functools.partial(make_env, config["env"])
-    if config["vec_env"] == "batched":
-        from .vec_env import BatchedVecEnv, monitored
-
-        Path(monitor_dir).mkdir(parents=True, exist_ok=True)
-        train_env = monitored(BatchedVecEnv(config["env"], config["n_envs"], config["env_kwargs"]),
-                              str(Path(monitor_dir) / "batched"), append=resume)
-        train_env.seed(config["seed"] + seed_offset)
-    else:
-        train_env = make_vec_env(factory, n_envs=config["n_envs"], seed=config["seed"] + seed_offset,
-                                 vec_env_cls=vec_cls, monitor_dir=monitor_dir, env_kwargs=config["env_kwargs"],
-                                 monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
     eval_env = make_vec_env(factory, n_envs=1, seed=config["seed"] + 10_000, vec_env_cls=DummyVecEnv,
                             env_kwargs=config["env_kwargs"])
-    if config["vec_env"] == "batched":  # the same wrapper layers as the training env's, for EvalCallback's
-        import warnings  # normaliser synchronisation; the eval env's own Monitor keeps its statistics
+    if config["vec_env"] != "batched":
+        train_env = make_vec_env(factory, n_envs=config["n_envs"], seed=config["seed"] + seed_offset,
+                                 vec_env_cls=SubprocVecEnv if config["vec_env"] == "subproc" else DummyVecEnv,
+                                 monitor_dir=str(monitor_dir), env_kwargs=config["env_kwargs"],
+                                 monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
+        return train_env, eval_env
+    from .vec_env import BatchedVecEnv, monitored
 
-        from stable_baselines3.common.vec_env import VecMonitor
-
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message="The environment is already wrapped with a `Monitor`")
-            eval_env = VecMonitor(eval_env)
+    monitor_dir.mkdir(parents=True, exist_ok=True)
+    train_env = monitored(BatchedVecEnv(config["env"], config["n_envs"], config["env_kwargs"]),
+                          str(monitor_dir / "batched"), append=resume)
+    train_env.seed(config["seed"] + seed_offset)
+    # the eval env gets the training env's wrapper layers, which EvalCallback's normaliser
+    # synchronisation walks in step; its own Monitor keeps its statistics
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="The environment is already wrapped with a `Monitor`")
+        eval_env = VecMonitor(eval_env)
     return train_env, eval_env
 
 
