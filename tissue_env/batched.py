@@ -15,10 +15,11 @@ with sim_core's fused kernels: one ``kernels.model_forces`` pass over the stacke
 clamped geometric stiffness, volume terms, through a ``ForceWorkspace``), then
 ``kernels.batched_spring_operator``, the matrix-free per-spring operator of ``spring_operator``
 with the copy index last ((3 n, N) vectors), so each spring, element and hourglass entry is read
-once for all copies, and ``kernels.batched_solve``, one compiled call that runs every copy's
-BiCGSTAB in lockstep, each with its own scalars, stopping test ||r|| <= tolerance ||b|| (as
-sim_core's) and convergence mask. No Python loop over copies in the step (but for the
-factorisations and capacitance corrections of solver "factorised").
+once for all copies (the right-hand side's product), then the copies' BiCGSTABs, each with
+sim_core's stopping test ||r|| <= tolerance ||b||: one compiled call that solves the copies one
+at a time on numba's threads (``kernels.solve_copies_lu``, solvers "factorised" and "reference")
+or in lockstep (``kernels.batched_solve``, solver "jacobi"). No Python loop over copies in the
+step (but for the factorisations and capacitance corrections of solver "factorised").
 
 Preconditioner (solver "factorised", the default): each copy's own sparse LU of its free-dof system
 matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks,
@@ -30,21 +31,22 @@ in one compiled call (``kernels.solve_copies_lu``): no copy waits for the slowes
 per copy. Both calls share the copies among numba's threads (``numba.get_num_threads()``, set by the
 vector env's ``threads``), each copy with its own scratch, so any thread count gives the same floats
 (one thread, and a forked process: their ``_serial`` versions). Solver "reference": the sparse LU
-of the copy's system matrix at
-the start of its episode, applied by triangular solves: in dense 3 x 3 node blocks when the free
-dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a node ordering), else as the
-factorised solver's scalar factor. Copies that start alike share one factor (one cache entry), and
-the copies of a group are solved together: each block of L and U is read once and updates the rows
-of all their right-hand sides (``kernels._batched_precondition``), so a shared factor costs about
-one pass for all N copies (measured at TumorPositioning's 6^3 block, 855 free dofs, 1.7e5 entries
-in L + U: 0.45 ms for 16 copies and 0.08 ms for one, against 2.1 ms for 16 copies with the dense
-inverse this replaces, which also took 0.15 s to build against 5-10 ms for the LU). The start
-matrix stays close to the current one while the tissue moves a few millimetres: 4-7 iterations. When it no longer fits (large
-deformation, a probe contact that changes the imposed dofs), the copy that needed the most
-iterations (more than ``refresh_iterations``) is re-linearised at its current state, one per step,
-and a copy that has not converged after ``first_pass`` iterations is re-linearised and solved
-again; a re-linearised copy leaves its group (a factor of its own, an extra pass per application,
-and a factorisation: measured slower overall with ``refresh_iterations`` 5 or 6 than with 8).
+of the copy's system matrix at the start of its episode, applied by triangular solves: in dense
+3 x 3 node blocks when the free dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a
+node ordering), else as the factorised solver's scalar factor. Copies that start alike share one
+factor (one cache entry) and each copy's BiCGSTAB is preconditioned by its group's factor, in the
+same per-copy kernel as solver "factorised" (``_solve_shared``). The start matrix stays close to
+the current one while the tissue moves a few millimetres: about 3 iterations per copy. When it no
+longer fits (large deformation, a probe contact that changes the imposed dofs), the copy that
+needed the most iterations (more than ``refresh_iterations``) is re-linearised at its current
+state, one per step, and a copy that has not converged after ``first_pass`` iterations is
+re-linearised and solved again; a re-linearised copy leaves its group (a factor of its own).
+Solving a group's copies in lockstep instead (``kernels.batched_solve`` with
+``kernels._batched_precondition``: each block of L and U read once for all the group's right-hand
+sides, 0.45 ms for 16 copies against 0.08 ms for one at TumorPositioning's 1.7e5 entries) is
+about 10% faster on one thread but gains nothing from a second (every copy waits for the slowest:
+5.2 iterations per lockstep solve against 2.9 per copy over 100 random TumorPositioning steps);
+the per-copy solves use every core and give the same floats for any thread count.
 The step's force pass at a state is computed once (``BatchedImplicitEuler.linearise``): a vector
 env that measures with it (``share_force_pass``) gives the next step its forces and linearisation.
 ``solver="jacobi"`` uses sim_core's Jacobi diagonal instead. The trajectories equal those of N
@@ -355,8 +357,8 @@ def _edge_incidence(model: Model):
 
 class BatchedImplicitEuler:
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
-    copy, run in lockstep (solvers "reference", "jacobi") or one copy after the other
-    ("factorised"); see the module docstring.
+    copy, run one copy at a time on numba's threads (solvers "factorised", "reference") or in
+    lockstep ("jacobi"); see the module docstring.
 
     Args:
         stack: the ``ModelStack``.
@@ -366,9 +368,10 @@ class BatchedImplicitEuler:
             re-linearises that copy's preconditioner (0: never).
         solver: "factorised", "reference" or "jacobi" (``SOLVERS``).
         amortise: solver "factorised": see ``self.amortise``.
-        threads: solver "factorised": more than one runs the per-copy kernels on numba's threads
-            (``kernels.threaded``; the count they use is ``numba.get_num_threads()``), one their
-            ``_serial`` versions; None: numba's ``NUMBA_NUM_THREADS``.
+        threads: solvers "factorised" and "reference": more than one runs the per-copy kernels on
+            numba's threads (``kernels.threaded``; the count they use is
+            ``numba.get_num_threads()``), one their ``_serial`` versions; None: numba's
+            ``NUMBA_NUM_THREADS``.
     """
 
     def __init__(self, stack: ModelStack, tolerance: float = 1e-4, max_iterations: int = 200,
@@ -403,6 +406,13 @@ class BatchedImplicitEuler:
         self._packed = None
         self._packed_groups = None
         self._linearised = None  # (stack version, positions) of the workspace's last force pass
+        self._first = None  # _copies_first: (stack version, arrays)
+        self._blocks = None  # _hourglass_blocks: (stack version, arrays)
+        self._block_map = None
+        self._row_work = np.empty((8, dofs))
+        if solver == "reference":  # solve_copies_lu's capacitance corrections: none
+            self._no_corrections = (TypedList([np.zeros((0, 0))] * count),
+                                    TypedList([np.zeros(0, dtype=np.int64)] * count))
         if solver == "factorised":
             identity = _CopyFactor()
             self._factors = [None] * count
@@ -426,10 +436,6 @@ class BatchedImplicitEuler:
             self._hg_positions = (reference.pattern.positions(rows, hg_indices) if len(hg_indices)
                                   else np.zeros(0, np.int64))
             self._values = np.empty(reference.pattern.nnz)
-            self._row_work = np.empty((8, dofs))
-            self._first = None
-            self._blocks = None  # _hourglass_blocks: (stack version, arrays)
-            self._block_map = None
             #: factorisations done so far (a diagnostic)
             self.factorisations = 0
 
@@ -740,6 +746,21 @@ class BatchedImplicitEuler:
         solution[:] = rows.T
         return iterations
 
+    def _solve_shared(self, system, mask, rhs, guess_rows, active, limit, solution, iterations, residual):
+        """Solver "reference": every ``active`` copy's BiCGSTAB preconditioned by its group's factor
+        (``_pack_preconditioners``), at most ``limit`` iterations, one copy at a time on numba's
+        threads (``kernels.solve_copies_lu``: no copy waits for the slowest). mask, rhs, solution
+        (3 n, N); guess_rows (N, 3 n); iterations, residual (N,) written."""
+        lu_int, lu_float, group_of = self._pack_preconditioners()
+        stacked, hg_rows, hg_group = self._copies_first()
+        rows = np.zeros((self.stack.count, rhs.shape[0]))
+        limits = np.full(self.stack.count, limit, dtype=np.int64)
+        self._kernel("solve_copies_lu")(
+            stacked, system, hg_rows, hg_group, np.ascontiguousarray(mask.T), np.ascontiguousarray(rhs.T),
+            np.ascontiguousarray(guess_rows), active, self.tolerance, limits, lu_int, lu_float, group_of,
+            *self._no_corrections, self._row_work, rows, iterations, residual, *self._hourglass_blocks())
+        solution[:] = rows.T
+
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
         """The kernel's view of the copies' preconditioners: (lu_int, lu_float, group_of), the packed
@@ -836,13 +857,14 @@ class BatchedImplicitEuler:
         solution = np.empty((dofs, count))
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
-        guess = np.ascontiguousarray(self.warm.T)
         if self.solver == "factorised":
             self._solve_factorised(data, system, mask, rhs, self.warm, active, free, solution, iterations, residual)
+        elif self.solver == "reference":
+            self._solve_shared(system, mask, rhs, self.warm, active, self.first_pass, solution, iterations, residual)
         else:
-            limit = self.first_pass if self.solver == "reference" else self.max_iterations
-            kernels.batched_solve(data, system, mask, rhs, guess, active, self.tolerance, limit,
-                                  *self._pack_preconditioners(), self._work, solution, iterations, residual)
+            kernels.batched_solve(data, system, mask, rhs, np.ascontiguousarray(self.warm.T), active, self.tolerance,
+                                  self.max_iterations, *self._pack_preconditioners(), self._work, solution,
+                                  iterations, residual)
         stalled = np.zeros(count, dtype=bool)
         if self.solver == "reference":
             # A copy whose start-of-episode preconditioner no longer fits (large deformation, a
@@ -854,9 +876,8 @@ class BatchedImplicitEuler:
                 self._refresh(index, x0.reshape(count, n_nodes, 3)[index], dt, fixed[index])
             again = np.empty((dofs, count))
             more = np.zeros(count, dtype=np.int64)
-            kernels.batched_solve(data, system, mask, rhs, solution, stalled, self.tolerance,
-                                  self.max_iterations - self.first_pass, *self._pack_preconditioners(), self._work,
-                                  again, more, residual)
+            self._solve_shared(system, mask, rhs, solution.T, stalled, self.max_iterations - self.first_pass, again,
+                               more, residual)
             solution = np.where(stalled[None, :], again, solution)
             iterations = iterations + more
         solution = solution.T
