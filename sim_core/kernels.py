@@ -1,7 +1,9 @@
 """Compiled (numba) kernels for the per-step hot path: forces and the implicit Euler solve.
 
 Each kernel is a plain loop over springs or elements compiled once (``cache=True`` keeps the
-machine code between runs). The numpy formulation in ``forces.py`` is the readable reference the
+machine code between runs). The serial kernels release the GIL (``nogil=True``): Python threads
+run them at once (the vector envs reset their copies on several threads, whose static solves call
+them; a kernel only writes the arrays it is given). The numpy formulation in ``forces.py`` is the readable reference the
 tests compare these kernels with; formulas cite shared/physics.md. SI units.
 """
 
@@ -19,7 +21,7 @@ _FACES = np.ascontiguousarray(FACES)
 _GRADIENTS = np.ascontiguousarray(GAUSS_GRADIENTS)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def spring_lengths(positions, springs, length):
     """Lengths (m) of every spring into ``length`` (S,)."""
     for s in range(springs.shape[0]):
@@ -30,7 +32,7 @@ def spring_lengths(positions, springs, length):
         length[s] = np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def spring_pass(positions, springs, stiffness, rest_length, length, unit, tension):
     """Lengths (m), unit vectors and elastic tension k (L - L0) (N) of every spring."""
     for s in range(springs.shape[0]):
@@ -46,7 +48,7 @@ def spring_pass(positions, springs, stiffness, rest_length, length, unit, tensio
         tension[s] = stiffness[s] * (current - rest_length[s])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def correction_pass(length, edge_spring, correction_matrix, axis_rest_length, push):
     """T_j per element (physics.md 3): push[m, j] = sum_k W[m, j, k] eps_k."""
     eps = np.empty(3)
@@ -61,7 +63,7 @@ def correction_pass(length, edge_spring, correction_matrix, axis_rest_length, pu
                           + correction_matrix[m, j, 2] * eps[2])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def subtract_pushes(edge_spring, push, tension):
     """Projected corrections act along the current edge: a push T lowers the edge's tension by T."""
     for m in range(edge_spring.shape[0]):
@@ -69,7 +71,7 @@ def subtract_pushes(edge_spring, push, tension):
             tension[edge_spring[m, e]] -= push[m, e // 4]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def scatter_springs(springs, unit, tension, damping, velocities, use_velocity, forces):
     """forces += t u on node a and -t u on node b, with t = tension + damping * (dv . u)."""
     for s in range(springs.shape[0]):
@@ -84,7 +86,7 @@ def scatter_springs(springs, unit, tension, damping, velocities, use_velocity, f
             forces[b, c] -= t * unit[s, c]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def fixed_direction_corrections(elements, push, rest_direction, forces):
     """The published variant: corrections along the rest directions of the element edges."""
     for m in range(elements.shape[0]):
@@ -100,12 +102,12 @@ def fixed_direction_corrections(elements, push, rest_direction, forces):
 _LEXICOGRAPHIC_TO_VTK = np.array([0, 1, 3, 2, 4, 5, 7, 6])
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def hex_volume(corner, d=None):
     """Exact volume (m^3) of a trilinear hexahedron from its (8, 3) corners, VTK order.
 
@@ -136,7 +138,7 @@ def hex_volume(corner, d=None):
     return volume / 12.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def element_volumes(positions, elements, out):
     """``out[e]`` = exact volume (m^3) of every trilinear hexahedron (``hex_volume``), no temporaries
     per element: 10x faster than the batched Gauss determinants of ``mesh.hex_volumes``."""
@@ -156,7 +158,7 @@ _VOLUME_TRIPLES = np.array([
     [5, 6, 7, -1]])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def volume_jacobian_terms(positions, elements, rest_volume, kappa, coefficient, direction, gradient):
     """Per element the volume forces' stiffness K_v = c h grad(V)^T (physics.md 4): the coefficient
     c = 2 kappa |dV| / V0^2 (N/m^4... per m^3 of volume change), the force directions h (M, 8, 3),
@@ -165,13 +167,13 @@ def volume_jacobian_terms(positions, elements, rest_volume, kappa, coefficient, 
     volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, coefficient, direction, gradient)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def volume_pass(positions, elements, rest_volume, kappa, forces):
     """Volume-conservation forces (physics.md 4) with exact trilinear element volumes."""
     volume_forces_add(positions, elements, rest_volume, kappa, forces)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def csr_matvec_add(indptr, indices, data, vector, scale, out):
     """out += scale * A @ vector for a CSR matrix (flat dof vectors)."""
     for row in range(indptr.shape[0] - 1):
@@ -182,7 +184,7 @@ def csr_matvec_add(indptr, indices, data, vector, scale, out):
 
 
 # -- implicit Euler -----------------------------------------------------------------------------
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_length, vector, scale, out):
     """out += scale * K_c vector, K_c = -G W^ G^T the corrections' strain coupling (matrix-free:
     per element 12 edge elongation rates -> 3 axis strains -> 3 pushes -> 12 edge forces)."""
@@ -208,7 +210,7 @@ def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_lengt
                 out[3 * p + c] += scale * push * edge_unit[m, e, c]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def health(positions, velocities, low, high):
     """(all finite, max speed in m/s, all nodes inside [low, high]) in one pass."""
     finite = True
@@ -229,7 +231,7 @@ def health(positions, velocities, low, high):
     return finite, np.sqrt(max_speed_squared), inside
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def any_inverted(positions, elements, neighbours, signs):
     """True when a corner Jacobian (signed corner frame volume) of any element is <= 0."""
     for m in range(elements.shape[0]):
@@ -250,7 +252,7 @@ def any_inverted(positions, elements, neighbours, signs):
 _FAST = {"nsz", "arcp", "contract", "reassoc"}
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_length, damping,
                  elements, edge_spring, correction_matrix, axis_rest_length, correction_kind, rest_edge_direction,
                  rest_volume, kappa, has_volume, hg_indptr, hg_indices, hg_data, rest_positions, has_hourglass,
@@ -333,7 +335,7 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
             flat[row] -= total
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def symplectic_update(positions, velocities, forces, gravity_force, control_force, mass, dt, fixed, target,
                       out_positions, out_velocities):
     """v1 = v0 + dt (f + f_gravity + f_control) / m, x1 = x0 + dt v1; imposed components move to their
@@ -350,7 +352,7 @@ def symplectic_update(positions, velocities, forces, gravity_force, control_forc
                 out_positions[node, c] = positions[node, c] + dt * v
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_scale, damping_scale, stiffness_scale,
                     elements, edge_spring, correction_matrix, axis_rest_length, coupling_scale,
                     volume_coefficient, volume_direction, volume_gradient, volume_scale,
@@ -440,7 +442,7 @@ def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_sca
         out[i] *= mask[i]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _apply(data, scales, mask, vector, out):
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
@@ -450,7 +452,7 @@ def _apply(data, scales, mask, vector, out):
                     hg_indptr, hg_indices, hg_data, scales[5], mask, vector, out, elongation, delta)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def apply_operator(data, scales, mask, vector, out):
     """``spring_operator`` with its arguments packed: data = (springs, unit, stiffness, damping,
     geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length, volume_coefficient,
@@ -459,7 +461,7 @@ def apply_operator(data, scales, mask, vector, out):
     _apply(data, scales, mask, vector, out)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, symmetric, work, solution):
     """The implicit Euler solve on the matrix-free ``spring_operator``: Jacobi-preconditioned CG
     (symmetric) or right-preconditioned BiCGSTAB, with the vector updates fused into single passes
@@ -598,7 +600,7 @@ def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, sym
     return iterations, residual
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def operator_matrix_data(data, scales, spring_positions, element_positions, hg_positions, diagonal_positions, out):
     """``out`` (the model's ``BlockPattern`` data, zeroed here) = the matrix that ``apply_operator``
     applies with these ``scales`` (no mask): mass, spring blocks (clamped geometric term), the
@@ -669,7 +671,7 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
             out[hg_positions[k]] += hg_scale * hg_data[k]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def volume_forces_add(positions, elements, rest_volume, kappa, forces):
     """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3): the
     body of ``volume_forces_jacobian_add`` without the stiffness terms."""
@@ -677,14 +679,14 @@ def volume_forces_add(positions, elements, rest_volume, kappa, forces):
     _volume_forces(positions, elements, rest_volume, kappa, forces, False, np.empty(0), none, none)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, coefficient, direction, gradient):
     """``volume_forces_add`` that also fills the rank-one stiffness terms of
     ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3)."""
     _volume_forces(positions, elements, rest_volume, kappa, forces, True, coefficient, direction, gradient)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _volume_forces(positions, elements, rest_volume, kappa, forces, jacobian, coefficient, direction, gradient):
     """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3), with
     exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
@@ -988,7 +990,7 @@ def _volume_forces(positions, elements, rest_volume, kappa, forces, jacobian, co
 # Every per-copy array has the copy as its last axis ((S, N), (S, 3, N), (3 n, N) ...), so each loop over
 # springs, elements or hourglass entries reads its indices once for all N copies (the inner loop over
 # copies is contiguous). Same formulas as ``spring_operator`` / ``solve_springs``.
-@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, vector, row, total):
     """total (N,) = row ``row`` of each copy's hourglass matrix (CSR ``hg_indptr``, ``hg_indices`` of
     one copy, values ``hg_data[:, hg_group[c]]`` (nnz, G)) times that copy's column of ``vector``
@@ -1007,7 +1009,7 @@ def _copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, vector, row, t
                 total[c] += hg_data[k, hg_group[c]] * vector[col, c]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_scale, damping_scale,
                             stiffness_scale, elements, edge_spring, correction_matrix, axis_rest_length,
                             coupling_scale, volume_coefficient, volume_direction, volume_gradient, volume_scale,
@@ -1100,7 +1102,7 @@ def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, 
             out[i, c] *= mask[i, c]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _batched_apply(data, scales, mask, vector, out):
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
@@ -1111,14 +1113,14 @@ def _batched_apply(data, scales, mask, vector, out):
                             hg_indptr, hg_indices, hg_data, hg_group, scales[5], mask, vector, out, elongation, delta)
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def batched_apply_operator(data, scales, mask, vector, out):
     """``batched_spring_operator`` with its arguments packed as ``apply_operator``'s (copies last), plus
     hg_group (N,) last."""
     _batched_apply(data, scales, mask, vector, out)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _lu_offsets(ints):
     """Offsets in a packed sparse LU's ``ints`` ([k, nnz_L, nnz_U, L indptr (k + 1), L indices,
     U indptr (k + 1), U indices, gather (k), free (k), perm_c (k)], see ``_lu_apply``): (nnz_L,
@@ -1133,7 +1135,7 @@ def _lu_offsets(ints):
     return nnz_l, lp, li, up, ui, gather, gather + k, gather + 2 * k
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _subtract_block(values, base, buffer, j, a0, a1, a2, used):
     """a -= B x for columns t < ``used``: B the row-major 3x3 block values[base:base + 9], x the
     rows j, j + 1, j + 2 of ``buffer`` (the node-block triangular solves' inner update)."""
@@ -1149,7 +1151,7 @@ def _subtract_block(values, base, buffer, j, a0, a1, a2, used):
         a2[t] -= b20 * x0 + b21 * x1 + b22 * x2
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulator):
     """out[:, columns[:used]] = A^-1 vector[:, columns[:used]] through a packed node-block sparse LU
     (``sparse.NodeBlockLU``): P A P^T = L U with P a permutation of whole nodes and L, U
@@ -1215,7 +1217,7 @@ def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulato
             out[row, columns[t]] = buffer[j, t]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr, u_indices, out, work):
     """Numeric LU without pivoting, P A P^T = L U, of a matrix of dense 3 x 3 blocks on a given
     fill pattern (``sparse.NodeBlockLU``). A: block CSR (a_indptr, a_indices, a_values: 9
@@ -1293,7 +1295,7 @@ def block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr
     return True
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def block_lu_apply(ints, values, mask, vector, out, buffer):
     """out = mask * A^-1 vector (n,) through a packed node-block LU: ``_block_lu_solve`` with one
     column (a copy specialised for one right-hand side was measured only 9-11% faster); the dofs
@@ -1308,7 +1310,7 @@ def block_lu_apply(ints, values, mask, vector, out, buffer):
         out[i] *= mask[i]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _batched_precondition(lu_int, lu_float, group_of, running, inverse_diagonal, mask, vector, out, columns,
                           buffer, accumulator):
     """out = mask * P_c vector[:, c] per ``running`` copy c (0 for the others): P the inverse of the
@@ -1379,7 +1381,7 @@ def _batched_precondition(lu_int, lu_float, group_of, running, inverse_diagonal,
             out[i, c] *= mask[i, c]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def batched_solve(data, scales, mask, rhs, guess, active, tolerance, max_iterations, lu_int, lu_float, group_of, work,
                   solution, iterations, residual):
     """Right-preconditioned BiCGSTAB (``solve_springs``' algorithm) of every ``active`` copy, in lockstep
@@ -1558,7 +1560,7 @@ def batched_solve(data, scales, mask, rhs, guess, active, tolerance, max_iterati
 
 
 # -- per-copy solves with sparse LU preconditioners (tissue_env.batched, solver "factorised") --------
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _lu_apply(ints, values, mask, vector, out, buffer):
     """out = mask * A^-1 vector through one packed sparse LU: Pr A Pc = L U on the copy's free dofs
     (SuperLU's convention). ``ints``: [k, nnz_L, nnz_U, L indptr (k + 1), L indices, U indptr (k + 1),
@@ -1597,7 +1599,7 @@ def _lu_apply(ints, values, mask, vector, out, buffer):
         out[row] = mask[row] * buffer[ints[perm_c + i]]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _corrected_lu_apply(ints, values, mask, ones, correction, imposed, gathered, vector, out, buffer):
     """out = mask * (y - correction @ y[imposed]) with y = A^-1 vector (``_lu_apply`` without mask):
     a factor of a larger free set F restricted exactly to the free dofs ``mask`` (capacitance
@@ -1618,7 +1620,7 @@ def _corrected_lu_apply(ints, values, mask, ones, correction, imposed, gathered,
         out[i] = mask[i] * value
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def bsr3_matvec_add(indptr, indices, data, vector, scale, out):
     """out += scale * A @ vector for a matrix of 3 x 3 node blocks (``forces.hourglass_blocks``:
     block indptr (n + 1,), node columns (nb,), row-major block values (9 nb,); flat dof vectors):
@@ -1639,7 +1641,7 @@ def bsr3_matvec_add(indptr, indices, data, vector, scale, out):
         out[3 * i + 2] += scale * t2
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
 def _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out):
     """``_apply`` with the hourglass term read from the node-block (BSR) form of the hourglass matrix
     (``hg_block_indptr`` (n + 1,), ``hg_block_indices`` (nb,) node columns, ``hg_block_data`` (9 nb,)
@@ -1658,14 +1660,14 @@ def _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_bloc
         out[i] *= mask[i]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def apply_operator_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out):
     """``apply_operator`` with the hourglass term read from the node-block (BSR) form of the
     hourglass matrix (``_apply_blocks``; the single envs' implicit step, ``ImplicitEuler``)."""
     _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _copy_data(stacked, hg_rows, hg_group, c):
     """``apply_operator``'s data of copy ``c`` of a stacked model (copies first; ``solve_copies_lu``,
     ``factor_copies``): its slices of the per-spring, per-node and per-element arrays, the shared
@@ -1682,7 +1684,7 @@ def _copy_data(stacked, hg_rows, hg_group, c):
             elongation[a:b], delta[a:b])
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
                 factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
                 hg_block_indices, hg_block_rows, ones, c):
@@ -1812,7 +1814,7 @@ def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
                     hg_block_indices, hg_block_rows, ones, np.int64(copy))
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def solve_copies_lu_serial(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
                            lu_float, factor_of, corrections, imposed, work, solution, iterations, residual,
                            hg_block_indptr, hg_block_indices, hg_block_rows):
@@ -1826,7 +1828,7 @@ def solve_copies_lu_serial(stacked, scales, hg_rows, hg_group, mask, rhs, guess,
                     hg_block_indices, hg_block_rows, ones, c)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def projected_probe_surface(x, z, tips, weights, offsets, reference, radius, flat, out):
     """``contact.Probe``'s projected bound of each entry e (a node near a probe): the average over
     the node's support, weighted by its hat function (``weights`` (E, Q), summing to 1), of
@@ -1857,7 +1859,7 @@ def projected_probe_surface(x, z, tips, weights, offsets, reference, radius, fla
 
 
 # -- batched factorisations (tissue_env.batched, solver "factorised") ----------------------------------
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def operator_matrix_data_blocks(data, scales, spring_positions, element_positions, hg_positions, diagonal_positions,
                                 node_edge, node_sign, out):
     """``operator_matrix_data`` (the same matrix, up to rounding) with the corrections' coupling
@@ -1936,7 +1938,7 @@ def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_
             lu_float[copies[t]] = outs[t]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def factor_copies_serial(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
                          diagonal_positions, copies, covers, node_dofs, take, rows, columns, a_map, a_indptr,
                          a_indices, l_indptr, l_indices, u_indptr, u_indices, ints, values, a_values, work, lu_int,
@@ -1955,7 +1957,7 @@ def factor_copies_serial(stacked, scales, hg_rows, hg_group, spring_positions, e
             lu_float[copies[t]] = out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
                  diagonal_positions, c, cover, node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
                  l_indices, u_indptr, u_indices, values, a_values, work, out, node_edge, node_sign):
@@ -1977,7 +1979,7 @@ def _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_p
     return block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr, u_indices, out, work)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def covered_points(points, positions, quads, out):
     """out[c, p] = whether the 2D point ``points[c, p]`` (N, P, 2) lies inside at least one convex quad
     of copy c, of either orientation; quad q's corners are the nodes ``quads[q]`` (Q, 4) of
@@ -2012,7 +2014,7 @@ def covered_points(points, positions, quads, out):
             out[c, p] = inside
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def stacked_hourglass_subtract(hg_indptr, hg_indices, hg_data, hg_group, positions, rest_positions, forces,
                                displacement):
     """forces (N n, 3) -= K_c (x_c - X_c) for every copy c of a stacked model (copies first: copy c's
@@ -2036,7 +2038,7 @@ def stacked_hourglass_subtract(hg_indptr, hg_indices, hg_data, hg_group, positio
             flat[c * dofs + row] -= total[c]
 
 
-@njit(cache=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def serial_product(a, b):
     """a @ b (m, k) x (k, p) in this thread: a product of a few-column matrix by a small one
     (``integrators.InverseColumns.correction``: m the dofs, k = p the imposed dofs, at most

@@ -10,6 +10,7 @@ the implicit step's preconditioner (``integrators.node_block_factor``) and the v
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -96,8 +97,9 @@ class NodeBlockLU:
         free: (k,) the free dofs, whole nodes in order (``applies``).
     Raises np.linalg.LinAlgError on a zero or non-finite pivot."""
 
-    #: symbolic structures per (free set, matrix pattern)
+    #: symbolic structures per (free set, matrix pattern), shared by all threads (``_lock``)
     _structures: OrderedDict = OrderedDict()
+    _lock = threading.Lock()
 
     @staticmethod
     def applies(free) -> bool:
@@ -111,13 +113,16 @@ class NodeBlockLU:
     def __init__(self, matrix, free):
         matrix = sp.csc_matrix(matrix)
         key = (np.asarray(free).tobytes(), matrix.indptr.tobytes(), matrix.indices.tobytes())
-        structure = self._structures.get(key)
+        with self._lock:
+            structure = self._structures.get(key)
+            if structure is not None:
+                self._structures.move_to_end(key)
         if structure is None:
-            structure = self._structures[key] = _block_structure(matrix, np.asarray(free))
-            if len(self._structures) > ORDER_CACHE_SIZE:
-                self._structures.popitem(last=False)
-        else:
-            self._structures.move_to_end(key)
+            structure = _block_structure(matrix, np.asarray(free))
+            with self._lock:
+                self._structures[key] = structure
+                if len(self._structures) > ORDER_CACHE_SIZE:
+                    self._structures.popitem(last=False)
         a_indptr, a_indices, a_map, l_indptr, l_indices, u_indptr, u_indices, self.ints = structure
         a_values = np.zeros(9 * len(a_indices))
         a_values[a_map] = matrix.data

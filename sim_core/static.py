@@ -11,6 +11,7 @@ constrained tangent) so that experiments can report them.
 
 from __future__ import annotations
 
+import threading
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -72,31 +73,38 @@ class FactorCache:
     (bitwise) and the damping: it holds exactly the factor ``solve_static`` would compute there, so a
     hit changes no result, only skips the factorisation. Least recently used entries are dropped past
     ``size``; entries of a model that no longer exists are never matched (the model is held weakly).
+    Thread-safe (the vector envs reset their copies, which share one cache, on several threads): the
+    factorisations run outside the lock, so two threads missing the same entry at once both compute
+    it (the same floats).
     """
 
     def __init__(self, size: int = 8):
         self.size = int(size)
         self._entries: OrderedDict = OrderedDict()
         self.hits = self.misses = 0
+        self._lock = threading.Lock()
 
     def factorise(self, model, positions, free, damping):
         """(stiffness, LU of the damped K_ff) at ``positions``: cached or computed (and stored)."""
         key = (id(model), free.tobytes(), np.ascontiguousarray(positions, dtype=float).tobytes(), float(damping))
-        entry = self._entries.get(key)
-        if entry is not None and entry[0]() is model:
+        with self._lock:
+            entry = self._entries.get(key)
+            if entry is not None and entry[0]() is model:
+                self._entries.move_to_end(key)
+                self.hits += 1
+                return entry[1]
+            self.misses += 1
+        value = _factorise(model, positions, free, damping)  # outside the lock: threads factorise at once
+        with self._lock:
+            self._entries[key] = (weakref.ref(model), value)
             self._entries.move_to_end(key)
-            self.hits += 1
-            return entry[1]
-        self.misses += 1
-        value = _factorise(model, positions, free, damping)
-        self._entries[key] = (weakref.ref(model), value)
-        self._entries.move_to_end(key)
-        while len(self._entries) > self.size:
-            self._entries.popitem(last=False)
+            while len(self._entries) > self.size:
+                self._entries.popitem(last=False)
         return value
 
     def clear(self):
-        self._entries.clear()
+        with self._lock:
+            self._entries.clear()
 
     def __getstate__(self):  # LU objects do not pickle: copies start empty
         return dict(size=self.size)
@@ -332,9 +340,12 @@ def tangent_stiffness(model: Model, positions: np.ndarray) -> sp.csr_matrix:
 def _tangent_data(model, positions):
     if model.correction_mode not in (None, "projected"):
         return stiffness_data(model, positions)
-    workspace = _WORKSPACES.get(model)
+    workspaces = getattr(_WORKSPACES, "models", None)
+    if workspaces is None:
+        workspaces = _WORKSPACES.models = weakref.WeakKeyDictionary()
+    workspace = workspaces.get(model)
     if workspace is None:
-        workspace = _WORKSPACES[model] = ForceWorkspace(model, implicit=True)
+        workspace = workspaces[model] = ForceWorkspace(model, implicit=True)
     workspace.compute(np.ascontiguousarray(positions, dtype=float), None, geometric=True,
                       volume_jacobian=model.has_volume_forces)
     np.divide(workspace.tension, workspace.length, out=workspace.geometric)  # Newton's tangent: not clamped
@@ -354,7 +365,9 @@ def _free_tangent(model, positions, free):
     return model.pattern.matrix(values).tocsr(), reduced
 
 
-_WORKSPACES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+#: ``_tangent_data``'s force workspace per model, one set per thread (a workspace's arrays are
+#: overwritten by every pass: the vector envs' copies share a model and reset on several threads)
+_WORKSPACES = threading.local()
 
 
 def _factorise(model, positions, free, damping):

@@ -19,6 +19,7 @@ per Newton iteration), so it is used only at reset (initial sag under gravity, g
 
 from __future__ import annotations
 
+import threading
 import weakref
 from collections import OrderedDict
 
@@ -245,6 +246,9 @@ class TissueEnv(gym.Env):
         self.centre = 0.5 * (nodes.min(axis=0) + nodes.max(axis=0))
         self.surface_nodes = self.mesh.surface_nodes()
         self._surface_faces = self.mesh.surface_faces()
+        # the caches below are shared by a vector env's copies (``share_caches``), which may reset on
+        # several threads: one lock guards them
+        self._cache_lock = threading.RLock()
         self._model_cache: OrderedDict = OrderedDict()
         self._start_cache: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> start positions
         # id(model) -> (integrator options, ImplicitEuler.factor_snapshot() taken when the first step
@@ -327,27 +331,27 @@ class TissueEnv(gym.Env):
     # -- model building --------------------------------------------------------------------------
     def _model(self, young_modulus, poisson_ratio, task_key):
         key = (float(young_modulus), float(poisson_ratio), task_key)
-        model = self._model_cache.get(key)
-        if model is None:
-            model = build_model(
-                self.mesh, self._material(young_modulus, poisson_ratio, task_key),
-                gravity=(0.0, -self.gravity, 0.0), hourglass_control=self.hourglass_control,
-                volume_stiffness=self.volume_stiffness)
-            self._model_cache[key] = model
-            if len(self._model_cache) > MODEL_CACHE_SIZE:
-                self._model_cache.popitem(last=False)
-        else:
-            self._model_cache.move_to_end(key)
-        return model
+        with self._cache_lock:
+            model = self._model_cache.get(key)
+            if model is None:
+                model = build_model(
+                    self.mesh, self._material(young_modulus, poisson_ratio, task_key),
+                    gravity=(0.0, -self.gravity, 0.0), hourglass_control=self.hourglass_control,
+                    volume_stiffness=self.volume_stiffness)
+                self._model_cache[key] = model
+                if len(self._model_cache) > MODEL_CACHE_SIZE:
+                    self._model_cache.popitem(last=False)
+            else:
+                self._model_cache.move_to_end(key)
+            return model
 
     def _start_positions(self, model):
         # The start depends only on the model (the tool starts at rest): computed once per model.
-        cache = self._start_cache.get(model)
-        if cache is not None:
+        with self._cache_lock:  # held while a missing start is solved: once per model
+            cache = self._start_cache.get(model)
+            if cache is None:
+                cache = self._start_cache[model] = self._initial_positions(model, self._control())
             return cache.copy()
-        positions = self._initial_positions(model, self._control())
-        self._start_cache[model] = positions
-        return positions.copy()
 
     # -- Gymnasium API -----------------------------------------------------------------------------
     def reset(self, *, seed=None, options=None):
@@ -369,7 +373,8 @@ class TissueEnv(gym.Env):
         self.integrator = make_integrator(self.integrator_name, **options)
         # Every episode of a model starts from the same state, so the first implicit step's system
         # matrix is always the same: its factorisation, once made, is reused (exactly the same steps).
-        snapshot = self._first_factors.get(id(self.model)) if self.integrator_name == "implicit" else None
+        with self._cache_lock:
+            snapshot = self._first_factors.get(id(self.model)) if self.integrator_name == "implicit" else None
         if snapshot is not None and snapshot[0] == options and snapshot[1][0].model is self.model:
             self.integrator.adopt_factor(snapshot[1])
         positions = self._start_positions(self.model)
@@ -388,10 +393,20 @@ class TissueEnv(gym.Env):
     def _start_hook(self):
         """Called at the end of reset, after the state exists (task bookkeeping)."""
 
+    def __getstate__(self):  # a lock does not pickle: a copy gets its own (and its own caches)
+        state = self.__dict__.copy()
+        state.pop("_cache_lock", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._cache_lock = threading.RLock()
+
     def share_caches(self, other):
         """Use ``other``'s models, start states, first-step factorisations and task caches (an env
         built with the same keywords; the vector envs call it for their copies). Tasks with caches
         of their own extend it."""
+        self._cache_lock = other._cache_lock
         self._model_cache, self._start_cache = other._model_cache, other._start_cache
         self._first_factors = other._first_factors
         self.model = other.model
@@ -418,10 +433,12 @@ class TissueEnv(gym.Env):
                  and id(self.model) not in self._first_factors)
         reason = self._advance(self.control)
         if first and reason is None and self.integrator.factorisations == 1:  # factorised at the first step
-            self._first_factors[id(self.model)] = (
-                dict(tolerance=self.solver_tolerance, preconditioner=self.preconditioner), self.integrator.factor_snapshot())
-            if len(self._first_factors) > MODEL_CACHE_SIZE:
-                self._first_factors.popitem(last=False)
+            with self._cache_lock:
+                self._first_factors[id(self.model)] = (
+                    dict(tolerance=self.solver_tolerance, preconditioner=self.preconditioner),
+                    self.integrator.factor_snapshot())
+                if len(self._first_factors) > MODEL_CACHE_SIZE:
+                    self._first_factors.popitem(last=False)
         self.elapsed_steps += 1
         self.measures = self._measure(self.state)
         self._record(self.measures)

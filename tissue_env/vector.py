@@ -41,6 +41,7 @@ static solve for the goal, the same code in both modes, about 30% of its vector 
 from __future__ import annotations
 
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -148,6 +149,7 @@ class TissueVectorEnv(VectorEnv):
         self.elapsed = np.zeros(count, dtype=int)
         self.monitors = [None] * count
         self._autoreset = np.zeros(count, dtype=bool)
+        self._pool = None  # the reset threads (``_reset_rows``), started at the first threaded reset
         self._started = False
         self._observations = None
         self._feature_sizes = env._feature_sizes
@@ -213,11 +215,27 @@ class TissueVectorEnv(VectorEnv):
         self._load_task(index, env)
 
     def _reset_rows(self, rows, seeds, options):
+        """Reset the copies ``rows`` by their task envs' own ``reset``, on ``threads`` Python threads
+        when the vector env has more than one (``kernels.threaded``): most of a reset's time (a goal
+        or start solve: SuperLU, the nogil compiled kernels) runs without the GIL, and each copy's
+        reset reads only its own env and the lock-guarded shared caches, so the results are those of
+        the serial loop (measured: TumorPositioning's 16 resets 1.5x faster on 2 threads). Then each
+        copy's state is loaded into the batch, in row order."""
+        envs = self.envs
+
+        def reset(index):
+            return envs[index].reset(seed=seeds[index], options=options)
+
+        if len(rows) > 1 and kernels.threaded(self.threads):
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="tissue-reset")
+            results = list(self._pool.map(reset, rows))
+        else:
+            results = [reset(index) for index in rows]
         observations, infos = {}, {}
-        for index in rows:
-            observations[index], info = self.envs[index].reset(seed=seeds[index], options=options)
+        for index, (observation, info) in zip(rows, results):
+            observations[index], infos[index] = observation, info
             self._load(index)
-            infos[index] = info
         return observations, infos
 
     # -- Gymnasium vector API -----------------------------------------------------------------------
@@ -488,6 +506,9 @@ class TissueVectorEnv(VectorEnv):
         return tuple(frames)
 
     def close_extras(self, **kwargs):
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
         for env in self.envs:
             env.close()
 
