@@ -285,10 +285,12 @@ class TumorPositioningVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``TumorPositioningEnv``)."""
 
     env_class = TumorPositioningEnv
-    # Measured (N = 16, 100 random steps): the start-of-episode node-block LU shared by the copies,
-    # all copies' right-hand sides in one pass, 2.5x faster in the physics step than per-copy sparse
-    # LUs solved one after the other (1.1 s against 2.7 s; about 5 lockstep iterations, 2.8 per copy,
-    # either way). The measurement's force pass is the next step's (the reaction force only reads it).
+    # Measured (N = 16, 100 random steps): the start-of-episode node-block LU shared by the copies
+    # as every copy's preconditioner, solved in lockstep, was 2.5x faster in the physics step than
+    # per-copy LUs kept up to date (solver "factorised", one copy after the other: 1.1 s against
+    # 2.7 s; about 2.9 iterations per copy either way); solved per copy on 2 threads it is 15%
+    # faster again (``batched._solve_shared``). The measurement's force pass is the next step's (the
+    # reaction force only reads it).
     linear_solver = "reference"
     share_force_pass = True
 

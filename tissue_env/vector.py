@@ -22,20 +22,20 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
 actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
-README's run): env steps per wall second, sync -> vector env, TumorPositioning 379 -> 659 (1.7x),
-Palpation 780 -> 1396 (1.8x), Retraction 384 -> 1093 (2.9x); on one thread (``threads=1``) the
-vector env does 1.7 / 1.3 / 1.9x the sync env's steps per CPU second. TumorPositioning's copies
-are solved in lockstep with one node-block LU of the start matrix that they share (solver
-"reference"); Palpation's and Retraction's each have their own node-block LU, capacitance-corrected
-for their contacts (solver "factorised"), whose factorisations (``kernels.factor_copies``) and
-BiCGSTABs (``kernels.solve_copies_lu``) run on numba's threads, a copy per thread at a time (the
-lockstep gains nothing from threads: each pass reads the shared factor's blocks and the operator's
-springs once for all copies, so half the copies cost most of a whole pass). Every task measures
-with the next step's force pass (``share_force_pass``), the force pass reads one copy's hourglass
-matrix for all copies (``batched.StackedForceWorkspace``) and the per-copy solves read it in node
-blocks. What batching cannot share is each copy's own sparse algebra
-(Retraction's floor re-factorises at about two steps in three) and TumorPositioning's resets (a
-static solve for the goal, the same code in both modes, about 30% of its vector env's time).
+README's run): env steps per wall second, sync -> vector env, TumorPositioning 351 -> 695 (2.0x),
+Palpation 735 -> 1308 (1.8x), Retraction 311 -> 1005 (3.2x); on one thread (``threads=1``) the
+vector env does 1.4 / 1.3 / 2.2x the sync env's steps per CPU second. Every copy's BiCGSTAB runs
+in ``kernels.solve_copies_lu`` on numba's threads, a copy per thread at a time: TumorPositioning's
+preconditioned by one node-block LU of the start matrix that the copies share (solver
+"reference"), Palpation's and Retraction's by their own node-block LUs, capacitance-corrected for
+their contacts (solver "factorised"), whose factorisations (``kernels.factor_copies``) run on the
+threads too. The copies' resets (their task envs' own ``reset``) run on a pool of as many Python
+threads (``_reset_rows``; a static solve releases the GIL for most of its time). Every task
+measures with the next step's force pass (``share_force_pass``), the force pass reads one copy's
+hourglass matrix for all copies (``batched.StackedForceWorkspace``) and the per-copy solves read it
+in node blocks. What batching cannot share is each copy's own sparse algebra (Retraction's floor
+re-factorises at about two steps in three) and TumorPositioning's resets (a static solve for the
+goal, the same code in both modes).
 """
 
 from __future__ import annotations
