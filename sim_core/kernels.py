@@ -335,6 +335,36 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
             flat[row] -= total
 
 
+@njit(cache=True, error_model="numpy", fastmath=_FAST, parallel=True)
+def model_forces_copies(count, positions, velocities, use_velocity, springs, stiffness, rest_length, damping,
+                        elements, edge_spring, correction_matrix, axis_rest_length, correction_kind,
+                        rest_edge_direction, rest_volume, kappa, has_volume, length, unit, tension, push, forces,
+                        want_geometric, geometric, want_volume_jacobian, volume_coefficient, volume_direction,
+                        volume_gradient):
+    """``model_forces`` (without the hourglass term) of a stacked model of ``count`` equal copies
+    (copies first: copy c's nodes, springs and elements are the c-th equal slices), one copy per
+    numba thread at a time: ``springs``, ``elements`` and ``edge_spring`` are ONE copy's topology
+    (local indices); every other array is the stacked model's. The copies are disjoint, so each
+    writes only its own slices, in the stacked pass's order: the same floats as ``model_forces`` on
+    the stacked model."""
+    n = positions.shape[0] // count
+    n_springs, n_elements = springs.shape[0], elements.shape[0]
+    g = geometric.shape[0] // count  # 0 for a forces-only workspace
+    v = volume_coefficient.shape[0] // count
+    no_int = np.zeros(1, dtype=np.int64)
+    no_float = np.zeros(1)
+    for c in prange(count):
+        a, b = c * n_springs, (c + 1) * n_springs
+        e0, e1 = c * n_elements, (c + 1) * n_elements
+        model_forces(positions[c * n:(c + 1) * n], velocities[c * n:(c + 1) * n], use_velocity, springs,
+                     stiffness[a:b], rest_length[a:b], damping[a:b], elements, edge_spring, correction_matrix[e0:e1],
+                     axis_rest_length[e0:e1], correction_kind, rest_edge_direction[e0:e1], rest_volume[e0:e1],
+                     kappa[e0:e1], has_volume, no_int, no_int, no_float, positions[c * n:(c + 1) * n], False,
+                     length[a:b], unit[a:b], tension[a:b], push[e0:e1], forces[c * n:(c + 1) * n], want_geometric,
+                     geometric[c * g:(c + 1) * g], want_volume_jacobian, volume_coefficient[c * v:(c + 1) * v],
+                     volume_direction[c * v:(c + 1) * v], volume_gradient[c * v:(c + 1) * v])
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def symplectic_update(positions, velocities, forces, gravity_force, control_force, mass, dt, fixed, target,
                       out_positions, out_velocities):
@@ -1828,6 +1858,35 @@ def solve_copies_lu_serial(stacked, scales, hg_rows, hg_group, mask, rhs, guess,
                     hg_block_indices, hg_block_rows, ones, c)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones, vector,
+                out, c):
+    """out[c] = A_c vector[c] (no mask): ``_apply_blocks`` on copy ``c``'s data (``_copy_data``)."""
+    _apply_blocks(_copy_data(stacked, hg_rows, hg_group, c), scales, ones, hg_block_indptr, hg_block_indices,
+                  hg_block_rows[hg_group[c]], ones, vector[c], out[c])
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, parallel=True)
+def apply_copies(stacked, scales, hg_rows, hg_group, vector, out, hg_block_indptr, hg_block_indices, hg_block_rows):
+    """out (N, 3 n) = each copy's operator A_c (``apply_operator``'s, the hourglass term in node blocks)
+    times its row of ``vector`` (N, 3 n), the copies shared among numba's threads (``solve_copies_lu``'s
+    arguments: copy c's per-spring and per-element scratch are its own slices)."""
+    ones = np.ones(vector.shape[1])
+    for c in prange(vector.shape[0]):
+        _apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones,
+                    vector, out, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+def apply_copies_serial(stacked, scales, hg_rows, hg_group, vector, out, hg_block_indptr, hg_block_indices,
+                        hg_block_rows):
+    """``apply_copies`` in this thread only (one thread, a forked process): the same floats."""
+    ones = np.ones(vector.shape[1])
+    for c in range(vector.shape[0]):
+        _apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones,
+                    vector, out, c)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def projected_probe_surface(x, z, tips, weights, offsets, reference, radius, flat, out):
     """``contact.Probe``'s projected bound of each entry e (a node near a probe): the average over
@@ -2014,28 +2073,49 @@ def covered_points(points, positions, quads, out):
             out[c, p] = inside
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, block, blocks, fill):
+    """Rows [block dofs / blocks, (block + 1) dofs / blocks) of ``stacked_hourglass_subtract``: the
+    copies' displacements there (``fill``), else their forces."""
+    n_copies = hg_group.shape[0]
+    dofs = hg_indptr.shape[0] - 1
+    first, last = block * dofs // blocks, (block + 1) * dofs // blocks
+    if fill:
+        for c in range(n_copies):
+            for i in range(first, last):
+                displacement[i, c] = x[c * dofs + i] - rest[c * dofs + i]
+        return
+    total = np.empty(n_copies)
+    for row in range(first, last):
+        _copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, displacement, row, total)
+        for c in range(n_copies):
+            flat[c * dofs + row] -= total[c]
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
-def stacked_hourglass_subtract(hg_indptr, hg_indices, hg_data, hg_group, positions, rest_positions, forces,
-                               displacement):
+def stacked_hourglass_subtract_serial(hg_indptr, hg_indices, hg_data, hg_group, positions, rest_positions, forces,
+                                      displacement):
     """forces (N n, 3) -= K_c (x_c - X_c) for every copy c of a stacked model (copies first: copy c's
     nodes are the c-th n rows), K_c the hourglass matrix of ONE copy (CSR ``hg_indptr``,
     ``hg_indices``) with the values ``hg_data[:, hg_group[c]]`` ((nnz, G): the G distinct matrices).
     ``model_forces``' hourglass term of the stacked model, reading the single copy's matrix once for
     all copies instead of a stacked matrix N times its size (out of cache at N = 16).
     ``displacement`` (3 n, N) scratch."""
-    n_copies = hg_group.shape[0]
-    dofs = hg_indptr.shape[0] - 1
-    flat = forces.reshape(-1)
-    x = positions.reshape(-1)
-    rest = rest_positions.reshape(-1)
-    for c in range(n_copies):
-        for i in range(dofs):
-            displacement[i, c] = x[c * dofs + i] - rest[c * dofs + i]
-    total = np.empty(n_copies)
-    for row in range(dofs):
-        _copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, displacement, row, total)
-        for c in range(n_copies):
-            flat[c * dofs + row] -= total[c]
+    x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
+    _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, 0, 1, True)
+    _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, 0, 1, False)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, parallel=True)
+def stacked_hourglass_subtract(hg_indptr, hg_indices, hg_data, hg_group, positions, rest_positions, forces,
+                               displacement, blocks):
+    """``stacked_hourglass_subtract_serial`` with its rows in ``blocks`` blocks (one per numba
+    thread) on numba's threads (a row's sum is the same for any split: the same floats)."""
+    x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
+    for block in prange(blocks):
+        _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, block, blocks, True)
+    for block in prange(blocks):
+        _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, block, blocks, False)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)

@@ -156,3 +156,55 @@ def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
         np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
         hourglass = dt * dt * (stack.models[c].hourglass @ vector)  # the term this checks matters
         assert np.abs(hourglass).max() > 1e-3 * np.abs(expected).max()
+
+
+def test_threaded_force_pass_and_products_give_the_serial_floats():
+    """With more than one thread the stacked force pass runs one copy per thread
+    (``kernels.model_forces_copies``), the hourglass term one block of rows per thread and the
+    right-hand side's operator products one copy per thread (``kernels.apply_copies``): the same
+    floats as the serial pass over the stacked model, bit for bit (the vector envs' results do not
+    depend on the thread count), and the products equal the lockstep kernel's to rounding."""
+    from sim_core import kernels
+    from tissue_env.batched import StackedForceWorkspace
+    for env_id in ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0"):
+        envs = _stepped(env_id, count=4, steps=6, seed=0)
+        stack = envs.stack
+        positions = np.ascontiguousarray(envs.positions.reshape(-1, 3))
+        velocities = np.ascontiguousarray(envs.velocities.reshape(-1, 3))
+        for implicit, args in ((True, dict(velocities=None, geometric=True, volume_jacobian=True)),
+                               (False, dict(velocities=velocities))):
+            serial, threaded = (StackedForceWorkspace(stack, implicit=implicit, threads=t) for t in (1, 2))
+            for workspace in (serial, threaded):
+                workspace.compute(positions, **args)
+            assert np.abs(serial.forces).max() > 0
+            for name in ("forces", "length", "unit", "tension", "push", "geometric", "volume_coefficient",
+                         "volume_direction", "volume_gradient"):
+                np.testing.assert_array_equal(getattr(threaded, name), getattr(serial, name), err_msg=name)
+        integrator = envs.integrator
+        integrator.linearise(positions + 1e-7)  # a fresh linearisation for the products
+        stacked, hg_rows, hg_group = integrator._copies_first()
+        blocks = integrator._hourglass_blocks()
+        system = _system(integrator, envs.dt)
+        vector = np.random.default_rng(1).normal(size=(envs.num_envs, 3 * envs.n_nodes))
+        out = {}
+        for name in ("apply_copies", "apply_copies_serial"):
+            out[name] = np.empty_like(vector)
+            getattr(kernels, name)(stacked, system, hg_rows, hg_group, vector, out[name], *blocks)
+        np.testing.assert_array_equal(out["apply_copies"], out["apply_copies_serial"])
+        workspace, values = integrator.workspace, stack.copies_last()
+        count, springs, elements = envs.num_envs, stack.n_springs, stack.n_elements
+
+        def last(array, rows):
+            return np.ascontiguousarray(np.moveaxis(array.reshape((count, rows) + array.shape[1:]), 0, -1))
+
+        reference = stack.reference
+        hg_indptr, hg_indices, _ = reference.hourglass_arrays
+        data = (reference.springs, last(workspace.unit, springs), values["stiffness"], values["damping"],
+                last(workspace.geometric, springs), values["mass"], reference.mesh.elements, reference.edge_spring,
+                values["correction_matrix"], values["axis_rest_length"],
+                last(workspace.volume_coefficient, elements), last(workspace.volume_direction, elements),
+                last(workspace.volume_gradient, elements), hg_indptr, hg_indices, values["hourglass"],
+                np.empty((springs, count)), np.empty((springs, count)), values["hourglass_group"])
+        lockstep = np.empty((vector.shape[1], count))
+        kernels.batched_apply_operator(data, system, np.ones_like(lockstep), np.ascontiguousarray(vector.T), lockstep)
+        np.testing.assert_allclose(out["apply_copies"], lockstep.T, rtol=0, atol=1e-12 * np.abs(lockstep).max())

@@ -221,22 +221,44 @@ class StackedForceWorkspace(ForceWorkspace):
     copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
     1.8x slower per copy than a single env's. Same forces up to rounding."""
 
-    def __init__(self, stack: ModelStack, implicit: bool = True):
+    def __init__(self, stack: ModelStack, implicit: bool = True, threads: int = 1):
         super().__init__(stack.model, implicit=implicit)
         self.stack = stack
+        #: the hourglass pass runs on numba's threads when ``kernels.threaded(threads)``
+        self.threads = int(threads)
         self._displacement = np.empty((3 * stack.n_nodes, stack.count))
 
     def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False):
-        forces = super().compute(positions, velocities, hourglass=False, geometric=geometric,
-                                 volume_jacobian=volume_jacobian)
+        if kernels.threaded(self.threads):  # one copy per thread at a time: the same floats
+            forces = self._compute_copies(positions, velocities, geometric, volume_jacobian)
+        else:
+            forces = super().compute(positions, velocities, hourglass=False, geometric=geometric,
+                                     volume_jacobian=volume_jacobian)
         if hourglass and self.has_hourglass:
             stack = self.stack
             values = stack.copies_last()
             hg_indptr, hg_indices, _ = stack.reference.hourglass_arrays
-            kernels.stacked_hourglass_subtract(hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"],
-                                               np.ascontiguousarray(positions, dtype=float), self.rest_positions,
-                                               forces, self._displacement)
+            args = (hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"],
+                    np.ascontiguousarray(positions, dtype=float), self.rest_positions, forces, self._displacement)
+            if kernels.threaded(self.threads):  # a block of rows per thread
+                kernels.stacked_hourglass_subtract(*args, numba.get_num_threads())
+            else:
+                kernels.stacked_hourglass_subtract_serial(*args)
         return forces
+
+
+    def _compute_copies(self, positions, velocities, geometric, volume_jacobian):
+        """``ForceWorkspace.compute`` without the hourglass term, by ``kernels.model_forces_copies``."""
+        model, reference = self.model, self.stack.reference
+        use_velocity = velocities is not None
+        kernels.model_forces_copies(
+            self.stack.count, positions, velocities if use_velocity else positions, use_velocity, reference.springs,
+            model.stiffness, model.rest_length, model.damping, reference.mesh.elements, reference.edge_spring,
+            model.correction_matrix, model.axis_rest_length, self.correction_kind, model.rest_edge_direction,
+            model.rest_volume, model.volume_stiffness, self.has_volume, self.length, self.unit, self.tension,
+            self.push, self.forces, geometric, self.geometric, volume_jacobian and self.has_volume,
+            self.volume_coefficient, self.volume_direction, self.volume_gradient)
+        return self.forces
 
 
 def _digest(array) -> bytes:
@@ -398,7 +420,7 @@ class BatchedImplicitEuler:
         self._preconditioners = [None] * count
         self._groups = None
         self.last_iterations = np.zeros(count, dtype=int)
-        self.workspace = StackedForceWorkspace(stack, implicit=True)
+        self.workspace = StackedForceWorkspace(stack, implicit=True, threads=self.threads)
         self._elongation = np.empty((stack.n_springs, count))
         self._delta = np.empty((stack.n_springs, count))
         self._work = np.empty((8, dofs, count))
@@ -849,8 +871,15 @@ class BatchedImplicitEuler:
             moved[imposed] = target_velocity[imposed]
         # rhs = dt f(x0, v0) - dt^2 K v0 - A known = dt f_0 + M v0 - A (v0 + known), f_0 without
         # damping (ImplicitEuler's form): one operator product
-        product = np.empty((dofs, count))
-        kernels.batched_apply_operator(data, system, self._ones, moved, product)
+        if self.solver == "jacobi":
+            product = np.empty((dofs, count))
+            kernels.batched_apply_operator(data, system, self._ones, moved, product)
+        else:  # the product of each copy, on numba's threads (the same floats for any count)
+            stacked, hg_rows, hg_group = self._copies_first()
+            rows = np.empty((count, dofs))
+            self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, np.ascontiguousarray(moved.T), rows,
+                                         *self._hourglass_blocks())
+            product = rows.T
         mass = np.repeat(last(model.mass, n_nodes), 3, axis=0)
         rhs = dt * last(forces, n_nodes).reshape(dofs, count) + mass * start_velocity - product
         mask = np.ascontiguousarray(free, dtype=float)

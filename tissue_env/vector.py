@@ -132,7 +132,7 @@ class TissueVectorEnv(VectorEnv):
         self.action_space = batch_space(env.action_space, count)
 
         self.stack = ModelStack(env.model, count)
-        self._forces = StackedForceWorkspace(self.stack, implicit=False)  # the measurements' fused force pass
+        self._forces = StackedForceWorkspace(self.stack, implicit=False, threads=self.threads)  # measurements
         self.integrator = make_batched_integrator(env.integrator_name, self.stack, env.solver_tolerance,
                                                   self.linear_solver, self.refactor_amortise, self.threads)
         self.mesh = env.mesh
