@@ -12,14 +12,15 @@ another inclusion or Young's modulus) overwrites its slot; nothing is rebuilt.
     (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1,
 
 with sim_core's fused kernels: one ``kernels.model_forces`` pass over the stacked model (forces,
-clamped geometric stiffness, volume terms, through a ``ForceWorkspace``), then
-``kernels.batched_spring_operator``, the matrix-free per-spring operator of ``spring_operator``
-with the copy index last ((3 n, N) vectors), so each spring, element and hourglass entry is read
-once for all copies (the right-hand side's product), then the copies' BiCGSTABs, each with
-sim_core's stopping test ||r|| <= tolerance ||b||: one compiled call that solves the copies one
-at a time on numba's threads (``kernels.solve_copies_lu``, solvers "factorised" and "reference")
-or in lockstep (``kernels.batched_solve``, solver "jacobi"). No Python loop over copies in the
-step (but for the factorisations and capacitance corrections of solver "factorised").
+clamped geometric stiffness, volume terms, through a ``StackedForceWorkspace``; with more than one
+thread one copy per thread, ``kernels.model_forces_copies``), then the right-hand side's operator
+product and the copies' BiCGSTABs, each with sim_core's stopping test ||r|| <= tolerance ||b||:
+compiled calls that take the copies one at a time on numba's threads (``kernels.apply_copies``,
+``kernels.solve_copies_lu``: solvers "factorised" and "reference") or all at once with the copy
+index last, each spring, element and hourglass entry read once for all copies
+(``kernels.batched_spring_operator``, ``kernels.batched_solve``: solver "jacobi", in lockstep).
+Every threaded kernel has a serial version with the same floats. No Python loop over copies in
+the step (but for the factorisations and capacitance corrections of solver "factorised").
 
 Preconditioner (solver "factorised", the default): each copy's own sparse LU of its free-dof system
 matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks,

@@ -90,10 +90,9 @@ class TissueVectorEnv(VectorEnv):
     #: The task class; set by each task's vector env.
     env_class = None
     #: How the batched implicit step solves each copy's linear system (``tissue_env.batched``):
-    #: "factorised" (each copy's sparse LU kept across steps, the copies solved one after the
-    #: other), "reference" (BiCGSTAB preconditioned by the sparse LU of the start-of-episode system
-    #: matrix, shared by the copies that start alike, in lockstep) or "jacobi" (the Jacobi diagonal,
-    #: in lockstep).
+    #: "factorised" (each copy's sparse LU kept across steps), "reference" (the sparse LU of the
+    #: start-of-episode system matrix, shared by the copies that start alike), both solved per copy
+    #: on numba's threads, or "jacobi" (the Jacobi diagonal, all copies in lockstep).
     linear_solver = "factorised"
     #: The measurement's force pass is also the next implicit step's (``BatchedImplicitEuler.linearise``
     #: at the new state, plus the springs' damping forces): one pass over the stacked model per step
