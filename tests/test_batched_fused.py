@@ -35,10 +35,10 @@ def test_fused_factorisations_equal_the_per_copy_factors():
     assert integrator._incidence[0].shape == (envs.stack.n_elements, 8, 3)  # the per-node-pair coupling assembly
     expected = []
     for index in range(count):
-        factor = integrator._factorise(index, None, system, covers[index])
+        factor = integrator._factorise(index, system, covers[index])
         expected.append((factor.ints, factor.floats.copy()))
     before = integrator.factorisations
-    factors = integrator._factorise_copies(np.arange(count), None, system, covers)
+    factors = integrator._factorise_copies(np.arange(count), system, covers)
     assert integrator.factorisations == before + count
     for index, factor in enumerate(factors):
         ints, floats = expected[index]
@@ -65,7 +65,7 @@ def test_a_failed_block_factor_falls_back_to_the_scalar_factor(monkeypatch):
     monkeypatch.setattr(integrator, "_block_structure", lambda key, nodes: None)
     import tissue_env.batched as batched
     monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free: None)
-    factors = integrator._factorise_copies(np.arange(2), None, system, covers)
+    factors = integrator._factorise_copies(np.arange(2), system, covers)
     for index, factor in enumerate(factors):
         assert factor.ints[0] == np.count_nonzero(covers[index])  # SuperLU's scalar factor
         assert integrator._lu_int[index] is factor.ints
@@ -191,20 +191,7 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
             out[name] = np.empty_like(vector)
             getattr(kernels, name)(stacked, system, hg_rows, hg_group, vector, out[name], *blocks)
         np.testing.assert_array_equal(out["apply_copies"], out["apply_copies_serial"])
-        workspace, values = integrator.workspace, stack.copies_last()
-        count, springs, elements = envs.num_envs, stack.n_springs, stack.n_elements
-
-        def last(array, rows):
-            return np.ascontiguousarray(np.moveaxis(array.reshape((count, rows) + array.shape[1:]), 0, -1))
-
-        reference = stack.reference
-        hg_indptr, hg_indices, _ = reference.hourglass_arrays
-        data = (reference.springs, last(workspace.unit, springs), values["stiffness"], values["damping"],
-                last(workspace.geometric, springs), values["mass"], reference.mesh.elements, reference.edge_spring,
-                values["correction_matrix"], values["axis_rest_length"],
-                last(workspace.volume_coefficient, elements), last(workspace.volume_direction, elements),
-                last(workspace.volume_gradient, elements), hg_indptr, hg_indices, values["hourglass"],
-                np.empty((springs, count)), np.empty((springs, count)), values["hourglass_group"])
+        data, count = integrator.lockstep_data(), envs.num_envs
         lockstep = np.empty((vector.shape[1], count))
         kernels.batched_apply_operator(data, system, np.ones_like(lockstep), np.ascontiguousarray(vector.T), lockstep)
         np.testing.assert_allclose(out["apply_copies"], lockstep.T, rtol=0, atol=1e-12 * np.abs(lockstep).max())

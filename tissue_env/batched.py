@@ -56,6 +56,7 @@ single environments up to the solvers' tolerance (tests/test_env_vector.py). SI 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from collections import OrderedDict
 
@@ -260,6 +261,11 @@ class StackedForceWorkspace(ForceWorkspace):
             self.push, self.forces, geometric, self.geometric, volume_jacobian and self.has_volume,
             self.volume_coefficient, self.volume_direction, self.volume_gradient)
         return self.forces
+
+
+def _copies_last(count, array, rows):
+    """A stacked array (count * rows, ...) as (rows, ..., count): the copy index last, contiguous."""
+    return np.ascontiguousarray(np.moveaxis(array.reshape((count, rows) + array.shape[1:]), 0, -1))
 
 
 def _digest(array) -> bytes:
@@ -527,9 +533,9 @@ class BatchedImplicitEuler:
             self._lu_int[index] = factor.ints
             self._lu_float[index] = factor.floats
 
-    def _factorise(self, index, data, system, free):
-        """Factorise copy ``index``'s system matrix at the step's linearisation (``data``, the stacked
-        operator data) on its ``free`` dofs (3 n,) bool."""
+    def _factorise(self, index, system, free):
+        """Factorise copy ``index``'s system matrix (``system``: the operator's scales) at the step's
+        linearisation (the workspace's last force pass) on its ``free`` dofs (3 n,) bool."""
         stack, count = self.stack, self.stack.count
         reference = stack.reference
 
@@ -561,7 +567,7 @@ class BatchedImplicitEuler:
         """``kernels.<name>`` on numba's threads, or its serial version (``kernels.threaded``)."""
         return getattr(kernels, name if kernels.threaded(self.threads) else name + "_serial")
 
-    def _factorise_copies(self, indices, data, system, covers):
+    def _factorise_copies(self, indices, system, covers):
         """``_factorise`` of the copies ``indices`` (T,) on their ``covers`` (T, 3 n) bool, the node-block
         LUs of the copies with one node set in one compiled call (``kernels.factor_copies``: the same
         assembly and numeric factorisation, the same floats, without a Python round trip per copy);
@@ -597,7 +603,7 @@ class BatchedImplicitEuler:
                     self._factor_free[index] = covers[t]
                     self.factorisations += 1
                 else:
-                    factor = self._factorise(index, data, system, covers[t])
+                    factor = self._factorise(index, system, covers[t])
                 factors[t] = factor
         return factors
 
@@ -700,7 +706,7 @@ class BatchedImplicitEuler:
             self._blocks = (stack.version, (indptr, indices, values))
         return self._blocks[1]
 
-    def _solve_factorised(self, data, system, mask, rhs, guess_rows, active, free, solution, iterations, residual):
+    def _solve_factorised(self, system, mask, rhs, guess_rows, active, free, solution, iterations, residual):
         """Every active copy's BiCGSTAB preconditioned by the sparse LU of its own system matrix, kept
         across steps (``ImplicitEuler``'s "factorised" rule, per copy), one compiled call solving the
         copies one after the other (``kernels.solve_copies_lu``: a copy costs its own iterations, no
@@ -717,7 +723,7 @@ class BatchedImplicitEuler:
         uncovered = np.any(free_rows & ~self._factor_free, axis=1)
         todo = np.flatnonzero(active & (missing | uncovered))
         covers = free_rows[todo] | (self._factor_free[todo] & ~missing[todo, None])
-        for index, factor in zip(todo, self._factorise_copies(todo, data, system, covers)):
+        for index, factor in zip(todo, self._factorise_copies(todo, system, covers)):
             pending = self._pending[index]
             if pending is not None and np.array_equal(pending[1], free_rows[index]) and factor.ints[0] > 0:
                 _factors[pending[0]] = factor
@@ -752,7 +758,7 @@ class BatchedImplicitEuler:
                 self._stale[index] = True
         if stalled.any():
             again_rows = np.flatnonzero(stalled)
-            self._factorise_copies(again_rows, data, system, free_rows[again_rows] | self._factor_free[again_rows])
+            self._factorise_copies(again_rows, system, free_rows[again_rows] | self._factor_free[again_rows])
             self._correct(np.flatnonzero(stalled), free_rows)
             again = np.zeros_like(rows)
             more = np.zeros(count, dtype=np.int64)
@@ -783,6 +789,22 @@ class BatchedImplicitEuler:
             np.ascontiguousarray(guess_rows), active, self.tolerance, limits, lu_int, lu_float, group_of,
             *self._no_corrections, self._row_work, rows, iterations, residual, *self._hourglass_blocks())
         solution[:] = rows.T
+
+    def lockstep_data(self):
+        """``kernels.batched_apply_operator``'s and ``kernels.batched_solve``'s data (the copy index
+        last) at the workspace's last linearisation: solver "jacobi"'s lockstep kernels."""
+        stack, workspace = self.stack, self.workspace
+        reference, count = stack.reference, stack.count
+        n_springs, n_elements = stack.n_springs, stack.n_elements
+        last = functools.partial(_copies_last, count)
+        values = stack.copies_last()
+        hg_indptr, hg_indices, _ = reference.hourglass_arrays
+        return (reference.springs, last(workspace.unit, n_springs), values["stiffness"], values["damping"],
+                last(workspace.geometric, n_springs), values["mass"], reference.mesh.elements, reference.edge_spring,
+                values["correction_matrix"], values["axis_rest_length"],
+                last(workspace.volume_coefficient, n_elements), last(workspace.volume_direction, n_elements),
+                last(workspace.volume_gradient, n_elements), hg_indptr, hg_indices, values["hourglass"],
+                self._elongation, self._delta, values["hourglass_group"])
 
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
@@ -837,24 +859,10 @@ class BatchedImplicitEuler:
         coupled = model.correction_mode is not None
         implicit_volume = model.has_volume_forces
         has_hourglass = model.hourglass is not None
-        workspace = self.workspace
         # one fused pass over the stacked model: forces without damping, clamped geometric stiffness,
         # volume terms
         forces = self.linearise(x0) + model.gravity_force
-        reference = stack.reference
-        n_springs, n_elements = stack.n_springs, stack.n_elements
-
-        def last(array, rows):
-            return np.ascontiguousarray(np.moveaxis(array.reshape((count, rows) + array.shape[1:]), 0, -1))
-
-        values = stack.copies_last()
-        hg_indptr, hg_indices, _ = reference.hourglass_arrays
-        data = (reference.springs, last(workspace.unit, n_springs), values["stiffness"], values["damping"],
-                last(workspace.geometric, n_springs), values["mass"], reference.mesh.elements, reference.edge_spring,
-                values["correction_matrix"], values["axis_rest_length"],
-                last(workspace.volume_coefficient, n_elements), last(workspace.volume_direction, n_elements),
-                last(workspace.volume_gradient, n_elements), hg_indptr, hg_indices, values["hourglass"],
-                self._elongation, self._delta, values["hourglass_group"])
+        last = functools.partial(_copies_last, count)
 
         def scales(mass, damping, stiffness):  # (mass, damping, stiffness, coupling, volume, hourglass)
             return (float(mass), float(damping), float(stiffness), stiffness if coupled else 0.0,
@@ -873,6 +881,7 @@ class BatchedImplicitEuler:
         # rhs = dt f(x0, v0) - dt^2 K v0 - A known = dt f_0 + M v0 - A (v0 + known), f_0 without
         # damping (ImplicitEuler's form): one operator product
         if self.solver == "jacobi":
+            data = self.lockstep_data()
             product = np.empty((dofs, count))
             kernels.batched_apply_operator(data, system, self._ones, moved, product)
         else:  # the product of each copy, on numba's threads (the same floats for any count)
@@ -888,7 +897,7 @@ class BatchedImplicitEuler:
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
         if self.solver == "factorised":
-            self._solve_factorised(data, system, mask, rhs, self.warm, active, free, solution, iterations, residual)
+            self._solve_factorised(system, mask, rhs, self.warm, active, free, solution, iterations, residual)
         elif self.solver == "reference":
             self._solve_shared(system, mask, rhs, self.warm, active, self.first_pass, solution, iterations, residual)
         else:
