@@ -78,6 +78,9 @@ def test_evaluate_json_and_plot(trained, tmp_path):
     (("training.evaluate", "/nonexistent/run"), "does not exist"),
     (("training.evaluate", ".", "--episodes", "0"), "positive"),
     (("training.plot", "/nonexistent/run", "--out", "x.png"), "not a run folder"),
+    (("training.train", "--env", ENV, "--timesteps", "10", "--env-threads", "1"), "it needs --vec-env batched"),
+    (("training.train", "--env", ENV, "--timesteps", "10", "--vec-env", "batched", "--env-threads", "0"),
+     "--env-threads must be an integer from 1 to"),
 ])
 def test_bad_arguments_exit_2(args, word):
     code, out, err = run(*args)
@@ -169,13 +172,15 @@ def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_
     common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "128", "--checkpoint-freq", "128")
     code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "2",
                          "--n-envs", "2", "--vec-env", "batched", "--runs-dir", str(tmp_path), "--config",
-                         str(_small_config(tmp_path)), "--env-kwargs", '{"max_episode_steps": 16}', *common)
+                         str(_small_config(tmp_path)), "--env-kwargs", '{"max_episode_steps": 16}',
+                         "--env-threads", "1", *common)
     assert code == 0, err
     run_dir = Path(out.strip().splitlines()[-1])
     monitor = run_dir / "monitor" / "batched.monitor.csv"
     first = monitor.read_text().splitlines()
     assert len(first) - 2 >= 256 // 16 - 2  # header lines, then about one episode per 16 steps
-    assert json.loads((run_dir / "config.json").read_text())["vec_env"] == "batched"
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["vec_env"] == "batched" and config["env_threads"] == 1
     assert len(np.load(run_dir / "evaluations.npz")["timesteps"]) >= 2
     code, out, err = run("training.train", "--resume", str(run_dir), "--timesteps", "384", *common)
     assert code == 0, err
@@ -188,6 +193,11 @@ def test_batched_vec_env_input_errors():
     from training.vec_env import BatchedVecEnv
     with pytest.raises(ValueError, match="has no batched vector env; those with one"):
         BatchedVecEnv("CartPole-v1", 2)
+    with pytest.raises(ValueError, match="threads as its own threads= argument"):
+        BatchedVecEnv(ENV, 2, {"threads": 1})
+    single = BatchedVecEnv(ENV, 2, threads=1)
+    assert single.vector_env.unwrapped.threads == 1
+    single.close()
     envs = BatchedVecEnv(ENV, 2)
     envs.set_options([{"x": 1}, {}])
     with pytest.raises(ValueError, match="same options"):

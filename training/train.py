@@ -2,6 +2,7 @@
 
     python -m training.train --env tissue_env/TumorPositioning-v0 --algo ppo --timesteps 50000 --seed 0 [--n-envs 4]
         [--config FILE] [--resume RUN_DIR] [--runs-dir runs] [--vec-env dummy|subproc|batched] [--threads 1]
+        [--env-threads N]
 
 The run folder runs/<env>/<algo>/seed<S>-<timestamp>/ holds config.json, model.zip,
 vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation), checkpoints/
@@ -47,12 +48,22 @@ def parse_args(argv=None):
                              "cores: 9.5 s against 11.4 s with DummyVecEnv), else DummyVecEnv; batched: the "
                              "task's batched vector env in this process (training.vec_env.BatchedVecEnv)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: PPO ran 20x slower with 2)")
+    parser.add_argument("--env-threads", type=int, default=None,
+                        help="--vec-env batched: the vector env's threads (its per-copy solves, factorisations, "
+                             "force passes and resets; default every core; 1 when several runs share a machine)")
     parser.add_argument("--eval-freq", type=int, default=None, help="env steps between evaluations")
     parser.add_argument("--eval-episodes", type=int, default=5)
     parser.add_argument("--checkpoint-freq", type=int, default=None, help="env steps between checkpoints")
     parser.add_argument("--env-kwargs", default="{}", help="JSON dict of environment constructor keywords")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     return parser.parse_args(argv)
+
+
+def numba_threads() -> int:
+    """The most threads a batched vector env can use (numba's ``NUMBA_NUM_THREADS``)."""
+    import numba
+
+    return int(numba.config.NUMBA_NUM_THREADS)
 
 
 def _validated(args):
@@ -96,9 +107,18 @@ def _validated(args):
         if args.env not in tissue_env.VECTOR_ENTRY_POINTS:
             raise UsageError(f"--vec-env batched needs a task with a batched vector env, one of "
                              f"{', '.join(sorted(tissue_env.VECTOR_ENTRY_POINTS))}; got {args.env}")
+    if args.env_threads is not None:
+        if vec_env != "batched":
+            raise UsageError(f"--env-threads sets the batched vector env's threads: it needs --vec-env batched "
+                             f"(got --vec-env {vec_env})")
+        available = numba_threads()
+        if not 1 <= args.env_threads <= available:
+            raise UsageError(f"--env-threads must be an integer from 1 to {available} (numba's NUMBA_NUM_THREADS), "
+                             f"got {args.env_threads}")
     config = dict(env=args.env, algo=args.algo, timesteps=args.timesteps, seed=args.seed, n_envs=n_envs,
                   vec_env=vec_env, threads=args.threads, env_kwargs=env_kwargs, hyperparams=hyperparams,
-                  eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq)
+                  eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq,
+                  env_threads=args.env_threads)
     return run_dir, config
 
 
@@ -119,7 +139,8 @@ def _make_envs(config, run_dir, seed_offset=0, resume=False):
     from .vec_env import BatchedVecEnv, monitored
 
     monitor_dir.mkdir(parents=True, exist_ok=True)
-    train_env = monitored(BatchedVecEnv(config["env"], config["n_envs"], config["env_kwargs"]),
+    train_env = monitored(BatchedVecEnv(config["env"], config["n_envs"], config["env_kwargs"],
+                                        threads=config.get("env_threads")),
                           str(monitor_dir / "batched"), append=resume)
     train_env.seed(config["seed"] + seed_offset)
     # the eval env gets the training env's wrapper layers, which EvalCallback's normaliser

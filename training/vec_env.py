@@ -30,18 +30,22 @@ class BatchedVecEnv(VecEnv):
     Args:
         env_id: a registered task id with a ``vector_entry_point`` (``tissue_env/<Task>-v0``).
         n_envs: number of copies N.
-        env_kwargs: the task's constructor keywords, the same for every copy; ``threads`` is the
-            vector env's (numba's threads for the per-copy factorisations and solves).
+        env_kwargs: the task's constructor keywords, the same for every copy.
+        threads: the vector env's threads (numba's, for the per-copy solves, factorisations and
+            force passes, and the reset pool's): None every core, 1 serial (the same floats).
     """
 
-    def __init__(self, env_id: str, n_envs: int, env_kwargs: dict | None = None):
+    def __init__(self, env_id: str, n_envs: int, env_kwargs: dict | None = None, threads: int | None = None):
         import tissue_env  # noqa: F401  (registers the tasks)
 
+        if env_kwargs and "threads" in env_kwargs:
+            raise ValueError("BatchedVecEnv takes the vector env's threads as its own threads= argument "
+                             "(training.train: --env-threads), not in env_kwargs")
         if env_id not in tissue_env.VECTOR_ENTRY_POINTS:
             raise ValueError(f"{env_id!r} has no batched vector env; those with one: "
                              f"{', '.join(sorted(tissue_env.VECTOR_ENTRY_POINTS))}")
         self.vector_env = gym.make_vec(env_id, num_envs=int(n_envs), vectorization_mode="vector_entry_point",
-                                       **(env_kwargs or {}))
+                                       threads=threads, **(env_kwargs or {}))
         self.spec = gym.spec(env_id)
         self._actions = None
         super().__init__(int(n_envs), self.vector_env.single_observation_space,
