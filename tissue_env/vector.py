@@ -78,8 +78,9 @@ class TissueVectorEnv(VectorEnv):
         num_envs: number of copies N.
         max_episode_steps: truncation length (the registered one when built by ``make_vec``),
             None for none.
-        threads: threads of the batched step's per-copy factorisations and solves (numba's pool;
-            the copies are independent, so the results are the same for any count): None for
+        threads: threads of the batched step's per-copy force passes, products, factorisations and
+            solves (numba's pool) and of the copies' resets (a Python thread pool); the copies are
+            independent, so the results are the same for any count: None for
             numba's default (every core, or ``NUMBA_NUM_THREADS``), 1 to keep to one core (several
             env processes on one machine, e.g. RLlib env runners). In a process forked from one
             that may have started the pool, the env uses one thread: GNU OpenMP's pool is not
