@@ -284,7 +284,8 @@ class ImplicitEuler(SymplecticEuler):
         rhs = dt * forces.reshape(-1) + _pattern_arrays(model)[4] * v0.reshape(-1) - product
         mask = free.astype(float)
         # Warm start: the last two steps' dv extrapolated linearly (measured on sim_core.bench's sagging
-        # block: 6 -> 4 BiCGSTAB iterations, 18% faster; neutral under the envs' random actions).
+        # block: 6 -> 4 BiCGSTAB iterations, 18% faster; neutral under the envs' random actions), which
+        # the factorised solve (_krylov) scales to the least residual before iterating.
         guess = self._warm if self._warm is not None and self._warm.shape == rhs.shape else np.zeros_like(rhs)
         if self._warm_old is not None and self._warm_old.shape == rhs.shape:
             guess = 2.0 * guess - self._warm_old
@@ -727,6 +728,14 @@ def _krylov(data, scales, mask, rhs, guess, factor: _Factor, tolerance, max_iter
         x[:] = 0.0
         return 0, 0.0
     _operator(data, blocks, scales, mask, x, v)
+    # the guess scaled by the factor that minimises ||b - a A x0|| (0: no guess), never a worse start
+    # than none (the extrapolated dv is a poor guess after a random action: TumorPositioning's mean
+    # iterations 3.57 -> 2.84 over 400 random steps, 19% more steps/s; smooth actions 3.56 -> 3.50)
+    vv = float(v @ v)
+    scale = float((rhs * mask) @ v) / vv if vv > 0.0 else 0.0
+    scale = scale if np.isfinite(scale) else 0.0
+    x *= scale
+    v *= scale
     r = rhs * mask - v
     residual = float(np.linalg.norm(r)) / norm_b
     iterations = 0
