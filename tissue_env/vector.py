@@ -22,9 +22,9 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
 actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
-README's run): env steps per wall second, sync -> vector env, TumorPositioning 362 -> 733 (2.1x),
-Palpation 739 -> 1409 (2.0x), Retraction 336 -> 1086 (3.2x); on one thread (``threads=1``) the
-vector env does 1.4 / 1.4 / 2.1x the sync env's steps per CPU second. Every copy's BiCGSTAB runs
+README's run): env steps per wall second, sync -> vector env, TumorPositioning 375 -> 854 (2.3x),
+Palpation 731 -> 1395 (2.0x), Retraction 317 -> 997 (3.2x); on one thread (``threads=1``) the
+vector env does 1.6 / 1.4 / 2.1x the sync env's steps per CPU second. Every copy's BiCGSTAB runs
 in ``kernels.solve_copies_lu`` on numba's threads, a copy per thread at a time: TumorPositioning's
 preconditioned by one node-block LU of the start matrix that the copies share (solver
 "reference"), Palpation's and Retraction's by their own node-block LUs, capacitance-corrected for
