@@ -369,6 +369,38 @@ def test_threaded_resets_give_the_serial_resets():
     assert envs[2].unwrapped._pool is None
 
 
+_FORK_AFTER_RESETS = """
+import multiprocessing, numpy as np, gymnasium as gym, tissue_env
+envs = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                    threads=2, max_episode_steps=3)
+envs.reset(seed=1)
+assert envs.unwrapped._pool is not None
+def child():
+    for _ in range(4):
+        envs.step(np.zeros((3, 3), np.float32))
+    envs.close()
+process = multiprocessing.get_context("fork").Process(target=child)
+process.start()
+process.join(120)
+assert process.exitcode == 0, process.exitcode
+envs.reset(seed=2)  # the parent's pool restarts
+assert envs.unwrapped._pool is not None
+envs.close()
+"""
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two cores for numba's threads")
+def test_a_fork_after_threaded_resets_is_clean():
+    """The reset pool is stopped before a fork (``os.register_at_fork``): with its idle threads alive,
+    CPython's threading failed in the child ("Exception ignored in ... _after_fork ... SystemError",
+    the child going on). The child steps its inherited env and closes it; the parent's pool restarts."""
+    import subprocess
+    import sys
+    done = subprocess.run([sys.executable, "-c", _FORK_AFTER_RESETS], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "Exception ignored" not in done.stderr and "Error" not in done.stderr, done.stderr
+
+
 @pytest.mark.parametrize("threads", [0, -1, 1.5, True, 10 ** 6])
 def test_invalid_threads(threads):
     with pytest.raises(ValueError, match="threads must be None or an integer from 1 to"):

@@ -40,6 +40,8 @@ goal, the same code in both modes).
 
 from __future__ import annotations
 
+import os
+import weakref
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 
@@ -54,6 +56,20 @@ from sim_core.model import State
 
 from .base import observation_arrays
 from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator, new_monitor
+
+
+#: the vector envs whose reset pool has threads: stopped before a fork (CPython's threading failed in
+#: a child forked with the pool's idle threads alive, "Exception ignored in ... _after_fork ...
+#: SystemError"); a pool restarts at the next threaded reset
+_POOLED: "weakref.WeakSet" = weakref.WeakSet()
+
+
+def _stop_reset_pools():
+    for env in list(_POOLED):
+        env._stop_pool()
+
+
+os.register_at_fork(before=_stop_reset_pools)
 
 
 def _thread_count(threads) -> int:
@@ -214,6 +230,12 @@ class TissueVectorEnv(VectorEnv):
         self.elapsed[index] = 0
         self._load_task(index, env)
 
+    def _stop_pool(self):
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+        _POOLED.discard(self)
+
     def _reset_rows(self, rows, seeds, options):
         """Reset the copies ``rows`` by their task envs' own ``reset``, on ``threads`` Python threads
         when the vector env has more than one (``kernels.threaded``): most of a reset's time (a goal
@@ -229,6 +251,7 @@ class TissueVectorEnv(VectorEnv):
         if len(rows) > 1 and kernels.threaded(self.threads):
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="tissue-reset")
+                _POOLED.add(self)
             results = list(self._pool.map(reset, rows))
         else:
             results = [reset(index) for index in rows]
@@ -506,9 +529,7 @@ class TissueVectorEnv(VectorEnv):
         return tuple(frames)
 
     def close_extras(self, **kwargs):
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        self._stop_pool()
         for env in self.envs:
             env.close()
 
