@@ -3,8 +3,8 @@
 Each kernel is a plain loop over springs or elements compiled once (``cache=True`` keeps the
 machine code between runs). The serial kernels release the GIL (``nogil=True``): Python threads
 run them at once (the vector envs reset their copies on several threads, whose static solves call
-them; a kernel only writes the arrays it is given). The numpy formulation in ``forces.py`` is the readable reference the
-tests compare these kernels with; formulas cite shared/physics.md. SI units.
+them; a kernel only writes the arrays it is given). The numpy formulation in ``forces.py`` is the
+readable reference the tests compare these kernels with; formulas cite shared/physics.md. SI units.
 """
 
 from __future__ import annotations
@@ -1714,6 +1714,17 @@ def _copy_data(stacked, hg_rows, hg_group, c):
             elongation[a:b], delta[a:b])
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _dot_and_square(a, b):
+    """(a . b, b . b) of two (n,) vectors in one pass."""
+    ab = 0.0
+    bb = 0.0
+    for i in range(a.shape[0]):
+        ab += a[i] * b[i]
+        bb += b[i] * b[i]
+    return ab, bb
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
                 factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
@@ -1758,11 +1769,7 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
     _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, x, v)
     # the guess scaled by the factor that minimises ||b - a A x0|| (0: no guess): never a worse
     # start than none (measured: the previous step's dv is a poor guess after a random action)
-    bv = 0.0
-    vv = 0.0
-    for i in range(dofs):
-        bv += s[i] * v[i]
-        vv += v[i] * v[i]
+    bv, vv = _dot_and_square(s, v)
     scale = bv / vv if vv > 0.0 and np.isfinite(bv / vv) else 0.0
     rr = 0.0
     for i in range(dofs):
@@ -1807,11 +1814,7 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
             break
         _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, s, s_hat, buffer)
         _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, s_hat, t)
-        tt = 0.0
-        ts = 0.0
-        for i in range(dofs):
-            tt += t[i] * t[i]
-            ts += t[i] * s[i]
+        ts, tt = _dot_and_square(s, t)
         omega = ts / tt if tt > 0.0 else 0.0
         rr = 0.0
         for i in range(dofs):
