@@ -229,3 +229,60 @@ def test_per_copy_solves_scale_their_guess_to_the_least_residual():
         else:  # no preconditioner: hundreds of iterations to the same solution
             assert np.all(iterations > 0)
             np.testing.assert_allclose(solution, exact, rtol=0, atol=1e-5 * np.abs(exact).max())
+
+
+def _solve_inputs(envs, factor_of, seed=4):
+    """The Palpation copies' own factors (node-block LUs with their capacitance corrections for the
+    probe's imposed dofs), free masks and random right-hand sides and guesses, as the per-copy
+    kernels take them, with ``factor_of`` mapping copies to those factors."""
+    integrator = envs.integrator
+    count, dofs = envs.num_envs, 3 * envs.n_nodes
+    fixed, _, _ = envs._batch_control()
+    free = ~fixed.reshape(count, dofs)
+    integrator._correct(np.arange(count), free)
+    rng = np.random.default_rng(seed)
+    rhs = rng.normal(size=(count, dofs)) * free
+    guess = rng.normal(size=(count, dofs))
+    return (integrator._copies_first(), integrator._hourglass_blocks(), free.astype(float), rhs, guess,
+            (integrator._lu_int, integrator._lu_float, np.asarray(factor_of, dtype=np.int64), integrator._corrections,
+             integrator._imposed))
+
+
+def test_grouped_lockstep_solves_equal_the_per_copy_solves():
+    """``kernels.solve_copies_grouped`` (chunks of copies in lockstep, one pass over a shared factor
+    for all the chunk's copies of it) gives each copy ``solve_copies_lu``'s iterations and solution
+    (to rounding), with shared and own factors, capacitance corrections, a copy stopped by its
+    cap, an inactive copy, a zero and a non-finite right-hand side; for a given chunk size, the
+    threaded kernel gives the serial one's floats exactly."""
+    from sim_core import kernels
+    envs = _stepped("tissue_env/Palpation-v0", count=6, steps=10, seed=2)
+    assert any(len(imposed) for imposed in envs.integrator._imposed)  # corrections are exercised
+    count, dofs = envs.num_envs, 3 * envs.n_nodes
+    system = _system(envs.integrator, 2.0 * envs.dt)  # the factors are approximate: several iterations
+    for factor_of in (np.arange(count), [0, 0, 3, 3, 0, 5]):
+        (stacked, hg_rows, hg_group), blocks, mask, rhs, guess, lists = _solve_inputs(envs, factor_of)
+        rhs[2] = 0.0
+        rhs[4, 7] = np.nan
+        active = np.ones(count, bool)
+        active[5] = False
+        limits = np.array([200, 200, 200, 1, 200, 200])  # copy 3 stops at its cap
+
+        def solve(name, *chunk):
+            solution, iterations, residual = np.zeros((count, dofs)), np.zeros(count, np.int64), np.zeros(count)
+            work = np.empty((8, count, dofs) if chunk else (8, dofs))
+            getattr(kernels, name)(stacked, system, hg_rows, hg_group, mask, rhs, guess, active, 1e-12, limits, *lists,
+                                   work, solution, iterations, residual, *blocks, *chunk)
+            return solution, iterations, residual
+
+        expected, iterations, residual = solve("solve_copies_lu_serial")
+        assert iterations[3] == 1 and residual[3] > 1e-12 and np.all(iterations[[0, 1]] > 1)
+        assert np.isinf(residual[4]) and np.all(np.isnan(expected[4]))
+        assert np.all(expected[2] == 0.0) and iterations[5] == 0 and np.all(expected[5] == 0.0)
+        scale = np.abs(expected[np.isfinite(expected)]).max()
+        for chunk in (1, 2, 8):
+            serial = solve("solve_copies_grouped_serial", chunk)
+            np.testing.assert_array_equal(serial[1], iterations)
+            np.testing.assert_allclose(serial[2], residual, rtol=1e-6)
+            np.testing.assert_allclose(serial[0], expected, rtol=0, atol=1e-10 * scale)
+            for one, two in zip(solve("solve_copies_grouped", chunk), serial):
+                np.testing.assert_array_equal(one, two)  # NaN rows equal too

@@ -35,19 +35,20 @@ vector env's ``threads``), each copy with its own scratch, so any thread count g
 of the copy's system matrix at the start of its episode, applied by triangular solves: in dense
 3 x 3 node blocks when the free dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a
 node ordering), else as the factorised solver's scalar factor. Copies that start alike share one
-factor (one cache entry) and each copy's BiCGSTAB is preconditioned by its group's factor, in the
-same per-copy kernel as solver "factorised" (``_solve_shared``). The start matrix stays close to
-the current one while the tissue moves a few millimetres: about 3 iterations per copy. When it no
-longer fits (large deformation, a probe contact that changes the imposed dofs), the copy that
-needed the most iterations (more than ``refresh_iterations``) is re-linearised at its current
-state, one per step, and a copy that has not converged after ``first_pass`` iterations is
+factor (one cache entry) and each copy's BiCGSTAB is preconditioned by its group's factor
+(``_solve_shared``, ``kernels.solve_copies_grouped``): the copies are split into one chunk per
+thread and each chunk runs in lockstep, so that a triangular solve reads a shared factor once for
+all the chunk's running copies of it (at TumorPositioning's 6^3, 3.2e5 values in L and U: 0.12 ms
+for one copy, 0.41 ms for 16 together), while the operator products and vector updates stay per
+copy and a copy that has converged drops out (it costs its own iterations, 2.6 on average, against
+5.1 for the slowest of 16). Over 150 random TumorPositioning steps with 16 copies this is 1.3x the
+per-copy solves (``kernels.solve_copies_lu``) on one thread and 1.15x on two; a copy's floats do
+not depend on the chunks, so any thread count gives the same trajectories. The start matrix stays
+close to the current one while the tissue moves a few millimetres: about 3 iterations per copy.
+When it no longer fits (large deformation, a probe contact that changes the imposed dofs), the
+copy that needed the most iterations (more than ``refresh_iterations``) is re-linearised at its
+current state, one per step, and a copy that has not converged after ``first_pass`` iterations is
 re-linearised and solved again; a re-linearised copy leaves its group (a factor of its own).
-Solving a group's copies in lockstep instead (``kernels.batched_solve`` with
-``kernels._batched_precondition``: each block of L and U read once for all the group's right-hand
-sides, 0.45 ms for 16 copies against 0.08 ms for one at TumorPositioning's 1.7e5 entries) is
-about 10% faster on one thread but gains nothing from a second (every copy waits for the slowest:
-5.2 iterations per lockstep solve against 2.9 per copy over 100 random TumorPositioning steps);
-the per-copy solves use every core and give the same floats for any thread count.
 The step's force pass at a state is computed once (``BatchedImplicitEuler.linearise``): a vector
 env that measures with it (``share_force_pass``) gives the next step its forces and linearisation.
 ``solver="jacobi"`` uses sim_core's Jacobi diagonal instead. The trajectories equal those of N
@@ -86,6 +87,11 @@ _preconditioners: OrderedDict = OrderedDict()
 _factors: OrderedDict = OrderedDict()
 #: The batched implicit step's linear solvers (``BatchedImplicitEuler``).
 SOLVERS = ("factorised", "reference", "jacobi")
+#: Solver "reference": copies per lockstep chunk (``kernels.solve_copies_grouped``). The chunks depend
+#: on the copy count only (the floats do not depend on the thread count); a pass over a shared
+#: factor costs about as much for 8 copies as for 16 (TumorPositioning: 0.41 ms), so 16 copies
+#: make 2 chunks, one per core of this 2-core machine, at no loss.
+LOCKSTEP_CHUNK = 8
 
 
 class ModelStack:
@@ -386,8 +392,9 @@ def _edge_incidence(model: Model):
 
 class BatchedImplicitEuler:
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
-    copy, run one copy at a time on numba's threads (solvers "factorised", "reference") or in
-    lockstep ("jacobi"); see the module docstring.
+    copy, run one copy at a time on numba's threads (solver "factorised"), in lockstep per thread
+    with one pass over a shared factor for its copies ("reference") or in lockstep ("jacobi"); see
+    the module docstring.
 
     Args:
         stack: the ``ModelStack``.
@@ -439,7 +446,8 @@ class BatchedImplicitEuler:
         self._blocks = None  # _hourglass_blocks: (stack version, arrays)
         self._block_map = None
         self._row_work = np.empty((8, dofs))
-        if solver == "reference":  # solve_copies_lu's capacitance corrections: none
+        if solver == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
+            self._group_work = np.empty((8, count, dofs))
             self._no_corrections = (TypedList([np.zeros((0, 0))] * count),
                                     TypedList([np.zeros(0, dtype=np.int64)] * count))
         if solver == "factorised":
@@ -777,17 +785,19 @@ class BatchedImplicitEuler:
 
     def _solve_shared(self, system, mask, rhs, guess_rows, active, limit, solution, iterations, residual):
         """Solver "reference": every ``active`` copy's BiCGSTAB preconditioned by its group's factor
-        (``_pack_preconditioners``), at most ``limit`` iterations, one copy at a time on numba's
-        threads (``kernels.solve_copies_lu``: no copy waits for the slowest). mask, rhs, solution
+        (``_pack_preconditioners``), at most ``limit`` iterations (``kernels.solve_copies_grouped``:
+        the copies in chunks of ``LOCKSTEP_CHUNK`` on numba's threads, each chunk in lockstep with one
+        pass over a shared factor for all its running copies; a copy costs its own iterations). mask, rhs, solution
         (3 n, N); guess_rows (N, 3 n); iterations, residual (N,) written."""
         lu_int, lu_float, group_of = self._pack_preconditioners()
         stacked, hg_rows, hg_group = self._copies_first()
         rows = np.zeros((self.stack.count, rhs.shape[0]))
         limits = np.full(self.stack.count, limit, dtype=np.int64)
-        self._kernel("solve_copies_lu")(
+        self._kernel("solve_copies_grouped")(
             stacked, system, hg_rows, hg_group, np.ascontiguousarray(mask.T), np.ascontiguousarray(rhs.T),
             np.ascontiguousarray(guess_rows), active, self.tolerance, limits, lu_int, lu_float, group_of,
-            *self._no_corrections, self._row_work, rows, iterations, residual, *self._hourglass_blocks())
+            *self._no_corrections, self._group_work, rows, iterations, residual, *self._hourglass_blocks(),
+            LOCKSTEP_CHUNK)
         solution[:] = rows.T
 
     def lockstep_data(self):
