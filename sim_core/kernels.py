@@ -1908,6 +1908,19 @@ def apply_copies_serial(stacked, scales, hg_rows, hg_group, vector, out, hg_bloc
 
 
 # -- lockstep solves of copies that share preconditioners (solver "reference") -----------------------
+@njit(cache=True, nogil=True, inline="always")
+def _take_group(key, pending, first, start, columns):
+    """Gather the ``pending`` copies first + j (j >= start) whose ``key`` is copy first + start's:
+    their indices into ``columns``, their ``pending`` cleared; returns how many."""
+    used = 0
+    for j in range(start, pending.shape[0]):
+        if pending[j] and key[first + j] == key[first + start]:
+            columns[used] = first + j
+            used += 1
+            pending[j] = False
+    return used
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _precondition_rows(vector, out, running, first, lu_int, lu_float, factor_of, corrections, imposed, mask,
                        columns, buffer, accumulator, gathered, pending):
@@ -1923,16 +1936,10 @@ def _precondition_rows(vector, out, running, first, lu_int, lu_float, factor_of,
             for j in range(dofs):
                 out[first + i, j] = 0.0
     for i in range(size):
-        if not pending[i]:
-            continue
-        g = factor_of[first + i]
-        used = 0
-        for j in range(i, size):
-            if pending[j] and factor_of[first + j] == g:
-                columns[used] = first + j
-                used += 1
-                pending[j] = False
-        _lu_columns(lu_int[g], lu_float[g], vector.T, out.T, columns, used, buffer, accumulator)
+        if pending[i]:
+            g = factor_of[first + i]
+            used = _take_group(factor_of, pending, first, i, columns)
+            _lu_columns(lu_int[g], lu_float[g], vector.T, out.T, columns, used, buffer, accumulator)
     for i in range(size):
         if not running[i]:
             continue
@@ -1985,7 +1992,7 @@ def _apply_rows(stacked, scales, springs_only, hg_rows, hg_group, hg_block_indpt
     ``running[i]``: the spring, coupling and volume terms per copy (``springs_only``: ``scales`` without
     the hourglass term), the hourglass term for all the running copies of a group at once
     (``bsr3_matvec_add_rows``: one pass over the group's node-block matrix, 2/3 of a product at
-    TumorPositioning's 6^3)."""
+    TumorPositioning's 7^3: 43 of 67 us per copy)."""
     size = running.shape[0]
     for i in range(size):
         pending[i] = running[i]
@@ -1995,17 +2002,11 @@ def _apply_rows(stacked, scales, springs_only, hg_rows, hg_group, hg_block_indpt
                         ones, ones, vector[c], out[c], c)
     if scales[5] != 0.0:
         for i in range(size):
-            if not pending[i]:
-                continue
-            g = hg_group[first + i]
-            used = 0
-            for j in range(i, size):
-                if pending[j] and hg_group[first + j] == g:
-                    columns[used] = first + j
-                    used += 1
-                    pending[j] = False
-            bsr3_matvec_add_rows(hg_block_indptr, hg_block_indices, hg_block_rows[g], vector, scales[5], out, columns,
-                                 used, accumulator)
+            if pending[i]:
+                g = hg_group[first + i]
+                used = _take_group(hg_group, pending, first, i, columns)
+                bsr3_matvec_add_rows(hg_block_indptr, hg_block_indices, hg_block_rows[g], vector, scales[5], out,
+                                     columns, used, accumulator)
     for i in range(size):
         if running[i]:
             c = first + i
@@ -2172,7 +2173,7 @@ def solve_copies_grouped(stacked, scales, hg_rows, hg_group, mask, rhs, guess, a
     factors (``factor_of``): the copies in contiguous chunks of ``chunk``, shared among numba's
     threads, each chunk solved in lockstep (``_solve_lockstep``): every step of the substitutions
     reads a shared factor once for all the chunk's running copies of it instead of once per copy (at
-    TumorPositioning's 6^3, one copy's node-block solve 0.12 ms, 16 together 0.41 ms). The chunks
+    TumorPositioning's 7^3, one copy's node-block solve 0.12 ms, 16 together 0.41 ms). The chunks
     depend on the copy count only, so any thread count gives the same floats. ``work`` (8, N, 3 n)."""
     n_copies, dofs = rhs.shape
     ones = np.ones(dofs)

@@ -16,11 +16,12 @@ clamped geometric stiffness, volume terms, through a ``StackedForceWorkspace``; 
 thread one copy per thread, ``kernels.model_forces_copies``), then the right-hand side's operator
 product and the copies' BiCGSTABs, each with sim_core's stopping test ||r|| <= tolerance ||b||:
 compiled calls that take the copies one at a time on numba's threads (``kernels.apply_copies``,
-``kernels.solve_copies_lu``: solvers "factorised" and "reference") or all at once with the copy
-index last, each spring, element and hourglass entry read once for all copies
-(``kernels.batched_spring_operator``, ``kernels.batched_solve``: solver "jacobi", in lockstep).
-Every threaded kernel has a serial version with the same floats. No Python loop over copies in
-the step (but for the factorisations and capacitance corrections of solver "factorised").
+``kernels.solve_copies_lu``: solver "factorised"), in lockstep chunks on the threads
+(``kernels.solve_copies_grouped``: solver "reference") or all at once with the copy index last, each
+spring, element and hourglass entry read once for all copies (``kernels.batched_spring_operator``,
+``kernels.batched_solve``: solver "jacobi", in lockstep). Every threaded kernel has a serial version
+with the same floats. No Python loop over copies in the step (but for the factorisations and
+capacitance corrections of solver "factorised").
 
 Preconditioner (solver "factorised", the default): each copy's own sparse LU of its free-dof system
 matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks,
@@ -36,19 +37,22 @@ of the copy's system matrix at the start of its episode, applied by triangular s
 3 x 3 node blocks when the free dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a
 node ordering), else as the factorised solver's scalar factor. Copies that start alike share one
 factor (one cache entry) and each copy's BiCGSTAB is preconditioned by its group's factor
-(``_solve_shared``, ``kernels.solve_copies_grouped``): the copies are split into one chunk per
-thread and each chunk runs in lockstep, so that a triangular solve reads a shared factor once for
-all the chunk's running copies of it (at TumorPositioning's 6^3, 3.2e5 values in L and U: 0.12 ms
-for one copy, 0.41 ms for 16 together), while the operator products and vector updates stay per
-copy and a copy that has converged drops out (it costs its own iterations, 2.6 on average, against
-5.1 for the slowest of 16). Over 150 random TumorPositioning steps with 16 copies this is 1.3x the
-per-copy solves (``kernels.solve_copies_lu``) on one thread and 1.15x on two; a copy's floats do
-not depend on the chunks, so any thread count gives the same trajectories. The start matrix stays
-close to the current one while the tissue moves a few millimetres: about 3 iterations per copy.
-When it no longer fits (large deformation, a probe contact that changes the imposed dofs), the
-copy that needed the most iterations (more than ``refresh_iterations``) is re-linearised at its
-current state, one per step, and a copy that has not converged after ``first_pass`` iterations is
-re-linearised and solved again; a re-linearised copy leaves its group (a factor of its own).
+(``_solve_shared``, ``kernels.solve_copies_grouped``): the copies are split into chunks
+(``lockstep_chunk``: half of them, at most 8), shared among the threads, and each chunk runs in
+lockstep, so that a triangular solve reads a shared factor once for all the chunk's running copies
+of it (at TumorPositioning's 7^3, 3.2e5 values in L and U: 0.12 ms for one copy, 0.41 ms for 16
+together), and so does the hourglass term of the operator products (2/3 of a product's time per
+copy); the rest of the products and the vector updates stay per copy, and a copy that has
+converged drops out (it costs its own iterations, 2.6 on average, against 5.1 for the slowest of
+16). Over 150 random TumorPositioning steps with 16 copies this is 1.26x the per-copy solves
+(``kernels.solve_copies_lu``, each copy reading the factor alone) on one thread and 1.22x on two;
+the chunks depend on the copy count only, so any thread count gives the same trajectories. The
+start matrix stays close to the current one while the tissue moves a few millimetres: about 3
+iterations per copy. When it no longer fits (large deformation, a probe contact that changes the
+imposed dofs), the copy that needed the most iterations (more than ``refresh_iterations``) is
+re-linearised at its current state, one per step, and a copy that has not converged after
+``first_pass`` iterations is re-linearised and solved again; a re-linearised copy leaves its group
+(a factor of its own).
 The step's force pass at a state is computed once (``BatchedImplicitEuler.linearise``): a vector
 env that measures with it (``share_force_pass``) gives the next step its forces and linearisation.
 ``solver="jacobi"`` uses sim_core's Jacobi diagonal instead. The trajectories equal those of N
@@ -87,11 +91,18 @@ _preconditioners: OrderedDict = OrderedDict()
 _factors: OrderedDict = OrderedDict()
 #: The batched implicit step's linear solvers (``BatchedImplicitEuler``).
 SOLVERS = ("factorised", "reference", "jacobi")
-#: Solver "reference": copies per lockstep chunk (``kernels.solve_copies_grouped``). The chunks depend
-#: on the copy count only (the floats do not depend on the thread count); a pass over a shared
-#: factor costs about as much for 8 copies as for 16 (TumorPositioning: 0.41 ms), so 16 copies
-#: make 2 chunks, one per core of this 2-core machine, at no loss.
+#: Solver "reference": at most this many copies per lockstep chunk (``lockstep_chunk``).
 LOCKSTEP_CHUNK = 8
+
+
+def lockstep_chunk(count: int) -> int:
+    """Copies per lockstep chunk of solver "reference" (``kernels.solve_copies_grouped``) for
+    ``count`` copies: half of them (two chunks for two threads: 4 TumorPositioning copies in one
+    chunk ran 7% slower on 2 threads than per copy), at most ``LOCKSTEP_CHUNK`` (a pass over a
+    shared factor costs about as much for 8 copies as for 16: 0.41 ms at TumorPositioning's 7^3, so
+    16 copies lose nothing in 2 chunks and more copies give more chunks for more threads). It
+    depends on the copy count only, so the floats do not depend on the thread count."""
+    return max(1, min(LOCKSTEP_CHUNK, (count + 1) // 2))
 
 
 class ModelStack:
@@ -786,7 +797,7 @@ class BatchedImplicitEuler:
     def _solve_shared(self, system, mask, rhs, guess_rows, active, limit, solution, iterations, residual):
         """Solver "reference": every ``active`` copy's BiCGSTAB preconditioned by its group's factor
         (``_pack_preconditioners``), at most ``limit`` iterations (``kernels.solve_copies_grouped``:
-        the copies in chunks of ``LOCKSTEP_CHUNK`` on numba's threads, each chunk in lockstep with one
+        the copies in chunks of ``lockstep_chunk`` on numba's threads, each chunk in lockstep with one
         pass over a shared factor for all its running copies; a copy costs its own iterations). mask, rhs, solution
         (3 n, N); guess_rows (N, 3 n); iterations, residual (N,) written."""
         lu_int, lu_float, group_of = self._pack_preconditioners()
@@ -797,7 +808,7 @@ class BatchedImplicitEuler:
             stacked, system, hg_rows, hg_group, np.ascontiguousarray(mask.T), np.ascontiguousarray(rhs.T),
             np.ascontiguousarray(guess_rows), active, self.tolerance, limits, lu_int, lu_float, group_of,
             *self._no_corrections, self._group_work, rows, iterations, residual, *self._hourglass_blocks(),
-            LOCKSTEP_CHUNK)
+            lockstep_chunk(self.stack.count))
         solution[:] = rows.T
 
     def lockstep_data(self):
