@@ -1733,6 +1733,41 @@ def _dot_and_square(a, b):
     return ab, bb
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _masked_start(rhs, guess, mask, b, x):
+    """A BiCGSTAB's start: b = mask * rhs and x = mask * guess; returns ||b||, or -1 for a
+    non-finite right-hand side (x NaN) (x = 0 for a zero one)."""
+    finite = True
+    total = 0.0
+    for i in range(rhs.shape[0]):
+        value = rhs[i] * mask[i]
+        if not np.isfinite(value):
+            finite = False
+        b[i] = value
+        total += value * value
+    for i in range(rhs.shape[0]):
+        x[i] = np.nan if not finite else (guess[i] * mask[i] if total > 0.0 else 0.0)
+    return np.sqrt(total) if finite else -1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _scaled_start(x, b, v, r, r_hat, p):
+    """The BiCGSTAB start from the guess ``x`` scaled by the factor a that minimises ||b - a A x||
+    (``v`` = A x on entry; 0: no guess, never a worse start than none; the previous step's dv is a
+    poor guess after a random action): x *= a, r = r_hat = b - a v, p = v = 0; returns ||r||^2."""
+    bv, vv = _dot_and_square(b, v)
+    scale = bv / vv if vv > 0.0 and np.isfinite(bv / vv) else 0.0
+    rr = 0.0
+    for i in range(x.shape[0]):
+        x[i] *= scale
+        r[i] = b[i] - scale * v[i]
+        rr += r[i] * r[i]
+        r_hat[i] = r[i]
+        p[i] = 0.0
+        v[i] = 0.0
+    return rr
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
                 factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
@@ -1754,40 +1789,13 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
     correction = corrections[c]
     held = imposed[c]
     gathered = np.empty(held.shape[0])
-    finite = True
-    norm_b = 0.0
-    for i in range(dofs):
-        value = rhs[c, i] * m[i]
-        if not np.isfinite(value):
-            finite = False
-        s[i] = value
-        norm_b += value * value
-    if not finite:
-        for i in range(dofs):
-            x[i] = np.nan
+    norm_b = _masked_start(rhs[c], guess[c], m, s, x)
+    if norm_b < 0.0:
         residual[c] = np.inf
+    if norm_b <= 0.0:
         return
-    norm_b = np.sqrt(norm_b)
-    if norm_b == 0.0:
-        for i in range(dofs):
-            x[i] = 0.0
-        return
-    for i in range(dofs):
-        x[i] = guess[c, i] * m[i]
     _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, x, v)
-    # the guess scaled by the factor that minimises ||b - a A x0|| (0: no guess): never a worse
-    # start than none (measured: the previous step's dv is a poor guess after a random action)
-    bv, vv = _dot_and_square(s, v)
-    scale = bv / vv if vv > 0.0 and np.isfinite(bv / vv) else 0.0
-    rr = 0.0
-    for i in range(dofs):
-        x[i] *= scale
-        r[i] = s[i] - scale * v[i]
-        rr += r[i] * r[i]
-        r_hat[i] = r[i]
-        p[i] = 0.0
-        v[i] = 0.0
-    res = np.sqrt(rr) / norm_b
+    res = np.sqrt(_scaled_start(x, s, v, r, r_hat, p)) / norm_b  # the guess scaled to the least residual
     rho = alpha = omega = 1.0
     count = 0
     limit = limits[c]
@@ -2054,27 +2062,10 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
             continue
         x = solution[c]
         m = mask[c]
-        finite = True
-        total = 0.0
-        for j in range(dofs):
-            value = rhs[c, j] * m[j]
-            if not np.isfinite(value):
-                finite = False
-            s[c, j] = value
-            total += value * value
-        if not finite:
-            for j in range(dofs):
-                x[j] = np.nan
+        norm_b[i] = _masked_start(rhs[c], guess[c], m, s[c], x)
+        if norm_b[i] < 0.0:
             residual[c] = np.inf
-            continue
-        norm_b[i] = np.sqrt(total)
-        if total == 0.0:
-            for j in range(dofs):
-                x[j] = 0.0
-            continue
-        for j in range(dofs):
-            x[j] = guess[c, j] * m[j]
-        started[i] = True
+        started[i] = norm_b[i] > 0.0
     _apply_rows(stacked, scales, springs_only, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows,
                 ones, mask, solution, v, started, first, columns, accumulator, pending)
     for i in range(size):
@@ -2082,17 +2073,7 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
             continue
         c = first + i
         x = solution[c]
-        bv, vv = _dot_and_square(s[c], v[c])
-        scale = bv / vv if vv > 0.0 and np.isfinite(bv / vv) else 0.0
-        rr = 0.0
-        for j in range(dofs):
-            x[j] *= scale
-            r[c, j] = s[c, j] - scale * v[c, j]
-            rr += r[c, j] * r[c, j]
-            r_hat[c, j] = r[c, j]
-            p[c, j] = 0.0
-            v[c, j] = 0.0
-        res[i] = np.sqrt(rr) / norm_b[i]
+        res[i] = np.sqrt(_scaled_start(x, s[c], v[c], r[c], r_hat[c], p[c])) / norm_b[i]
         running[i] = res[i] > tolerance and limits[c] > 0
     while True:
         more = False
