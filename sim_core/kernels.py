@@ -1649,6 +1649,14 @@ def _corrected_lu_apply(ints, values, mask, ones, correction, imposed, gathered,
         _lu_apply(ints, values, mask, vector, out, buffer)
         return
     _lu_apply(ints, values, ones, vector, out, buffer)
+    _correct_masked(out, correction, imposed, gathered, mask)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _correct_masked(out, correction, imposed, gathered, mask):
+    """out = mask * (out - correction @ out[imposed]): a capacitance correction (``_corrected_lu_apply``)
+    on an unmasked solve ``out`` (3 n,); ``gathered`` (>= k,) scratch."""
+    k = imposed.shape[0]
     for j in range(k):
         gathered[j] = out[imposed[j]]
     for i in range(out.shape[0]):
@@ -1720,6 +1728,15 @@ def _copy_data(stacked, hg_rows, hg_group, c):
             elements, edge_spring, correction_matrix[e0:e1], axis_rest_length[e0:e1], volume_coefficient[e0:e1],
             volume_direction[e0:e1], volume_gradient[e0:e1], hg_indptr, hg_indices, hg_rows[hg_group[c]],
             elongation[a:b], delta[a:b])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _dot(a, b):
+    """a . b of two (n,) vectors."""
+    total = 0.0
+    for i in range(a.shape[0]):
+        total += a[i] * b[i]
+    return total
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
@@ -1800,9 +1817,7 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
     count = 0
     limit = limits[c]
     while res > tolerance and count < limit:
-        rho_new = 0.0
-        for i in range(dofs):
-            rho_new += r_hat[i] * r[i]
+        rho_new = _dot(r_hat, r)
         if rho_new == 0.0 or omega == 0.0:
             break
         beta = (rho_new / rho) * (alpha / omega)
@@ -1811,9 +1826,7 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
             p[i] = r[i] + beta * (p[i] - omega * v[i])
         _corrected_lu_apply(ints, values, m, ones, correction, held, gathered, p, p_hat, buffer)
         _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, p_hat, v)
-        denominator = 0.0
-        for i in range(dofs):
-            denominator += r_hat[i] * v[i]
+        denominator = _dot(r_hat, v)
         if not (np.isfinite(denominator) and denominator != 0.0):
             break
         alpha = rho / denominator
@@ -1949,20 +1962,9 @@ def _precondition_rows(vector, out, running, first, lu_int, lu_float, factor_of,
             used = _take_group(factor_of, pending, first, i, columns)
             _lu_columns(lu_int[g], lu_float[g], vector.T, out.T, columns, used, buffer, accumulator)
     for i in range(size):
-        if not running[i]:
-            continue
-        c = first + i
-        held = imposed[c]
-        correction = corrections[c]
-        row = out[c]
-        m = mask[c]
-        for j in range(held.shape[0]):
-            gathered[j] = row[held[j]]
-        for j in range(dofs):
-            value = row[j]
-            for q in range(held.shape[0]):
-                value -= correction[j, q] * gathered[q]
-            row[j] = m[j] * value
+        if running[i]:
+            c = first + i
+            _correct_masked(out[c], corrections[c], imposed[c], gathered, mask[c])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
@@ -1994,14 +1996,15 @@ def bsr3_matvec_add_rows(indptr, indices, data, vector, scale, out, columns, use
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
-def _apply_rows(stacked, scales, springs_only, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows,
-                ones, mask, vector, out, running, first, columns, accumulator, pending):
+def _apply_rows(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones, mask,
+                vector, out, running, first, columns, accumulator, pending):
     """out[c] = mask[c] * A_c vector[c] (``_apply_copy``) for every copy c = first + i with
-    ``running[i]``: the spring, coupling and volume terms per copy (``springs_only``: ``scales`` without
-    the hourglass term), the hourglass term for all the running copies of a group at once
+    ``running[i]``: the spring, coupling and volume terms per copy (``scales`` without the hourglass
+    term), the hourglass term for all the running copies of a group at once
     (``bsr3_matvec_add_rows``: one pass over the group's node-block matrix, 2/3 of a product at
     TumorPositioning's 7^3: 43 of 67 us per copy)."""
     size = running.shape[0]
+    springs_only = (scales[0], scales[1], scales[2], scales[3], scales[4], 0.0 * scales[5])
     for i in range(size):
         pending[i] = running[i]
         if running[i]:
@@ -2039,7 +2042,6 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
     running = np.zeros(size, dtype=np.bool_)
     started = np.zeros(size, dtype=np.bool_)
     pending = np.zeros(size, dtype=np.bool_)
-    springs_only = (scales[0], scales[1], scales[2], scales[3], scales[4], 0.0 * scales[5])
     norm_b = np.zeros(size)
     res = np.zeros(size)
     rho = np.ones(size)
@@ -2066,7 +2068,7 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
         if norm_b[i] < 0.0:
             residual[c] = np.inf
         started[i] = norm_b[i] > 0.0
-    _apply_rows(stacked, scales, springs_only, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows,
+    _apply_rows(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows,
                 ones, mask, solution, v, started, first, columns, accumulator, pending)
     for i in range(size):
         if not started[i]:
@@ -2081,9 +2083,7 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
             if not running[i]:
                 continue
             c = first + i
-            rho_new = 0.0
-            for j in range(dofs):
-                rho_new += r_hat[c, j] * r[c, j]
+            rho_new = _dot(r_hat[c], r[c])
             if rho_new == 0.0 or omega[i] == 0.0:
                 running[i] = False
                 continue
@@ -2096,15 +2096,13 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
             break
         _precondition_rows(p, p_hat, running, first, lu_int, lu_float, factor_of, corrections, imposed, mask, columns,
                            buffer, accumulator, gathered, pending)
-        _apply_rows(stacked, scales, springs_only, hg_rows, hg_group, hg_block_indptr, hg_block_indices,
+        _apply_rows(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices,
                     hg_block_rows, ones, mask, p_hat, v, running, first, columns, accumulator, pending)
         for i in range(size):  # v = A p_hat, s = r - alpha v: done when s is small enough
             if not running[i]:
                 continue
             c = first + i
-            denominator = 0.0
-            for j in range(dofs):
-                denominator += r_hat[c, j] * v[c, j]
+            denominator = _dot(r_hat[c], v[c])
             if not (np.isfinite(denominator) and denominator != 0.0):
                 running[i] = False
                 continue
@@ -2123,7 +2121,7 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
                 running[i] = False
         _precondition_rows(s, s_hat, running, first, lu_int, lu_float, factor_of, corrections, imposed, mask, columns,
                            buffer, accumulator, gathered, pending)
-        _apply_rows(stacked, scales, springs_only, hg_rows, hg_group, hg_block_indptr, hg_block_indices,
+        _apply_rows(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices,
                     hg_block_rows, ones, mask, s_hat, t, running, first, columns, accumulator, pending)
         for i in range(size):  # t = A s_hat, omega, x and r
             if not running[i]:

@@ -456,12 +456,12 @@ class BatchedImplicitEuler:
         self._first = None  # _copies_first: (stack version, arrays)
         self._blocks = None  # _hourglass_blocks: (stack version, arrays)
         self._block_map = None
-        self._row_work = np.empty((8, dofs))
         if solver == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
             self._group_work = np.empty((8, count, dofs))
             self._no_corrections = (TypedList([np.zeros((0, 0))] * count),
                                     TypedList([np.zeros(0, dtype=np.int64)] * count))
         if solver == "factorised":
+            self._row_work = np.empty((8, dofs))  # solve_copies_lu's scratch
             identity = _CopyFactor()
             self._factors = [None] * count
             self._pending = [None] * count  # (cache key, free dofs) of a copy's episode start
