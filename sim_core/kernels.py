@@ -248,8 +248,22 @@ def any_inverted(positions, elements, neighbours, signs):
 
 
 # -- fused hot path (one call per explicit step; per-spring operator data for the implicit step) ------
-#: fastmath without the no-NaN / no-inf assumptions, so a diverging run still shows NaN to the monitor.
-_FAST = {"nsz", "arcp", "contract", "reassoc"}
+#: fastmath without the no-NaN / no-inf assumptions, so a diverging run still shows NaN to the monitor,
+#: and without reassociation, so a kernel's floats do not depend on how LLVM optimised it. With
+#: "reassoc", a kernel compiled in a process where its callees were loaded from numba's cache rounded
+#: differently (1e-16 to 1e-14 relative) from the same kernel compiled with fresh callees: a serial
+#: kernel cached by one process and its threaded twin compiled by the next gave different
+#: trajectories (tests/test_env_vector.py's bit-for-bit test failed after
+#: ``pytest tests/test_batched_fused.py -k grouped``; it passes without "reassoc"). Measured without it
+#: (benchmarks/vector_env_speed.py, 2 interleaved runs): the envs ran 4-16% faster, sync and vector
+#: alike (TumorPositioning's vector env 864/887 -> 1013/1027 steps/s, Palpation's 1404/1371 ->
+#: 1566/1636); the static solve 205 -> 187 ms (``tissue-sim bench`` at 10^3).
+_FAST = {"nsz", "arcp", "contract"}
+#: ``_FAST`` with reassociation, for the single-model Jacobi Krylov kernels only (``apply_operator``,
+#: ``solve_springs``: no serial / threaded twin whose floats must match; ``spring_operator``, which
+#: the copies' kernels call too, has none): their vectorised reductions kept the bare lattice's
+#: 15-iteration CG step at 0.65 ms (0.78 ms without).
+_FAST_REDUCE = _FAST | {"reassoc"}
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
@@ -482,7 +496,7 @@ def _apply(data, scales, mask, vector, out):
                     hg_indptr, hg_indices, hg_data, scales[5], mask, vector, out, elongation, delta)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST_REDUCE)
 def apply_operator(data, scales, mask, vector, out):
     """``spring_operator`` with its arguments packed: data = (springs, unit, stiffness, damping,
     geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length, volume_coefficient,
@@ -491,7 +505,7 @@ def apply_operator(data, scales, mask, vector, out):
     _apply(data, scales, mask, vector, out)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST_REDUCE)
 def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, symmetric, work, solution):
     """The implicit Euler solve on the matrix-free ``spring_operator``: Jacobi-preconditioned CG
     (symmetric) or right-preconditioned BiCGSTAB, with the vector updates fused into single passes
