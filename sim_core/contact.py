@@ -174,23 +174,16 @@ class Probe:
         projection = self.projection
         if projection is None:
             return self._height(positions[..., 0], positions[..., 2], tip[..., None, :])
-        x, z = positions[..., 0], positions[..., 2]
-        near = ((x - tip[..., None, 0]) ** 2 + (z - tip[..., None, 2]) ** 2 <= (self.radius + projection.reach) ** 2)
-        out = np.full(x.shape, np.inf)
-        where = np.nonzero(near)
-        if len(where[0]) == 0:
-            return out
-        node = where[-1]
-        tips = tip[where[:-1]] if tip.ndim > 1 else np.broadcast_to(tip, (len(node), 3))
-        reference = projection.reference[where] if projection.reference.ndim > 1 else projection.reference[node]
-        bound = np.empty(len(node))
-        kernels.projected_probe_surface(np.ascontiguousarray(x[where], dtype=float),
-                                        np.ascontiguousarray(z[where], dtype=float),
-                                        np.ascontiguousarray(tips, dtype=float), projection.weights[node],
-                                        projection.offsets, np.ascontiguousarray(reference, dtype=float),
-                                        float(self.radius), self.tip == "flat", bound)
-        out[where] = bound
-        return out
+        n = positions.shape[-2]
+        rows = np.ascontiguousarray(positions, dtype=float).reshape(-1, n, 3)
+        reference = np.ascontiguousarray(projection.reference, dtype=float).reshape(-1, n)
+        tips = np.ascontiguousarray(np.broadcast_to(tip, rows.shape[:1] + (3,)), dtype=float)
+        out = np.empty(rows.shape[:2])
+        kernels.projected_probe_surfaces(np.ascontiguousarray(rows[:, :, 0]), np.ascontiguousarray(rows[:, :, 2]),
+                                         tips, projection.weights,
+                                         projection.offsets, reference, float(self.radius), float(projection.reach),
+                                         self.tip == "flat", out)
+        return out.reshape(positions.shape[:-1])
 
 
 def gap(obstacle, positions, tip=None):

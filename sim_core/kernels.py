@@ -2193,34 +2193,53 @@ def solve_copies_grouped_serial(stacked, scales, hg_rows, hg_group, mask, rhs, g
                         np.int64(min(n_copies, first + chunk)))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def projected_probe_surface(x, z, tips, weights, offsets, reference, radius, flat, out):
-    """``contact.Probe``'s projected bound of each entry e (a node near a probe): the average over
-    the node's support, weighted by its hat function (``weights`` (E, Q), summing to 1), of
-    min(probe surface, ``reference[e]``) at the points (x[e], z[e]) + ``offsets`` (Q, 2) m, the
-    probe's lowest point at ``tips`` (E, 3) m, its surface tip_y + R - sqrt(R^2 - r^2) within
-    ``radius`` R of its axis (tip_y with ``flat``); +inf where it reaches below the reference at
-    no point. Writes ``out`` (E,) m."""
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _projected_bound(x, z, tip_x, tip_y, tip_z, weights, offsets, level, radius, flat):
+    """``contact.Probe``'s projected bound of one node at (x, z) m: the average over the node's
+    support, weighted by its hat function (``weights`` (Q,), summing to 1), of min(probe surface,
+    ``level``) at the points (x, z) + ``offsets`` (Q, 2) m, the probe's lowest point at (tip_x,
+    tip_y, tip_z) m, its surface tip_y + R - sqrt(R^2 - r^2) within ``radius`` R of its axis (tip_y
+    with ``flat``); +inf where it reaches below ``level`` at no point."""
     r2_max = radius * radius
-    for e in range(x.shape[0]):
-        total = 0.0
-        below = False
-        level = reference[e]
-        for q in range(offsets.shape[0]):
-            w = weights[e, q]
-            if w == 0.0:
-                continue
-            dx = x[e] + offsets[q, 0] - tips[e, 0]
-            dz = z[e] + offsets[q, 1] - tips[e, 2]
-            r2 = dx * dx + dz * dz
-            height = level
-            if r2 <= r2_max:
-                surface = tips[e, 1] if flat else tips[e, 1] + radius - np.sqrt(r2_max - r2)
-                if surface < level:
-                    height = surface
-                    below = True
-            total += w * height
-        out[e] = total if below else np.inf
+    total = 0.0
+    below = False
+    for q in range(offsets.shape[0]):
+        w = weights[q]
+        if w == 0.0:
+            continue
+        dx = x + offsets[q, 0] - tip_x
+        dz = z + offsets[q, 1] - tip_z
+        r2 = dx * dx + dz * dz
+        height = level
+        if r2 <= r2_max:
+            surface = tip_y if flat else tip_y + radius - np.sqrt(r2_max - r2)
+            if surface < level:
+                height = surface
+                below = True
+        total += w * height
+    return total if below else np.inf
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def projected_probe_surfaces(x, z, tips, weights, offsets, reference, radius, reach, flat, out):
+    """``contact.Probe.surface``'s projected bound of every node of M probe / node-set pairs in one
+    pass: ``x``, ``z`` (M, n) the nodes' horizontal coordinates, m, ``tips`` (M, 3) m, ``weights``
+    (n, Q), ``reference`` (M, n) or (1, n) m (the same for every row); a node farther than
+    ``radius`` + ``reach`` m from its row's probe axis gets +inf (no quadrature point can be under
+    the probe), the others ``_projected_bound``. Writes ``out`` (M, n) m."""
+    near2 = (radius + reach) ** 2
+    shared = reference.shape[0] == 1
+    for m in range(x.shape[0]):
+        tip_x, tip_y, tip_z = tips[m, 0], tips[m, 1], tips[m, 2]
+        levels = reference[0] if shared else reference[m]
+        for k in range(x.shape[1]):
+            dx = x[m, k] - tip_x
+            dz = z[m, k] - tip_z
+            if dx * dx + dz * dz <= near2:
+                out[m, k] = _projected_bound(x[m, k], z[m, k], tip_x, tip_y, tip_z, weights[k], offsets, levels[k],
+                                             radius, flat)
+            else:
+                out[m, k] = np.inf
 
 
 # -- batched factorisations (tissue_env.batched, solver "factorised") ----------------------------------

@@ -142,7 +142,7 @@ def test_projected_probe_on_stacked_copies_and_its_reference():
 
 @pytest.mark.parametrize("tip", ["sphere", "flat"])
 def test_projected_surface_kernel_equals_its_definition(tip):
-    """The compiled bound (``kernels.projected_probe_surface``) equals its definition evaluated with
+    """The compiled bound (``kernels.projected_probe_surfaces``) equals its definition evaluated with
     numpy, the hat-weighted average of min(probe surface, reference) over each node's support
     (+inf where the probe is above the reference everywhere on it), on perturbed positions and
     random tips (measured: 3e-17 m)."""
