@@ -53,9 +53,9 @@ class TumorPositioningEnv(TissueEnv):
     default shape is the most accurate one that keeps 300 env steps/s on one core with a 1.25x
     margin. Against the same model on a 16^3 mesh its static tool force, tumour displacement and
     volume change are within 2.3%, 2.4% and 3.6% (the previous defaults: 6^3 10.4%, 6.4%, 6.4%;
-    4^3 31%, 10.9%, 31.7%), its observations with the tool at full speed within 3.6%, 2.5% and 4.0%
+    4^3 31%, 10.9%, 31.7%), its observations with the tool at full speed within 3.5%, 2.5% and 4.0%
     of the 16^3 mesh's (``benchmarks/dynamic_convergence.py``); the lag behind the static
-    equilibrium of a tool moving at full speed is within 4.3%, 0.8% and 3.2%. The loose solver tolerance leaves these lags unchanged (an inexact solve keeps the
+    equilibrium of a tool moving at full speed is within 4.3%, 0.8% and 3.1%. The loose solver tolerance leaves these lags unchanged (an inexact solve keeps the
     equilibria) and runs about 25% faster; no divergence in 100 random-action episodes. After a tool
     move the tumour settles to the static equilibrium within a few steps (tested).
 
