@@ -145,10 +145,10 @@ class PalpationEnv(TissueEnv):
 
     How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
     tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within
-    1.12 (max/min) over one node period, and the inclusion's cell reads 1.16-1.27 times the
+    1.11 (max/min) over one node period, and the inclusion's cell reads 1.15-1.26 times the
     stiffest other cell in all 9 placements. With the probe sampled at the nodes (``"node"``) a
-    coarse mesh felt a press over a node on that node and one between nodes on four: 1.47 over the
-    node period, and the inclusion's cell 0.73-1.82 times the stiffest other (below 1 in 5 of the 9
+    coarse mesh felt a press over a node on that node and one between nodes on four: 1.39 over the
+    node period, and the inclusion's cell 0.75-1.80 times the stiffest other (below 1 in 5 of the 9
     placements).
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
