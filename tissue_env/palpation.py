@@ -239,7 +239,7 @@ class PalpationEnv(TissueEnv):
       stiffness of the first press, N/m / 100).
     """
 
-    default_shape = (8, 4, 8)
+    default_shape = (10, 5, 10)
     default_size = (0.06, 0.03, 0.06)
     default_dt = 0.04
     default_solver_tolerance = 1e-2
