@@ -9,11 +9,15 @@ what the palpation map records): the first step at least ``map_depth`` (4 mm) de
 held two steps (what the map holds once a press is held). For each probe sampling
 (``probe_sampling`` "projected", the default, and "node", earlier versions'):
 
-1. a homogeneous slab (``inclusion_ratio=1``) on a 4 x 4 grid over one node period (7.5 mm)
-   around the slab's centre: how the reading varies with where the nodes fall under the probe;
+1. a homogeneous slab (``inclusion_ratio=1``) on a 4 x 4 grid over one node period (6 mm at the
+   default (10, 5, 10), 7.5 mm at the earlier (8, 4, 8)) around the slab's centre: how the reading varies with where the nodes fall under the probe;
 2. the same slab at the 9 candidate cell centres;
 3. the inclusion at each cell in turn (the default 10x stiffer box): the reading of the
    inclusion's cell over the stiffest other cell. Below 1, the map points to a wrong cell.
+
+and, with the default sampling, how the reading depends on the depth: the homogeneous slab pressed
+4 and 8 mm deep (moved there, then held two steps) over three cell centres (``depth``: apparent
+modulus and indentation stiffness F / d).
 
 Results are written to ``--output`` (JSON, replaced atomically) and drawn in ``--figure``
 (docs/figures/palpation_map.png); ``--plot-only`` redraws the figure from the JSON.
@@ -73,7 +77,8 @@ def measure(sampling):
         readings = np.array([press(env, x, z, seed) for x, z in centres])
         contrast.append(readings[cell] / np.delete(readings, cell, axis=0).max(axis=0))
     contrast = np.array(contrast)
-    result = dict(node_spacing_m=spacing, grid_offsets_m=offsets.tolist(), cell_centres_m=centres.tolist())
+    result = dict(shape=[int(n) for n in homogeneous.shape], node_spacing_m=spacing, grid_offsets_m=offsets.tolist(),
+                  cell_centres_m=centres.tolist())
     for index, stage in enumerate(STAGES):
         result[stage] = dict(
             homogeneous_grid_pa=grid[..., index].tolist(),
@@ -83,6 +88,28 @@ def measure(sampling):
             inclusion_over_stiffest_other=contrast[:, index].tolist(),
         )
     return result
+
+
+def depth_readings(depths=(0.004, 0.008), cells=(0, 4, 8)):
+    """{depth (mm): (apparent moduli (Pa), F / d (N/m))} of held presses on the homogeneous slab
+    over the cell centres ``cells``: the probe moved to ``depth`` under the undeformed surface
+    (full speed, 8 steps), then held two steps."""
+    env = gym.make(ENV_ID, inclusion_ratio=1.0, max_episode_steps=400).unwrapped
+    readings = {}
+    for depth in depths:
+        moduli, stiffnesses = [], []
+        for x, z in env.cell_centres[list(cells)]:
+            env.reset(seed=0)
+            env.tool_offset = env.tool_offset + np.array([x, 0.0, z]) - env._tip() * [1, 0, 1]
+            goal = np.array([x, env.top_y - depth, z])
+            for _ in range(8):
+                env.step(np.clip((goal - env._tip()) / env.max_step, -1, 1).astype(np.float32))
+            for _ in range(2):
+                env.step(np.zeros(3, np.float32))
+            moduli.append(float(env.measures["apparent_modulus"]))
+            stiffnesses.append(float(env.measures["indentation_stiffness"]))
+        readings[f"{1e3 * depth:g}"] = dict(apparent_modulus_pa=moduli, force_over_depth_n_per_m=stiffnesses)
+    return readings
 
 
 def plot(results, path):
@@ -116,7 +143,8 @@ def plot(results, path):
     axes[2].set_title("held press over each cell centre")
     axes[2].set_ylim(0.0, 2.2)
     axes[2].legend(loc="upper center", ncol=2)
-    figure.suptitle("Palpation (8, 4, 8): a 9 mm sphere pressed 6 mm, held two steps "
+    shape = tuple(results["projected"]["shape"])
+    figure.suptitle(f"Palpation {shape}: a 9 mm sphere pressed 6 mm, held two steps "
                     "(benchmarks/palpation_map.py)", fontsize=10)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     figure.savefig(path, dpi=110, bbox_inches="tight")
@@ -145,6 +173,11 @@ def main(argv=None):
                   f"({min(row['homogeneous_cells_pa']) / 1e3:.2f}-{max(row['homogeneous_cells_pa']) / 1e3:.2f} kPa); "
                   f"inclusion / stiffest other {contrast.min():.2f}-{contrast.max():.2f}, below 1 in "
                   f"{int((contrast < 1).sum())} of {len(contrast)}", flush=True)
+    results["depth"] = depth_readings()
+    for depth, row in results["depth"].items():
+        moduli, stiffnesses = np.array(row["apparent_modulus_pa"]) / 1e3, row["force_over_depth_n_per_m"]
+        print(f"held {depth} mm deep over cells 0, 4, 8: apparent modulus {moduli.min():.2f}-{moduli.max():.2f} kPa, "
+              f"F / d {min(stiffnesses):.0f}-{max(stiffnesses):.0f} N/m", flush=True)
     directory = os.path.dirname(os.path.abspath(args.output))
     os.makedirs(directory, exist_ok=True)
     handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")

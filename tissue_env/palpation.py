@@ -62,7 +62,7 @@ class PalpationEnv(TissueEnv):
     """
     ## Description
 
-    A slab of liver-like tissue (6 x 3 x 6 cm, 8 x 4 x 8 hexahedra of 7.5 mm, Baudet mass-spring
+    A slab of liver-like tissue (6 x 3 x 6 cm, 10 x 5 x 10 hexahedra of 6 mm, Baudet mass-spring
     model of ``sim_core``, gravity on) is attached to the body by its bottom face. A tumour, a box
     of ``inclusion_size`` (default 1.2 x 1 x 1.2 cm) centred 1.5 cm under the surface, is
     ``inclusion_ratio`` (default 10) times stiffer than the tissue: each element's Young's modulus
@@ -81,7 +81,7 @@ class PalpationEnv(TissueEnv):
     physical sizes: ``shape`` only sets the resolution (a finer mesh models the same scene with
     more elements and contact nodes). With the flat probe of earlier versions the observations did
     not converge with the mesh (the fine model moved 34% between 10 and 12 elements across); with
-    the projected sphere they do (5.7-9.9%), see README, "How the default resolution is chosen".
+    the projected sphere they do (the default within 5.7-9.9% of (12, 6, 12)), see README, "How the default resolution is chosen".
     The agent sees the probe position and the
     reaction force and must press at least 5 mm deep within 1 cm (horizontally) of the inclusion
     and hold that press for ``hold_steps`` (default 3) consecutive steps: what a surgeon does when
@@ -136,20 +136,21 @@ class PalpationEnv(TissueEnv):
     policy's success rate (benchmarks/results/training.json before the map). A cell holds the
     reading of its latest press: the apparent (Hertz) modulus E* = 3 F / (4 sqrt(R) d^1.5)
     (``apparent_modulus``; F the probe's vertical force, d its depth under the start surface),
-    which reads the same tissue alike at any depth (held 4 and 8 mm deep at three places on the
-    homogeneous slab: 4.78-5.34 and 5.48-5.77 kPa, where F / d rises from 30-33 to 55-58 N/m;
-    E* = E / (1 - nu^2) = 6.3 kPa for a half-space), so a deeper press does not outrank a
-    shallower one, and a press held still replaces the first step of a press at full speed, which
-    reads 0.53-1.84x the held reading at the same place (the damping of the tissue it sets moving,
-    a contact still forming).
+    which reads the same tissue nearly alike at any depth (held 4 and 8 mm deep over three cells of
+    the homogeneous slab at the default (10, 5, 10): 4.97-5.26 and 5.67-5.98 kPa, where F / d rises
+    from 30-32 to 56-60 N/m; E* = E / (1 - nu^2) = 6.3 kPa for a half-space;
+    ``benchmarks/palpation_map.py``), so a deeper press does not outrank a shallower one, and a
+    press held still replaces the first step of a press at full speed, which reads 0.94-3.87x the
+    held reading at the same place (the damping of the tissue it sets moving, a contact still
+    forming).
 
     How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
-    tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within
-    1.11 (max/min) over one node period, and the inclusion's cell reads 1.15-1.26 times the
-    stiffest other cell in all 9 placements. With the probe sampled at the nodes (``"node"``) a
-    coarse mesh felt a press over a node on that node and one between nodes on four: 1.39 over the
-    node period, and the inclusion's cell 0.75-1.80 times the stiffest other (below 1 in 5 of the 9
-    placements).
+    tests/test_env_palpation.py): at the default (10, 5, 10), presses 6 mm deep held two steps read
+    a homogeneous slab within 1.13 (max/min) over one node period, and the inclusion's cell reads
+    1.24-1.29 times the stiffest other cell in all 9 placements. With the probe sampled at the nodes
+    (``"node"``) the coarser (8, 4, 8) felt a press over a node on that node and one between nodes
+    on four: 1.39 over the node period, and the inclusion's cell 0.75-1.80 times the stiffest other
+    (below 1 in 5 of the 9 placements); at (10, 5, 10) the node sampling reads 1.13 and 1.27-1.35.
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
@@ -236,7 +237,8 @@ class PalpationEnv(TissueEnv):
       records the first press 4 mm deep, it was 3 mm; then the probe's indentation is projected
       on the top nodes' basis functions (``probe_sampling``) and measured from the start surface,
       and the map holds the apparent modulus of the latest press, kPa: it held the indentation
-      stiffness of the first press, N/m / 100).
+      stiffness of the first press, N/m / 100); the default shape moved from (8, 4, 8) to
+      (10, 5, 10), the most accurate shape at >= 375 steps/s (``benchmarks/env_accuracy.py``).
     """
 
     default_shape = (10, 5, 10)
@@ -337,8 +339,8 @@ class PalpationEnv(TissueEnv):
                                  f"face, centres at fractions {np.unique(fraction[:, 0]).round(3).tolist()} in x and "
                                  f"{np.unique(fraction[:, 1]).round(3).tolist()} in z)")
             cells, centres = cells[inside], centres[inside]
-        #: (C, 3) int lattice indices (i, j, k) of the candidate cells (the element indices at the
-        #: default size and shape) and (C, 3) their centres, m: the candidate inclusion centres.
+        #: (C, 3) int lattice indices (i, j, k) of the candidate cells (the element indices of a
+        #: 5 x 3 x 5 mesh at the default size) and (C, 3) their centres, m: the candidate inclusion centres.
         self.inclusion_cells, self.inclusion_centres = cells, centres
         #: (C, 2) horizontal (x, z) centres of the candidate cells, m: the palpation map's cells.
         self.cell_centres = self.inclusion_centres[:, [0, 2]]
