@@ -62,7 +62,7 @@ class PalpationEnv(TissueEnv):
     """
     ## Description
 
-    A slab of liver-like tissue (6 x 3 x 6 cm, 10 x 5 x 10 hexahedra of 6 mm, Baudet mass-spring
+    A slab of liver-like tissue (6 x 3 x 6 cm, 8 x 4 x 8 hexahedra of 7.5 mm, Baudet mass-spring
     model of ``sim_core``, gravity on) is attached to the body by its bottom face. A tumour, a box
     of ``inclusion_size`` (default 1.2 x 1 x 1.2 cm) centred 1.5 cm under the surface, is
     ``inclusion_ratio`` (default 10) times stiffer than the tissue: each element's Young's modulus
@@ -81,7 +81,7 @@ class PalpationEnv(TissueEnv):
     physical sizes: ``shape`` only sets the resolution (a finer mesh models the same scene with
     more elements and contact nodes). With the flat probe of earlier versions the observations did
     not converge with the mesh (the fine model moved 34% between 10 and 12 elements across); with
-    the projected sphere they do (the default within 5.7-9.9% of (12, 6, 12)), see README, "How the default resolution is chosen".
+    the projected sphere they do (5.7-9.9%), see README, "How the default resolution is chosen".
     The agent sees the probe position and the
     reaction force and must press at least 5 mm deep within 1 cm (horizontally) of the inclusion
     and hold that press for ``hold_steps`` (default 3) consecutive steps: what a surgeon does when
@@ -137,20 +137,20 @@ class PalpationEnv(TissueEnv):
     reading of its latest press: the apparent (Hertz) modulus E* = 3 F / (4 sqrt(R) d^1.5)
     (``apparent_modulus``; F the probe's vertical force, d its depth under the start surface),
     which reads the same tissue nearly alike at any depth (held 4 and 8 mm deep over three cells of
-    the homogeneous slab at the default (10, 5, 10): 4.97-5.26 and 5.67-5.98 kPa, where F / d rises
-    from 30-32 to 56-60 N/m; E* = E / (1 - nu^2) = 6.3 kPa for a half-space;
-    ``benchmarks/palpation_map.py``), so a deeper press does not outrank a shallower one, and a
-    press held still replaces the first step of a press at full speed, which reads 0.94-3.87x the
-    held reading at the same place (the damping of the tissue it sets moving, a contact still
-    forming).
+    the homogeneous slab: 4.78-5.21 and 5.48-5.58 kPa, where F / d rises from 30-32 to 55-56 N/m;
+    E* = E / (1 - nu^2) = 6.3 kPa for a half-space; ``benchmarks/palpation_map.py``, which also
+    shows finer meshes reading the 8 mm press higher), so a deeper press does not outrank a
+    shallower one, and a press held still replaces the first step of a press at full speed, which
+    reads 0.50-1.84x the held reading at the same place (the map's grid over one node period: the
+    damping of the tissue it sets moving, a contact still forming).
 
     How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
-    tests/test_env_palpation.py): at the default (10, 5, 10), presses 6 mm deep held two steps read
-    a homogeneous slab within 1.13 (max/min) over one node period, and the inclusion's cell reads
-    1.24-1.29 times the stiffest other cell in all 9 placements. With the probe sampled at the nodes
-    (``"node"``) the coarser (8, 4, 8) felt a press over a node on that node and one between nodes
-    on four: 1.39 over the node period, and the inclusion's cell 0.75-1.80 times the stiffest other
-    (below 1 in 5 of the 9 placements); at (10, 5, 10) the node sampling reads 1.13 and 1.27-1.35.
+    tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within
+    1.11 (max/min) over one node period, and the inclusion's cell reads 1.15-1.26 times the
+    stiffest other cell in all 9 placements. With the probe sampled at the nodes (``"node"``) a
+    coarse mesh felt a press over a node on that node and one between nodes on four: 1.39 over the
+    node period, and the inclusion's cell 0.75-1.80 times the stiffest other (below 1 in 5 of the 9
+    placements).
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
@@ -237,11 +237,10 @@ class PalpationEnv(TissueEnv):
       records the first press 4 mm deep, it was 3 mm; then the probe's indentation is projected
       on the top nodes' basis functions (``probe_sampling``) and measured from the start surface,
       and the map holds the apparent modulus of the latest press, kPa: it held the indentation
-      stiffness of the first press, N/m / 100); the default shape moved from (8, 4, 8) to
-      (10, 5, 10), the most accurate shape at >= 375 steps/s (``benchmarks/env_accuracy.py``).
+      stiffness of the first press, N/m / 100).
     """
 
-    default_shape = (10, 5, 10)
+    default_shape = (8, 4, 8)
     default_size = (0.06, 0.03, 0.06)
     default_dt = 0.04
     default_solver_tolerance = 1e-2
