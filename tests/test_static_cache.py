@@ -74,6 +74,22 @@ def test_goal_does_not_depend_on_the_cache_state():
     copy.deepcopy(warm)  # the LU cache does not block copies
 
 
+def test_goal_tool_displacement_reaches_the_goal_when_a_retry_fails():
+    """When the tumour moves less than the minimum goal distance the displacement is scaled up and
+    solved again; when that retry does not converge the goal stays the last converged equilibrium,
+    and ``goal_tool_displacement`` is that equilibrium's tool displacement (it was the failed larger
+    one: at seed 43 a displacement whose static solve from the start does not converge)."""
+    env = gym.make("tissue_env/TumorPositioning-v0").unwrapped
+    env.reset(seed=43)  # its first retry (a larger compression at the workspace corner) fails
+    start = env.state.positions
+    control = env.base_control.copy().impose(env.tool_nodes, env.tool_rest + env.goal_tool_displacement)
+    plain = solve_static(env.model, control, initial=start, tolerance=1e-8)
+    assert plain.converged
+    assert np.linalg.norm(env.tumor_weights @ plain.positions[env.tumor_nodes] - env.goal) < 1e-6
+    moved = np.linalg.norm(env.goal - env.tumor_start)
+    assert moved < 2.0 * env.success_distance  # the retry was needed and failed: the smaller goal stays
+
+
 def test_compiled_tangent_is_the_numpy_tangent():
     """``static.tangent_stiffness`` (the compiled assembly of the implicit step, geometric term not
     clamped) equals ``forces.stiffness_data`` (numpy) to 1e-12 at a deformed state with compressed
