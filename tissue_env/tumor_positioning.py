@@ -38,7 +38,7 @@ class TumorPositioningEnv(TissueEnv):
     """
     ## Description
 
-    A block of liver-like tissue (5 x 5 x 5 cm, 6 x 6 x 6 hexahedra of 8.3 mm, Baudet mass-spring
+    A block of liver-like tissue (5 x 5 x 5 cm, 7 x 7 x 7 hexahedra of 7.1 mm, Baudet mass-spring
     model of ``sim_core``) rests with its bottom face (y = 0) attached to the body. A tool grasps the
     top-surface nodes in the ``tool_size`` = 2.5 cm square at the centre of the top face (all
     components imposed: 4 x 4 nodes spanning 2.14 cm at the default shape, 3 x 3 spanning 1.67 cm
