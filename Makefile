@@ -31,6 +31,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/step_speed.py
 	$(PY) benchmarks/env_speed.py
+	$(PY) benchmarks/reset_speed.py
 	$(PY) benchmarks/env_speed.py --integrator static --steps 100 --output benchmarks/results/env_speed_static.json
 	$(PY) benchmarks/stability.py
 	$(PY) benchmarks/env_accuracy.py

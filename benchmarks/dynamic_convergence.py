@@ -43,6 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._results import write_json  # noqa: E402
 from benchmarks.env_accuracy import (  # noqa: E402
     TASKS, env_default_dt, env_default_shape, env_defaults, env_solver_tolerance,
 )
@@ -175,10 +176,7 @@ def main(argv=None):
         results[name] = run(name, args.shapes, args.fine, args.damping_ratio, args.constant_viscosity, args.integrator)
         print(f"{name}: {results[name]['wall_time']:.0f} s", flush=True)
     results = {name: results[name] for name in TASKS if name in results}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    scratch = path.with_suffix(".json.tmp")
-    scratch.write_text(json.dumps(results, indent=1))
-    scratch.replace(path)  # atomic
+    write_json(path, results, indent=1)
     table(results)
     return results
 

@@ -62,6 +62,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._results import write_json  # noqa: E402
 from sim_core.resolution import (  # noqa: E402
     Scene, choose_resolution, choose_stepping, evaluate, reference_solutions, solve_scene,
 )
@@ -361,10 +362,7 @@ def run(quick=False, tasks=None):
         print(f"{name}: {time.perf_counter() - clock:.0f} s", flush=True)
     out["tasks"] = {name: out["tasks"][name] for name in TASKS if name in out["tasks"]}
     out["total_time"] = time.perf_counter() - start
-    results.mkdir(parents=True, exist_ok=True)
-    scratch = path.with_suffix(".json.tmp")
-    scratch.write_text(json.dumps(out, indent=1, default=float))
-    scratch.replace(path)  # atomic: a reader never sees half a file
+    write_json(path, out, indent=1, default=float)
     figure(out, ROOT / "docs" / "figures" / ("env_accuracy_quick.png" if quick else "env_accuracy.png"))
     table(out)
     return out

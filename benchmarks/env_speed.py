@@ -11,16 +11,19 @@ and every figure is the median over rounds. One process, one core. Results are w
 """
 
 import argparse
-import json
 import os
 import platform
-import tempfile
+import sys
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-import tissue_env
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import tissue_env  # noqa: E402
+from benchmarks._results import write_json  # noqa: E402
 
 
 def timed(function, bucket, key):
@@ -113,11 +116,7 @@ def main():
                    python=platform.python_version(), numpy=np.__version__, load_average=list(os.getloadavg()))
     payload = dict(steps=args.steps, rounds=args.rounds, integrator=args.integrator or "implicit", machine=machine,
                    results=results)
-    os.makedirs(os.path.dirname(os.path.abspath(args.output)), exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(args.output)), suffix=".tmp")
-    with os.fdopen(handle, "w") as stream:
-        json.dump(payload, stream, indent=2)
-    os.replace(temporary, args.output)
+    write_json(args.output, payload)
 
 
 if __name__ == "__main__":

@@ -26,12 +26,16 @@ Results are written to ``--output`` (JSON, replaced atomically) and drawn in ``-
 import argparse
 import json
 import os
-import tempfile
+import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-import tissue_env  # noqa: F401  (registers the ids)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import tissue_env  # noqa: E402,F401  (registers the ids)
+from benchmarks._results import write_json  # noqa: E402
 
 ENV_ID = "tissue_env/Palpation-v0"
 SAMPLINGS = ("projected", "node")
@@ -178,12 +182,7 @@ def main(argv=None):
         moduli, stiffnesses = np.array(row["apparent_modulus_pa"]) / 1e3, row["force_over_depth_n_per_m"]
         print(f"held {depth} mm deep over cells 0, 4, 8: apparent modulus {moduli.min():.2f}-{moduli.max():.2f} kPa, "
               f"F / d {min(stiffnesses):.0f}-{max(stiffnesses):.0f} N/m", flush=True)
-    directory = os.path.dirname(os.path.abspath(args.output))
-    os.makedirs(directory, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")
-    with os.fdopen(handle, "w") as stream:
-        json.dump(results, stream, indent=2)
-    os.replace(temporary, args.output)
+    write_json(args.output, results)
     plot(results, args.figure)
     return 0
 

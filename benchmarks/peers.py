@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import itertools
-import json
 import os
 import platform
 import sys
@@ -38,6 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._results import write_json  # noqa: E402
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
 from sim_core.material import Material  # noqa: E402
 from sim_core.mesh import LOCAL_CORNERS, HexMesh  # noqa: E402
@@ -495,15 +495,6 @@ def measure(rounds: int = 7, steps: int = 100, static: bool = True, only=None, s
     return results
 
 
-def write_json(results: dict, path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_suffix(".tmp")
-    temporary.write_text(json.dumps(results, indent=2) + "\n")
-    os.replace(temporary, path)  # atomic: a reader never sees half a file
-    return path
-
-
 def _fmt(value, spec):
     return "-" if value is None else format(value, spec)
 
@@ -547,7 +538,8 @@ def main(argv=None):
     parser.add_argument("--out", default=str(DEFAULT_OUT))
     args = parser.parse_args(argv)
     results = measure(args.rounds, args.steps, static=not args.no_static, only=args.only)
-    path = write_json(results, args.out)
+    path = Path(args.out)
+    write_json(path, results)
     print(table(results))
     print(f"written to {path}")
 

@@ -25,11 +25,9 @@ small machine shared with other jobs the numbers are noisy, compare them only wi
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -37,16 +35,10 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
+from benchmarks._results import write_json  # noqa: E402
+
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "rllib_throughput.json"
 ALL_ENVS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
-
-
-def write_json_atomic(path: Path, data) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(handle, "w") as stream:
-        stream.write(json.dumps(data, indent=2) + "\n")
-    os.replace(temporary, path)
 
 
 def plain_env_speed(env_id: str, steps: int = 300, seed: int = 0) -> float:
@@ -166,7 +158,7 @@ def main(argv=None) -> int:
                                              if one else None)
     import torch
 
-    write_json_atomic(args.out, dict(
+    write_json(args.out, dict(
         description="RLlib PPO env steps per second on a local Ray instance (benchmarks/rllib_throughput.py)",
         note="shared machine: other jobs ran on the same cores, numbers are noisy (see load_average_*)",
         ray_version=ray.__version__, gymnasium_version=gym.__version__, torch_version=torch.__version__,

@@ -17,13 +17,12 @@ Writes benchmarks/results/step_speed.json. Timing is never asserted in tests: ma
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._results import write_json  # noqa: E402
 from sim_core.bench import measure  # noqa: E402
 
 
@@ -34,16 +33,12 @@ def main(argv=None):
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "step_speed.json"))
     args = parser.parse_args(argv)
     results = measure(args.shape, args.repeats)
-    out_path = Path(args.out)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out_path.with_suffix(".tmp")
-    temporary.write_text(json.dumps(results, indent=2) + "\n")
-    os.replace(temporary, out_path)  # atomic: a reader never sees half a file
+    write_json(args.out, results)
     width = max(len(k) for k in results)
     for key, value in results.items():
         if key != "machine":
             print(f"{key:<{width}}  {value:.4g}" if isinstance(value, float) else f"{key:<{width}}  {value}")
-    print(f"written to {out_path}")
+    print(f"written to {args.out}")
 
 
 if __name__ == "__main__":

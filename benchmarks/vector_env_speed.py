@@ -24,19 +24,22 @@ written to ``--output`` (JSON, replaced atomically).
 
 import argparse
 import functools
-import json
 import os
 import platform
-import tempfile
+import sys
 import threading
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import numba
 import numpy as np
 
-import tissue_env
-from tissue_env.base import TissueEnv
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import tissue_env  # noqa: E402
+from benchmarks._results import write_json  # noqa: E402
+from tissue_env.base import TissueEnv  # noqa: E402
 
 RESET_SECONDS = [0.0]
 _RESET_LOCK = threading.Lock()  # the threaded vector envs reset their copies on several threads
@@ -95,17 +98,6 @@ def _summary(run, own_cpu):
 def _cell(summary):
     cpu = summary.get("cpu_steps_per_s")
     return f"{summary['wall_steps_per_s']:6.0f} " + (f"({cpu:5.0f})" if cpu is not None else "( wall)")
-
-
-def write_json(path, payload):
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=directory, suffix=".tmp")
-    with os.fdopen(handle, "w") as stream:
-        json.dump(payload, stream, indent=2)
-        stream.write("\n")
-    os.chmod(temporary, 0o644)
-    os.replace(temporary, path)
 
 
 def main():

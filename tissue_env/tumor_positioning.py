@@ -24,7 +24,8 @@ GOAL_SOLVER = dict(chord_contraction=0.95, acceleration=5, max_load_steps=8)
 #: the goals are the same (to 2e-8 m), the mean reset 60.6 -> 55.3 ms and the slowest 1.2 -> 0.66 s.
 #: Since Newton gives up a load step at a rejected fresh-tangent step (``sim_core.static._newton``)
 #: a failing retry (15 of seeds 1-1000) stops after a few factorisations, not 20-27: the same
-#: goals, the mean reset 24.3 -> 22.5 ms and the slowest 365 -> 208 ms.
+#: goals, the mean reset 24.2 / 23.7 -> 21.9 / 22.1 ms and the slowest 398 / 356 -> 198 / 194 ms
+#: (``benchmarks/reset_speed.py``, two runs of each version).
 GOAL_RETRY_SOLVER = dict(GOAL_SOLVER, max_load_steps=2, max_iterations=20)
 
 

@@ -1,0 +1,23 @@
+"""benchmarks/reset_speed.py: the per-reset timings and the goal-solve counts it reports."""
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks import reset_speed  # noqa: E402
+from sim_core import static  # noqa: E402
+import tissue_env.tumor_positioning as tumor_positioning  # noqa: E402
+
+
+def test_reset_speed_counts_goal_solves_and_restores_the_solvers(tmp_path):
+    """Seeds 1-3 of TumorPositioning: every reset solves its goal at least once, the counters are
+    removed afterwards, and the JSON is written."""
+    solve, factorise = tumor_positioning.solve_static, static._factorise
+    row = reset_speed.measure("tissue_env/TumorPositioning-v0", 3)
+    assert tumor_positioning.solve_static is solve and static._factorise is factorise
+    assert row["goal_solves_per_reset"] >= 1.0 and row["factorisations_per_reset"] >= 0.0
+    assert 0.0 < row["median_ms"] <= row["max_ms"] and row["p95_ms"] <= row["max_ms"]
+    out = tmp_path / "reset.json"
+    assert reset_speed.main(["--seeds", "2", "--env", "tissue_env/Retraction-v0", "--output", str(out)]) == 0
+    assert out.is_file() and (out.stat().st_mode & 0o777) == 0o644
