@@ -22,9 +22,9 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
 actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
-README's run): env steps per wall second, sync -> vector env, TumorPositioning 491 -> 1114 (2.3x),
-Palpation 938 -> 1999 (2.1x), Retraction 421 -> 1143 (2.7x); on one thread (``threads=1``) the vector
-env does 1.8 / 1.4 / 1.9x the sync env's steps per CPU second. TumorPositioning's copies are
+README's run): env steps per wall second, sync -> vector env, TumorPositioning 516 -> 1228 (2.4x),
+Palpation 918 -> 1835 (2.0x), Retraction 398 -> 1210 (3.0x); on one thread (``threads=1``) the vector
+env does 1.8 / 1.4 / 2.0x the sync env's steps per CPU second. TumorPositioning's copies are
 preconditioned by one node-block LU of the start matrix that they share (solver "reference") and
 solved in lockstep chunks of 8 on numba's threads (``kernels.solve_copies_grouped``: one pass over
 the factor and the hourglass matrix for all of a chunk's running copies); Palpation's and
