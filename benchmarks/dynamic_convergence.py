@@ -43,7 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 from benchmarks.env_accuracy import (  # noqa: E402
     TASKS, env_default_dt, env_default_shape, env_defaults, env_solver_tolerance,
 )

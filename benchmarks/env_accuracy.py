@@ -62,7 +62,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 from sim_core.resolution import (  # noqa: E402
     Scene, choose_resolution, choose_stepping, evaluate, reference_solutions, solve_scene,
 )

@@ -23,7 +23,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import tissue_env  # noqa: E402
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 
 
 def timed(function, bucket, key):

@@ -36,7 +36,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import tissue_env  # noqa: E402,F401  (registers the ids)
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 
 ENV_ID = "tissue_env/Palpation-v0"
 SAMPLINGS = ("projected", "node")

@@ -37,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
 from sim_core.material import Material  # noqa: E402
 from sim_core.mesh import LOCAL_CORNERS, HexMesh  # noqa: E402

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import sim_core.static as static  # noqa: E402
 import tissue_env  # noqa: E402
 import tissue_env.tumor_positioning as tumor_positioning  # noqa: E402
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 
 
 class _Counter:

@@ -35,7 +35,7 @@ REPO = Path(__file__).resolve().parent.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "rllib_throughput.json"
 ALL_ENVS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")

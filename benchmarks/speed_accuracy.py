@@ -70,7 +70,6 @@ import argparse
 import csv
 import functools
 import io
-import json
 import math
 import os
 import signal
@@ -92,6 +91,7 @@ from sim_core.hyperelastic import NeoHookeanFEM  # noqa: E402
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
 from sim_core.mesh import LOCAL_CORNERS  # noqa: E402
 from sim_core.model import Control  # noqa: E402
+from training.common import write_json  # noqa: E402
 
 # -- the physical block (SI) ---------------------------------------------------------------------
 SIZE = 0.04  # m, cube side
@@ -695,8 +695,9 @@ def write_csv(rows, path: Path):
     _atomic_write(path, buffer.getvalue().encode())
 
 
-def write_json(summary, path: Path):
-    _atomic_write(path, (json.dumps(summary, indent=1, default=lambda v: None if v is None else float(v)) + "\n").encode())
+def write_summary(summary, path: Path):
+    """The run's summary as JSON (atomic; numpy scalars as floats)."""
+    write_json(path, summary, indent=1, default=lambda v: None if v is None else float(v))
 
 
 MARKERS = {"explicit": "^", "implicit": "o", "quasi-static": "s"}
@@ -786,7 +787,7 @@ def main(argv=None):
     rows, summary = benchmark(**options)
     summary["quick"] = bool(args.quick)
     write_csv(rows, args.out / "benchmarks" / "results" / "speed_accuracy.csv")
-    write_json(summary, args.out / "benchmarks" / "results" / "speed_accuracy.json")
+    write_summary(summary, args.out / "benchmarks" / "results" / "speed_accuracy.json")
     figure(rows, summary, args.out / "docs" / "figures" / "speed_accuracy.png")
     for name, scene in summary["scenes"].items():
         print(f"\n{name}: Pareto front")

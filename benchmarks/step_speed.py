@@ -22,7 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 from sim_core.bench import measure  # noqa: E402
 
 

@@ -38,7 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import tissue_env  # noqa: E402
-from benchmarks._results import write_json  # noqa: E402
+from training.common import write_json  # noqa: E402
 from tissue_env.base import TissueEnv  # noqa: E402
 
 RESET_SECONDS = [0.0]

@@ -104,10 +104,10 @@ def test_tiny_run(tmp_path):
     assert lines[0].startswith("# error_pct")
     read = list(csv.DictReader(lines[1:]))
     assert len(read) == len(rows) and float(read[0]["error_pct"]) == pytest.approx(rows[0]["error_pct"], rel=1e-5)
-    sa.write_json(summary, tmp_path / "out.json")
+    sa.write_summary(summary, tmp_path / "out.json")
     sa.figure(rows, summary, tmp_path / "out.png")
     assert (tmp_path / "out.png").stat().st_size > 1000
-    assert not list(tmp_path.glob(".*.tmp"))
+    assert not list(tmp_path.glob(".*.tmp")) and not list(tmp_path.glob("*.tmp"))
 
 
 def test_unstable_runs_are_recorded_not_dropped():

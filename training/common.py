@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import tempfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -81,10 +82,22 @@ def run_name(env_id: str) -> str:
     return env_id.replace("/", "_")
 
 
-def write_json(path: Path, data) -> None:
-    """Write JSON atomically: a crash never leaves half a file."""
+def write_json(path: Path, data, **dump_options) -> None:
+    """Write ``data`` as JSON to ``path`` atomically: a temporary file of its own in the same folder,
+    then ``os.replace``, so a crash or an interrupted run never leaves half a file and two writers
+    never share a temporary. Readable by all (mode 0644; ``tempfile.mkstemp`` alone gives 0600).
+    ``dump_options`` go to ``json.dump`` (default ``indent=2``, ``default=str``). The training
+    scripts and the benchmarks write their results with it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(json.dumps(data, indent=2, default=str) + "\n")
-    os.replace(temporary, path)
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w") as stream:
+            json.dump(data, stream, **{"indent": 2, "default": str, **dump_options})
+            stream.write("\n")
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+        raise
