@@ -90,6 +90,24 @@ def test_goal_tool_displacement_reaches_the_goal_when_a_retry_fails():
     assert moved < 2.0 * env.success_distance  # the retry was needed and failed: the smaller goal stays
 
 
+def test_a_failing_goal_retry_gives_up_without_damping_towards_gradient_steps(monkeypatch):
+    """A Newton step rejected with a fresh tangent ends the load step (``static._newton``) instead of
+    refactorising with the diagonal damping raised x100 at a time: the resets whose goal retry
+    fails (seeds 43, 60, 72) factorise 11, 11 and 13 times (27, 23 and 25 with the escalation)."""
+    from sim_core import static
+
+    env = gym.make("tissue_env/TumorPositioning-v0").unwrapped
+    env.reset(seed=0)
+    calls = []
+    factorise = static._factorise
+    monkeypatch.setattr(static, "_factorise", lambda *args: calls.append(1) or factorise(*args))
+    for seed in (43, 60, 72):
+        calls.clear()
+        env.reset(seed=seed)
+        assert np.linalg.norm(env.goal - env.tumor_start) < 2.0 * env.success_distance  # the retry failed
+        assert len(calls) <= 16, (seed, len(calls))
+
+
 def test_compiled_tangent_is_the_numpy_tangent():
     """``static.tangent_stiffness`` (the compiled assembly of the implicit step, geometric term not
     clamped) equals ``forces.stiffness_data`` (numpy) to 1e-12 at a deformed state with compressed
