@@ -9,8 +9,8 @@ what the palpation map records): the first step at least ``map_depth`` (4 mm) de
 held two steps (what the map holds once a press is held). For each probe sampling
 (``probe_sampling`` "projected", the default, and "node", earlier versions'):
 
-1. a homogeneous slab (``inclusion_ratio=1``) on a 4 x 4 grid over one node period (7.5 mm at the
-   default (8, 4, 8)) around the slab's centre: how the reading varies with where the nodes fall
+1. a homogeneous slab (``inclusion_ratio=1``) on a 4 x 4 grid over one node period (6 mm at the
+   default (10, 5, 10)) around the slab's centre: how the reading varies with where the nodes fall
    under the probe;
 2. the same slab at the 9 candidate cell centres;
 3. the inclusion at each cell in turn (the default 10x stiffer box): the reading of the

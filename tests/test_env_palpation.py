@@ -93,14 +93,14 @@ def test_palpation_map_records_the_latest_press_and_rewards_the_first_once():
     np.testing.assert_allclose(obs[15:15 + n_cells], unwrapped.palpation_map / 1000.0, rtol=1e-6)
     np.testing.assert_allclose(obs[15 + n_cells:17 + n_cells], 0.0, atol=1e-5)  # stiffest = here
     # pressing deeper on the same cell does not reward again; its depth-normalised reading moves
-    # by less than 15% at the default (8, 4, 8) (F / d rises by 1.5x from 4 to 8 mm). Measured:
-    # +12%; finer meshes stiffen the 8 mm press (0.9 probe radii, a quarter of the slab) more:
-    # +19% at (10, 5, 10), +43% at (12, 6, 12), +53% at (14, 7, 14)
+    # by less than 25% at the default (10, 5, 10) (F / d rises by 1.5x from 4 to 8 mm). Measured:
+    # +19%; +12% at (8, 4, 8); finer meshes stiffen the 8 mm press (0.9 probe radii, a quarter of
+    # the slab: no longer Hertz's half-space) more: +43% at (12, 6, 12), +53% at (14, 7, 14)
     held = unwrapped.palpation_map[0]
     _, infos = go(np.array([centre[0], surface - 0.008, centre[1]]), steps=3)
     assert all(info["reward_explore"] == 0 for info in infos)
     assert unwrapped.palpation_map[0] == infos[-1]["apparent_modulus"]
-    assert abs(unwrapped.palpation_map[0] / held - 1) < 0.15, (unwrapped.palpation_map[0], held)
+    assert abs(unwrapped.palpation_map[0] / held - 1) < 0.25, (unwrapped.palpation_map[0], held)
     # the offset to the nearest unprobed cell points to a neighbour one cell pitch away (cm)
     pitch = unwrapped.cell_size[0] / unwrapped.length_scale
     np.testing.assert_allclose(np.hypot(*obs[17 + n_cells:19 + n_cells]), pitch, rtol=1e-5)
@@ -237,13 +237,13 @@ def held_reading(env, x, z, seed):
     return info["apparent_modulus"]
 
 
-@pytest.mark.parametrize("sampling, shape, low, high", [("projected", None, 1.0, 1.2), ("projected", (10, 5, 10), 1.0, 1.2),
-                                                        ("node", None, 1.3, np.inf)])
+@pytest.mark.parametrize("sampling, shape, low, high", [("projected", None, 1.0, 1.2), ("projected", (8, 4, 8), 1.0, 1.2),
+                                                        ("node", (8, 4, 8), 1.3, np.inf)])
 def test_the_same_tissue_reads_alike_wherever_the_nodes_fall_under_the_probe(sampling, shape, low, high):
     """Homogeneous slab, held presses on a 3 x 3 grid over one node period p at the centre (offsets
     0, p / 3, 2 p / 3 along x and 0, p / 2, 0.73 p along z): with the projected probe the readings'
-    max/min is below 1.2 at the default (8, 4, 8) (measured 1.10, p = 7.5 mm; 1.11 on the map's
-    4 x 4 grid) and at (10, 5, 10) (1.13, p = 6 mm); sampled at the nodes, (8, 4, 8) reads 1.3 or
+    max/min is below 1.2 at the default (10, 5, 10) (measured 1.13, p = 6 mm) and at (8, 4, 8)
+    (1.10, p = 7.5 mm; 1.11 on the map's 4 x 4 grid); sampled at the nodes, (8, 4, 8) reads 1.3 or
     more (1.34, and 2.05 for the first step of a press, which is why the map keeps the latest
     reading). At (10, 5, 10) the node sampling reads 1.09: 6 mm elements under a 9 mm probe
     average the nodes well enough."""
@@ -259,8 +259,9 @@ def test_the_same_tissue_reads_alike_wherever_the_nodes_fall_under_the_probe(sam
 def test_a_held_press_over_the_inclusion_reads_stiffest_in_every_placement():
     """The inclusion in each of the 9 candidate cells in turn, a held press over every cell centre:
     the inclusion's cell reads at least 1.1x the stiffest other cell in all 9 placements (measured
-    1.15-1.26, benchmarks/palpation_map.py; sampled at the nodes 0.75-1.80, below 1 in 5 placements;
-    at (10, 5, 10) 1.24-1.29, and 1.27-1.35 sampled at the nodes)."""
+    at the default (10, 5, 10): 1.24-1.29, and 1.27-1.35 sampled at the nodes,
+    benchmarks/palpation_map.py; at (8, 4, 8) 1.15-1.26, and 0.75-1.80 sampled at the nodes, below
+    1 in 5 placements)."""
     env = gym.make(ENV_ID, max_episode_steps=400).unwrapped
     env.terminate_on_success = False
     centres = env.cell_centres
