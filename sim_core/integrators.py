@@ -333,8 +333,11 @@ class ImplicitEuler(SymplecticEuler):
         """The current factorisation (with its re-factorisation threshold) and the keys "auto" has
         switched, for ``adopt_factor`` in another integrator; None before any factorisation. A
         caller that always starts from the same state (an environment's reset) can keep the
-        snapshot taken after the first step and skip that factorisation in later episodes: the
-        steps are then exactly those of a fresh integrator that factorised at that step."""
+        snapshot taken after the first step and skip that factorisation in later episodes. The
+        steps are then those of a fresh integrator that factorised at that step only if that step's
+        imposed set and iterations are the snapshot's: the threshold (set from the snapshot's first
+        solve) and the key come with it (docs/environment_accuracy.md: a known history dependence
+        within the solver tolerance)."""
         if self._factor is None:
             return None
         return self._factor, self._factor.threshold, frozenset(self._auto_factorised)

@@ -372,7 +372,9 @@ class TissueEnv(gym.Env):
                    if self.integrator_name == "implicit" else {})
         self.integrator = make_integrator(self.integrator_name, **options)
         # Every episode of a model starts from the same state, so the first implicit step's system
-        # matrix is always the same: its factorisation, once made, is reused (exactly the same steps).
+        # matrix is always the same: its factorisation, once made, is reused (the same steps when the
+        # first step's imposed set and iterations are the first episode's; otherwise they differ
+        # within the solver tolerance: see docs/environment_accuracy.md).
         with self._cache_lock:
             snapshot = self._first_factors.get(id(self.model)) if self.integrator_name == "implicit" else None
         if snapshot is not None and snapshot[0] == options and snapshot[1][0].model is self.model:
