@@ -140,11 +140,11 @@ class PalpationEnv(TissueEnv):
     which reads the same tissue nearly alike at any depth (held 4 and 8 mm deep over three cells of
     the homogeneous slab: 4.97-5.26 and 5.67-5.98 kPa, where F / d rises from 30-32 to 56-60 N/m;
     E* = E / (1 - nu^2) = 6.3 kPa for a half-space; ``benchmarks/palpation_map.py``, which also
-    shows finer meshes reading the 8 mm press higher), so a deeper press does not outrank a
-    shallower one (by at most 19% at 8 mm: tests/test_env_palpation.py), and a press held still
-    replaces the first step of a press at full speed, which reads 0.96-3.87x the held reading at
-    the same place (the map's grid over one node period: the damping of the tissue it sets moving,
-    a contact still forming; 0.50-1.84x at (8, 4, 8)).
+    shows finer meshes reading the 8 mm press higher), so a press 8 mm deep reads the same tissue
+    19% above one 4 mm deep (tests/test_env_palpation.py's cell), less than the inclusion's
+    1.24-1.29x; and a press held still replaces the first step of a press at full speed, which
+    reads 0.96-3.87x the held reading at the same place (the map's grid over one node period: the
+    damping of the tissue it sets moving, a contact still forming; 0.50-1.84x at (8, 4, 8)).
 
     How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
     tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within
