@@ -51,3 +51,18 @@ def test_env_speed_measures_cpu_time_and_rejects_an_impossible_shape():
     assert env_accuracy.env_speed("tissue_env/Retraction-v0", (0, 2, 4), steps=2) is None
     rate = env_accuracy.env_speed("tissue_env/Retraction-v0", (4, 1, 2), steps=5, clock=time.process_time)
     assert math.isfinite(rate) and rate > 0.0
+
+
+
+def test_the_env_defaults_are_the_committed_budget_choices():
+    """Issue 6 section 3: each env's default shape is what ``benchmarks/env_accuracy.py`` chose (the
+    most accurate shape at >= 375 steps/s) in its committed run, benchmarks/results/env_accuracy.json
+    (Palpation's (10, 5, 10) since it moved from (8, 4, 8))."""
+    import json
+
+    results = json.loads((Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+                          / "env_accuracy.json").read_text())
+    assert set(results["tasks"]) == set(env_accuracy.TASKS)
+    for task, entry in results["tasks"].items():
+        assert tuple(entry["budget_choice"]["shape"]) == env_accuracy.env_default_shape(task), task
+        assert tuple(entry["env_default"]["shape"]) == env_accuracy.env_default_shape(task), task

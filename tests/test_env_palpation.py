@@ -21,6 +21,26 @@ def test_scripted_sweep_succeeds_and_random_probing_rarely_does():
     assert np.mean([r for r, _, _ in scripted]) > np.mean([r for r, _, _ in random])
 
 
+def test_the_scripted_sweeps_presses_stay_near_the_force_limit():
+    """The default ``force_limit`` (2 N) is set for the default mesh, which resolves the stiff
+    inclusion: over seeds 0-19 the scripted sweep (100% success) pays -0.60 of force penalty per
+    episode on average (at worst -1.79); with the 1 N limit set on the coarser (8, 4, 8) it paid
+    -1.91 (at worst -4.93), and PPO fell from 85% to 30-35% at its budget (README)."""
+    env = gym.make(ENV_ID)
+    assert env.unwrapped.force_limit == 2.0
+    penalties = []
+    for seed in range(20):
+        env.reset(seed=seed)
+        penalty, done = 0.0, False
+        while not done:
+            _, _, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
+            penalty += info["reward_force"]
+            done = terminated or truncated
+        assert info["is_success"]
+        penalties.append(penalty)
+    assert np.mean(penalties) > -1.0 and min(penalties) > -2.5, np.round(penalties, 2)
+
+
 def test_probe_starts_away_from_the_inclusion_at_a_random_place():
     env = gym.make(ENV_ID)
     starts = []
@@ -63,8 +83,9 @@ def test_inclusion_is_stiffer_under_the_probe():
     assert np.argmax(stiffness) == inclusion and stiffness[inclusion] > 1.05 * np.median(stiffness)
 
 
-def test_palpation_map_records_the_latest_press_and_rewards_the_first_once():
-    env = gym.make("tissue_env/Palpation-v0")
+@pytest.mark.parametrize("shape, drift", [(None, 0.25), ((8, 4, 8), 0.15)])
+def test_palpation_map_records_the_latest_press_and_rewards_the_first_once(shape, drift):
+    env = gym.make("tissue_env/Palpation-v0", **({} if shape is None else dict(shape=shape)))
     env.reset(seed=3)
     unwrapped = env.unwrapped
     centre = unwrapped.cell_centres[0]
@@ -93,14 +114,15 @@ def test_palpation_map_records_the_latest_press_and_rewards_the_first_once():
     np.testing.assert_allclose(obs[15:15 + n_cells], unwrapped.palpation_map / 1000.0, rtol=1e-6)
     np.testing.assert_allclose(obs[15 + n_cells:17 + n_cells], 0.0, atol=1e-5)  # stiffest = here
     # pressing deeper on the same cell does not reward again; its depth-normalised reading moves
-    # by less than 25% at the default (10, 5, 10) (F / d rises by 1.5x from 4 to 8 mm). Measured:
-    # +19%; +12% at (8, 4, 8); finer meshes stiffen the 8 mm press (0.9 probe radii, a quarter of
-    # the slab: no longer Hertz's half-space) more: +43% at (12, 6, 12), +53% at (14, 7, 14)
+    # by less than ``drift`` (F / d rises by 1.5x from 4 to 8 mm): measured +19% at the default
+    # (10, 5, 10) (bound 25%), +12% at (8, 4, 8) (bound 15%); finer meshes stiffen the 8 mm press
+    # (0.9 probe radii, a quarter of the slab: no longer Hertz's half-space) more: +43% at
+    # (12, 6, 12), +53% at (14, 7, 14)
     held = unwrapped.palpation_map[0]
     _, infos = go(np.array([centre[0], surface - 0.008, centre[1]]), steps=3)
     assert all(info["reward_explore"] == 0 for info in infos)
     assert unwrapped.palpation_map[0] == infos[-1]["apparent_modulus"]
-    assert abs(unwrapped.palpation_map[0] / held - 1) < 0.25, (unwrapped.palpation_map[0], held)
+    assert abs(unwrapped.palpation_map[0] / held - 1) < drift, (unwrapped.palpation_map[0], held)
     # the offset to the nearest unprobed cell points to a neighbour one cell pitch away (cm)
     pitch = unwrapped.cell_size[0] / unwrapped.length_scale
     np.testing.assert_allclose(np.hypot(*obs[17 + n_cells:19 + n_cells]), pitch, rtol=1e-5)
