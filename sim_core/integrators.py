@@ -9,7 +9,9 @@ never left to produce an unexplained NaN. SI units: s, m, m/s, N.
 from __future__ import annotations
 
 import hashlib
+import threading
 import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -222,6 +224,11 @@ class ImplicitEuler(SymplecticEuler):
         self._auto_factorised: set = set()  # keys "auto" switched to the factorised preconditioner
         #: factorisations done so far (a diagnostic; the tests read it)
         self.factorisations = 0
+        #: factorisations taken from ``factor_store`` instead of made (a diagnostic)
+        self.factor_reuses = 0
+        self.factor_store: FactorStore | None = None
+        self._threshold = REFACTOR_MIN  # re-factorise when a solve needs more iterations (_set_baseline)
+        self._step_positions = None  # the current step's linearisation positions (for factor_store)
         self._linearised = None  # (model, positions) of the workspace's force pass made by ``linearise``
 
     def _implicit_volume(self, model: Model) -> bool:
@@ -257,6 +264,7 @@ class ImplicitEuler(SymplecticEuler):
         # one fused pass: the forces without damping, the springs' clamped geometric stiffness, the
         # volume terms (``linearise``'s, when it was made at these positions)
         workspace = self.linearise(model, x0)
+        self._step_positions = x0
         forces = workspace.forces
         self._linearised = None  # its forces are changed in place below
         forces += model.gravity_force + control.force
@@ -329,25 +337,13 @@ class ImplicitEuler(SymplecticEuler):
         return StepReport(int(iterations), float(residual), self._check(model, state_out))
 
     # -- factorised preconditioner ------------------------------------------------------------------
-    def factor_snapshot(self):
-        """The current factorisation (with its re-factorisation threshold) and the keys "auto" has
-        switched, for ``adopt_factor`` in another integrator; None before any factorisation. A
-        caller that always starts from the same state (an environment's reset) can keep the
-        snapshot taken after the first step and skip that factorisation in later episodes. The
-        steps are then those of a fresh integrator that factorised at that step only if that step's
-        imposed set and iterations are the snapshot's: the threshold (set from the snapshot's first
-        solve) and the key come with it (docs/environment_accuracy.md: a known history dependence
-        within the solver tolerance)."""
-        if self._factor is None:
-            return None
-        return self._factor, self._factor.threshold, frozenset(self._auto_factorised)
-
-    def adopt_factor(self, snapshot):
-        """Use ``snapshot`` (from ``factor_snapshot``) as this integrator's factorisation."""
-        factor, threshold, keys = snapshot
-        factor.threshold = threshold
-        self._factor = factor
-        self._auto_factorised |= keys
+    def share_factors(self, store: "FactorStore | None"):
+        """Look up and keep the factorisations made at ``store.positions`` in ``store`` (None: stop).
+        A caller whose steps often start from the same state (an environment's reset) skips those
+        factorisations; the steps stay exactly those of a fresh integrator: a kept factor is the
+        one this step would make (same model, dt, scales, imposed set and linearisation), and the
+        iteration threshold is this integrator's own (tests/test_env_common.py)."""
+        self.factor_store = store
 
     def _solve_factorised(self, model, key, data, system, mask, rhs, guess, max_iterations, symmetric, out,
                           blocks=None):
@@ -367,27 +363,81 @@ class ImplicitEuler(SymplecticEuler):
             fresh = preconditioner.changed > RESTRICTED_MAX_CHANGED * len(factor.structure.free)
         if fresh:
             preconditioner = factor = self._factorise(model, key, data, system, mask)
-        limit = max_iterations if fresh else min(max_iterations, factor.threshold)
+        limit = max_iterations if fresh else min(max_iterations, self._threshold)
         iterations, residual = _krylov(data, system, mask, rhs * mask, guess, preconditioner, self.tolerance, limit,
                                        symmetric, out, blocks)
         if not fresh and residual > self.tolerance and iterations < max_iterations:
             factor = self._factorise(model, key, data, system, mask)  # at this step's linearisation
             more, residual = _krylov(data, system, mask, rhs * mask, out.copy(), factor, self.tolerance,
                                      max_iterations - iterations, symmetric, out, blocks)
-            factor.set_baseline(more)
+            self._set_baseline(more)
             return iterations + more, residual
         if fresh:
-            factor.set_baseline(iterations)
+            self._set_baseline(iterations)
         return iterations, residual
 
+    def _set_baseline(self, iterations: int):
+        """Re-factorise when a solve needs more than max(REFACTOR_MIN, 2 x ``iterations``), the
+        iterations of the solve right after the factorisation."""
+        self._threshold = max(REFACTOR_MIN, 2 * int(iterations))
+
     def _factorise(self, model, key, data, system, mask):
-        structure = free_structure(model, np.flatnonzero(mask))
-        values = np.empty(model.pattern.nnz)
-        kernels.operator_matrix_data(data, system, model.spring_positions, model.element_positions,
-                                     structure.hg_positions, model.pattern.diagonal_positions, values)
-        self._factor = _Factor(model, key, structure, values)
-        self.factorisations += 1
-        return self._factor
+        """The factorisation of the system matrix at the current step's linearisation on the free
+        dofs ``mask``; from ``factor_store`` when the step starts at its positions (the same matrix)."""
+        store = self.factor_store
+        kept = store is not None and store.model is model and np.array_equal(self._step_positions, store.positions)
+        factor = store.get(key) if kept else None
+        if factor is not None:
+            self.factor_reuses += 1
+        else:
+            structure = free_structure(model, np.flatnonzero(mask))
+            values = np.empty(model.pattern.nnz)
+            kernels.operator_matrix_data(data, system, model.spring_positions, model.element_positions,
+                                         structure.hg_positions, model.pattern.diagonal_positions, values)
+            factor = _Factor(model, key, structure, values)
+            self.factorisations += 1
+            if kept:
+                store.put(key, factor)
+        self._factor = factor
+        return factor
+
+
+class FactorStore:
+    """Factorisations of ``ImplicitEuler``'s factorised preconditioner made at one state
+    (``positions`` (N, 3) m) of one ``model``, kept per (dt, scales, imposed set): at most ``size``
+    (least recently used dropped). Integrators that share it (``ImplicitEuler.share_factors``; an
+    environment's episodes, which all start from the model's start state) factorise that state's
+    matrix once per imposed set. Thread-safe; a factor is used by one integrator at a time (its
+    preconditioner keeps scratch arrays)."""
+
+    def __init__(self, model: Model, positions: np.ndarray, size: int = 4):
+        self.model = model
+        self.positions = np.array(positions, dtype=float)
+        self.size = int(size)
+        self._entries: OrderedDict = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key):
+        with self._lock:
+            factor = self._entries.get(key)
+            if factor is not None:
+                self._entries.move_to_end(key)
+            return factor
+
+    def put(self, key, factor):
+        with self._lock:
+            self._entries[key] = factor
+            while len(self._entries) > self.size:
+                self._entries.popitem(last=False)
+
+    def __len__(self):
+        return len(self._entries)
+
+    def __getstate__(self):  # a copy (pickle, deepcopy) starts empty: the factors are a cache
+        return dict(model=self.model, positions=self.positions, size=self.size)
+
+    def __setstate__(self, state):
+        self.__init__(state["model"], state["positions"], state["size"])
 
 
 #: ImplicitEuler's preconditioners. "jacobi": the diagonal of the mass, spring and hourglass terms
@@ -486,7 +536,6 @@ class _Factor:
         self.model, self.key, self.structure = model, key, structure
         #: (n_dofs,) the system matrix's diagonal (for the Jacobi part on dofs the factor lacks)
         self.diagonal = values[model.pattern.diagonal_positions]
-        self.threshold = REFACTOR_MIN
         self.lu = None
         free = np.zeros(model.pattern.n_dofs, bool)
         free[structure.free] = True
@@ -508,9 +557,6 @@ class _Factor:
         matrix = sp.csc_matrix((values[structure.take], structure.indices, structure.indptr), shape=structure.shape)
         self.lu = spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                             options=dict(SymmetricMode=True))
-
-    def set_baseline(self, iterations: int):
-        self.threshold = max(REFACTOR_MIN, 2 * int(iterations))
 
     def apply(self, vector: np.ndarray, out: np.ndarray):
         """out = P^-1 vector (zero on the imposed dofs) for the factorisation's own imposed set."""

@@ -29,7 +29,7 @@ from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.forces import ForceWorkspace, external_forces
-from sim_core.integrators import PRECONDITIONERS, ImplicitEuler, make_integrator
+from sim_core.integrators import PRECONDITIONERS, FactorStore, ImplicitEuler, make_integrator
 from sim_core.model import State
 from sim_core.static import STATIC_CONTACT_PASSES, same_contact
 
@@ -251,9 +251,9 @@ class TissueEnv(gym.Env):
         self._cache_lock = threading.RLock()
         self._model_cache: OrderedDict = OrderedDict()
         self._start_cache: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> start positions
-        # id(model) -> (integrator options, ImplicitEuler.factor_snapshot() taken when the first step
-        # factorised); as many entries as the model cache (a snapshot holds its model)
-        self._first_factors: OrderedDict = OrderedDict()
+        # id(model) -> FactorStore: the implicit integrator's factorisations at the model's start state
+        # (every episode's first step), per imposed set; as many as the model cache (a store holds its model)
+        self._factor_stores: OrderedDict = OrderedDict()
         self._setup_scene()
         # Build the default model now: it validates material and geometry together (Baudet's edge
         # stiffness must stay positive) and raises ValueError at construction, not at reset.
@@ -371,15 +371,13 @@ class TissueEnv(gym.Env):
         options = (dict(tolerance=self.solver_tolerance, preconditioner=self.preconditioner)
                    if self.integrator_name == "implicit" else {})
         self.integrator = make_integrator(self.integrator_name, **options)
-        # Every episode of a model starts from the same state, so the first implicit step's system
-        # matrix is always the same: its factorisation, once made, is reused (the same steps when the
-        # first step's imposed set and iterations are the first episode's; otherwise they differ
-        # within the solver tolerance: see docs/environment_accuracy.md).
-        with self._cache_lock:
-            snapshot = self._first_factors.get(id(self.model)) if self.integrator_name == "implicit" else None
-        if snapshot is not None and snapshot[0] == options and snapshot[1][0].model is self.model:
-            self.integrator.adopt_factor(snapshot[1])
         positions = self._start_positions(self.model)
+        if self.integrator_name == "implicit":
+            # Every episode of a model starts from the same state: its first step's factorisation is
+            # kept (per imposed set) and the next episodes take it instead of factorising. The steps
+            # are those of a fresh integrator (ImplicitEuler.share_factors): an episode does not
+            # depend on the episodes before it.
+            self.integrator.share_factors(self._factor_store(self.model, positions))
         self.state = State(positions, np.zeros_like(positions))
         self._scratch = self.state.copy()
         self.control = self._control()
@@ -391,6 +389,17 @@ class TissueEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return self._observation(self.measures), info
+
+    def _factor_store(self, model, positions):
+        with self._cache_lock:
+            store = self._factor_stores.get(id(model))
+            if store is None or store.model is not model or not np.array_equal(store.positions, positions):
+                store = self._factor_stores[id(model)] = FactorStore(model, positions)
+                if len(self._factor_stores) > MODEL_CACHE_SIZE:
+                    self._factor_stores.popitem(last=False)
+            else:
+                self._factor_stores.move_to_end(id(model))
+            return store
 
     def _start_hook(self):
         """Called at the end of reset, after the state exists (task bookkeeping)."""
@@ -410,7 +419,7 @@ class TissueEnv(gym.Env):
         of their own extend it."""
         self._cache_lock = other._cache_lock
         self._model_cache, self._start_cache = other._model_cache, other._start_cache
-        self._first_factors = other._first_factors
+        self._factor_stores = other._factor_stores
         self.model = other.model
 
     def constrain_tool(self, offset):
@@ -431,16 +440,7 @@ class TissueEnv(gym.Env):
         self.tool_offset = self.constrain_tool(
             np.clip(self.tool_offset + self.max_step * action, self.workspace_low, self.workspace_high))
         self.control = self._control()
-        first = (self.elapsed_steps == 0 and self.integrator_name == "implicit" and self.substeps == 1
-                 and id(self.model) not in self._first_factors)
         reason = self._advance(self.control)
-        if first and reason is None and self.integrator.factorisations == 1:  # factorised at the first step
-            with self._cache_lock:
-                self._first_factors[id(self.model)] = (
-                    dict(tolerance=self.solver_tolerance, preconditioner=self.preconditioner),
-                    self.integrator.factor_snapshot())
-                if len(self._first_factors) > MODEL_CACHE_SIZE:
-                    self._first_factors.popitem(last=False)
         self.elapsed_steps += 1
         self.measures = self._measure(self.state)
         self._record(self.measures)

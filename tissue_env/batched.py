@@ -319,11 +319,11 @@ def _system_factor(model, positions, dt, fixed):
 class _CopyFactor:
     """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner, or a node-block LU
     with ``refactored``) of one copy's free-dof system matrix, packed for
-    ``kernels.solve_copies_lu`` (``ints``, ``floats``); ``threshold``: the iterations after which a
-    solve re-factorises it (see ``BatchedImplicitEuler.amortise``)."""
+    ``kernels.solve_copies_lu`` (``ints``, ``floats``). Shared by the copies and episodes that start
+    alike (``_factors``): what decides its renewal (the iterations right after the factorisation)
+    is each copy's own (``BatchedImplicitEuler._set_baseline``)."""
 
     def __init__(self, matrix=None, free=None):
-        self.set_baseline(0)
         self._inverse, self._corrections = None, {}
         if matrix is None:
             self.ints, self.floats = np.zeros(1, dtype=np.int64), np.zeros(1)
@@ -349,7 +349,6 @@ class _CopyFactor:
     def refactored(cls, ints, floats):
         """A node-block LU's packed ``ints`` and ``floats`` as a factor."""
         factor = cls.__new__(cls)
-        factor.set_baseline(0)
         factor._inverse, factor._corrections = None, {}
         factor.ints, factor.floats = ints, floats
         return factor
@@ -368,11 +367,6 @@ class _CopyFactor:
                 self._corrections.clear()
             self._corrections[key] = None if correction is None else (correction, imposed)
         return self._corrections[key]
-
-    def set_baseline(self, iterations, amortise=None):
-        self.baseline = int(iterations)
-        self.excess = 0
-        self.threshold = max(REFACTOR_MIN, 2 * self.baseline) if amortise is None else self.baseline + 2 * amortise
 
 
 def _edge_incidence(model: Model):
@@ -467,6 +461,14 @@ class BatchedImplicitEuler:
             self._pending = [None] * count  # (cache key, free dofs) of a copy's episode start
             self._factor_free = np.zeros((count, dofs), dtype=bool)  # the free set of each factor
             self._stale = np.zeros(count, dtype=bool)  # re-factorise at the next step
+            # per copy (a factor may be shared): the iterations right after its factor was made, those
+            # spent beyond them since (``amortise``), the iterations after which it is renewed, and
+            # whether its factor came from the cache at its episode's start (its first solve then
+            # counts as right after a factorisation, as it would have been without the cache)
+            self._baseline = np.zeros(count, dtype=np.int64)
+            self._excess = np.zeros(count, dtype=np.int64)
+            self._threshold = np.full(count, REFACTOR_MIN, dtype=np.int64)
+            self._adopted = np.zeros(count, dtype=bool)
             self._lu_int = TypedList([identity.ints] * count)
             self._lu_float = TypedList([identity.floats] * count)
             self._factor_of = np.arange(count, dtype=np.int64)
@@ -509,10 +511,12 @@ class BatchedImplicitEuler:
             if entry is None:  # factorised by the copy's first step, at this linearisation
                 self._set_factor(index, None, free)
                 self._pending[index] = ((key, "lu"), free)
-            else:
+            else:  # the factor the copy's first step would make (if its imposed set is still ``fixed``)
                 _factors.move_to_end((key, "lu"))
                 self._set_factor(index, entry, free)
                 self._pending[index] = None
+            self._adopted[index] = entry is not None
+            self._stale[index] = False  # a renewal the last episode asked for
             return
         entry = _preconditioners.get(key)
         if entry is None:
@@ -551,6 +555,15 @@ class BatchedImplicitEuler:
         if factor is not None:
             self._lu_int[index] = factor.ints
             self._lu_float[index] = factor.floats
+
+    def _set_baseline(self, index, iterations):
+        """Copy ``index``'s factor was made (or taken from the cache) and its first solve took
+        ``iterations``: it is renewed once a solve needs more than max(REFACTOR_MIN, 2 x that)
+        (``amortise``: that + 2 amortise, or once the excess iterations add up to amortise)."""
+        baseline = int(iterations)
+        self._baseline[index], self._excess[index] = baseline, 0
+        self._threshold[index] = (max(REFACTOR_MIN, 2 * baseline) if self.amortise is None
+                                  else baseline + 2 * self.amortise)
 
     def _factorise(self, index, system, free):
         """Factorise copy ``index``'s system matrix (``system``: the operator's scales) at the step's
@@ -737,8 +750,13 @@ class BatchedImplicitEuler:
         is re-factorised here and continues from its iterate."""
         count = self.stack.count
         free_rows = free.T
-        fresh = np.zeros(count, dtype=bool)
-        missing = np.array([factor is None for factor in self._factors]) | self._stale
+        # a factor taken from the cache at the episode's start is the one this first step would make
+        # on the same free dofs: its solve counts as fresh; on other free dofs (a contact at the first
+        # step) the copy factorises, as it would have without the cache
+        adopted = self._adopted & active
+        fresh = adopted & np.all(free_rows == self._factor_free, axis=1)
+        self._adopted[active] = False
+        missing = np.array([factor is None for factor in self._factors]) | self._stale | (adopted & ~fresh)
         uncovered = np.any(free_rows & ~self._factor_free, axis=1)
         todo = np.flatnonzero(active & (missing | uncovered))
         covers = free_rows[todo] | (self._factor_free[todo] & ~missing[todo, None])
@@ -751,8 +769,7 @@ class BatchedImplicitEuler:
             self._pending[index] = None
             self._stale[index] = False
             fresh[index] = True
-        limits = np.array([self.max_iterations if fresh[i] or factor is None else min(factor.threshold,
-                           self.max_iterations) for i, factor in enumerate(self._factors)], dtype=np.int64)
+        limits = np.where(fresh, self.max_iterations, np.minimum(self._threshold, self.max_iterations))
         self._correct(np.flatnonzero(active), free_rows)
         stacked, hg_rows, hg_group = self._copies_first()
         blocks = self._hourglass_blocks()
@@ -767,14 +784,13 @@ class BatchedImplicitEuler:
         stalled = (active & ~fresh & (residual > self.tolerance) & (iterations < self.max_iterations)
                    & np.all(np.isfinite(rows), axis=1))
         for index in np.flatnonzero(fresh):
-            self._factors[index].set_baseline(iterations[index], self.amortise)
-        for index in np.flatnonzero(active & ~fresh & ~stalled if self.amortise is not None else ()):
+            self._set_baseline(index, iterations[index])
+        if self.amortise is not None:
             # amortised: re-factorise (at the next step) once the iterations spent beyond those right
             # after the last factorisation add up to about a factorisation's cost
-            factor = self._factors[index]
-            factor.excess += max(0, int(iterations[index]) - factor.baseline)
-            if factor.excess > self.amortise:
-                self._stale[index] = True
+            kept = active & ~fresh & ~stalled
+            self._excess[kept] += np.maximum(0, iterations[kept] - self._baseline[kept])
+            self._stale |= kept & (self._excess > self.amortise)
         if stalled.any():
             again_rows = np.flatnonzero(stalled)
             self._factorise_copies(again_rows, system, free_rows[again_rows] | self._factor_free[again_rows])
@@ -787,7 +803,7 @@ class BatchedImplicitEuler:
                   self._lu_int, self._lu_float, self._factor_of, self._corrections, self._imposed, work, again, more,
                   more_residual, *blocks)
             for index in np.flatnonzero(stalled):
-                self._factors[index].set_baseline(more[index], self.amortise)
+                self._set_baseline(index, more[index])
             rows[stalled] = again[stalled]
             residual[stalled] = more_residual[stalled]
             iterations += np.where(stalled, more, 0)
