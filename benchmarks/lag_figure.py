@@ -12,8 +12,6 @@ and prints the readings.
 """
 
 import argparse
-import os
-import tempfile
 
 import gymnasium as gym
 import matplotlib
@@ -23,6 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import tissue_env  # noqa: E402,F401  (registers the tasks)
+from sim_core.files import save_figure  # noqa: E402
 
 DEPTH_STEPS, HOLD_STEPS = 3, 6  # 2 mm above the surface + 2 steps of 4 mm, then held
 
@@ -67,11 +66,8 @@ def main(argv=None):
     bottom.legend()
     top.set_title("Palpation: a press at full speed, held, lifted (over the inclusion)")
     fig.tight_layout()
-    handle, temporary = tempfile.mkstemp(suffix=".png", dir=os.path.dirname(os.path.abspath(args.output)))
-    os.close(handle)
-    fig.savefig(temporary, dpi=90)
+    save_figure(fig, args.output, dpi=90)
     plt.close(fig)
-    os.replace(temporary, args.output)
     print(f"wrote {args.output}")
 
 

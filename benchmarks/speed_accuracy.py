@@ -71,7 +71,6 @@ import csv
 import functools
 import io
 import math
-import os
 import signal
 import sys
 import time
@@ -87,6 +86,7 @@ sys.path.insert(0, str(ROOT))
 
 from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
 from sim_core.fem import LinearFEM  # noqa: E402
+from sim_core.files import atomic_write, save_figure  # noqa: E402
 from sim_core.hyperelastic import NeoHookeanFEM  # noqa: E402
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
 from sim_core.mesh import LOCAL_CORNERS  # noqa: E402
@@ -669,13 +669,6 @@ COLUMNS = ("scene", "method", "stepping", "solver", "dt_s", "resolution", "n_nod
            "predicted_wall_s", "on_pareto", "reason")
 
 
-def _atomic_write(path: Path, data: bytes):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 def _cell(value):
     if value is None:
         return ""
@@ -692,7 +685,7 @@ def write_csv(rows, path: Path):
     writer.writeheader()
     for row in rows:
         writer.writerow({k: _cell(row.get(k)) for k in COLUMNS})
-    _atomic_write(path, buffer.getvalue().encode())
+    atomic_write(path, buffer.getvalue().encode())
 
 
 def write_summary(summary, path: Path):
@@ -761,10 +754,8 @@ def figure(rows, summary, path: Path):
     fig.suptitle(f"4 cm cube, E = {YOUNG / 1e3:g} kPa, nu = {POISSON}: final positions after 1 s (tool ramp 0.5 s) "
                  "against static neo-Hookean FEM", fontsize=10)
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
-    _atomic_write(path, buffer.getvalue())
 
 
 def main(argv=None):

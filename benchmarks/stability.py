@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 import sys
 import time
 from pathlib import Path
@@ -33,6 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
+from sim_core.files import atomic_path, save_figure  # noqa: E402
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -121,13 +121,10 @@ def main(argv=None):
 
 
 def _write_csv(path, rows):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.name + ".tmp")
-    with open(temporary, "w", newline="") as handle:
+    with atomic_path(path) as temporary, open(temporary, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(temporary, path)
 
 
 def _figure(rows, moduli, nus, ratios, path):
@@ -157,10 +154,7 @@ def _figure(rows, moduli, nus, ratios, path):
     figure.legend(handles, CATEGORIES, loc="lower center", ncol=4)
     figure.suptitle("Stability map: 4 cm tissue cube, 500 steps, top stretched 1% (green: stable and accurate)")
     figure.tight_layout(rect=(0, 0.05, 1, 0.97))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(path.stem + ".tmp.png")
-    figure.savefig(temporary, dpi=100)
-    os.replace(temporary, path)
+    save_figure(figure, path, dpi=100)
     plt.close(figure)
 
 

@@ -9,8 +9,6 @@ the step, whether the episode succeeded and the tool's reaction force (N).
 """
 
 import argparse
-import os
-import tempfile
 
 import gymnasium as gym
 import matplotlib
@@ -20,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import tissue_env  # noqa: E402,F401  (registers the tasks)
+from sim_core.files import save_figure  # noqa: E402
 
 TASKS = ("TumorPositioning", "Palpation", "Retraction")
 
@@ -52,11 +51,8 @@ def figure(rows, path):
         row[0].set_ylabel(task, fontsize=11)
     fig.suptitle("Scripted controller, one episode per task (start, middle, end)", fontsize=11)
     fig.tight_layout()
-    handle, temporary = tempfile.mkstemp(suffix=".png", dir=os.path.dirname(os.path.abspath(path)))
-    os.close(handle)
-    fig.savefig(temporary, dpi=90)
+    save_figure(fig, path, dpi=90)
     plt.close(fig)
-    os.replace(temporary, path)
 
 
 def main(argv=None):

@@ -13,8 +13,6 @@ for 4 and 16 envs (``training_speed.json``). Nothing is measured here: re-run
 
 import argparse
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import matplotlib
@@ -22,6 +20,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
+from sim_core.files import save_figure  # noqa: E402
 
 ENV_MODES = (("sync", "sync"), ("async", "async"), ("vector 1 thread", "vector, 1 thread"),
              ("vector", "vector, all threads"))
@@ -88,12 +88,8 @@ def draw(results: Path, output: Path):
         right.set_title("PPO training (sampling and updates)")
         right.legend(fontsize=8)
     fig.tight_layout()
-    output.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(suffix=".png", dir=output.parent)
-    os.close(handle)
-    fig.savefig(temporary, dpi=90)
+    save_figure(fig, output, dpi=90)
     plt.close(fig)
-    os.replace(temporary, output)
     return output
 
 

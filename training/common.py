@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import gymnasium as gym
+
+from sim_core.files import atomic_path
 
 ALGORITHMS = ("ppo", "sac", "td3")
 HYPERPARAMS = Path(__file__).parent / "hyperparams"
@@ -83,21 +83,10 @@ def run_name(env_id: str) -> str:
 
 
 def write_json(path: Path, data, **dump_options) -> None:
-    """Write ``data`` as JSON to ``path`` atomically: a temporary file of its own in the same folder,
-    then ``os.replace``, so a crash or an interrupted run never leaves half a file and two writers
-    never share a temporary. Readable by all (mode 0644; ``tempfile.mkstemp`` alone gives 0600).
+    """Write ``data`` as JSON to ``path`` atomically (``sim_core.files.atomic_path``: a crash or an
+    interrupted run never leaves half a file, two writers never share a temporary, mode 0644).
     ``dump_options`` go to ``json.dump`` (default ``indent=2``, ``default=str``). The training
     scripts and the benchmarks write their results with it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w") as stream:
-            json.dump(data, stream, **{"indent": 2, "default": str, **dump_options})
-            stream.write("\n")
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
-        raise
+    with atomic_path(path) as temporary, open(temporary, "w") as stream:
+        json.dump(data, stream, **{"indent": 2, "default": str, **dump_options})
+        stream.write("\n")

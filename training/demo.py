@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
+
+from sim_core.files import atomic_path
 
 from .common import check_env_id, load_hyperparams
 from .evaluate import evaluate
@@ -45,10 +46,8 @@ def frame_strip(run_dir: Path, out: Path, seed: int, frames_wanted: int = 6) -> 
     env.close()
     picks = np.unique(np.linspace(0, len(frames) - 1, min(frames_wanted, len(frames))).round().astype(int))
     strip = np.concatenate([frames[i] for i in picks], axis=1)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out.with_name(out.stem + ".tmp.png")
-    Image.fromarray(strip).save(temporary)
-    os.replace(temporary, out)
+    with atomic_path(out) as temporary:
+        Image.fromarray(strip).save(temporary)
     return out
 
 

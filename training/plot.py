@@ -11,10 +11,11 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import os
 from pathlib import Path
 
 import numpy as np
+
+from sim_core.files import save_figure
 
 from .common import UsageError, fail
 
@@ -77,10 +78,7 @@ def plot(run_dirs, out: Path, bins: int = 30) -> Path:
     wall.set_xlabel("wall-clock (s), mean over seeds")
     axis.legend(fontsize=8)
     figure.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    temporary = out.with_name(out.stem + ".tmp" + out.suffix)
-    figure.savefig(temporary, dpi=110)
-    os.replace(temporary, out)
+    save_figure(figure, out, dpi=110)
     plt.close(figure)
     return out
 
