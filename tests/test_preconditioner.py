@@ -303,3 +303,28 @@ def test_krylov_scales_its_guess_to_the_least_residual(symmetric):
                                        symmetric, x)
         assert iterations == 0 and residual <= 1e-10
         np.testing.assert_allclose(x, exact, rtol=0, atol=1e-12 * np.abs(exact).max())
+
+
+def test_factor_store_serves_only_the_matrix_the_step_would_factorise():
+    """A FactorStore at the start state: a second integrator takes the first one's factorisation
+    at that state (same imposed set) instead of factorising, and its steps are bitwise those of an
+    integrator without the store; another imposed set, or a step at other positions, factorises."""
+    from sim_core.integrators import FactorStore
+    model, control, _ = stiff_scene((4, 4, 4))
+    store = FactorStore(model, model.new_state().positions)
+    first = ImplicitEuler(preconditioner="factorised")
+    first.share_factors(store)
+    trajectory(model, control, first, 3)
+    assert len(store) == 1 and first.factor_reuses == 0
+    plain, _ = trajectory(model, control, ImplicitEuler(preconditioner="factorised"), 6)
+    again = ImplicitEuler(preconditioner="factorised")
+    again.share_factors(store)
+    kept, _ = trajectory(model, control, again, 6)
+    assert again.factor_reuses == 1 and len(store) == 1
+    np.testing.assert_array_equal(kept, plain)
+    # another imposed set at the start state: factorised and kept beside the first
+    other = ImplicitEuler(preconditioner="factorised")
+    other.share_factors(store)
+    corner = [int(np.argmax(model.mesh.nodes.sum(axis=1)))]  # a free top corner, held where it is
+    trajectory(model, lambda step: control(step).impose(corner, model.mesh.nodes[corner]), other, 1)
+    assert other.factor_reuses == 0 and other.factorisations == 1 and len(store) == 2
