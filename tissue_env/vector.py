@@ -22,9 +22,9 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
 actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
-README's run): env steps per wall second, sync -> vector env, TumorPositioning 490 -> 1140 (2.3x),
-Palpation 454 -> 765 (1.7x; 2.0x at its earlier default (8, 4, 8)), Retraction 391 -> 1071 (2.7x;
-3.0x in the run before); on one thread (``threads=1``) the vector env does 1.7 / 1.1 / 1.8x the sync
+README's run): env steps per wall second, sync -> vector env, TumorPositioning 477 -> 1292 (2.6x),
+Palpation 463 -> 808 (1.7x; 2.0x at its earlier default (8, 4, 8)), Retraction 395 -> 1086 (2.8x;
+3.0x in an earlier run); on one thread (``threads=1``) the vector env does 1.8 / 1.2 / 1.9x the sync
 env's steps per CPU second. TumorPositioning's copies are
 preconditioned by one node-block LU of the start matrix that they share (solver "reference") and
 solved in lockstep chunks of 8 on numba's threads (``kernels.solve_copies_grouped``: one pass over
