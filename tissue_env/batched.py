@@ -556,14 +556,15 @@ class BatchedImplicitEuler:
             self._lu_int[index] = factor.ints
             self._lu_float[index] = factor.floats
 
-    def _set_baseline(self, index, iterations):
-        """Copy ``index``'s factor was made (or taken from the cache) and its first solve took
-        ``iterations``: it is renewed once a solve needs more than max(REFACTOR_MIN, 2 x that)
-        (``amortise``: that + 2 amortise, or once the excess iterations add up to amortise)."""
-        baseline = int(iterations)
-        self._baseline[index], self._excess[index] = baseline, 0
-        self._threshold[index] = (max(REFACTOR_MIN, 2 * baseline) if self.amortise is None
-                                  else baseline + 2 * self.amortise)
+    def _set_baseline(self, copies, iterations):
+        """The copies ``copies`` (N,) bool got their factor (made, or taken from the cache) and their
+        first solve took ``iterations`` (N,): each is renewed once a solve needs more than
+        max(REFACTOR_MIN, 2 x that) (``amortise``: that + 2 amortise, or once the excess iterations
+        add up to amortise)."""
+        baseline = iterations[copies].astype(np.int64)
+        self._baseline[copies], self._excess[copies] = baseline, 0
+        self._threshold[copies] = (np.maximum(REFACTOR_MIN, 2 * baseline) if self.amortise is None
+                                   else baseline + 2 * self.amortise)
 
     def _factorise(self, index, system, free):
         """Factorise copy ``index``'s system matrix (``system``: the operator's scales) at the step's
@@ -783,8 +784,7 @@ class BatchedImplicitEuler:
               residual, *blocks)
         stalled = (active & ~fresh & (residual > self.tolerance) & (iterations < self.max_iterations)
                    & np.all(np.isfinite(rows), axis=1))
-        for index in np.flatnonzero(fresh):
-            self._set_baseline(index, iterations[index])
+        self._set_baseline(fresh, iterations)
         if self.amortise is not None:
             # amortised: re-factorise (at the next step) once the iterations spent beyond those right
             # after the last factorisation add up to about a factorisation's cost
@@ -802,8 +802,7 @@ class BatchedImplicitEuler:
             solve(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, rows, stalled, self.tolerance, limits,
                   self._lu_int, self._lu_float, self._factor_of, self._corrections, self._imposed, work, again, more,
                   more_residual, *blocks)
-            for index in np.flatnonzero(stalled):
-                self._set_baseline(index, more[index])
+            self._set_baseline(stalled, more)
             rows[stalled] = again[stalled]
             residual[stalled] = more_residual[stalled]
             iterations += np.where(stalled, more, 0)
