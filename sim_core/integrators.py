@@ -686,12 +686,13 @@ class _Capacitance:
         return out
 
 
-def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray):
+def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray, symmetric: bool = False):
     """``NodeBlockLU`` of the system matrix with the model's pattern ``values`` on the whole nodes
     that hold a dof of ``free`` ((3 N,) bool), the imposed dofs among them decoupled (rows and
     columns zero, diagonal kept): its inverse on the free dofs is that of the free-dof matrix,
     and its structure depends only on the node set, so a contact that imposes single dofs keeps
-    it. None where the factorisation fails (a zero or non-finite pivot)."""
+    it (``symmetric``: the LDL^T of the matrix's symmetric part). None where the factorisation
+    fails (a zero or non-finite pivot)."""
     node_dofs = np.flatnonzero(np.repeat(free.reshape(-1, 3).any(axis=1), 3))
     if len(node_dofs) == 0:
         return None
@@ -702,7 +703,7 @@ def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray):
     matrix = sp.csc_matrix((data, whole.indices, whole.indptr), shape=whole.shape)
     try:
         with np.errstate(all="ignore"):
-            return NodeBlockLU(matrix, node_dofs)
+            return NodeBlockLU(matrix, node_dofs, symmetric=symmetric)
     except (RuntimeError, ValueError, np.linalg.LinAlgError):
         return None
 

@@ -1204,7 +1204,11 @@ def _block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulato
     U block columns, order (k): the dof at each position of P], ``values``: [L blocks, U blocks]
     (9 row-major values each). Row-oriented substitutions: a block row accumulates the products
     of its blocks with the solved rows of all right-hand sides (``buffer`` (k, N), the copy index
-    last; ``accumulator`` (3, N)), one index per 9 values."""
+    last; ``accumulator`` (3, N)), one index per 9 values. A symmetric factor (``ints[2]`` = 0: no
+    L) goes through ``_block_ldl_solve``."""
+    if ints[2] == 0:
+        _block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulator)
+        return
     k = -ints[0]
     nb = ints[1]
     nnz_l = ints[2]
@@ -1337,6 +1341,190 @@ def block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr
                 out[b + 3 + c] = y1
                 out[b + 6 + c] = work[w + 6 + c] - l20 * y0 - l21 * y1
     return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _invert3(values, base, out, target):
+    """out[target:target + 9] = the inverse of the row-major 3 x 3 block values[base:base + 9];
+    False where its determinant is zero or not finite."""
+    a, b, c = values[base], values[base + 1], values[base + 2]
+    d, e, f = values[base + 3], values[base + 4], values[base + 5]
+    g, h, i = values[base + 6], values[base + 7], values[base + 8]
+    c00, c01, c02 = e * i - f * h, c * h - b * i, b * f - c * e
+    det = a * c00 + d * c01 + g * c02
+    if not (np.isfinite(det) and det != 0.0):
+        return False
+    s = 1.0 / det
+    out[target], out[target + 1], out[target + 2] = c00 * s, c01 * s, c02 * s
+    out[target + 3], out[target + 4], out[target + 5] = (f * g - d * i) * s, (a * i - c * g) * s, (c * d - a * f) * s
+    out[target + 6], out[target + 7], out[target + 8] = (d * h - e * g) * s, (b * g - a * h) * s, (a * e - b * d) * s
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def block_ldl_factor(a_indptr, a_indices, a_values, a_transpose, l_indptr, l_indices, l_to_u, u_indptr, u_indices,
+                     out, work):
+    """Numeric block LDL^T without pivoting, S = U^T D U, of the symmetric part S = (A + A^T) / 2 of
+    a matrix of dense 3 x 3 blocks with a symmetric block pattern, on a given fill pattern
+    (``sparse.NodeBlockLU``'s symmetric form): U unit upper block triangular, D block diagonal.
+    A as ``block_lu_factor`` takes it, with ``a_transpose`` (nnz blocks,) the position of block
+    (j, i) for each block (i, j); U's pattern (u_indptr, u_indices: the diagonal block first in each
+    row, then the upper block columns, sorted) and L's = U's transpose (l_indptr, l_indices: the lower
+    block columns of each row, sorted, then the diagonal), ``l_to_u`` the position in U of the block
+    (k, i) for each L block (i, k). Row-oriented, up-looking, on the upper triangle only: about half
+    the block products of ``block_lu_factor``. Writes out (9 nnz_U,) = U's off-diagonal blocks and, in
+    each diagonal slot, D_i^-1 (``_block_ldl_solve``'s layout). Returns False when a D_i is
+    singular or not finite."""
+    nb = a_indptr.shape[0] - 1
+    m = np.empty(9)
+    for i in range(nb):
+        for q in range(u_indptr[i], u_indptr[i + 1]):
+            w = 9 * u_indices[q]
+            for e in range(9):
+                work[w + e] = 0.0
+        for q in range(a_indptr[i], a_indptr[i + 1]):  # the upper part of row i of (A + A^T) / 2
+            j = a_indices[q]
+            if j < i:
+                continue
+            w, a, t = 9 * j, 9 * q, 9 * a_transpose[q]
+            for r in range(3):
+                for c in range(3):
+                    work[w + 3 * r + c] += 0.5 * (a_values[a + 3 * r + c] + a_values[t + 3 * c + r])
+        for q in range(l_indptr[i], l_indptr[i + 1] - 1):
+            k = l_indices[q]
+            p = l_to_u[q]  # the block (k, i) of D U (not yet scaled)
+            d = 9 * u_indptr[k]  # D_k^-1
+            b = 9 * p
+            for r in range(3):  # m = D_k^-1 (D U)_ki = U_ki
+                for c in range(3):
+                    m[3 * r + c] = (out[d + 3 * r] * out[b + c] + out[d + 3 * r + 1] * out[b + 3 + c]
+                                    + out[d + 3 * r + 2] * out[b + 6 + c])
+            for p2 in range(p, u_indptr[k + 1]):  # W_j -= U_ki^T (D U)_kj, j >= i
+                g = 9 * p2
+                w = 9 * u_indices[p2]
+                for r in range(3):
+                    m0, m1, m2 = m[r], m[3 + r], m[6 + r]
+                    for c in range(3):
+                        work[w + 3 * r + c] -= m0 * out[g + c] + m1 * out[g + 3 + c] + m2 * out[g + 6 + c]
+            for e in range(9):
+                out[b + e] = m[e]
+        d = 9 * u_indptr[i]
+        if not _invert3(work, 9 * i, out, d):
+            return False
+        for q in range(u_indptr[i] + 1, u_indptr[i + 1]):  # (D U)_ij, scaled when row j is eliminated
+            w = 9 * u_indices[q]
+            b = 9 * q
+            for e in range(9):
+                out[b + e] = work[w + e]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+def _block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulator):
+    """``_block_lu_solve`` through a packed node-block LDL^T (``block_ldl_factor``): P S P^T = U^T D U.
+    ``ints``: [-k, nb, 0, blocks of U, U indptr (nb + 1), U block columns, order (k)], ``values``: U's
+    blocks with D_i^-1 in each diagonal slot. U^T z = b by a forward sweep that scatters each solved
+    block row into the later rows, then x = U^-1 D^-1 z by a backward sweep: U's blocks are read
+    twice, half the values of the LU's two sweeps."""
+    if used == 1:
+        _block_ldl_solve_one(ints, values, vector[:, columns[0]], out[:, columns[0]], buffer[:, 0])
+        return
+    k = -ints[0]
+    nb = ints[1]
+    up = 4
+    ui = up + nb + 1
+    order = ui + ints[3]
+    for j in range(k):
+        row = ints[order + j]
+        for t in range(used):
+            buffer[j, t] = vector[row, columns[t]]
+    for block_row in range(nb):  # U^T z = b: z_i is final, then b_j -= U_ij^T z_i
+        i = 3 * block_row
+        for q in range(ints[up + block_row] + 1, ints[up + block_row + 1]):
+            base = 9 * q
+            j = 3 * ints[ui + q]
+            b00, b01, b02 = values[base], values[base + 1], values[base + 2]
+            b10, b11, b12 = values[base + 3], values[base + 4], values[base + 5]
+            b20, b21, b22 = values[base + 6], values[base + 7], values[base + 8]
+            for t in range(used):
+                z0 = buffer[i, t]
+                z1 = buffer[i + 1, t]
+                z2 = buffer[i + 2, t]
+                buffer[j, t] -= b00 * z0 + b10 * z1 + b20 * z2
+                buffer[j + 1, t] -= b01 * z0 + b11 * z1 + b21 * z2
+                buffer[j + 2, t] -= b02 * z0 + b12 * z1 + b22 * z2
+    a0 = accumulator[0]
+    a1 = accumulator[1]
+    a2 = accumulator[2]
+    for block_row in range(nb - 1, -1, -1):  # U x = D^-1 z
+        i = 3 * block_row
+        first = ints[up + block_row]
+        base = 9 * first
+        for t in range(used):
+            z0 = buffer[i, t]
+            z1 = buffer[i + 1, t]
+            z2 = buffer[i + 2, t]
+            a0[t] = values[base] * z0 + values[base + 1] * z1 + values[base + 2] * z2
+            a1[t] = values[base + 3] * z0 + values[base + 4] * z1 + values[base + 5] * z2
+            a2[t] = values[base + 6] * z0 + values[base + 7] * z1 + values[base + 8] * z2
+        for q in range(first + 1, ints[up + block_row + 1]):
+            _subtract_block(values, 9 * q, buffer, 3 * ints[ui + q], a0, a1, a2, used)
+        for t in range(used):
+            buffer[i, t] = a0[t]
+            buffer[i + 1, t] = a1[t]
+            buffer[i + 2, t] = a2[t]
+    for j in range(k):
+        row = ints[order + j]
+        for t in range(used):
+            out[row, columns[t]] = buffer[j, t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+def _block_ldl_solve_one(ints, values, vector, out, buffer):
+    """``_block_ldl_solve`` for one right-hand side (n,) (the Krylov solves' case), its running
+    values in registers: 1.3x faster than the loop over columns."""
+    k = -ints[0]
+    nb = ints[1]
+    up = 4
+    ui = up + nb + 1
+    order = ui + ints[3]
+    for j in range(k):
+        buffer[j] = vector[ints[order + j]]
+    for block_row in range(nb):  # U^T z = b
+        i = 3 * block_row
+        z0 = buffer[i]
+        z1 = buffer[i + 1]
+        z2 = buffer[i + 2]
+        for q in range(ints[up + block_row] + 1, ints[up + block_row + 1]):
+            base = 9 * q
+            j = 3 * ints[ui + q]
+            buffer[j] -= values[base] * z0 + values[base + 3] * z1 + values[base + 6] * z2
+            buffer[j + 1] -= values[base + 1] * z0 + values[base + 4] * z1 + values[base + 7] * z2
+            buffer[j + 2] -= values[base + 2] * z0 + values[base + 5] * z1 + values[base + 8] * z2
+    for block_row in range(nb - 1, -1, -1):  # U x = D^-1 z
+        i = 3 * block_row
+        first = ints[up + block_row]
+        base = 9 * first
+        z0 = buffer[i]
+        z1 = buffer[i + 1]
+        z2 = buffer[i + 2]
+        a0 = values[base] * z0 + values[base + 1] * z1 + values[base + 2] * z2
+        a1 = values[base + 3] * z0 + values[base + 4] * z1 + values[base + 5] * z2
+        a2 = values[base + 6] * z0 + values[base + 7] * z1 + values[base + 8] * z2
+        for q in range(first + 1, ints[up + block_row + 1]):
+            base = 9 * q
+            j = 3 * ints[ui + q]
+            x0 = buffer[j]
+            x1 = buffer[j + 1]
+            x2 = buffer[j + 2]
+            a0 -= values[base] * x0 + values[base + 1] * x1 + values[base + 2] * x2
+            a1 -= values[base + 3] * x0 + values[base + 4] * x1 + values[base + 5] * x2
+            a2 -= values[base + 6] * x0 + values[base + 7] * x1 + values[base + 8] * x2
+        buffer[i] = a0
+        buffer[i + 1] = a1
+        buffer[i + 2] = a2
+    for j in range(k):
+        out[ints[order + j]] = buffer[j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
@@ -2288,8 +2476,8 @@ def operator_matrix_data_blocks(data, scales, spring_positions, element_position
 @njit(cache=True, error_model="numpy", parallel=True)
 def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
                   diagonal_positions, copies, covers, node_dofs, take, rows, columns, a_map, a_indptr, a_indices,
-                  l_indptr, l_indices, u_indptr, u_indices, ints, values, a_values, work, lu_int, lu_float, ok,
-                  node_edge, node_sign):
+                  l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u, ints, values, a_values, work, lu_int,
+                  lu_float, ok, node_edge, node_sign):
     """The node-block LUs of several copies' system matrices in one call, each exactly as
     ``operator_matrix_data`` followed by ``integrators.node_block_factor`` (``sparse.NodeBlockLU``,
     ``block_lu_factor``) computes it: for copy c = ``copies[t]`` of the stacked model (``stacked``,
@@ -2298,7 +2486,9 @@ def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_
     whole nodes ``node_dofs`` (k,) (``integrators._FreeStructure``: ``take``, ``rows``, ``columns``
     of its CSC entries) with the dofs not in ``covers[t]`` (3 n,) decoupled (rows and columns zero,
     diagonal kept), scattered into the permuted block matrix (``a_map``, ``a_values`` scratch) and
-    factorised on the fill pattern (l_*, u_*). With ``node_edge`` and ``node_sign`` (M, 8, 3), the
+    factorised on the fill pattern (l_*, u_*): an LU (``block_lu_factor``), or with ``l_to_u`` not
+    empty the LDL^T of its symmetric part (``block_ldl_factor``, ``ints`` its header; the symmetric
+    form of ``sparse.NodeBlockLU``). With ``node_edge`` and ``node_sign`` (M, 8, 3), the
     assembly is ``operator_matrix_data_blocks`` (the same matrix up to rounding, faster); empty
     (0, 8, 3): ``operator_matrix_data``. A factor that succeeds is a new array
     ``lu_float[c]``, with ``lu_int[c] = ints`` (the structure's packed header); ``ok[t]`` False (and
@@ -2306,13 +2496,14 @@ def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_
     among numba's threads, each with its own scratch (``values``, ``a_values``, ``work`` serve a
     single copy); the factors are stored after the parallel loop."""
     count = copies.shape[0]
-    outs = [np.empty(9 * (l_indices.shape[0] + u_indices.shape[0])) for _ in range(count)]
+    size = 9 * (u_indices.shape[0] + (0 if l_to_u.shape[0] else l_indices.shape[0]))
+    outs = [np.empty(size) for _ in range(count)]
     for entry in prange(count):  # the copies on all of numba's threads, each with its own scratch
         t = np.int64(entry)
         own = count == 1
         ok[t] = _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
                              diagonal_positions, copies[t], covers[t], node_dofs, take, rows, columns, a_map,
-                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices,
+                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u,
                              values if own else np.empty(values.shape[0]),
                              a_values if own else np.empty(a_values.shape[0]),
                              work if own else np.empty(work.shape[0]), outs[t], node_edge, node_sign)
@@ -2325,17 +2516,18 @@ def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_
 @njit(cache=True, nogil=True, error_model="numpy")
 def factor_copies_serial(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
                          diagonal_positions, copies, covers, node_dofs, take, rows, columns, a_map, a_indptr,
-                         a_indices, l_indptr, l_indices, u_indptr, u_indices, ints, values, a_values, work, lu_int,
-                         lu_float, ok, node_edge, node_sign):
+                         a_indices, l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u, ints, values,
+                         a_values, work, lu_int, lu_float, ok, node_edge, node_sign):
     """``factor_copies`` in this thread only, the copies one after the other with the scratch
     ``values``, ``a_values``, ``work``: for one thread, and in a forked process, where GNU OpenMP's
     pool must not be used (``FORKED``)."""
+    size = 9 * (u_indices.shape[0] + (0 if l_to_u.shape[0] else l_indices.shape[0]))
     for t in range(copies.shape[0]):
-        out = np.empty(9 * (l_indices.shape[0] + u_indices.shape[0]))
+        out = np.empty(size)
         ok[t] = _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
                              diagonal_positions, copies[t], covers[t], node_dofs, take, rows, columns, a_map,
-                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices, values, a_values, work,
-                             out, node_edge, node_sign)
+                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u,
+                             values, a_values, work, out, node_edge, node_sign)
         if ok[t]:
             lu_int[copies[t]] = ints
             lu_float[copies[t]] = out
@@ -2344,7 +2536,8 @@ def factor_copies_serial(stacked, scales, hg_rows, hg_group, spring_positions, e
 @njit(cache=True, nogil=True, error_model="numpy")
 def _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
                  diagonal_positions, c, cover, node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
-                 l_indices, u_indptr, u_indices, values, a_values, work, out, node_edge, node_sign):
+                 l_indices, u_indptr, u_indices, a_transpose, l_to_u, values, a_values, work, out, node_edge,
+                 node_sign):
     """``factor_copies``' factorisation of copy ``c`` on its cover ``cover`` (3 n,) into ``out``, with
     ``values``, ``a_values`` and ``work`` its own scratch; False where a pivot is zero or not finite."""
     data = _copy_data(stacked, hg_rows, hg_group, c)
@@ -2360,6 +2553,9 @@ def _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_p
         col = columns[q]
         if r == col or (cover[node_dofs[r]] and cover[node_dofs[col]]):
             a_values[a_map[q]] = values[take[q]]
+    if l_to_u.shape[0]:
+        return block_ldl_factor(a_indptr, a_indices, a_values, a_transpose, l_indptr, l_indices, l_to_u, u_indptr,
+                                u_indices, out, work)
     return block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr, u_indices, out, work)
 
 

@@ -64,7 +64,7 @@ def test_a_failed_block_factor_falls_back_to_the_scalar_factor(monkeypatch):
     integrator._structures.clear()
     monkeypatch.setattr(integrator, "_block_structure", lambda key, nodes: None)
     import tissue_env.batched as batched
-    monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free: None)
+    monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free, **kwargs: None)
     factors = integrator._factorise_copies(np.arange(2), system, covers)
     for index, factor in enumerate(factors):
         assert factor.ints[0] == np.count_nonzero(covers[index])  # SuperLU's scalar factor

@@ -207,7 +207,7 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     from sim_core import kernels
     from tissue_env import batched
 
-    monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free: None)
+    monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free, **kwargs: None)
     # the fused factorisations (kernels.factor_copies) fail too: every copy takes _factorise's path
     monkeypatch.setattr(batched.BatchedImplicitEuler, "_block_structure", lambda self, key, nodes: None)
     batched._factors.clear()  # no first-step factor from an earlier test: the first step factorises

@@ -207,12 +207,15 @@ def test_bad_preconditioner_names_are_rejected(bad):
         make_integrator("implicit", preconditioner=bad)
 
 
+@pytest.mark.parametrize("symmetric", [False, True])
 @pytest.mark.parametrize("shape, imposed_y", [((3, 3, 3), False), ((4, 4, 4), True)])
-def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y):
+def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
     """The node-block LU (``sparse.NodeBlockLU``, compiled numeric factorisation on a symbolic fill
     pattern) inverts a non-symmetric diagonally dominant matrix on the block's pattern to 1e-12,
     also with single dofs decoupled (a contact imposing only y, as ``_Factor`` builds it), and a
-    second factorisation of the same pattern reuses the structure and gives the same factor."""
+    second factorisation of the same pattern reuses the structure and gives the same factor. Its
+    symmetric form (LDL^T, half the values) inverts the matrix's symmetric part (A + A^T) / 2 to
+    1e-12, through the one- and the several-right-hand-side substitutions."""
     from sim_core.sparse import NodeBlockLU
 
     model, _, patch = stiff_scene(shape)
@@ -231,22 +234,35 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y):
         columns = np.repeat(np.arange(len(node_dofs)), np.diff(whole.indptr))
         data[~((free[whole.indices] & free[columns]) | (whole.indices == columns))] = 0.0
     matrix = sp.csc_matrix((data, whole.indices, whole.indptr), shape=whole.shape)
-    factor = NodeBlockLU(matrix, node_dofs)
-    again = NodeBlockLU(matrix, node_dofs)
+    factor = NodeBlockLU(matrix, node_dofs, symmetric=symmetric)
+    again = NodeBlockLU(matrix, node_dofs, symmetric=symmetric)
     assert np.array_equal(factor.floats, again.floats)
+    lu_size = len(NodeBlockLU(matrix, node_dofs).floats)
+    assert len(factor.floats) == (lu_size // 2 if symmetric else lu_size)
     rhs = rng.standard_normal(n_dofs)
     out = np.empty(n_dofs)
     mask = np.zeros(n_dofs)
     mask[node_dofs[free]] = 1.0
     kernels.block_lu_apply(factor.ints, factor.floats, mask, rhs, out, np.empty(len(node_dofs)))
     reduced = matrix[free][:, free]
+    if symmetric:
+        reduced = (reduced + reduced.T) / 2
+        assert abs(reduced - matrix[free][:, free]).max() > 0.1  # the matrix itself is not symmetric
     expected = spla.spsolve(reduced.tocsc(), rhs[node_dofs[free]])
     assert np.abs(out[node_dofs[free]] - expected).max() < 1e-12 * np.abs(expected).max()
     assert np.all(out[mask == 0.0] == 0.0)
+    # several right-hand sides at once (the capacitance corrections' columns of the inverse)
+    columns = np.array([0, 2], dtype=np.int64)
+    several = np.stack([rhs, np.zeros(n_dofs), 2.0 * rhs], axis=1)
+    solved = np.zeros_like(several)
+    kernels._block_lu_solve(factor.ints, factor.floats, several, solved, columns, 2,
+                            np.empty((len(node_dofs), 2)), np.empty((3, 2)))
+    for column, scale in ((0, 1.0), (2, 2.0)):
+        assert np.abs(solved[node_dofs[free], column] - scale * expected).max() < 1e-12 * np.abs(expected).max()
     singular = matrix.copy()
     singular.data[:] = 0.0
     with pytest.raises(np.linalg.LinAlgError):
-        NodeBlockLU(singular, node_dofs)
+        NodeBlockLU(singular, node_dofs, symmetric=symmetric)
 
 
 def test_factorised_preconditioner_uses_the_node_block_lu():
@@ -260,7 +276,7 @@ def test_factorised_preconditioner_uses_the_node_block_lu():
     assert block._factor.block is not None
 
     class Pivots:
-        def __init__(self, *args):
+        def __init__(self, *args, **kwargs):
             raise np.linalg.LinAlgError("force the scalar LU")
 
     original = integrators.NodeBlockLU

@@ -77,7 +77,7 @@ from sim_core.forces import (ForceWorkspace, forget_hourglass_blocks, hourglass_
                              stiffness_data)
 from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, InverseColumns, SymplecticEuler,
                                   _FreeStructure, free_structure, node_block_factor)
-from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure
+from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure, symmetric_structure
 from sim_core.model import Control, Model, State
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
@@ -91,6 +91,11 @@ _preconditioners: OrderedDict = OrderedDict()
 _factors: OrderedDict = OrderedDict()
 #: The batched implicit step's linear solvers (``BatchedImplicitEuler``).
 SOLVERS = ("factorised", "reference", "jacobi")
+#: Solver "factorised": each copy's preconditioner is the node-block LDL^T of its system matrix's
+#: symmetric part (the matrix is symmetric up to about 1e-4 of its entries, from the corrections'
+#: coupling and the volume terms) rather than its LU: half the values to store, factorise and read
+#: at every application (``kernels.block_ldl_factor``, ``kernels._block_ldl_solve_one``).
+SYMMETRIC_FACTOR = True
 #: Solver "reference": at most this many copies per lockstep chunk (``lockstep_chunk``).
 LOCKSTEP_CHUNK = 8
 
@@ -480,6 +485,9 @@ class BatchedImplicitEuler:
             self._patterns = {}
             self._structures = {}  # kernels.factor_copies' structure per node set (_block_structure)
             self._incidence = _edge_incidence(stack.reference)
+            #: factorise the LDL^T of the system matrix's symmetric part (``kernels.block_ldl_factor``)
+            #: instead of its LU: half the values for every preconditioner application
+            self.symmetric = SYMMETRIC_FACTOR
             reference = stack.reference
             hg_indptr, hg_indices, _ = reference.hourglass_arrays
             rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
@@ -507,12 +515,13 @@ class BatchedImplicitEuler:
         key = digest.digest()
         if self.solver == "factorised":
             free = ~np.asarray(fixed, dtype=bool).ravel()
-            entry = _factors.get((key, "lu"))
+            kind = (key, "ldl" if self.symmetric else "lu")
+            entry = _factors.get(kind)
             if entry is None:  # factorised by the copy's first step, at this linearisation
                 self._set_factor(index, None, free)
-                self._pending[index] = ((key, "lu"), free)
+                self._pending[index] = (kind, free)
             else:  # the factor the copy's first step would make (if its imposed set is still ``fixed``)
-                _factors.move_to_end((key, "lu"))
+                _factors.move_to_end(kind)
                 self._set_factor(index, entry, free)
                 self._pending[index] = None
             self._adopted[index] = entry is not None
@@ -587,7 +596,7 @@ class BatchedImplicitEuler:
         values = self._values
         kernels.operator_matrix_data(single, system, reference.spring_positions, reference.element_positions,
                                      self._hg_positions, reference.pattern.diagonal_positions, values)
-        block = node_block_factor(stack.models[index], values, free)
+        block = node_block_factor(stack.models[index], values, free, symmetric=self.symmetric)
         if block is not None:  # the node-block LU, its structure kept per node set
             factor = _CopyFactor.refactored(block.ints, block.floats)
         else:
@@ -621,12 +630,13 @@ class BatchedImplicitEuler:
             ok = np.zeros(len(members), dtype=bool)
             if structure is not None:
                 (node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices,
-                 ints, a_values, work) = structure
+                 a_transpose, l_to_u, ints, a_values, work) = structure
                 factorise = self._kernel("factor_copies")
                 factorise(stacked, system, hg_rows, hg_group, reference.spring_positions, reference.element_positions,
                           self._hg_positions, reference.pattern.diagonal_positions, indices[members],
                           covers[members], node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
-                          l_indices, u_indptr, u_indices, ints, self._values, a_values, work, self._lu_int,
+                          l_indices, u_indptr, u_indices, a_transpose, l_to_u, ints, self._values, a_values, work,
+                          self._lu_int,
                           self._lu_float, ok, *self._incidence)
             for t, done in zip(members, ok):
                 index = int(indices[t])
@@ -651,8 +661,11 @@ class BatchedImplicitEuler:
             whole = free_structure(self.stack.reference, node_dofs)
             matrix = sp.csc_matrix((np.ones(len(whole.take)), whole.indices, whole.indptr), shape=whole.shape)
             try:
-                (a_indptr, a_indices, a_map, l_indptr, l_indices, u_indptr, u_indices,
-                 ints) = _block_structure(matrix, node_dofs)
+                symbolic = _block_structure(matrix, node_dofs)
+                a_indptr, a_indices, a_map, l_indptr, l_indices, u_indptr, u_indices, ints = symbolic
+                a_transpose, l_to_u = np.zeros(0, np.int64), np.zeros(0, np.int64)
+                if self.symmetric:
+                    a_transpose, l_to_u, ints = symmetric_structure(symbolic)
             except (RuntimeError, ValueError, np.linalg.LinAlgError):
                 pass
             else:
@@ -660,8 +673,8 @@ class BatchedImplicitEuler:
                 ints = as_int(ints)
                 structure = (as_int(node_dofs), as_int(whole.take), as_int(whole.indices), as_int(whole.columns),
                              as_int(a_map), as_int(a_indptr), as_int(a_indices), as_int(l_indptr), as_int(l_indices),
-                             as_int(u_indptr), as_int(u_indices), ints, np.empty(9 * len(a_indices)),
-                             np.empty(9 * (len(a_indptr) - 1)))
+                             as_int(u_indptr), as_int(u_indices), as_int(a_transpose), as_int(l_to_u), ints,
+                             np.empty(9 * len(a_indices)), np.empty(9 * (len(a_indptr) - 1)))
         if len(self._structures) >= 4 * self.stack.count:
             self._structures.clear()
         self._structures[key] = structure
