@@ -187,11 +187,14 @@ class Probe:
         return out.reshape(positions.shape[:-1])
 
 
-def gap(obstacle, positions, tip=None):
+def gap(obstacle, positions, tip=None, surface=None):
     """Signed distance (m, along y) from each node to the obstacle's surface, >= 0 on the
-    admissible side (+inf for a probe's nodes outside its radius)."""
+    admissible side (+inf for a probe's nodes outside its radius). ``surface``: the obstacle's
+    ``surface(positions, tip)`` when the caller has it already (the same floats, computed once)."""
+    if surface is None:
+        surface = obstacle.surface(positions, tip)
     with np.errstate(invalid="ignore"):  # inf - inf cannot occur: positions are finite
-        return obstacle.side * (positions[..., 1] - obstacle.surface(positions, tip))
+        return obstacle.side * (positions[..., 1] - surface)
 
 
 def touching(obstacle, positions, candidates, tip=None, tolerance=0.0):
@@ -207,30 +210,31 @@ def release(obstacle, contact, forces, tolerance=0.0):
     return contact & (obstacle.side * forces[..., 1] <= tolerance)
 
 
-def update(obstacle, contact, positions, forces, candidates, tip=None, tolerance=SLIDE_TOLERANCE):
+def update(obstacle, contact, positions, forces, candidates, tip=None, tolerance=SLIDE_TOLERANCE, surface=None):
     """The contact set for the next step (..., n) bool, before the step, the obstacle (a probe's
     ``tip``) already at its new place: a node in contact stays unless the obstacle would pull it
     (``release`` with the net ``forces``, N) or its surface moved away from it by more than
     ``tolerance`` (m); a candidate not in contact joins when it is on or through the surface (the
-    tool moved into it)."""
-    distance = gap(obstacle, positions, tip)
+    tool moved into it). ``surface``: as ``gap`` takes it."""
+    distance = gap(obstacle, positions, tip, surface)
     kept = release(obstacle, contact, forces) & (distance <= tolerance)
     return kept | (candidates & ~contact & (distance <= 0.0))
 
 
-def targets(obstacle, positions, contact, tip=None):
+def targets(obstacle, positions, contact, tip=None, surface=None):
     """Imposed heights (m) of the contact nodes: the surface at their current (x, z); the other
-    nodes keep their y. (..., n) float."""
-    surface = obstacle.surface(positions, tip)
+    nodes keep their y. (..., n) float. ``surface``: as ``gap`` takes it."""
+    if surface is None:
+        surface = obstacle.surface(positions, tip)
     return np.where(contact & np.isfinite(surface), surface, positions[..., 1])
 
 
 def project(obstacle, positions, velocities, candidates, tip=None):
     """Put the candidate nodes that went through the surface back on it (in place: y on the
     surface, the velocity component into the obstacle removed) and return them (..., n) bool."""
-    through = candidates & (gap(obstacle, positions, tip) < 0.0)
+    surface = obstacle.surface(positions, tip)  # once, for the test and the projection
+    through = candidates & (gap(obstacle, positions, tip, surface) < 0.0)
     if np.any(through):
-        surface = obstacle.surface(positions, tip)
         positions[..., 1] = np.where(through, surface, positions[..., 1])
         if obstacle.side > 0:
             velocities[..., 1] = np.where(through, np.maximum(velocities[..., 1], 0.0), velocities[..., 1])

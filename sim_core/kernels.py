@@ -2639,6 +2639,52 @@ def stacked_hourglass_subtract(hg_indptr, hg_indices, hg_data, hg_group, positio
         _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, block, blocks, False)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
+def _hourglass_copy_blocks(indptr, indices, block_rows, hg_group, x, rest, flat, c):
+    """Copy ``c``'s rows of ``stacked_hourglass_subtract_blocks``."""
+    n_nodes = indptr.shape[0] - 1
+    blocks = block_rows[hg_group[c]]
+    offset = 3 * n_nodes * c
+    for i in range(n_nodes):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for q in range(indptr[i], indptr[i + 1]):
+            j = offset + 3 * indices[q]
+            d0 = x[j] - rest[j]
+            d1 = x[j + 1] - rest[j + 1]
+            d2 = x[j + 2] - rest[j + 2]
+            b = 9 * q
+            a0 += blocks[b] * d0 + blocks[b + 1] * d1 + blocks[b + 2] * d2
+            a1 += blocks[b + 3] * d0 + blocks[b + 4] * d1 + blocks[b + 5] * d2
+            a2 += blocks[b + 6] * d0 + blocks[b + 7] * d1 + blocks[b + 8] * d2
+        row = offset + 3 * i
+        flat[row] -= a0
+        flat[row + 1] -= a1
+        flat[row + 2] -= a2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+def stacked_hourglass_subtract_blocks_serial(indptr, indices, block_rows, hg_group, positions, rest_positions, forces):
+    """forces (N n, 3) -= K_c (x_c - X_c) for every copy c of a stacked model (copies first), K_c the
+    hourglass matrix of copy c in node blocks: BSR ``indptr`` (n + 1,), ``indices`` (nb,) of ONE copy
+    and the values ``block_rows[hg_group[c]]`` ((G, 9 nb): the G distinct matrices). For copies with
+    different matrices (each copy reads its own anyway): one index and three vector loads per 9
+    values, where ``stacked_hourglass_subtract`` gathers one value per copy and entry (Palpation's
+    8x4x8, 16 copies of 16 materials: 3.3x faster)."""
+    x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
+    for c in range(hg_group.shape[0]):
+        _hourglass_copy_blocks(indptr, indices, block_rows, hg_group, x, rest, flat, c)
+
+
+@njit(cache=True, error_model="numpy", fastmath=_FAST, parallel=True)
+def stacked_hourglass_subtract_blocks(indptr, indices, block_rows, hg_group, positions, rest_positions, forces):
+    """``stacked_hourglass_subtract_blocks_serial`` with the copies on numba's threads (the same floats)."""
+    x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
+    for c in prange(hg_group.shape[0]):
+        _hourglass_copy_blocks(indptr, indices, block_rows, hg_group, x, rest, flat, np.int64(c))
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def serial_product(a, b):
     """a @ b (m, k) x (k, p) in this thread: a product of a few-column matrix by a small one

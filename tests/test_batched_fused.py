@@ -3,6 +3,7 @@
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import tissue_env  # noqa: F401
 
@@ -99,14 +100,18 @@ def test_vector_retraction_exposure_equals_the_single_envs():
         assert measures["exposed_fraction"][index] == expected["exposed_fraction"]
 
 
-def test_stacked_force_workspace_equals_the_stacked_models_force_pass():
-    """StackedForceWorkspace's hourglass term (one copy's matrix read once for all copies, a column of
-    values per group of equal matrices) gives the stacked model's forces (ForceWorkspace) to rounding."""
+@pytest.mark.parametrize("env_id, groups", [("tissue_env/Palpation-v0", "several"),
+                                             ("tissue_env/TumorPositioning-v0", "one")])
+def test_stacked_force_workspace_equals_the_stacked_models_force_pass(env_id, groups):
+    """StackedForceWorkspace's hourglass term (one copy's matrix read once for all copies where they
+    share it; each copy's own in node blocks where they differ) gives the stacked model's forces
+    (ForceWorkspace) to rounding."""
     from sim_core.forces import ForceWorkspace
     from tissue_env.batched import StackedForceWorkspace
-    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
+    envs = _stepped(env_id, count=4, steps=6, seed=0)
     stack = envs.stack
-    assert len(stack.hourglass_groups()) > 1  # copies with different hourglass matrices
+    # Palpation's copies draw different inclusions (hourglass matrices), TumorPositioning's share one
+    assert (len(stack.hourglass_groups()) > 1) == (groups == "several")
     positions = np.ascontiguousarray(envs.positions.reshape(-1, 3))
     velocities = np.ascontiguousarray(envs.velocities.reshape(-1, 3))
     rest = stack.model.rest_positions.reshape(envs.num_envs, -1, 3)

@@ -243,7 +243,10 @@ class StackedForceWorkspace(ForceWorkspace):
     one pass over ONE copy's hourglass matrix for all copies (``kernels.stacked_hourglass_subtract``,
     the copies with equal matrices sharing a column of values): the stacked CSR matrix is N times a
     copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
-    1.8x slower per copy than a single env's. Same forces up to rounding."""
+    1.8x slower per copy than a single env's. Where the copies hold different matrices, each copy
+    reads its own in node blocks instead (``kernels.stacked_hourglass_subtract_blocks``: 1.08 against
+    1.70 ms for Palpation's 16 copies of 7 matrices; with one matrix the shared pass is faster, 0.41
+    against 0.63 ms at TumorPositioning's). Same forces up to rounding."""
 
     def __init__(self, stack: ModelStack, implicit: bool = True, threads: int = 1):
         super().__init__(stack.model, implicit=implicit)
@@ -251,6 +254,27 @@ class StackedForceWorkspace(ForceWorkspace):
         #: the hourglass pass runs on numba's threads when ``kernels.threaded(threads)``
         self.threads = int(threads)
         self._displacement = np.empty((3 * stack.n_nodes, stack.count))
+        self._blocks = None  # hourglass_blocks: (stack version, arrays)
+        self._block_map = None
+
+    def hourglass_blocks(self):
+        """The node-block (BSR) form of the copies' hourglass matrices: (block indptr (n + 1,), block
+        columns (nb,), values (G, 9 nb) per column of ``ModelStack.copies_last``'s hourglass data),
+        rebuilt after ``ModelStack.assign``."""
+        stack = self.stack
+        if self._blocks is None or self._blocks[0] != stack.version:
+            if self._block_map is None:  # the position in the CSR data of each block entry (-1: none)
+                single = stack.reference.hourglass
+                self._block_map = ((np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
+                                    np.zeros(0, np.int64)) if single is None else hourglass_block_map(single))
+            indptr, indices, positions = self._block_map
+            hg_rows = stack.copies_last()["hourglass"].T
+            values = np.zeros((len(hg_rows), len(positions)))
+            if len(positions):
+                stored = positions >= 0
+                values[:, stored] = hg_rows[:, positions[stored]]
+            self._blocks = (stack.version, (indptr, indices, values))
+        return self._blocks[1]
 
     def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False):
         if kernels.threaded(self.threads):  # one copy per thread at a time: the same floats
@@ -261,10 +285,19 @@ class StackedForceWorkspace(ForceWorkspace):
         if hourglass and self.has_hourglass:
             stack = self.stack
             values = stack.copies_last()
+            threaded = kernels.threaded(self.threads)
+            positions = np.ascontiguousarray(positions, dtype=float)
+            if values["hourglass"].shape[1] > 1:  # copies of different matrices: each its own, in node blocks
+                args = self.hourglass_blocks() + (values["hourglass_group"], positions, self.rest_positions, forces)
+                if threaded:  # a copy per thread
+                    kernels.stacked_hourglass_subtract_blocks(*args)
+                else:
+                    kernels.stacked_hourglass_subtract_blocks_serial(*args)
+                return forces
             hg_indptr, hg_indices, _ = stack.reference.hourglass_arrays
-            args = (hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"],
-                    np.ascontiguousarray(positions, dtype=float), self.rest_positions, forces, self._displacement)
-            if kernels.threaded(self.threads):  # a block of rows per thread
+            args = (hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"], positions,
+                    self.rest_positions, forces, self._displacement)
+            if threaded:  # a block of rows per thread
                 kernels.stacked_hourglass_subtract(*args, numba.get_num_threads())
             else:
                 kernels.stacked_hourglass_subtract_serial(*args)
@@ -453,8 +486,6 @@ class BatchedImplicitEuler:
         self._packed_groups = None
         self._linearised = None  # (stack version, positions) of the workspace's last force pass
         self._first = None  # _copies_first: (stack version, arrays)
-        self._blocks = None  # _hourglass_blocks: (stack version, arrays)
-        self._block_map = None
         if solver == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
             self._group_work = np.empty((8, count, dofs))
             self._no_corrections = (TypedList([np.zeros((0, 0))] * count),
@@ -737,20 +768,7 @@ class BatchedImplicitEuler:
         """``kernels.solve_copies_lu``'s node-block (BSR) form of the copies' hourglass matrices:
         (block indptr (n + 1,), block columns (nb,), values (G, 9 nb) per group of ``_copies_first``'s
         hg_rows), rebuilt after ``ModelStack.assign``."""
-        stack = self.stack
-        if self._blocks is None or self._blocks[0] != stack.version:
-            if self._block_map is None:  # the position in the CSR data of each block entry (-1: none)
-                single = stack.reference.hourglass
-                self._block_map = ((np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
-                                    np.zeros(0, np.int64)) if single is None else hourglass_block_map(single))
-            indptr, indices, positions = self._block_map
-            _, hg_rows, _ = self._copies_first()
-            values = np.zeros((len(hg_rows), len(positions)))
-            if len(positions):
-                stored = positions >= 0
-                values[:, stored] = hg_rows[:, positions[stored]]
-            self._blocks = (stack.version, (indptr, indices, values))
-        return self._blocks[1]
+        return self.workspace.hourglass_blocks()
 
     def _solve_factorised(self, system, mask, rhs, guess_rows, active, free, solution, iterations, residual):
         """Every active copy's BiCGSTAB preconditioned by the sparse LU of its own system matrix, kept

@@ -438,12 +438,14 @@ class PalpationEnv(TissueEnv):
         current = self.mesh.nodes if self.state is None else self.state.positions
         measures = getattr(self, "measures", None)
         forces = measures["forces"] if measures is not None and "forces" in measures else np.zeros_like(current)
-        self.contact = contact.update(self.probe, self.contact, current, forces, self._probe_candidates, tip)
+        surface = self.probe.surface(current, tip)  # once for the contact update and its targets
+        self.contact = contact.update(self.probe, self.contact, current, forces, self._probe_candidates, tip,
+                                      surface=surface)
         control = self.base_control.copy()
         held = np.flatnonzero(self.contact)
         if len(held):
             target = current[held].copy()
-            target[:, 1] = contact.targets(self.probe, current, self.contact, tip)[held]
+            target[:, 1] = contact.targets(self.probe, current, self.contact, tip, surface=surface)[held]
             control.impose(held, target, components=(1,))
         self.tool_mask = np.zeros((self.mesh.n_nodes, 3), bool)
         self.tool_mask[self.contact, 1] = True
@@ -619,11 +621,14 @@ class PalpationVectorEnv(TissueVectorEnv):
         # PalpationEnv._control for every copy
         count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
         forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
-        self.contact = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips)
+        surface = self.probe.surface(positions, tips)  # once for the contact update and its targets
+        self.contact = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips,
+                                      surface=surface)
         fixed = np.repeat(self._base_fixed[None], count, axis=0)
         target = np.repeat(self._base_target[None], count, axis=0)
         fixed[..., 1] |= self.contact
-        target[..., 1] = np.where(self.contact, contact.targets(self.probe, positions, self.contact, tips),
+        target[..., 1] = np.where(self.contact,
+                                  contact.targets(self.probe, positions, self.contact, tips, surface=surface),
                                   target[..., 1])
         self._tool_mask = tool_mask = np.zeros_like(fixed)
         tool_mask[..., 1] = self.contact
