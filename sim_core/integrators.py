@@ -592,15 +592,28 @@ class InverseColumns:
         self.ints, self.floats, self.n_dofs = ints, floats, int(n_dofs)
         self._columns: dict = {}  # dof -> its column of B (n_dofs,)
 
+    def missing(self, dofs) -> list:
+        """The dofs of ``dofs`` whose columns are not kept (all of them, the kept ones forgotten,
+        when keeping them would pass CAPACITANCE_CACHE): what ``columns`` solves, for a caller
+        that solves them itself (``store``)."""
+        dofs = [int(d) for d in dofs]
+        missing = [d for d in dofs if d not in self._columns]
+        if missing and len(self._columns) + len(missing) > CAPACITANCE_CACHE:
+            self._columns.clear()
+            missing = dofs
+        return missing
+
+    def store(self, dofs, columns: np.ndarray):
+        """Keep the columns (len(dofs), n_dofs) of B for ``dofs``, solved by the caller."""
+        for index, dof in enumerate(dofs):
+            self._columns[int(dof)] = columns[index]
+
     def columns(self, dofs) -> np.ndarray:
         """(n_dofs, len(dofs)) the columns ``dofs`` of B (zero on the dofs the factor does not
         hold, and on those it decouples)."""
+        missing = self.missing(dofs)
         dofs = [int(d) for d in dofs]
-        missing = [d for d in dofs if d not in self._columns]
         if missing:
-            if len(self._columns) + len(missing) > CAPACITANCE_CACHE:
-                self._columns.clear()
-                missing = dofs
             count = len(missing)
             rhs = np.zeros((self.n_dofs, count))
             rhs[missing, np.arange(count)] = 1.0

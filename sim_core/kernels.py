@@ -1425,7 +1425,8 @@ def _block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulat
     ``ints``: [-k, nb, 0, blocks of U, U indptr (nb + 1), U block columns, order (k)], ``values``: U's
     blocks with D_i^-1 in each diagonal slot. U^T z = b by a forward sweep that scatters each solved
     block row into the later rows, then x = U^-1 D^-1 z by a backward sweep: U's blocks are read
-    twice, half the values of the LU's two sweeps."""
+    twice, half the values of the LU's two sweeps. The forward sweep starts at the first block row
+    where b is not zero (columns of the inverse: unit vectors)."""
     if used == 1:
         _block_ldl_solve_one(ints, values, vector[:, columns[0]], out[:, columns[0]], buffer[:, 0])
         return
@@ -1434,11 +1435,15 @@ def _block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulat
     up = 4
     ui = up + nb + 1
     order = ui + ints[3]
+    start = nb  # the first block row with a non-zero right-hand side: z is zero before it
     for j in range(k):
         row = ints[order + j]
         for t in range(used):
-            buffer[j, t] = vector[row, columns[t]]
-    for block_row in range(nb):  # U^T z = b: z_i is final, then b_j -= U_ij^T z_i
+            value = vector[row, columns[t]]
+            buffer[j, t] = value
+            if value != 0.0 and j // 3 < start:
+                start = j // 3
+    for block_row in range(start, nb):  # U^T z = b: z_i is final, then b_j -= U_ij^T z_i
         i = 3 * block_row
         for q in range(ints[up + block_row] + 1, ints[up + block_row + 1]):
             base = 9 * q
@@ -1488,9 +1493,13 @@ def _block_ldl_solve_one(ints, values, vector, out, buffer):
     up = 4
     ui = up + nb + 1
     order = ui + ints[3]
+    start = nb  # the first block row with a non-zero right-hand side (a unit vector's: late)
     for j in range(k):
-        buffer[j] = vector[ints[order + j]]
-    for block_row in range(nb):  # U^T z = b
+        value = vector[ints[order + j]]
+        buffer[j] = value
+        if value != 0.0 and start == nb:
+            start = j // 3
+    for block_row in range(start, nb):  # U^T z = b
         i = 3 * block_row
         z0 = buffer[i]
         z1 = buffer[i + 1]
@@ -1913,6 +1922,41 @@ def apply_operator_blocks(data, scales, ones, hg_block_indptr, hg_block_indices,
     """``apply_operator`` with the hourglass term read from the node-block (BSR) form of the
     hourglass matrix (``_apply_blocks``; the single envs' implicit step, ``ImplicitEuler``)."""
     _apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block_data, mask, vector, out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _inverse_columns_task(lu_int, lu_float, copies, indptr, dofs, out, t):
+    """``inverse_columns_copies``' columns of task ``t``."""
+    first, count = indptr[t], indptr[t + 1] - indptr[t]
+    ints, values = lu_int[copies[t]], lu_float[copies[t]]
+    n_dofs = out.shape[1]
+    rhs = np.zeros((n_dofs, count))
+    solved = np.zeros((n_dofs, count))
+    for i in range(count):
+        rhs[dofs[first + i], i] = 1.0
+    k = -ints[0]
+    _block_lu_solve(ints, values, rhs, solved, np.arange(count), count, np.empty((k, count)), np.empty((3, count)))
+    for i in range(count):
+        for j in range(n_dofs):
+            out[first + i, j] = solved[j, i]
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def inverse_columns_copies(lu_int, lu_float, copies, indptr, dofs, out):
+    """Columns of the inverse of several copies' node-block factors (``integrators.InverseColumns``,
+    the capacitance corrections' columns): task t solves the unit vectors of the dofs
+    ``dofs[indptr[t]:indptr[t + 1]]`` together through the factor of copy ``copies[t]``
+    (``lu_int[c]``, ``lu_float[c]``: ``_block_lu_solve``), into the rows ``out[indptr[t]:indptr[t + 1]]``
+    ((total, 3 n), zero where the factor holds no dof). The tasks on numba's threads."""
+    for t in prange(copies.shape[0]):
+        _inverse_columns_task(lu_int, lu_float, copies, indptr, dofs, out, np.int64(t))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def inverse_columns_copies_serial(lu_int, lu_float, copies, indptr, dofs, out):
+    """``inverse_columns_copies`` in this thread only (one thread, a forked process)."""
+    for t in range(copies.shape[0]):
+        _inverse_columns_task(lu_int, lu_float, copies, indptr, dofs, out, t)
 
 
 @njit(cache=True, nogil=True, inline="always")

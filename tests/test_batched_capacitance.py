@@ -59,3 +59,33 @@ def test_the_capacitance_product_runs_in_this_thread_and_equals_numpys():
         a[::5] = 0.0
         b = rng.normal(size=(k, k))
         np.testing.assert_allclose(kernels.serial_product(a, b), a @ b, rtol=0, atol=1e-12)
+
+
+def test_the_copies_inverse_columns_equal_each_factors_own():
+    """``kernels.inverse_columns_copies`` (the corrections' columns of every copy's inverse in one call
+    on numba's threads) gives the floats of its serial version and of ``InverseColumns.columns`` (one
+    copy's columns solved together), zero on the imposed dofs."""
+    from sim_core import kernels
+    from sim_core.integrators import InverseColumns
+    model, bottom, _ = tumor_block((5, 5, 5), 0.01)
+    count, dt = 3, 0.04
+    stack = ModelStack(model, count)
+    positions = np.repeat(model.mesh.nodes[None], count, axis=0)
+    fixed = np.zeros(positions.shape, dtype=bool)
+    fixed[:, bottom] = True
+    integrator = BatchedImplicitEuler(stack, tolerance=1e-8, solver="factorised")
+    integrator.simulate(positions, np.zeros_like(positions), fixed, positions, dt, np.ones(count, dtype=bool))
+    free = np.flatnonzero(~fixed[0].ravel())
+    picks = [free[[3, 40, 41]], free[[len(free) - 1]], free[[0, len(free) // 2]]]
+    copies = np.array([0, 1, 2], dtype=np.int64)
+    indptr = np.array([0, 3, 4, 6], dtype=np.int64)
+    dofs = np.concatenate(picks).astype(np.int64)
+    n_dofs = 3 * model.n_nodes
+    threaded, serial = np.zeros((6, n_dofs)), np.zeros((6, n_dofs))
+    kernels.inverse_columns_copies(integrator._lu_int, integrator._lu_float, copies, indptr, dofs, threaded)
+    kernels.inverse_columns_copies_serial(integrator._lu_int, integrator._lu_float, copies, indptr, dofs, serial)
+    np.testing.assert_array_equal(threaded, serial)
+    for t, picked in enumerate(picks):
+        own = InverseColumns(integrator._lu_int[t], integrator._lu_float[t], n_dofs).columns(picked)
+        np.testing.assert_array_equal(threaded[indptr[t]:indptr[t + 1]], own.T)
+        assert np.all(threaded[indptr[t]:indptr[t + 1]][:, ~np.isin(np.arange(n_dofs), free)] == 0.0)

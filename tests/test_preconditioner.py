@@ -259,6 +259,18 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
                             np.empty((len(node_dofs), 2)), np.empty((3, 2)))
     for column, scale in ((0, 1.0), (2, 2.0)):
         assert np.abs(solved[node_dofs[free], column] - scale * expected).max() < 1e-12 * np.abs(expected).max()
+    # unit right-hand sides (the capacitance corrections' columns of the inverse, whose substitution
+    # starts at the first non-zero row): the inverse's columns
+    held = node_dofs[free]
+    dense = np.linalg.inv(reduced.toarray())
+    for picked in ([len(held) - 1], [len(held) - 1, len(held) // 2], [len(held) // 3, 0, len(held) - 2]):
+        count = len(picked)
+        units = np.zeros((n_dofs, count))
+        units[held[picked], np.arange(count)] = 1.0
+        inverse = np.zeros_like(units)
+        kernels._block_lu_solve(factor.ints, factor.floats, units, inverse, np.arange(count, dtype=np.int64), count,
+                                np.empty((len(node_dofs), count)), np.empty((3, count)))
+        np.testing.assert_allclose(inverse[held], dense[:, picked], rtol=0, atol=1e-12 * np.abs(dense).max())
     singular = matrix.copy()
     singular.data[:] = 0.0
     with pytest.raises(np.linalg.LinAlgError):

@@ -391,6 +391,16 @@ class _CopyFactor:
         factor.ints, factor.floats = ints, floats
         return factor
 
+    def inverse(self, n_dofs: int) -> InverseColumns:
+        """The columns of its inverse kept so far (``integrators.InverseColumns``)."""
+        if self._inverse is None:
+            self._inverse = InverseColumns(self.ints, self.floats, n_dofs)
+        return self._inverse
+
+    def has_correction(self, imposed: np.ndarray) -> bool:
+        """Whether the correction for ``imposed`` is kept (``correction`` solves nothing)."""
+        return imposed.tobytes() in self._corrections
+
     def correction(self, imposed: np.ndarray, n_dofs: int):
         """A node-block LU's capacitance correction for the dofs ``imposed`` (k,) sorted, free in the
         factor but imposed now: (W, imposed) for ``kernels._corrected_lu_apply``, W from
@@ -398,9 +408,7 @@ class _CopyFactor:
         singular. Kept per imposed set (8 per factor)."""
         key = imposed.tobytes()
         if key not in self._corrections:
-            if self._inverse is None:
-                self._inverse = InverseColumns(self.ints, self.floats, n_dofs)
-            correction = self._inverse.correction(imposed)
+            correction = self.inverse(n_dofs).correction(imposed)
             if len(self._corrections) >= 8:
                 self._corrections.clear()
             self._corrections[key] = None if correction is None else (correction, imposed)
@@ -718,15 +726,44 @@ class BatchedImplicitEuler:
         dofs = free_rows.shape[1]
         held = self._factor_free[indices] & ~free_rows[indices]
         counts = np.count_nonzero(held, axis=1)
+        wanted = []  # (copy, its factor, the dofs to correct for)
         for row, index in enumerate(indices):
-            entry = None
             factor = self._factors[index]
             if 0 < counts[row] <= CAPACITANCE_MAX and factor.ints[0] < 0:
-                entry = factor.correction(np.flatnonzero(held[row]), dofs)
-            entry = entry or self._no_correction
+                wanted.append((index, factor, np.flatnonzero(held[row])))
+            elif self._correction_of[index] is not self._no_correction:
+                self._correction_of[index] = self._no_correction
+                self._corrections[index], self._imposed[index] = self._no_correction
+        self._inverse_columns(wanted, dofs)
+        for index, factor, imposed in wanted:
+            entry = factor.correction(imposed, dofs) or self._no_correction
             if self._correction_of[index] is not entry:
                 self._correction_of[index] = entry
                 self._corrections[index], self._imposed[index] = entry
+
+    def _inverse_columns(self, wanted, dofs):
+        """Solve the columns of the inverse that the corrections ``wanted`` ([(copy, factor, imposed
+        dofs)]) need and their factors do not keep yet, all copies in one compiled call on numba's
+        threads (``kernels.inverse_columns_copies``: each copy's columns together, as
+        ``InverseColumns.columns`` solves them), and keep them."""
+        tasks = []
+        for index, factor, imposed in wanted:
+            if factor.has_correction(imposed):
+                continue
+            inverse = factor.inverse(dofs)
+            missing = inverse.missing(imposed)
+            if missing:
+                tasks.append((index, inverse, missing))
+        if not tasks:
+            return
+        copies = np.array([index for index, _, _ in tasks], dtype=np.int64)
+        indptr = np.zeros(len(tasks) + 1, dtype=np.int64)
+        np.cumsum([len(missing) for _, _, missing in tasks], out=indptr[1:])
+        flat = np.concatenate([missing for _, _, missing in tasks]).astype(np.int64)
+        out = np.zeros((len(flat), dofs))
+        self._kernel("inverse_columns_copies")(self._lu_int, self._lu_float, copies, indptr, flat, out)
+        for t, (_, inverse, missing) in enumerate(tasks):
+            inverse.store(missing, out[indptr[t]:indptr[t + 1]])
 
     def _scalar_factor(self, values, free):
         """SuperLU's scalar factor of the system matrix (pattern ``values``) on the ``free`` dofs, for
