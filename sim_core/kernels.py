@@ -2729,6 +2729,35 @@ def stacked_hourglass_subtract_blocks(indptr, indices, block_rows, hg_group, pos
         _hourglass_copy_blocks(indptr, indices, block_rows, hg_group, x, rest, flat, np.int64(c))
 
 
+@njit(cache=True, error_model="numpy", parallel=True)
+def spring_lengths_copies(count, positions, springs, length):
+    """``spring_lengths`` of a stacked model of ``count`` copies (copies first: copy c's springs are
+    the c-th equal slice), the copies on numba's threads (the same floats)."""
+    per = springs.shape[0] // count
+    for c in prange(count):
+        spring_lengths(positions, springs[c * per:(c + 1) * per], length[c * per:(c + 1) * per])
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def element_volumes_copies(count, positions, elements, out):
+    """``element_volumes`` of a stacked model of ``count`` copies (copy c's elements the c-th equal
+    slice), the copies on numba's threads (the same floats)."""
+    per = elements.shape[0] // count
+    for c in prange(count):
+        element_volumes(positions, elements[c * per:(c + 1) * per], out[c * per:(c + 1) * per])
+    return out
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def scatter_springs_copies(count, springs, unit, tension, damping, velocities, use_velocity, forces):
+    """``scatter_springs`` of a stacked model of ``count`` copies (copy c's springs the c-th equal
+    slice, on its own nodes), the copies on numba's threads (the same floats)."""
+    per = springs.shape[0] // count
+    for c in prange(count):
+        a, b = c * per, (c + 1) * per
+        scatter_springs(springs[a:b], unit[a:b], tension[a:b], damping[a:b], velocities, use_velocity, forces)
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def serial_product(a, b):
     """a @ b (m, k) x (k, p) in this thread: a product of a few-column matrix by a small one

@@ -309,3 +309,32 @@ def test_lockstep_chunks_give_two_threads_work_and_depend_on_the_copy_count_only
         chunks = -(-count // chunk)
         assert 1 <= chunk <= LOCKSTEP_CHUNK
         assert chunks >= min(count, 2)
+
+
+def test_threaded_measurement_kernels_give_the_serial_floats():
+    """The vector envs' measurement passes over the stacked model (spring lengths, element volumes,
+    the springs' damping forces) run one copy per thread when threaded: the same floats as the
+    serial pass, bit for bit."""
+    from sim_core import kernels
+    from tissue_env.batched import StackedForceWorkspace
+    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
+    stack, count = envs.stack, envs.num_envs
+    model = stack.model
+    positions = np.ascontiguousarray(envs.positions.reshape(-1, 3))
+    velocities = np.ascontiguousarray(envs.velocities.reshape(-1, 3))
+    assert np.abs(velocities).max() > 0
+    serial, threaded = np.empty(len(model.springs)), np.empty(len(model.springs))
+    kernels.spring_lengths(positions, model.springs, serial)
+    kernels.spring_lengths_copies(count, positions, model.springs, threaded)
+    np.testing.assert_array_equal(threaded, serial)
+    elements = model.mesh.elements
+    serial = kernels.element_volumes(positions, elements, np.empty(len(elements)))
+    threaded = kernels.element_volumes_copies(count, positions, elements, np.empty(len(elements)))
+    np.testing.assert_array_equal(threaded, serial)
+    damped = []
+    for threads in (1, 2):
+        workspace = StackedForceWorkspace(stack, implicit=True, threads=threads)
+        forces = workspace.compute(positions, None, geometric=True).copy()
+        damped.append(workspace.add_damping(velocities, forces.copy()))
+        assert np.abs(damped[-1] - forces).max() > 0  # the damping forces are not zero
+    np.testing.assert_array_equal(damped[1], damped[0])

@@ -304,6 +304,14 @@ class StackedForceWorkspace(ForceWorkspace):
         return forces
 
 
+    def add_damping(self, velocities, forces):
+        """``ForceWorkspace.add_damping``, one copy per thread when threaded (the same floats)."""
+        if not kernels.threaded(self.threads):
+            return super().add_damping(velocities, forces)
+        kernels.scatter_springs_copies(self.stack.count, self.model.springs, self.unit, self._zero_tension,
+                                       self.model.damping, velocities, True, forces)
+        return forces
+
     def _compute_copies(self, positions, velocities, geometric, volume_jacobian):
         """``ForceWorkspace.compute`` without the hourglass term, by ``kernels.model_forces_copies``."""
         model, reference = self.model, self.stack.reference

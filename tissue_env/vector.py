@@ -409,7 +409,11 @@ class TissueVectorEnv(VectorEnv):
         """(N, S) spring lengths, m, of the stacked positions (N, n, 3) (one compiled pass)."""
         springs = self.stack.model.springs
         length = np.empty(len(springs))
-        kernels.spring_lengths(np.ascontiguousarray(positions.reshape(-1, 3), dtype=float), springs, length)
+        flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
+        if kernels.threaded(self.threads):  # the copies on numba's threads
+            kernels.spring_lengths_copies(self.num_envs, flat, springs, length)
+        else:
+            kernels.spring_lengths(flat, springs, length)
         return length.reshape(self.num_envs, -1)
 
     # -- measurements, observation, info -------------------------------------------------------------
@@ -433,8 +437,9 @@ class TissueVectorEnv(VectorEnv):
             strain = np.max(np.abs(self._lengths / self.rest_length - 1.0), axis=1)
             # exact trilinear volumes of the stacked model's elements (HexMesh.element_volumes)
             elements = model.mesh.elements
-            volume = kernels.element_volumes(np.ascontiguousarray(flat, dtype=float), elements,
-                                             np.empty(len(elements))).reshape(count, -1).sum(axis=1)
+            arguments = (flat, elements, np.empty(len(elements)))
+            volume = (kernels.element_volumes_copies(count, *arguments) if kernels.threaded(self.threads)
+                      else kernels.element_volumes(*arguments)).reshape(count, -1).sum(axis=1)
         measures = dict(positions=positions, reaction_force=reaction, max_strain=strain, forces=forces,
                         relative_volume_change=(volume - self.rest_volume) / self.rest_volume)
         measures.update(self._batch_task_measures(positions))
