@@ -346,7 +346,7 @@ def _system_factor(model, positions, dt, fixed):
     if _BlockFactor.applies(free):
         try:
             with np.errstate(all="ignore"):
-                factor = _BlockFactor(matrix, free)
+                factor = _BlockFactor(matrix, free, symmetric=SYMMETRIC_FACTOR)
             if np.all(np.isfinite(factor.floats)):
                 return factor
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
