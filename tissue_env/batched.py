@@ -501,6 +501,7 @@ class BatchedImplicitEuler:
         self._packed = None
         self._packed_groups = None
         self._linearised = None  # (stack version, positions) of the workspace's last force pass
+        self._mass = None  # (stack version, the copies' masses per dof (3 n, N))
         self._first = None  # _copies_first: (stack version, arrays)
         if solver == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
             self._group_work = np.empty((8, count, dofs))
@@ -1002,7 +1003,9 @@ class BatchedImplicitEuler:
             self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, np.ascontiguousarray(moved.T), rows,
                                          *self._hourglass_blocks())
             product = rows.T
-        mass = np.repeat(last(model.mass, n_nodes), 3, axis=0)
+        if self._mass is None or self._mass[0] != stack.version:  # (3 n, N) per dof, rebuilt after assign
+            self._mass = (stack.version, np.repeat(last(model.mass, n_nodes), 3, axis=0))
+        mass = self._mass[1]
         rhs = dt * last(forces, n_nodes).reshape(dofs, count) + mass * start_velocity - product
         mask = np.ascontiguousarray(free, dtype=float)
         solution = np.empty((dofs, count))
