@@ -23,19 +23,23 @@ spring, element and hourglass entry read once for all copies (``kernels.batched_
 with the same floats. No Python loop over copies in the step (but for the factorisations and
 capacitance corrections of solver "factorised").
 
-Preconditioner (solver "factorised", the default): each copy's own sparse LU of its free-dof system
-matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks,
-``sparse.NodeBlockLU`` through ``integrators.node_block_factor``, else SuperLU's scalar LU), kept across steps
+Preconditioner (solver "factorised", the default): each copy's own sparse factor of its free-dof system
+matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks, the
+LDL^T of its symmetric part (``SYMMETRIC_FACTOR``: the matrix is symmetric up to about 1e-4 of its
+entries, and the symmetric factor holds, factorises and applies half the values of the LU:
+``sparse.NodeBlockLU(symmetric=True)``, ``kernels.block_ldl_factor``), through
+``integrators.node_block_factor``, else SuperLU's scalar LU), kept across steps
 and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does (a node-block LU restricted exactly
 to a contact's newly imposed dofs by a capacitance correction; the copies a step re-factorises are
 assembled and factorised in one compiled call, ``kernels.factor_copies``), and the copies' BiCGSTABs run
 in one compiled call (``kernels.solve_copies_lu``): no copy waits for the slowest, 1-5 iterations
 per copy. Both calls share the copies among numba's threads (``numba.get_num_threads()``, set by the
 vector env's ``threads``), each copy with its own scratch, so any thread count gives the same floats
-(one thread, and a forked process: their ``_serial`` versions). Solver "reference": the sparse LU
+(one thread, and a forked process: their ``_serial`` versions). Solver "reference": the sparse factor
 of the copy's system matrix at the start of its episode, applied by triangular solves: in dense
 3 x 3 node blocks when the free dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a
-node ordering), else as the factorised solver's scalar factor. Copies that start alike share one
+node ordering; the LDL^T of the symmetric part, as above), else as the factorised solver's scalar
+factor. Copies that start alike share one
 factor (one cache entry) and each copy's BiCGSTAB is preconditioned by its group's factor
 (``_solve_shared``, ``kernels.solve_copies_grouped``): the copies are split into chunks
 (``lockstep_chunk``: half of them, at most 8), shared among the threads, and each chunk runs in
@@ -502,6 +506,7 @@ class BatchedImplicitEuler:
         self._packed_groups = None
         self._linearised = None  # (stack version, positions) of the workspace's last force pass
         self._mass = None  # (stack version, the copies' masses per dof (3 n, N))
+        self._mass_rows = None  # the same (N, 3 n), for solver "factorised"
         self._first = None  # _copies_first: (stack version, arrays)
         if solver == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
             self._group_work = np.empty((8, count, dofs))
@@ -816,7 +821,7 @@ class BatchedImplicitEuler:
         hg_rows), rebuilt after ``ModelStack.assign``."""
         return self.workspace.hourglass_blocks()
 
-    def _solve_factorised(self, system, mask, rhs, guess_rows, active, free, solution, iterations, residual):
+    def _solve_factorised(self, system, mask_rows, rhs_rows, guess_rows, active, free_rows, iterations, residual):
         """Every active copy's BiCGSTAB preconditioned by the sparse LU of its own system matrix, kept
         across steps (``ImplicitEuler``'s "factorised" rule, per copy), one compiled call solving the
         copies one after the other (``kernels.solve_copies_lu``: a copy costs its own iterations, no
@@ -825,9 +830,10 @@ class BatchedImplicitEuler:
         a contact that imposes more dofs keeps the factor, restricted exactly to the free dofs by a
         capacitance correction (``_correct``; a SuperLU factor, or more than CAPACITANCE_MAX dofs:
         its masked inverse, a close preconditioner). One that needs more than its factor's threshold
-        is re-factorised here and continues from its iterate."""
+        is re-factorised here and continues from its iterate. The copies' vectors are rows (N, 3 n):
+        mask_rows (float), rhs_rows, guess_rows, free_rows (bool); returns the solutions (N, 3 n) and
+        writes iterations and residual (N,)."""
         count = self.stack.count
-        free_rows = free.T
         # a factor taken from the cache at the episode's start is the one this first step would make
         # on the same free dofs: its solve counts as fresh; on other free dofs (a contact at the first
         # step) the copy factorises, as it would have without the cache
@@ -851,8 +857,6 @@ class BatchedImplicitEuler:
         self._correct(np.flatnonzero(active), free_rows)
         stacked, hg_rows, hg_group = self._copies_first()
         blocks = self._hourglass_blocks()
-        mask_rows = np.ascontiguousarray(mask.T)
-        rhs_rows = np.ascontiguousarray(rhs.T)
         rows = np.zeros_like(rhs_rows)
         work = self._row_work
         solve = self._kernel("solve_copies_lu")
@@ -883,8 +887,7 @@ class BatchedImplicitEuler:
             rows[stalled] = again[stalled]
             residual[stalled] = more_residual[stalled]
             iterations += np.where(stalled, more, 0)
-        solution[:] = rows.T
-        return iterations
+        return rows
 
     def _solve_shared(self, system, mask, rhs, guess_rows, active, limit, solution, iterations, residual):
         """Solver "reference": every ``active`` copy's BiCGSTAB preconditioned by its group's factor
@@ -982,6 +985,8 @@ class BatchedImplicitEuler:
                     stiffness if implicit_volume else 0.0, stiffness if has_hourglass else 0.0)
 
         system = scales(1.0, dt, dt * dt)  # A = M + dt D + dt^2 K
+        if self.solver == "factorised":
+            return self._simulate_rows(positions, velocities, fixed, target, dt, active, x0, v0, forces, system)
         free = ~fixed.reshape(count, dofs).T
         start_velocity = last(v0, n_nodes).reshape(dofs, count)
         known = np.zeros((dofs, count))  # dv on the imposed dofs
@@ -1011,9 +1016,7 @@ class BatchedImplicitEuler:
         solution = np.empty((dofs, count))
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
-        if self.solver == "factorised":
-            self._solve_factorised(system, mask, rhs, self.warm, active, free, solution, iterations, residual)
-        elif self.solver == "reference":
+        if self.solver == "reference":
             self._solve_shared(system, mask, rhs, self.warm, active, self.first_pass, solution, iterations, residual)
         else:
             kernels.batched_solve(data, system, mask, rhs, np.ascontiguousarray(self.warm.T), active, self.tolerance,
@@ -1053,6 +1056,45 @@ class BatchedImplicitEuler:
             worst = int(np.argmax(iterations))  # one per step: a refresh costs about one batched step
             if np.all(np.isfinite(new_positions[worst])):
                 self._refresh(worst, new_positions[worst], dt, fixed[worst])
+        return new_positions, new_velocities
+
+
+    def _simulate_rows(self, positions, velocities, fixed, target, dt, active, x0, v0, forces, system):
+        """``simulate``'s step for solver "factorised", every vector a row per copy (N, 3 n) as the
+        per-copy kernels take them (the other solvers keep the copy index last): the same
+        operations in the same order, without the transposes."""
+        count, n_nodes = positions.shape[:2]
+        dofs = 3 * n_nodes
+        stack = self.stack
+        x_rows, v_rows = x0.reshape(count, dofs), v0.reshape(count, dofs)
+        target_rows = target.reshape(count, dofs)
+        imposed = fixed.reshape(count, dofs)
+        free = ~imposed
+        target_velocity = (target_rows - x_rows) / dt
+        # rhs = dt f_0 + M v0 - A (v0 + known), known = dv on the imposed dofs (ImplicitEuler's form)
+        moved = np.where(imposed, target_velocity, v_rows)
+        known = np.where(imposed, target_velocity - v_rows, 0.0)
+        stacked, hg_rows, hg_group = self._copies_first()
+        product = np.empty((count, dofs))
+        self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, moved, product, *self._hourglass_blocks())
+        if self._mass_rows is None or self._mass_rows[0] != stack.version:  # per dof, rebuilt after assign
+            self._mass_rows = (stack.version, np.repeat(stack.model.mass, 3).reshape(count, dofs))
+        rhs = dt * forces.reshape(count, dofs) + self._mass_rows[1] * v_rows - product
+        iterations = np.zeros(count, dtype=np.int64)
+        residual = np.zeros(count)
+        solution = self._solve_factorised(system, free.astype(float), rhs, self.warm, active, free, iterations,
+                                          residual)
+        self.warm = np.where(active[:, None], solution, self.warm)
+        self.last_iterations = iterations
+        new_velocities = v_rows + np.where(free, solution, known)
+        new_positions = x_rows + dt * new_velocities
+        new_velocities[imposed] = target_velocity[imposed]
+        new_positions[imposed] = target_rows[imposed]
+        new_positions = new_positions.reshape(count, n_nodes, 3)
+        new_velocities = new_velocities.reshape(count, n_nodes, 3)
+        keep = ~active
+        new_positions[keep] = positions[keep]
+        new_velocities[keep] = velocities[keep]
         return new_positions, new_velocities
 
 
