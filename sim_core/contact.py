@@ -165,12 +165,13 @@ class Probe:
             height = tip[..., 1] + self.radius - np.sqrt(np.maximum(self.radius**2 - r2, 0.0))
         return np.where(inside, height, np.inf)
 
-    def surface(self, positions, tip):
+    def surface(self, positions, tip, parallel: bool = False):
         """Height (m) that bounds each node from above, +inf where the probe is not over it:
         positions (n, 3) with tip (3,), or (N, n, 3) with tips (N, 3). Sampled at the nodes, the
         probe's lower surface over the node's (x, z); projected, the hat-weighted average over
         the node's support (around its current (x, z)) of min(probe surface, rest height), +inf
-        where the probe reaches below the rest height nowhere on the support."""
+        where the probe reaches below the rest height nowhere on the support. ``parallel``: the
+        N rows on numba's threads (the vector envs; the same floats)."""
         positions, tip = np.asarray(positions), np.asarray(tip)
         projection = self.projection
         if projection is None:
@@ -180,10 +181,9 @@ class Probe:
         reference = np.ascontiguousarray(projection.reference, dtype=float).reshape(-1, n)
         tips = np.ascontiguousarray(np.broadcast_to(tip, rows.shape[:1] + (3,)), dtype=float)
         out = np.empty(rows.shape[:2])
-        kernels.projected_probe_surfaces(np.ascontiguousarray(rows[:, :, 0]), np.ascontiguousarray(rows[:, :, 2]),
-                                         tips, projection.weights,
-                                         projection.offsets, reference, float(self.radius), float(projection.reach),
-                                         self.tip == "flat", out)
+        kernel = kernels.projected_probe_surfaces_rows if parallel else kernels.projected_probe_surfaces
+        kernel(np.ascontiguousarray(rows[:, :, 0]), np.ascontiguousarray(rows[:, :, 2]), tips, projection.weights,
+               projection.offsets, reference, float(self.radius), float(projection.reach), self.tip == "flat", out)
         return out.reshape(positions.shape[:-1])
 
 
@@ -229,10 +229,12 @@ def targets(obstacle, positions, contact, tip=None, surface=None):
     return np.where(contact & np.isfinite(surface), surface, positions[..., 1])
 
 
-def project(obstacle, positions, velocities, candidates, tip=None):
+def project(obstacle, positions, velocities, candidates, tip=None, surface=None):
     """Put the candidate nodes that went through the surface back on it (in place: y on the
-    surface, the velocity component into the obstacle removed) and return them (..., n) bool."""
-    surface = obstacle.surface(positions, tip)  # once, for the test and the projection
+    surface, the velocity component into the obstacle removed) and return them (..., n) bool.
+    ``surface``: as ``gap`` takes it."""
+    if surface is None:
+        surface = obstacle.surface(positions, tip)  # once, for the test and the projection
     through = candidates & (gap(obstacle, positions, tip, surface) < 0.0)
     if np.any(through):
         positions[..., 1] = np.where(through, surface, positions[..., 1])

@@ -338,3 +338,15 @@ def test_threaded_measurement_kernels_give_the_serial_floats():
         damped.append(workspace.add_damping(velocities, forces.copy()))
         assert np.abs(damped[-1] - forces).max() > 0  # the damping forces are not zero
     np.testing.assert_array_equal(damped[1], damped[0])
+
+
+def test_the_probe_surface_of_all_copies_on_threads_gives_the_serial_floats():
+    """Palpation's vector env computes its copies' projected probe surfaces with the copies on
+    numba's threads (``Probe.surface(parallel=True)``): the same floats as the serial pass, with the
+    probe over the tissue in some copies and away from it in others."""
+    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
+    tips = envs._tips()
+    serial = envs.probe.surface(envs.positions, tips)
+    threaded = envs.probe.surface(envs.positions, tips, parallel=True)
+    np.testing.assert_array_equal(threaded, serial)
+    assert np.isfinite(serial).any() and np.isinf(serial).any()

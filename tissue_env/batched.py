@@ -247,10 +247,9 @@ class StackedForceWorkspace(ForceWorkspace):
     one pass over ONE copy's hourglass matrix for all copies (``kernels.stacked_hourglass_subtract``,
     the copies with equal matrices sharing a column of values): the stacked CSR matrix is N times a
     copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
-    1.8x slower per copy than a single env's. Where the copies hold different matrices, each copy
-    reads its own in node blocks instead (``kernels.stacked_hourglass_subtract_blocks``: 1.08 against
-    1.70 ms for Palpation's 16 copies of 7 matrices; with one matrix the shared pass is faster, 0.41
-    against 0.63 ms at TumorPositioning's). Same forces up to rounding."""
+    1.8x slower per copy than a single env's. Where the copies hold different matrices, the pass
+    reads each in node blocks once for all its copies instead (``kernels.stacked_hourglass_subtract_groups``;
+    the copies-last CSR pass gathered one value per copy and entry). Same forces up to rounding."""
 
     def __init__(self, stack: ModelStack, implicit: bool = True, threads: int = 1):
         super().__init__(stack.model, implicit=implicit)
@@ -291,12 +290,17 @@ class StackedForceWorkspace(ForceWorkspace):
             values = stack.copies_last()
             threaded = kernels.threaded(self.threads)
             positions = np.ascontiguousarray(positions, dtype=float)
-            if values["hourglass"].shape[1] > 1:  # copies of different matrices: each its own, in node blocks
-                args = self.hourglass_blocks() + (values["hourglass_group"], positions, self.rest_positions, forces)
-                if threaded:  # a copy per thread
-                    kernels.stacked_hourglass_subtract_blocks(*args)
+            if values["hourglass"].shape[1] > 1:  # copies of different matrices: each read once, in node blocks
+                group = values["hourglass_group"]
+                order = np.argsort(group, kind="stable").astype(np.int64)
+                group_start = np.searchsorted(group[order], np.arange(values["hourglass"].shape[1] + 1))
+                indptr, indices, block_rows = self.hourglass_blocks()
+                args = (indptr, indices, block_rows, order, group_start.astype(np.int64), positions,
+                        self.rest_positions, forces)
+                if threaded:  # a block of rows per thread
+                    kernels.stacked_hourglass_subtract_groups(*args, numba.get_num_threads())
                 else:
-                    kernels.stacked_hourglass_subtract_blocks_serial(*args)
+                    kernels.stacked_hourglass_subtract_groups_serial(*args)
                 return forces
             hg_indptr, hg_indices, _ = stack.reference.hourglass_arrays
             args = (hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"], positions,

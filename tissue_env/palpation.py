@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import Material
-from sim_core import contact
+from sim_core import contact, kernels
 from sim_core.model import Control
 
 from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
@@ -621,7 +621,8 @@ class PalpationVectorEnv(TissueVectorEnv):
         # PalpationEnv._control for every copy
         count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
         forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
-        surface = self.probe.surface(positions, tips)  # once for the contact update and its targets
+        # once for the contact update and its targets, the copies on numba's threads when threaded
+        surface = self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads))
         self.contact = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips,
                                       surface=surface)
         fixed = np.repeat(self._base_fixed[None], count, axis=0)
@@ -635,8 +636,9 @@ class PalpationVectorEnv(TissueVectorEnv):
         return fixed, target, tool_mask
 
     def _batch_after_substep(self, positions, velocities, rows):
-        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None],
-                                  self._tips())
+        tips = self._tips()
+        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None], tips,
+                                  surface=self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads)))
         self.contact |= through
         self._tool_mask[..., 1] |= through
 
