@@ -1487,7 +1487,7 @@ def _block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulat
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
 def _block_ldl_solve_one(ints, values, vector, out, buffer):
     """``_block_ldl_solve`` for one right-hand side (n,) (the Krylov solves' case), its running
-    values in registers: 1.3x faster than the loop over columns."""
+    values in registers: 0.25 against 0.36 ms through the loop over columns (a Palpation copy)."""
     k = -ints[0]
     nb = ints[1]
     up = 4

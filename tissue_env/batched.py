@@ -509,8 +509,7 @@ class BatchedImplicitEuler:
         self._packed = None
         self._packed_groups = None
         self._linearised = None  # (stack version, positions) of the workspace's last force pass
-        self._mass = None  # (stack version, the copies' masses per dof (3 n, N))
-        self._mass_rows = None  # the same (N, 3 n), for solver "factorised"
+        self._mass = None  # _dof_mass: (stack version, the copies' masses per dof (N, 3 n))
         self._first = None  # _copies_first: (stack version, arrays)
         if solver == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
             self._group_work = np.empty((8, count, dofs))
@@ -693,8 +692,7 @@ class BatchedImplicitEuler:
                           self._hg_positions, reference.pattern.diagonal_positions, indices[members],
                           covers[members], node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
                           l_indices, u_indptr, u_indices, a_transpose, l_to_u, ints, self._values, a_values, work,
-                          self._lu_int,
-                          self._lu_float, ok, *self._incidence)
+                          self._lu_int, self._lu_float, ok, *self._incidence)
             for t, done in zip(members, ok):
                 index = int(indices[t])
                 if done:  # the kernel set the copy's entries of _lu_int and _lu_float
@@ -1012,10 +1010,7 @@ class BatchedImplicitEuler:
             self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, np.ascontiguousarray(moved.T), rows,
                                          *self._hourglass_blocks())
             product = rows.T
-        if self._mass is None or self._mass[0] != stack.version:  # (3 n, N) per dof, rebuilt after assign
-            self._mass = (stack.version, np.repeat(last(model.mass, n_nodes), 3, axis=0))
-        mass = self._mass[1]
-        rhs = dt * last(forces, n_nodes).reshape(dofs, count) + mass * start_velocity - product
+        rhs = dt * last(forces, n_nodes).reshape(dofs, count) + self._dof_mass().T * start_velocity - product
         mask = np.ascontiguousarray(free, dtype=float)
         solution = np.empty((dofs, count))
         iterations = np.zeros(count, dtype=np.int64)
@@ -1062,6 +1057,12 @@ class BatchedImplicitEuler:
                 self._refresh(worst, new_positions[worst], dt, fixed[worst])
         return new_positions, new_velocities
 
+    def _dof_mass(self):
+        """(N, 3 n) each copy's mass per dof, kg, kept per stack version (rebuilt after ``assign``)."""
+        stack = self.stack
+        if self._mass is None or self._mass[0] != stack.version:
+            self._mass = (stack.version, np.repeat(stack.model.mass, 3).reshape(stack.count, -1))
+        return self._mass[1]
 
     def _simulate_rows(self, positions, velocities, fixed, target, dt, active, x0, v0, forces, system):
         """``simulate``'s step for solver "factorised", every vector a row per copy (N, 3 n) as the
@@ -1069,7 +1070,6 @@ class BatchedImplicitEuler:
         operations in the same order, without the transposes."""
         count, n_nodes = positions.shape[:2]
         dofs = 3 * n_nodes
-        stack = self.stack
         x_rows, v_rows = x0.reshape(count, dofs), v0.reshape(count, dofs)
         target_rows = target.reshape(count, dofs)
         imposed = fixed.reshape(count, dofs)
@@ -1081,9 +1081,7 @@ class BatchedImplicitEuler:
         stacked, hg_rows, hg_group = self._copies_first()
         product = np.empty((count, dofs))
         self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, moved, product, *self._hourglass_blocks())
-        if self._mass_rows is None or self._mass_rows[0] != stack.version:  # per dof, rebuilt after assign
-            self._mass_rows = (stack.version, np.repeat(stack.model.mass, 3).reshape(count, dofs))
-        rhs = dt * forces.reshape(count, dofs) + self._mass_rows[1] * v_rows - product
+        rhs = dt * forces.reshape(count, dofs) + self._dof_mass() * v_rows - product
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
         solution = self._solve_factorised(system, free.astype(float), rhs, self.warm, active, free, iterations,

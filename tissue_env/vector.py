@@ -22,23 +22,22 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
 actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
-README's run): env steps per wall second, sync -> vector env, TumorPositioning 477 -> 1292 (2.6x),
-Palpation 463 -> 808 (1.7x; 2.0x at its earlier default (8, 4, 8)), Retraction 395 -> 1086 (2.8x;
-3.0x in an earlier run); on one thread (``threads=1``) the vector env does 1.8 / 1.2 / 1.9x the sync
-env's steps per CPU second. TumorPositioning's copies are
-preconditioned by one node-block LU of the start matrix that they share (solver "reference") and
-solved in lockstep chunks of 8 on numba's threads (``kernels.solve_copies_grouped``: one pass over
-the factor and the hourglass matrix for all of a chunk's running copies); Palpation's and
-Retraction's by their own node-block LUs, capacitance-corrected for their contacts (solver
+README's run): env steps per wall second, sync -> vector env, TumorPositioning 243 -> 793 (3.2x),
+Palpation 224 -> 659 (2.9x), Retraction 208 -> 1019 (4.8x); on one thread (``threads=1``) the
+vector env does 2.4 / 1.8 / 3.3x the sync env's steps per CPU second. TumorPositioning's copies are
+preconditioned by one node-block LDL^T of the start matrix's symmetric part that they share (solver
+"reference") and solved in lockstep chunks of 8 on numba's threads (``kernels.solve_copies_grouped``:
+one pass over the factor and the hourglass matrix for all of a chunk's running copies); Palpation's
+and Retraction's by their own node-block LDL^T factors, capacitance-corrected for their contacts (solver
 "factorised"), a copy per thread at a time (``kernels.solve_copies_lu``), and their factorisations
 (``kernels.factor_copies``) run on the threads too. The copies' resets (their task envs' own
 ``reset``) run on a pool of as many Python threads (``_reset_rows``; a static solve releases the GIL
 for most of its time). Every task measures with the next step's force pass (``share_force_pass``),
-the force pass reads one copy's hourglass matrix for all copies (``batched.StackedForceWorkspace``)
-and the per-copy solves read it in node blocks. What batching cannot share is each copy's own sparse
+the force pass reads each distinct hourglass matrix once for all its copies
+(``batched.StackedForceWorkspace``) and the per-copy solves read it in node blocks. What batching cannot share is each copy's own sparse
 algebra (Retraction's floor re-factorises at about two steps in three) and TumorPositioning's resets
-(a static solve for the goal, the same code in both modes: about 40% of its vector env's wall time
-on 2 threads, where 16 resets run 1.5x faster than on one).
+(a static solve for the goal, the same code in both modes: 34-36% of its vector env's CPU time in
+the README's run).
 """
 
 from __future__ import annotations
