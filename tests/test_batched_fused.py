@@ -43,7 +43,8 @@ def test_fused_factorisations_equal_the_per_copy_factors():
     assert integrator.factorisations == before + count
     for index, factor in enumerate(factors):
         ints, floats = expected[index]
-        assert factor.ints[0] < 0  # node-block LUs
+        assert factor.ints[0] < 0  # node-block factors
+        assert factor.ints[2] == 0  # the LDL^T of the symmetric part (batched.SYMMETRIC_FACTOR): no L stored
         assert np.array_equal(factor.ints, ints)
         # the same assembly and elimination (the compiler may contract or reorder the compiled
         # elimination's floating-point operations differently inside the fused kernel: rounding)
