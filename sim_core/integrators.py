@@ -54,6 +54,18 @@ def _impose(control: Control, state_in: State, positions: np.ndarray, velocities
         positions[fixed] = control.target[fixed]
 
 
+_LEFT_REGION = "a node left the region of 10 block sizes around the rest mesh"
+_INVERTED = "inverted element (non-positive corner Jacobian)"
+
+
+def _too_fast(speed: float, max_speed: float) -> str:
+    return f"node speed {speed:.3g} m/s exceeds {max_speed:.3g} m/s (100x the elastic wave speed)"
+
+
+def _oscillation(steps: int) -> str:
+    return f"growing step-to-step oscillation for {steps} steps (the time step is beyond the stability limit)"
+
+
 class DivergenceMonitor:
     """Detects a diverging simulation and says why.
 
@@ -95,15 +107,14 @@ class DivergenceMonitor:
         if not finite:
             return "non-finite positions or velocities"
         if speed > self.max_speed:
-            return f"node speed {speed:.3g} m/s exceeds {self.max_speed:.3g} m/s (100x the elastic wave speed)"
+            return _too_fast(speed, self.max_speed)
         if not inside:
-            return "a node left the region of 10 block sizes around the rest mesh"
+            return _LEFT_REGION
         if self._oscillation_grows(velocities):
-            return (f"growing step-to-step oscillation for {self.oscillation_steps} steps (the time step is beyond "
-                    f"the stability limit)")
+            return _oscillation(self.oscillation_steps)
         if force_inversion_check or self.count % self.inversion_every == 0:
             if kernels.any_inverted(positions, self.model.mesh.elements, CORNER_NEIGHBOURS, CORNER_SIGN):
-                return "inverted element (non-positive corner Jacobian)"
+                return _INVERTED
         return None
 
 
@@ -118,6 +129,86 @@ class DivergenceMonitor:
         self._growing = self._growing + 1 if reversing and new > old and fast else 0
         np.copyto(previous, velocities)  # the next check's previous step, without a new array
         return self._growing >= self.oscillation_steps
+
+
+class DivergenceMonitors:
+    """``DivergenceMonitor`` for the N copies of a batched simulation (``tissue_env.vector``): the
+    same checks, thresholds and messages per copy, one compiled pass over all copies per step
+    (``kernels.health_copies``) instead of N Python calls. The oscillation test's sums are plain
+    sequential sums (``np.vdot``'s rounding may differ in the last bits). ``assign`` a copy's model
+    (with its reset: the copy's history starts again), then ``check`` consecutive states."""
+
+    def __init__(self, count: int, n_nodes: int, elements: np.ndarray, threads: int = 1):
+        self.count = int(count)
+        #: the copies on numba's threads when ``kernels.threaded(threads)``
+        self.threads = int(threads)
+        self.elements = np.ascontiguousarray(elements, dtype=np.int64)
+        self.max_speed = np.zeros(count)
+        self.wave_speed = np.zeros(count)
+        self.low = np.zeros((count, 3))
+        self.high = np.zeros((count, 3))
+        self.checks = np.zeros(count, dtype=np.int64)
+        self.growing = np.zeros(count, dtype=np.int64)
+        self.previous = np.zeros((count, n_nodes, 3))
+        self.has_previous = np.zeros(count, dtype=bool)
+        self.inversion_every = np.ones(count, dtype=np.int64)
+        self.oscillation_steps = np.zeros(count, dtype=np.int64)
+        self.oscillation_floor = np.zeros(count)
+
+    def assign(self, index: int, model: Model, **kwargs):
+        """Copy ``index`` now simulates ``model``, from a fresh history (``DivergenceMonitor``'s
+        keywords)."""
+        single = DivergenceMonitor(model, **kwargs)
+        if single.model.mesh.elements.shape != self.elements.shape:
+            raise ValueError(f"copy {index}'s model has {len(model.mesh.elements)} elements; the copies share "
+                             f"{len(self.elements)}")
+        self.max_speed[index], self.wave_speed[index] = single.max_speed, single.wave_speed
+        self.low[index], self.high[index] = single.low, single.high
+        self.inversion_every[index] = single.inversion_every
+        self.oscillation_steps[index] = single.oscillation_steps
+        self.oscillation_floor[index] = single.oscillation_floor
+        self.checks[index] = self.growing[index] = 0
+        self.has_previous[index] = False
+
+    def check(self, positions: np.ndarray, velocities: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``DivergenceMonitor.check`` of every copy in ``rows`` (N,) bool for the new positions (m) and
+        velocities (m/s) (N, n, 3): (N,) object array of reasons, None where healthy (and for the
+        other copies, whose history is left as it is)."""
+        rows = np.asarray(rows, dtype=bool)
+        positions = np.ascontiguousarray(positions, dtype=float)
+        velocities = np.ascontiguousarray(velocities, dtype=float)
+        self.checks += rows
+        due = rows & (self.checks % self.inversion_every == 0)
+        had_previous = self.has_previous.copy()
+        status = np.zeros(self.count, dtype=np.int64)
+        speed = np.zeros(self.count)
+        dots = np.zeros((self.count, 3))
+        kernel = kernels.health_copies if kernels.threaded(self.threads) else kernels.health_copies_serial
+        kernel(positions, velocities, rows, self.low, self.high, self.max_speed, self.previous, self.has_previous, due,
+               CORNER_NEIGHBOURS, CORNER_SIGN, self.elements, status, speed, dots)
+        healthy = rows & (status != 1) & (status != 2) & (status != 3)
+        self.has_previous |= healthy
+        compared = healthy & had_previous
+        new, old, cross = dots.T
+        with np.errstate(invalid="ignore"):
+            reversing = cross < -0.5 * np.sqrt(new * old)
+        fast = new > positions.shape[1] * (self.oscillation_floor * self.wave_speed) ** 2
+        grows = compared & reversing & (new > old) & fast
+        self.growing = np.where(compared, np.where(grows, self.growing + 1, 0), self.growing)
+        oscillating = compared & (self.growing >= self.oscillation_steps)
+        reasons = np.full(self.count, None, dtype=object)
+        for index in np.flatnonzero(rows & ((status != 0) | oscillating)):
+            if status[index] == 1:
+                reasons[index] = "non-finite positions or velocities"
+            elif status[index] == 2:
+                reasons[index] = _too_fast(speed[index], self.max_speed[index])
+            elif status[index] == 3:
+                reasons[index] = _LEFT_REGION
+            elif oscillating[index]:
+                reasons[index] = _oscillation(self.oscillation_steps[index])
+            else:
+                reasons[index] = _INVERTED
+        return reasons
 
 
 class SymplecticEuler:
@@ -590,30 +681,40 @@ class InverseColumns:
 
     def __init__(self, ints, floats, n_dofs: int):
         self.ints, self.floats, self.n_dofs = ints, floats, int(n_dofs)
-        self._columns: dict = {}  # dof -> its column of B (n_dofs,)
+        self._slot = np.full(self.n_dofs, -1, dtype=np.int64)  # dof -> its row of _rows, -1: not kept
+        self._rows = np.empty((0, self.n_dofs))  # the kept columns of B as rows, grown as needed
+        self._kept = 0
 
-    def missing(self, dofs) -> list:
-        """The dofs of ``dofs`` whose columns are not kept (all of them, the kept ones forgotten,
-        when keeping them would pass CAPACITANCE_CACHE): what ``columns`` solves, for a caller
-        that solves them itself (``store``)."""
-        dofs = [int(d) for d in dofs]
-        missing = [d for d in dofs if d not in self._columns]
-        if missing and len(self._columns) + len(missing) > CAPACITANCE_CACHE:
-            self._columns.clear()
+    def missing(self, dofs) -> np.ndarray:
+        """The dofs of ``dofs`` (int64 array) whose columns are not kept (all of them, the kept ones
+        forgotten, when keeping them would pass CAPACITANCE_CACHE): what ``columns`` solves, for a
+        caller that solves them itself (``store``)."""
+        dofs = np.asarray(dofs, dtype=np.int64)
+        missing = dofs[self._slot[dofs] < 0]
+        if missing.size and self._kept + missing.size > CAPACITANCE_CACHE:
+            self._slot[:] = -1
+            self._kept = 0
             missing = dofs
         return missing
 
     def store(self, dofs, columns: np.ndarray):
-        """Keep the columns (len(dofs), n_dofs) of B for ``dofs``, solved by the caller."""
-        for index, dof in enumerate(dofs):
-            self._columns[int(dof)] = columns[index]
+        """Keep the columns (len(dofs), n_dofs) of B for ``dofs`` (not kept yet), solved by the
+        caller."""
+        dofs = np.asarray(dofs, dtype=np.int64)
+        end = self._kept + len(dofs)
+        if end > len(self._rows):
+            rows = np.empty((max(end, min(2 * len(self._rows), CAPACITANCE_CACHE), 16), self.n_dofs))
+            rows[:self._kept] = self._rows[:self._kept]
+            self._rows = rows
+        self._rows[self._kept:end] = columns
+        self._slot[dofs] = np.arange(self._kept, end)
+        self._kept = end
 
     def columns(self, dofs) -> np.ndarray:
         """(n_dofs, len(dofs)) the columns ``dofs`` of B (zero on the dofs the factor does not
-        hold, and on those it decouples)."""
+        hold, and on those it decouples), C-contiguous."""
         missing = self.missing(dofs)
-        dofs = [int(d) for d in dofs]
-        if missing:
+        if missing.size:
             count = len(missing)
             rhs = np.zeros((self.n_dofs, count))
             rhs[missing, np.arange(count)] = 1.0
@@ -621,9 +722,12 @@ class InverseColumns:
             k = -int(self.ints[0])
             kernels._block_lu_solve(self.ints, self.floats, rhs, out, np.arange(count, dtype=np.int64), count,
                                     np.empty((k, count)), np.empty((3, count)))
-            for index, dof in enumerate(missing):
-                self._columns[dof] = out[:, index].copy()
-        return np.stack([self._columns[d] for d in dofs], axis=1) if dofs else np.zeros((self.n_dofs, 0))
+            self.store(missing, out.T)
+        return np.ascontiguousarray(self.rows(dofs).T)
+
+    def rows(self, dofs) -> np.ndarray:
+        """(len(dofs), n_dofs) the kept columns ``dofs`` of B as rows (all must be kept: ``missing``)."""
+        return self._rows[self._slot[np.asarray(dofs, dtype=np.int64)]]
 
     def correction(self, imposed: np.ndarray):
         """W = B[:, c] (B[c, c])^-1 (n_dofs, k) C-contiguous for the dofs c = ``imposed`` (k,), free
@@ -632,7 +736,7 @@ class InverseColumns:
         (``kernels._corrected_lu_apply``). None where B[c, c] is singular."""
         z = self.columns(imposed)
         try:
-            return kernels.serial_product(np.ascontiguousarray(z), np.linalg.inv(z[imposed]))
+            return kernels.serial_product(z, np.linalg.inv(z[imposed]))
         except np.linalg.LinAlgError:
             return None
 

@@ -2836,18 +2836,293 @@ def threaded(threads: int) -> bool:
     return threads > 1 and not FORKED[0]
 
 
+#: GNU OpenMP's spin count for numba's idle threads (``start_threads``): they spin about 0.8 ms
+#: after a parallel region (measured: 0.84-0.96 ms of CPU per pause of 20-200 ms; 0.15-0.21 ms
+#: sleeping at once, OMP_WAIT_POLICY=PASSIVE; 6-7 ms with libgomp's default of 300000), long enough
+#: to bridge the Python between a step's parallel kernels, short enough that a pause (a policy
+#: update) finds them asleep
+SPIN_COUNT = 30000
+
+
 def start_threads():
     """Start numba's thread pool (the parallel kernels: ``factor_copies``, ``solve_copies_lu``) with
-    waiting threads that sleep rather than spin: with numba's OpenMP layer, GNU OpenMP reads
-    ``OMP_WAIT_POLICY`` once, when it loads, and by default its idle threads spin between parallel
-    regions (the vector envs at N = 16 then used 2.0 CPU s per wall second on
-    2 cores, against 1.4-1.6 with PASSIVE at the same wall time). The variable is set for the load
-    only, and only when the user has not set it; a pool already started is left as it is."""
-    unset = "OMP_WAIT_POLICY" not in os.environ
+    idle threads that spin briefly, then sleep. With numba's OpenMP layer, GNU OpenMP reads
+    ``OMP_WAIT_POLICY`` and ``GOMP_SPINCOUNT`` once, when it loads. A thread woken from sleep costs
+    about 70-80 us per parallel region here (an empty region: 2.5 us with spinning threads), and a
+    vector env step runs a dozen regions: Palpation's vector env at N = 16 ran 674-704 env steps/s
+    with sleeping threads (PASSIVE), 754-765 with SPIN_COUNT (TumorPositioning 813 -> 857,
+    Retraction 1033 -> 1145), at 2-8% less work per CPU second; libgomp's default spin count gave
+    771-778 and kept a core busy for 7 ms after every region. ``GOMP_SPINCOUNT`` is set for the load
+    only, and only when the user has set neither variable; a pool already started is left as it is."""
+    unset = "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ
     if unset:
-        os.environ["OMP_WAIT_POLICY"] = "PASSIVE"
+        os.environ["GOMP_SPINCOUNT"] = str(SPIN_COUNT)
     try:
         _touch_threads(np.empty(4))
     finally:
         if unset:
-            os.environ.pop("OMP_WAIT_POLICY", None)
+            os.environ.pop("GOMP_SPINCOUNT", None)
+
+
+# -- the batched implicit step's per-dof glue (tissue_env.batched / tissue_env.vector) ------------------
+# Elementwise passes over (N, 3 n) rows that numpy made one temporary array each: the same IEEE
+# operations in the same order per element (no fastmath), so the same floats, in one pass, the rows
+# on numba's threads (the ``_serial`` twins: one thread, a forked process).
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rows_start(x, v, target, imposed, dt, target_velocity, moved, c):
+    for i in range(x.shape[1]):
+        velocity = (target[c, i] - x[c, i]) / dt
+        target_velocity[c, i] = velocity
+        moved[c, i] = velocity if imposed[c, i] else v[c, i]
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def implicit_rows_start(x, v, target, imposed, dt, target_velocity, moved):
+    """The implicit step's start per dof of the rows (N, 3 n): target_velocity = (target - x) / dt
+    m/s, and moved = v + the imposed velocity change: the target velocity on the ``imposed`` dofs,
+    v elsewhere."""
+    for c in prange(x.shape[0]):
+        _rows_start(x, v, target, imposed, dt, target_velocity, moved, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def implicit_rows_start_serial(x, v, target, imposed, dt, target_velocity, moved):
+    """``implicit_rows_start`` in this thread only."""
+    for c in range(x.shape[0]):
+        _rows_start(x, v, target, imposed, dt, target_velocity, moved, c)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rows_rhs(forces, mass, v, product, dt, rhs, c):
+    for i in range(v.shape[1]):
+        rhs[c, i] = dt * forces[c, i] + mass[c, i] * v[c, i] - product[c, i]
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def implicit_rows_rhs(forces, mass, v, product, dt, rhs):
+    """rhs = dt f + M v - product per dof of the rows (N, 3 n) (N s, kg m/s)."""
+    for c in prange(v.shape[0]):
+        _rows_rhs(forces, mass, v, product, dt, rhs, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def implicit_rows_rhs_serial(forces, mass, v, product, dt, rhs):
+    """``implicit_rows_rhs`` in this thread only."""
+    for c in range(v.shape[0]):
+        _rows_rhs(forces, mass, v, product, dt, rhs, c)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _rows_update(x, v, solution, imposed, target, target_velocity, dt, active, positions, velocities, new_x,
+                 new_v, c):
+    if not active[c]:
+        for i in range(x.shape[1]):
+            new_x[c, i] = positions[c, i]
+            new_v[c, i] = velocities[c, i]
+        return
+    for i in range(x.shape[1]):
+        if imposed[c, i]:
+            new_x[c, i] = target[c, i]
+            new_v[c, i] = target_velocity[c, i]
+        else:
+            velocity = v[c, i] + solution[c, i]
+            new_v[c, i] = velocity
+            new_x[c, i] = x[c, i] + dt * velocity
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def implicit_rows_update(x, v, solution, imposed, target, target_velocity, dt, active, positions, velocities,
+                         new_x, new_v):
+    """The implicit step's end per dof of the rows (N, 3 n): v' = v + dv (dv the ``solution``) and
+    x' = x + dt v' on the free dofs, ``target`` and ``target_velocity`` on the ``imposed`` ones; an
+    inactive row keeps ``positions`` and ``velocities`` (N, 3 n)."""
+    for c in prange(x.shape[0]):
+        _rows_update(x, v, solution, imposed, target, target_velocity, dt, active, positions, velocities, new_x,
+                     new_v, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def implicit_rows_update_serial(x, v, solution, imposed, target, target_velocity, dt, active, positions, velocities,
+                                new_x, new_v):
+    """``implicit_rows_update`` in this thread only."""
+    for c in range(x.shape[0]):
+        _rows_update(x, v, solution, imposed, target, target_velocity, dt, active, positions, velocities, new_x,
+                     new_v, c)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _strain_row(length, rest_length, strain, collapsed, c):
+    largest = 0.0
+    undefined = False
+    short = False
+    for s in range(length.shape[1]):
+        ratio = abs(length[c, s] / rest_length[c, s] - 1.0)
+        if ratio != ratio:
+            undefined = True
+        elif ratio > largest:
+            largest = ratio
+        if not length[c, s] > 1e-6 * rest_length[c, s]:
+            short = True
+    strain[c] = np.nan if undefined else largest
+    collapsed[c] = short
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def strain_extremes(length, rest_length, strain, collapsed):
+    """Per row of spring lengths (N, S) m against ``rest_length`` (N, S): strain[c] = max |L / L0 - 1|
+    (NaN where a ratio is NaN, as numpy's max) and collapsed[c] = not all L > 1e-6 L0 (a NaN length
+    counts as collapsed, as numpy's comparison)."""
+    for c in prange(length.shape[0]):
+        _strain_row(length, rest_length, strain, collapsed, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def strain_extremes_serial(length, rest_length, strain, collapsed):
+    """``strain_extremes`` in this thread only."""
+    for c in range(length.shape[0]):
+        _strain_row(length, rest_length, strain, collapsed, c)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def masked_reaction(forces, mask, out):
+    """out[c] = -sum over nodes of ``forces[c]`` (N, n, 3) N where ``mask`` (N, n, 3) holds: the tool's
+    reaction per copy, summed node after node as numpy's sum over axis 1."""
+    for c in range(forces.shape[0]):
+        for k in range(3):
+            out[c, k] = -forces[c, 0, k] if mask[c, 0, k] else 0.0
+        for node in range(1, forces.shape[1]):
+            for k in range(3):
+                out[c, k] += -forces[c, node, k] if mask[c, node, k] else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _health_copy(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours, signs,
+                 elements, status, speed, dots, c):
+    status[c] = 0
+    if not rows[c]:
+        return
+    finite, fastest, inside = health(positions[c], velocities[c], low[c], high[c])
+    speed[c] = fastest
+    if not finite:
+        status[c] = 1
+        return
+    if fastest > max_speed[c]:
+        status[c] = 2
+        return
+    if not inside:
+        status[c] = 3
+        return
+    if has_previous[c]:
+        new = 0.0
+        old = 0.0
+        cross = 0.0
+        for node in range(velocities.shape[1]):
+            for k in range(3):
+                v = velocities[c, node, k]
+                p = previous[c, node, k]
+                new += v * v
+                old += p * p
+                cross += v * p
+        dots[c, 0], dots[c, 1], dots[c, 2] = new, old, cross
+    for node in range(velocities.shape[1]):
+        for k in range(3):
+            previous[c, node, k] = velocities[c, node, k]
+    if due[c] and any_inverted(positions[c], elements, neighbours, signs):
+        status[c] = 4
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def health_copies(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
+                  signs, elements, status, speed, dots):
+    """``integrators.DivergenceMonitor.check``'s tests for the copies ``rows`` (N,) bool of positions
+    and velocities (N, n, 3), in its order: status[c] = 1 non-finite, 2 a node faster than
+    ``max_speed[c]`` m/s (speed[c] its speed), 3 a node outside [low[c], high[c]] (N, 3) m, else 0
+    with the oscillation test's sums dots[c] = (v.v, p.p, v.p) (p = ``previous[c]``, the copy's last
+    checked velocities, where ``has_previous[c]``; then ``previous[c]`` = v, ``has_previous[c]``
+    set), and where ``due[c]`` 4 an inverted element (``any_inverted`` on ``elements``): the
+    Python side applies the oscillation rule first (``DivergenceMonitors.check``)."""
+    for c in prange(positions.shape[0]):
+        _health_copy(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
+                     signs, elements, status, speed, dots, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def health_copies_serial(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
+                         signs, elements, status, speed, dots):
+    """``health_copies`` in this thread only."""
+    for c in range(positions.shape[0]):
+        _health_copy(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
+                     signs, elements, status, speed, dots, c)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _capacitance_task(columns, indptr, imposed, out, ok, t):
+    """``capacitance_corrections``' task ``t``: Gauss-Jordan inverse of C with partial pivoting, then
+    W = Z C^-1 into its slice of ``out``."""
+    first, last = indptr[t], indptr[t + 1]
+    k = last - first
+    n = columns.shape[1]
+    system = np.empty((k, k))
+    inverse = np.zeros((k, k))
+    for a in range(k):
+        for b in range(k):
+            system[a, b] = columns[first + b, imposed[first + a]]
+        inverse[a, a] = 1.0
+    scale = 0.0
+    for a in range(k):
+        for b in range(k):
+            scale = max(scale, abs(system[a, b]))
+    for col in range(k):
+        pivot = col
+        for a in range(col + 1, k):
+            if abs(system[a, col]) > abs(system[pivot, col]):
+                pivot = a
+        if not abs(system[pivot, col]) > 1e-14 * scale:  # singular to working precision (or NaN)
+            ok[t] = False
+            return
+        if pivot != col:
+            for b in range(k):
+                system[col, b], system[pivot, b] = system[pivot, b], system[col, b]
+                inverse[col, b], inverse[pivot, b] = inverse[pivot, b], inverse[col, b]
+        factor = 1.0 / system[col, col]
+        for b in range(k):
+            system[col, b] *= factor
+            inverse[col, b] *= factor
+        for a in range(k):
+            if a != col:
+                multiple = system[a, col]
+                if multiple != 0.0:
+                    for b in range(k):
+                        system[a, b] -= multiple * system[col, b]
+                        inverse[a, b] -= multiple * inverse[col, b]
+    base = n * first
+    for i in range(n):
+        for j in range(k):
+            out[base + i * k + j] = 0.0
+    for q in range(k):
+        for i in range(n):
+            value = columns[first + q, i]
+            if value != 0.0:
+                for j in range(k):
+                    out[base + i * k + j] += value * inverse[q, j]
+    ok[t] = True
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def capacitance_corrections(columns, indptr, imposed, out, ok):
+    """Several capacitance corrections W = Z (Z[c])^-1 at once (``integrators.InverseColumns.correction``,
+    the batched vector envs' ``_correct``): task t's columns of the inverse are the rows
+    ``columns[indptr[t]:indptr[t + 1]]`` (k_t, 3 n) (Z^T), for its imposed dofs
+    ``imposed[indptr[t]:indptr[t + 1]]`` (c); its W (3 n, k_t) C-order goes to
+    ``out[3 n indptr[t]:3 n indptr[t + 1]]``. ok[t] False where Z[c] is singular to working
+    precision (pivot below 1e-14 of its largest entry). The tasks on numba's threads."""
+    for t in prange(indptr.shape[0] - 1):
+        _capacitance_task(columns, indptr, imposed, out, ok, np.int64(t))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def capacitance_corrections_serial(columns, indptr, imposed, out, ok):
+    """``capacitance_corrections`` in this thread only (one thread, a forked process)."""
+    for t in range(indptr.shape[0] - 1):
+        _capacitance_task(columns, indptr, imposed, out, ok, t)

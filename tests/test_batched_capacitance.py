@@ -89,3 +89,63 @@ def test_the_copies_inverse_columns_equal_each_factors_own():
         own = InverseColumns(integrator._lu_int[t], integrator._lu_float[t], n_dofs).columns(picked)
         np.testing.assert_array_equal(threaded[indptr[t]:indptr[t + 1]], own.T)
         assert np.all(threaded[indptr[t]:indptr[t + 1]][:, ~np.isin(np.arange(n_dofs), free)] == 0.0)
+
+
+def _factorised_copies(count=3):
+    """A factorised BatchedImplicitEuler after one step of TumorPositioning's 5^3 block (bottom
+    fixed), with its free dofs."""
+    model, bottom, _ = tumor_block((5, 5, 5), 0.01)
+    stack = ModelStack(model, count)
+    positions = np.repeat(model.mesh.nodes[None], count, axis=0)
+    fixed = np.zeros(positions.shape, dtype=bool)
+    fixed[:, bottom] = True
+    integrator = BatchedImplicitEuler(stack, tolerance=1e-8, solver="factorised")
+    integrator.simulate(positions, np.zeros_like(positions), fixed, positions, 0.04, np.ones(count, dtype=bool))
+    return integrator, np.flatnonzero(~fixed[0].ravel()), 3 * model.n_nodes
+
+
+def test_the_batched_corrections_equal_each_factors_own():
+    """``kernels.capacitance_corrections`` (all copies' W = Z (Z[c])^-1 in one call, Gauss-Jordan with
+    partial pivoting) equals ``InverseColumns.correction`` (numpy's inverse) to 1e-10 of |W|, threaded
+    and serial alike (bitwise), for 1 to 40 imposed dofs; a singular Z[c] (a dof twice) is reported
+    (ok False), not returned as NaN or huge values."""
+    from sim_core import kernels
+    from sim_core.integrators import InverseColumns
+    integrator, free, n_dofs = _factorised_copies()
+    rng = np.random.default_rng(5)
+    picks = [np.sort(rng.choice(free, size, replace=False)) for size in (1, 7, 40)]
+    picks.append(np.array([free[2], free[2], free[9]]))  # singular: two equal columns
+    inverses = [InverseColumns(integrator._lu_int[t % 3], integrator._lu_float[t % 3], n_dofs) for t in range(4)]
+    columns = np.concatenate([inverse.columns(picked).T for inverse, picked in zip(inverses, picks)])
+    indptr = np.cumsum([0] + [len(picked) for picked in picks]).astype(np.int64)
+    flat = np.concatenate(picks).astype(np.int64)
+    threaded, serial = np.full(n_dofs * indptr[-1], np.nan), np.full(n_dofs * indptr[-1], np.nan)
+    ok_threaded, ok_serial = np.zeros(4, dtype=bool), np.zeros(4, dtype=bool)
+    kernels.capacitance_corrections(columns, indptr, flat, threaded, ok_threaded)
+    kernels.capacitance_corrections_serial(columns, indptr, flat, serial, ok_serial)
+    assert ok_threaded.tolist() == ok_serial.tolist() == [True, True, True, False]
+    np.testing.assert_array_equal(threaded[:n_dofs * indptr[3]], serial[:n_dofs * indptr[3]])
+    for t in range(3):
+        w = threaded[n_dofs * indptr[t]:n_dofs * indptr[t + 1]].reshape(n_dofs, -1)
+        reference = inverses[t].correction(picks[t])
+        np.testing.assert_allclose(w, reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+        np.testing.assert_allclose(w[picks[t]], np.eye(len(picks[t])), rtol=0, atol=1e-10)  # W[c] = I
+
+
+def test_the_kept_columns_of_the_inverse_are_the_solved_ones_and_forgotten_past_the_cache():
+    """``InverseColumns`` keeps solved columns in one array: asked again (in another order, mixed with
+    new ones) it returns the floats a fresh solve gives, and it forgets them all when keeping the
+    new ones would pass CAPACITANCE_CACHE."""
+    from sim_core import integrators
+    from sim_core.integrators import InverseColumns
+    integrator, free, n_dofs = _factorised_copies(1)
+    ints, floats = integrator._lu_int[0], integrator._lu_float[0]
+    kept = InverseColumns(ints, floats, n_dofs)
+    first, second = free[[5, 1, 30]], free[[30, 2, 5, 77]]
+    kept.columns(first)
+    assert kept.missing(second).tolist() == free[[2, 77]].tolist()
+    np.testing.assert_array_equal(kept.columns(second), InverseColumns(ints, floats, n_dofs).columns(second))
+    limit = integrators.CAPACITANCE_CACHE
+    many = free[100:100 + limit - 4]
+    assert kept.missing(many).tolist() == many.tolist()  # 5 kept + 508 > 512: everything again
+    np.testing.assert_array_equal(kept.columns(many)[:, :3], InverseColumns(ints, floats, n_dofs).columns(many[:3]))

@@ -351,3 +351,49 @@ def test_the_probe_surface_of_all_copies_on_threads_gives_the_serial_floats():
     threaded = envs.probe.surface(envs.positions, tips, parallel=True)
     np.testing.assert_array_equal(threaded, serial)
     assert np.isfinite(serial).any() and np.isinf(serial).any()
+
+
+def test_the_step_glue_kernels_give_numpys_floats():
+    """The batched implicit step's per-dof passes (``kernels.implicit_rows_start``, ``_rhs``,
+    ``_update``) and the vector envs' strain / collapse and tool reaction passes give the floats of
+    the numpy expressions they replaced, bit for bit, threaded and serial; NaN lengths give NaN
+    strain and count as collapsed, as numpy's max and comparison do; inactive rows keep their state."""
+    from sim_core import kernels
+    rng = np.random.default_rng(11)
+    count, dofs, dt = 5, 27, 0.04
+    x, v, target, forces, mass, product, solution, old_x, old_v = rng.normal(size=(9, count, dofs))
+    imposed = rng.random((count, dofs)) < 0.3
+    active = np.array([True, True, False, True, True])
+    target_velocity = (target - x) / dt
+    moved = np.where(imposed, target_velocity, v)
+    rhs = dt * forces + mass * v - product
+    known = np.where(imposed, target_velocity - v, 0.0)
+    new_v = v + np.where(~imposed, solution, known)
+    new_x = x + dt * new_v
+    new_v[imposed], new_x[imposed] = target_velocity[imposed], target[imposed]
+    new_x[~active], new_v[~active] = old_x[~active], old_v[~active]
+    for suffix in ("", "_serial"):
+        got = np.empty((4, count, dofs))
+        getattr(kernels, "implicit_rows_start" + suffix)(x, v, target, imposed, dt, got[0], got[1])
+        getattr(kernels, "implicit_rows_rhs" + suffix)(forces, mass, v, product, dt, got[2])
+        np.testing.assert_array_equal(got[0], target_velocity)
+        np.testing.assert_array_equal(got[1], moved)
+        np.testing.assert_array_equal(got[2], rhs)
+        out_x, out_v = np.empty((count, dofs)), np.empty((count, dofs))
+        getattr(kernels, "implicit_rows_update" + suffix)(x, v, solution, imposed, target, target_velocity, dt, active,
+                                                          old_x, old_v, out_x, out_v)
+        np.testing.assert_array_equal(out_x, new_x)
+        np.testing.assert_array_equal(out_v, new_v)
+    length, rest = rng.uniform(0.5, 1.5, (2, count, 40))
+    length[1, 3], length[2, 7], length[4, 0] = np.nan, 0.0, 1e-9 * rest[4, 0]
+    for suffix in ("", "_serial"):
+        strain, collapsed = np.empty(count), np.empty(count, dtype=bool)
+        getattr(kernels, "strain_extremes" + suffix)(length, rest, strain, collapsed)
+        np.testing.assert_array_equal(strain, np.max(np.abs(length / rest - 1.0), axis=1))
+        np.testing.assert_array_equal(collapsed, ~np.all(length > 1e-6 * rest, axis=1))
+    assert collapsed.tolist() == [False, True, True, False, True]
+    node_forces = rng.normal(size=(count, 30, 3)) * np.exp(3 * rng.normal(size=(count, 30, 3)))
+    mask = rng.random((count, 30, 3)) < 0.4
+    reaction = np.empty((count, 3))
+    kernels.masked_reaction(node_forces, mask, reaction)
+    np.testing.assert_array_equal(reaction, np.where(mask, -node_forces, 0.0).sum(axis=1))

@@ -408,17 +408,22 @@ def test_invalid_threads(threads):
 
 
 def test_starting_the_threads_leaves_the_environment_as_it_was(monkeypatch):
-    """``kernels.start_threads`` sets OMP_WAIT_POLICY=PASSIVE only while numba's pool loads: the
-    variable is absent afterwards when it was absent, and a user's own value is kept."""
+    """``kernels.start_threads`` sets GOMP_SPINCOUNT only while numba's pool loads: the variable is
+    absent afterwards when it was absent, and a user's own wait policy or spin count is kept."""
     import os
 
     from sim_core import kernels
     monkeypatch.delenv("OMP_WAIT_POLICY", raising=False)
+    monkeypatch.delenv("GOMP_SPINCOUNT", raising=False)
     kernels.start_threads()
-    assert "OMP_WAIT_POLICY" not in os.environ
+    assert "GOMP_SPINCOUNT" not in os.environ and "OMP_WAIT_POLICY" not in os.environ
     monkeypatch.setenv("OMP_WAIT_POLICY", "ACTIVE")
     kernels.start_threads()
-    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE"
+    assert os.environ["OMP_WAIT_POLICY"] == "ACTIVE" and "GOMP_SPINCOUNT" not in os.environ
+    monkeypatch.delenv("OMP_WAIT_POLICY")
+    monkeypatch.setenv("GOMP_SPINCOUNT", "5")
+    kernels.start_threads()
+    assert os.environ["GOMP_SPINCOUNT"] == "5" and "OMP_WAIT_POLICY" not in os.environ
 
 
 def _forked_run(queue):

@@ -6,6 +6,7 @@ import pytest
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.forces import external_forces, internal_forces, stiffness_data
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, make_integrator, run, stable_time_step
+from sim_core.model import State
 
 
 def finite_difference_stiffness(model, positions, step=1e-7):
@@ -214,6 +215,51 @@ def test_divergence_monitor_reasons():
     assert "speed" in monitor.check(fast)
     far = State(rest.positions + [100.0, 0, 0], rest.velocities)
     assert "left the region" in monitor.check(far)
+
+
+def test_the_copies_monitor_gives_each_copys_own_monitor_reasons():
+    """``DivergenceMonitors`` (one compiled pass for N copies, the vector envs') gives, step by step,
+    the reasons of N ``DivergenceMonitor``s fed the same states, threaded and serial alike: a quiet
+    copy, one whose velocity field flips sign and grows (caught after 20 steps), one that leaves the
+    region, one with a NaN, one too fast, one with an element pushed inside out (caught at the 10th
+    check), and a copy skipped on some steps (its history untouched). A copy whose check failed is
+    assigned again, as the vector env resets it."""
+    from sim_core.integrators import DivergenceMonitor, DivergenceMonitors
+
+    model = build_model(HexMesh.block((2, 2, 2), 0.1), Material(1e4, 0.3, 1000))
+    count, rest, n = 6, model.rest_positions, model.n_nodes
+    rng = np.random.default_rng(2)
+    pattern = rng.standard_normal((n, 3))
+    batched = [DivergenceMonitors(count, n, model.mesh.elements, threads=threads) for threads in (1, 2)]
+    singles = [DivergenceMonitor(model) for _ in range(count)]
+    for monitors in batched:
+        for index in range(count):
+            monitors.assign(index, model)
+    seen = set()
+    for step in range(45):
+        positions = np.repeat(rest[None], count, axis=0) + 1e-4 * rng.standard_normal((count, n, 3))
+        velocities = 1e-3 * rng.standard_normal((count, n, 3))
+        velocities[1] = 0.05 * (-1.2) ** (step % 30) * pattern  # a growing step-to-step oscillation
+        if step == 12:
+            positions[2] += [100.0, 0, 0]
+        if step == 7:
+            velocities[3, 4, 1] = np.nan
+        if step == 17:
+            velocities[4, 0] = [1e4, 0, 0]
+        if step >= 3:
+            positions[5, model.mesh.node_index(1, 1, 1)] = [0.05, 0.05, -0.3]
+        rows = np.ones(count, dtype=bool)
+        rows[0] = step % 3 != 1
+        expected = [singles[i].check(State(positions[i], velocities[i])) if rows[i] else None for i in range(count)]
+        for monitors in batched:
+            assert list(monitors.check(positions, velocities, rows)) == expected, step
+        for index, reason in enumerate(expected):
+            if reason is not None:
+                seen.add(reason.split()[0])
+                singles[index] = DivergenceMonitor(model)
+                for monitors in batched:
+                    monitors.assign(index, model)
+    assert seen == {"growing", "a", "non-finite", "node", "inverted"}
 
 
 def test_closed_form_hexahedron_volume_matches_gauss():

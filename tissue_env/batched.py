@@ -79,7 +79,7 @@ from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import (ForceWorkspace, forget_hourglass_blocks, hourglass_block_map, internal_forces,
                              stiffness_data)
-from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, DivergenceMonitor, InverseColumns, SymplecticEuler,
+from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, InverseColumns, SymplecticEuler,
                                   _FreeStructure, free_structure, node_block_factor)
 from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure, symmetric_structure
 from sim_core.model import Control, Model, State
@@ -424,11 +424,14 @@ class _CopyFactor:
         singular. Kept per imposed set (8 per factor)."""
         key = imposed.tobytes()
         if key not in self._corrections:
-            correction = self.inverse(n_dofs).correction(imposed)
-            if len(self._corrections) >= 8:
-                self._corrections.clear()
-            self._corrections[key] = None if correction is None else (correction, imposed)
+            self.keep_correction(imposed, self.inverse(n_dofs).correction(imposed))
         return self._corrections[key]
+
+    def keep_correction(self, imposed: np.ndarray, correction):
+        """Keep W (or None: singular) as the correction for ``imposed`` (8 per factor)."""
+        if len(self._corrections) >= 8:
+            self._corrections.clear()
+        self._corrections[imposed.tobytes()] = None if correction is None else (correction, imposed)
 
 
 def _edge_incidence(model: Model):
@@ -751,6 +754,7 @@ class BatchedImplicitEuler:
                 self._correction_of[index] = self._no_correction
                 self._corrections[index], self._imposed[index] = self._no_correction
         self._inverse_columns(wanted, dofs)
+        self._form_corrections(wanted, dofs)
         for index, factor, imposed in wanted:
             entry = factor.correction(imposed, dofs) or self._no_correction
             if self._correction_of[index] is not entry:
@@ -768,18 +772,40 @@ class BatchedImplicitEuler:
                 continue
             inverse = factor.inverse(dofs)
             missing = inverse.missing(imposed)
-            if missing:
+            if missing.size:
                 tasks.append((index, inverse, missing))
         if not tasks:
             return
         copies = np.array([index for index, _, _ in tasks], dtype=np.int64)
         indptr = np.zeros(len(tasks) + 1, dtype=np.int64)
         np.cumsum([len(missing) for _, _, missing in tasks], out=indptr[1:])
-        flat = np.concatenate([missing for _, _, missing in tasks]).astype(np.int64)
+        flat = np.concatenate([missing for _, _, missing in tasks])
         out = np.zeros((len(flat), dofs))
         self._kernel("inverse_columns_copies")(self._lu_int, self._lu_float, copies, indptr, flat, out)
         for t, (_, inverse, missing) in enumerate(tasks):
             inverse.store(missing, out[indptr[t]:indptr[t + 1]])
+
+    def _form_corrections(self, wanted, dofs):
+        """Form the corrections W that ``wanted`` ([(copy, factor, imposed dofs)], their columns of the
+        inverse kept) need and their factors do not keep yet, all in one compiled call on numba's
+        threads (``kernels.capacitance_corrections``), and keep them in their factors."""
+        tasks = {}
+        for _, factor, imposed in wanted:
+            if not factor.has_correction(imposed):
+                tasks.setdefault((id(factor), imposed.tobytes()), (factor, imposed))
+        if not tasks:
+            return
+        tasks = list(tasks.values())
+        indptr = np.zeros(len(tasks) + 1, dtype=np.int64)
+        np.cumsum([len(imposed) for _, imposed in tasks], out=indptr[1:])
+        columns = np.concatenate([factor.inverse(dofs).rows(imposed) for factor, imposed in tasks])
+        flat = np.concatenate([imposed for _, imposed in tasks]).astype(np.int64)
+        out = np.empty(dofs * indptr[-1])
+        ok = np.zeros(len(tasks), dtype=bool)
+        self._kernel("capacitance_corrections")(columns, indptr, flat, out, ok)
+        for t, (factor, imposed) in enumerate(tasks):
+            correction = out[dofs * indptr[t]:dofs * indptr[t + 1]].reshape(dofs, -1) if ok[t] else None
+            factor.keep_correction(imposed, correction)
 
     def _scalar_factor(self, values, free):
         """SuperLU's scalar factor of the system matrix (pattern ``values``) on the ``free`` dofs, for
@@ -1074,29 +1100,25 @@ class BatchedImplicitEuler:
         target_rows = target.reshape(count, dofs)
         imposed = fixed.reshape(count, dofs)
         free = ~imposed
-        target_velocity = (target_rows - x_rows) / dt
         # rhs = dt f_0 + M v0 - A (v0 + known), known = dv on the imposed dofs (ImplicitEuler's form)
-        moved = np.where(imposed, target_velocity, v_rows)
-        known = np.where(imposed, target_velocity - v_rows, 0.0)
+        target_velocity, moved = np.empty((count, dofs)), np.empty((count, dofs))
+        self._kernel("implicit_rows_start")(x_rows, v_rows, target_rows, imposed, dt, target_velocity, moved)
         stacked, hg_rows, hg_group = self._copies_first()
         product = np.empty((count, dofs))
         self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, moved, product, *self._hourglass_blocks())
-        rhs = dt * forces.reshape(count, dofs) + self._dof_mass() * v_rows - product
+        rhs = np.empty((count, dofs))
+        self._kernel("implicit_rows_rhs")(forces.reshape(count, dofs), self._dof_mass(), v_rows, product, dt, rhs)
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
         solution = self._solve_factorised(system, free.astype(float), rhs, self.warm, active, free, iterations,
                                           residual)
         self.warm = np.where(active[:, None], solution, self.warm)
         self.last_iterations = iterations
-        new_velocities = v_rows + np.where(free, solution, known)
-        new_positions = x_rows + dt * new_velocities
-        new_velocities[imposed] = target_velocity[imposed]
-        new_positions[imposed] = target_rows[imposed]
-        new_positions = new_positions.reshape(count, n_nodes, 3)
-        new_velocities = new_velocities.reshape(count, n_nodes, 3)
-        keep = ~active
-        new_positions[keep] = positions[keep]
-        new_velocities[keep] = velocities[keep]
+        # v' = v0 + dv (the solution on free dofs), x' = x0 + dt v'; the imposed dofs at their targets
+        new_positions, new_velocities = np.empty((count, n_nodes, 3)), np.empty((count, n_nodes, 3))
+        self._kernel("implicit_rows_update")(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
+                                             positions.reshape(count, dofs), velocities.reshape(count, dofs),
+                                             new_positions.reshape(count, dofs), new_velocities.reshape(count, dofs))
         return new_positions, new_velocities
 
 
@@ -1135,8 +1157,3 @@ def make_batched_integrator(name: str, stack: ModelStack, tolerance: float, solv
         return BatchedSymplecticEuler(stack)
     raise ValueError(f"the batched vector env steps integrator 'implicit' or 'explicit', got {name!r}; "
                      "for 'static' use gym.make_vec(..., vectorization_mode='sync') or 'async'")
-
-
-def new_monitor(model: Model) -> DivergenceMonitor:
-    """The divergence monitor sim_core's integrators use, for one copy."""
-    return DivergenceMonitor(model)

@@ -54,10 +54,11 @@ from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
 from sim_core import kernels
+from sim_core.integrators import DivergenceMonitors
 from sim_core.model import State
 
 from .base import observation_arrays
-from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator, new_monitor
+from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator
 
 
 #: the vector envs whose reset pool has threads: stopped before a fork (CPython's threading failed in
@@ -76,7 +77,7 @@ os.register_at_fork(before=_stop_reset_pools)
 
 def _thread_count(threads) -> int:
     """The vector env's thread count (see ``TissueVectorEnv``), checked; starts numba's pool with
-    sleeping idle threads (``kernels.start_threads``) when it uses more than one (one thread, and a
+    briefly spinning idle threads (``kernels.start_threads``) when it uses more than one (one thread, and a
     forked process, use the serial kernels and never start it)."""
     available = numba.config.NUMBA_NUM_THREADS
     if threads is None:
@@ -165,7 +166,7 @@ class TissueVectorEnv(VectorEnv):
         self.workspace_high = np.zeros((count, 3))
         self.rest_volume = np.ones(count)
         self.elapsed = np.zeros(count, dtype=int)
-        self.monitors = [None] * count
+        self.monitors = DivergenceMonitors(count, self.n_nodes, env.mesh.elements, threads=self.threads)
         self._autoreset = np.zeros(count, dtype=bool)
         self._pool = None  # the reset threads (``_reset_rows``), started at the first threaded reset
         self._started = False
@@ -224,7 +225,7 @@ class TissueVectorEnv(VectorEnv):
         self.velocities[index] = env.state.velocities
         self._lengths[index] = self._spring_lengths(self.positions)[index]
         self.integrator.prepare(index, env.model, env.state.positions, env.dt, env.control.fixed)
-        self.monitors[index] = new_monitor(env.model)
+        self.monitors.assign(index, env.model)
         self.tool_offset[index] = env.tool_offset
         self.workspace_low[index] = env.workspace_low
         self.workspace_high[index] = env.workspace_high
@@ -380,17 +381,13 @@ class TissueVectorEnv(VectorEnv):
                 for index in np.flatnonzero(running):
                     reasons[index] = f"physics error: {error}"
                 break
-            finite = np.all(np.isfinite(new_positions), axis=(1, 2)) & np.all(np.isfinite(new_velocities), axis=(1, 2))
-            for index in np.flatnonzero(running):
-                reason = self.monitors[index].check(State(new_positions[index], new_velocities[index]))
-                if reason is None and not finite[index]:
-                    reason = "non-finite positions or velocities"
-                reasons[index] = reason
+            # each copy's DivergenceMonitor checks, non-finite positions or velocities first
+            reasons[running] = self.monitors.check(new_positions, new_velocities, running)[running]
             healthy = running & np.array([reason is None for reason in reasons])
             self._batch_after_substep(new_positions, new_velocities, healthy)
             with np.errstate(all="ignore"):
                 length = self._spring_lengths(new_positions)
-                collapsed = ~np.all(length > 1e-6 * self.rest_length, axis=1)
+                collapsed = self._strain(length)[1]
             length[~running] = self._lengths[~running]
             for index in np.flatnonzero(healthy & collapsed):
                 reasons[index] = "collapsed spring (zero length)"
@@ -415,6 +412,14 @@ class TissueVectorEnv(VectorEnv):
             kernels.spring_lengths(flat, springs, length)
         return length.reshape(self.num_envs, -1)
 
+    def _strain(self, length):
+        """(max |L / L0 - 1| (N,), whether a spring collapsed, L <= 1e-6 L0 (N,) bool) of the spring
+        lengths (N, S) m, in one compiled pass."""
+        strain, collapsed = np.empty(self.num_envs), np.empty(self.num_envs, dtype=bool)
+        kernel = kernels.strain_extremes if kernels.threaded(self.threads) else kernels.strain_extremes_serial
+        kernel(length, self.rest_length, strain, collapsed)
+        return strain, collapsed
+
     # -- measurements, observation, info -------------------------------------------------------------
     def _measure(self, tool_mask):
         """``TissueEnv._measure`` of every row."""
@@ -432,8 +437,9 @@ class TissueVectorEnv(VectorEnv):
                 forces = self._forces.compute(flat, flat_velocities)
             forces = forces + model.gravity_force
             forces = forces.reshape(count, -1, 3)
-            reaction = np.where(tool_mask, -forces, 0.0).sum(axis=1)
-            strain = np.max(np.abs(self._lengths / self.rest_length - 1.0), axis=1)
+            reaction = np.empty((count, 3))
+            kernels.masked_reaction(forces, tool_mask, reaction)
+            strain = self._strain(self._lengths)[0]
             # exact trilinear volumes of the stacked model's elements (HexMesh.element_volumes)
             elements = model.mesh.elements
             arguments = (flat, elements, np.empty(len(elements)))
