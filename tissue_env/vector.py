@@ -22,9 +22,10 @@ counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
 Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
 actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
-README's run): env steps per wall second, sync -> vector env, TumorPositioning 243 -> 793 (3.2x),
-Palpation 224 -> 659 (2.9x), Retraction 208 -> 1019 (4.8x); on one thread (``threads=1``) the
-vector env does 2.4 / 1.8 / 3.3x the sync env's steps per CPU second. TumorPositioning's copies are
+README's run): env steps per wall second, sync -> vector env, TumorPositioning 243 -> 875 (3.6x),
+Palpation 228 -> 764 (3.4x), Retraction 207 -> 1082 (5.0x); on one thread (``threads=1``) the
+vector env does 2.5 / 1.8 / 3.3x the sync env's steps per CPU second. numba's idle threads spin
+about 0.8 ms between parallel regions before they sleep (``kernels.start_threads``). TumorPositioning's copies are
 preconditioned by one node-block LDL^T of the start matrix's symmetric part that they share (solver
 "reference") and solved in lockstep chunks of 8 on numba's threads (``kernels.solve_copies_grouped``:
 one pass over the factor and the hourglass matrix for all of a chunk's running copies); Palpation's
