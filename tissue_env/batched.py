@@ -1116,9 +1116,10 @@ class BatchedImplicitEuler:
         self.last_iterations = iterations
         # v' = v0 + dv (the solution on free dofs), x' = x0 + dt v'; the imposed dofs at their targets
         new_positions, new_velocities = np.empty((count, n_nodes, 3)), np.empty((count, n_nodes, 3))
-        self._kernel("implicit_rows_update")(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
-                                             positions.reshape(count, dofs), velocities.reshape(count, dofs),
-                                             new_positions.reshape(count, dofs), new_velocities.reshape(count, dofs))
+        update = self._kernel("implicit_rows_update")
+        update(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
+               positions.reshape(count, dofs), velocities.reshape(count, dofs), new_positions.reshape(count, dofs),
+               new_velocities.reshape(count, dofs))
         return new_positions, new_velocities
 
 

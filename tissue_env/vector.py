@@ -25,8 +25,9 @@ actions, registered episode lengths, medians of 3 interleaved rounds on a shared
 README's run): env steps per wall second, sync -> vector env, TumorPositioning 243 -> 875 (3.6x),
 Palpation 228 -> 764 (3.4x), Retraction 207 -> 1082 (5.0x); on one thread (``threads=1``) the
 vector env does 2.5 / 1.8 / 3.3x the sync env's steps per CPU second. numba's idle threads spin
-about 0.8 ms between parallel regions before they sleep (``kernels.start_threads``). TumorPositioning's copies are
-preconditioned by one node-block LDL^T of the start matrix's symmetric part that they share (solver
+about 0.8 ms between parallel regions before they sleep (``kernels.start_threads``).
+TumorPositioning's copies are preconditioned by one node-block LDL^T of the start matrix's
+symmetric part that they share (solver
 "reference") and solved in lockstep chunks of 8 on numba's threads (``kernels.solve_copies_grouped``:
 one pass over the factor and the hourglass matrix for all of a chunk's running copies); Palpation's
 and Retraction's by their own node-block LDL^T factors, capacitance-corrected for their contacts (solver
@@ -78,8 +79,8 @@ os.register_at_fork(before=_stop_reset_pools)
 
 def _thread_count(threads) -> int:
     """The vector env's thread count (see ``TissueVectorEnv``), checked; starts numba's pool with
-    briefly spinning idle threads (``kernels.start_threads``) when it uses more than one (one thread, and a
-    forked process, use the serial kernels and never start it)."""
+    briefly spinning idle threads (``kernels.start_threads``) when it uses more than one (one
+    thread, and a forked process, use the serial kernels and never start it)."""
     available = numba.config.NUMBA_NUM_THREADS
     if threads is None:
         threads = available
