@@ -86,56 +86,31 @@ class DivergenceMonitor:
     def __init__(self, model: Model, speed_factor: float = 100.0, extent_factor: float = 10.0,
                  inversion_every: int = 10, oscillation_steps: int = 20, oscillation_floor: float = 1e-4):
         self.model = model
-        self.max_speed = speed_factor * float(np.sqrt(np.max(model.young_modulus / model.density)))
-        rest = model.rest_positions
-        size = float(np.max(rest.max(axis=0) - rest.min(axis=0)))
-        self.low = rest.min(axis=0) - extent_factor * size
-        self.high = rest.max(axis=0) + extent_factor * size
-        self.inversion_every = max(int(inversion_every), 1)
-        self.count = 0
-        self.wave_speed = self.max_speed / speed_factor
-        self.oscillation_steps = int(oscillation_steps)
-        self.oscillation_floor = float(oscillation_floor)
-        self._previous = None
-        self._growing = 0
+        #: one copy of the batched monitor: the checks are written once, for both
+        self._copies = DivergenceMonitors(1, model.n_nodes, model.mesh.elements)
+        self._copies.assign(0, model, speed_factor=speed_factor, extent_factor=extent_factor,
+                            inversion_every=inversion_every, oscillation_steps=oscillation_steps,
+                            oscillation_floor=oscillation_floor)
+
+    @property
+    def count(self) -> int:
+        """The checks made so far."""
+        return int(self._copies.checks[0])
 
     def check(self, state: State, force_inversion_check: bool = False) -> str | None:
-        self.count += 1
-        positions = np.ascontiguousarray(state.positions, dtype=float)
-        velocities = np.ascontiguousarray(state.velocities, dtype=float)
-        finite, speed, inside = kernels.health(positions, velocities, self.low, self.high)
-        if not finite:
-            return "non-finite positions or velocities"
-        if speed > self.max_speed:
-            return _too_fast(speed, self.max_speed)
-        if not inside:
-            return _LEFT_REGION
-        if self._oscillation_grows(velocities):
-            return _oscillation(self.oscillation_steps)
-        if force_inversion_check or self.count % self.inversion_every == 0:
-            if kernels.any_inverted(positions, self.model.mesh.elements, CORNER_NEIGHBOURS, CORNER_SIGN):
-                return _INVERTED
-        return None
+        """The reason the state ``state`` (the next of this trajectory's) diverges, or None."""
+        positions, velocities = np.asarray(state.positions), np.asarray(state.velocities)
+        return self._copies.check(positions[None], velocities[None], _ONE, force_inversion_check)[0]
 
 
-    def _oscillation_grows(self, velocities) -> bool:
-        previous = self._previous
-        if previous is None or previous.shape != velocities.shape:
-            self._previous = velocities.copy()
-            return False
-        new, old = float(np.vdot(velocities, velocities)), float(np.vdot(previous, previous))
-        reversing = float(np.vdot(velocities, previous)) < -0.5 * np.sqrt(new * old)
-        fast = new > len(velocities) * (self.oscillation_floor * self.wave_speed) ** 2
-        self._growing = self._growing + 1 if reversing and new > old and fast else 0
-        np.copyto(previous, velocities)  # the next check's previous step, without a new array
-        return self._growing >= self.oscillation_steps
+#: the rows argument of a one-copy ``DivergenceMonitors.check``
+_ONE = np.ones(1, dtype=bool)
 
 
 class DivergenceMonitors:
-    """``DivergenceMonitor`` for the N copies of a batched simulation (``tissue_env.vector``): the
-    same checks, thresholds and messages per copy, one compiled pass over all copies per step
-    (``kernels.health_copies``) instead of N Python calls. The oscillation test's sums are plain
-    sequential sums (``np.vdot``'s rounding may differ in the last bits). ``assign`` a copy's model
+    """``DivergenceMonitor``'s checks for the N copies of a batched simulation (``tissue_env.vector``;
+    ``DivergenceMonitor`` is its one-copy case): the same thresholds and messages per copy, one
+    compiled pass over all copies per check (``kernels.health_copies``). ``assign`` a copy's model
     (with its reset: the copy's history starts again), then ``check`` consecutive states."""
 
     def __init__(self, count: int, n_nodes: int, elements: np.ndarray, threads: int = 1):
@@ -144,7 +119,8 @@ class DivergenceMonitors:
         self.threads = int(threads)
         self.elements = np.ascontiguousarray(elements, dtype=np.int64)
         self.max_speed = np.zeros(count)
-        self.wave_speed = np.zeros(count)
+        #: an oscillation counts above this RMS node speed, m/s (oscillation_floor x the wave speed)
+        self.floor_speed = np.zeros(count)
         self.low = np.zeros((count, 3))
         self.high = np.zeros((count, 3))
         self.checks = np.zeros(count, dtype=np.int64)
@@ -153,61 +129,53 @@ class DivergenceMonitors:
         self.has_previous = np.zeros(count, dtype=bool)
         self.inversion_every = np.ones(count, dtype=np.int64)
         self.oscillation_steps = np.zeros(count, dtype=np.int64)
-        self.oscillation_floor = np.zeros(count)
 
-    def assign(self, index: int, model: Model, **kwargs):
+    def assign(self, index: int, model: Model, speed_factor: float = 100.0, extent_factor: float = 10.0,
+               inversion_every: int = 10, oscillation_steps: int = 20, oscillation_floor: float = 1e-4):
         """Copy ``index`` now simulates ``model``, from a fresh history (``DivergenceMonitor``'s
         keywords)."""
-        single = DivergenceMonitor(model, **kwargs)
-        if single.model.mesh.elements.shape != self.elements.shape:
-            raise ValueError(f"copy {index}'s model has {len(model.mesh.elements)} elements; the copies share "
-                             f"{len(self.elements)}")
-        self.max_speed[index], self.wave_speed[index] = single.max_speed, single.wave_speed
-        self.low[index], self.high[index] = single.low, single.high
-        self.inversion_every[index] = single.inversion_every
-        self.oscillation_steps[index] = single.oscillation_steps
-        self.oscillation_floor[index] = single.oscillation_floor
+        if model.mesh.elements.shape != self.elements.shape or model.n_nodes != self.previous.shape[1]:
+            raise ValueError(f"copy {index}'s model has {model.n_nodes} nodes and {len(model.mesh.elements)} "
+                             f"elements; the copies share {self.previous.shape[1]} and {len(self.elements)}")
+        wave_speed = float(np.sqrt(np.max(model.young_modulus / model.density)))
+        self.max_speed[index] = speed_factor * wave_speed
+        self.floor_speed[index] = float(oscillation_floor) * wave_speed
+        rest = model.rest_positions
+        size = float(np.max(rest.max(axis=0) - rest.min(axis=0)))
+        self.low[index] = rest.min(axis=0) - extent_factor * size
+        self.high[index] = rest.max(axis=0) + extent_factor * size
+        self.inversion_every[index] = max(int(inversion_every), 1)
+        self.oscillation_steps[index] = int(oscillation_steps)
         self.checks[index] = self.growing[index] = 0
         self.has_previous[index] = False
 
-    def check(self, positions: np.ndarray, velocities: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    def check(self, positions: np.ndarray, velocities: np.ndarray, rows: np.ndarray,
+              force_inversion_check: bool = False) -> np.ndarray:
         """``DivergenceMonitor.check`` of every copy in ``rows`` (N,) bool for the new positions (m) and
         velocities (m/s) (N, n, 3): (N,) object array of reasons, None where healthy (and for the
         other copies, whose history is left as it is)."""
         rows = np.asarray(rows, dtype=bool)
         positions = np.ascontiguousarray(positions, dtype=float)
         velocities = np.ascontiguousarray(velocities, dtype=float)
+        if positions.shape != self.previous.shape or velocities.shape != self.previous.shape:
+            raise ValueError(f"positions and velocities must have shape {self.previous.shape}, got "
+                             f"{positions.shape} and {velocities.shape}")
         self.checks += rows
-        due = rows & (self.checks % self.inversion_every == 0)
-        had_previous = self.has_previous.copy()
-        status = np.zeros(self.count, dtype=np.int64)
+        due = rows & ((self.checks % self.inversion_every == 0) | force_inversion_check)
+        status = np.empty(self.count, dtype=np.int64)
         speed = np.zeros(self.count)
-        dots = np.zeros((self.count, 3))
         kernel = kernels.health_copies if kernels.threaded(self.threads) else kernels.health_copies_serial
-        kernel(positions, velocities, rows, self.low, self.high, self.max_speed, self.previous, self.has_previous, due,
-               CORNER_NEIGHBOURS, CORNER_SIGN, self.elements, status, speed, dots)
-        healthy = rows & (status != 1) & (status != 2) & (status != 3)
-        self.has_previous |= healthy
-        compared = healthy & had_previous
-        new, old, cross = dots.T
-        with np.errstate(invalid="ignore"):
-            reversing = cross < -0.5 * np.sqrt(new * old)
-        fast = new > positions.shape[1] * (self.oscillation_floor * self.wave_speed) ** 2
-        grows = compared & reversing & (new > old) & fast
-        self.growing = np.where(compared, np.where(grows, self.growing + 1, 0), self.growing)
-        oscillating = compared & (self.growing >= self.oscillation_steps)
+        kernel(positions, velocities, rows, self.low, self.high, self.max_speed, self.floor_speed,
+               self.oscillation_steps, self.previous, self.has_previous, self.growing, due, CORNER_NEIGHBOURS,
+               CORNER_SIGN, self.elements, status, speed)
         reasons = np.full(self.count, None, dtype=object)
-        for index in np.flatnonzero(rows & ((status != 0) | oscillating)):
-            if status[index] == 1:
-                reasons[index] = "non-finite positions or velocities"
-            elif status[index] == 2:
-                reasons[index] = _too_fast(speed[index], self.max_speed[index])
-            elif status[index] == 3:
-                reasons[index] = _LEFT_REGION
-            elif oscillating[index]:
-                reasons[index] = _oscillation(self.oscillation_steps[index])
-            else:
-                reasons[index] = _INVERTED
+        for index in np.flatnonzero(status):
+            kind = status[index]
+            reasons[index] = ("non-finite positions or velocities" if kind == 1
+                              else _too_fast(speed[index], self.max_speed[index]) if kind == 2
+                              else _LEFT_REGION if kind == 3
+                              else _INVERTED if kind == 4
+                              else _oscillation(self.oscillation_steps[index]))
         return reasons
 
 

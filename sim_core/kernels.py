@@ -2997,8 +2997,8 @@ def masked_reaction(forces, mask, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _health_copy(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours, signs,
-                 elements, status, speed, dots, c):
+def _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                 has_previous, growing, due, neighbours, signs, elements, status, speed, c):
     status[c] = 0
     if not rows[c]:
         return
@@ -3013,7 +3013,7 @@ def _health_copy(positions, velocities, rows, low, high, max_speed, previous, ha
     if not inside:
         status[c] = 3
         return
-    if has_previous[c]:
+    if has_previous[c]:  # the oscillation test against the last checked velocities
         new = 0.0
         old = 0.0
         cross = 0.0
@@ -3024,36 +3024,42 @@ def _health_copy(positions, velocities, rows, low, high, max_speed, previous, ha
                 new += v * v
                 old += p * p
                 cross += v * p
-        dots[c, 0], dots[c, 1], dots[c, 2] = new, old, cross
+        reversing = cross < -0.5 * np.sqrt(new * old)
+        fast = new > velocities.shape[1] * floor_speed[c] ** 2
+        growing[c] = growing[c] + 1 if reversing and new > old and fast else 0
+    has_previous[c] = True
     for node in range(velocities.shape[1]):
         for k in range(3):
             previous[c, node, k] = velocities[c, node, k]
-    if due[c] and any_inverted(positions[c], elements, neighbours, signs):
+    if growing[c] >= oscillation_steps[c]:
+        status[c] = 5
+    elif due[c] and any_inverted(positions[c], elements, neighbours, signs):
         status[c] = 4
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def health_copies(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
-                  signs, elements, status, speed, dots):
-    """``integrators.DivergenceMonitor.check``'s tests for the copies ``rows`` (N,) bool of positions
-    and velocities (N, n, 3), in its order: status[c] = 1 non-finite, 2 a node faster than
-    ``max_speed[c]`` m/s (speed[c] its speed), 3 a node outside [low[c], high[c]] (N, 3) m, else 0
-    with the oscillation test's sums dots[c] = (v.v, p.p, v.p) (p = ``previous[c]``, the copy's last
-    checked velocities, where ``has_previous[c]``; then ``previous[c]`` = v, ``has_previous[c]``
-    set), and where ``due[c]`` 4 an inverted element (``any_inverted`` on ``elements``): the
-    Python side applies the oscillation rule first (``DivergenceMonitors.check``)."""
+def health_copies(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                  has_previous, growing, due, neighbours, signs, elements, status, speed):
+    """``integrators.DivergenceMonitors.check``'s tests for the copies ``rows`` (N,) bool of positions
+    and velocities (N, n, 3), in this order: status[c] = 1 non-finite, 2 a node faster than
+    ``max_speed[c]`` m/s (speed[c] its speed), 3 a node outside [low[c], high[c]] (N, 3) m; else the
+    oscillation test against ``previous[c]`` (the copy's last checked velocities, where
+    ``has_previous[c]``; then set to these): ``growing[c]`` counts the consecutive checks whose
+    velocity field reverses (cosine below -0.5) and grows with v.v > n ``floor_speed[c]``^2, and
+    reaching ``oscillation_steps[c]`` gives 5; else, where ``due[c]``, 4 for an inverted element
+    (``any_inverted`` on ``elements``); 0 healthy."""
     for c in prange(positions.shape[0]):
-        _health_copy(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
-                     signs, elements, status, speed, dots, np.int64(c))
+        _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                     has_previous, growing, due, neighbours, signs, elements, status, speed, np.int64(c))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def health_copies_serial(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
-                         signs, elements, status, speed, dots):
+def health_copies_serial(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                         has_previous, growing, due, neighbours, signs, elements, status, speed):
     """``health_copies`` in this thread only."""
     for c in range(positions.shape[0]):
-        _health_copy(positions, velocities, rows, low, high, max_speed, previous, has_previous, due, neighbours,
-                     signs, elements, status, speed, dots, c)
+        _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                     has_previous, growing, due, neighbours, signs, elements, status, speed, c)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -219,7 +219,8 @@ def test_divergence_monitor_reasons():
 
 def test_the_copies_monitor_gives_each_copys_own_monitor_reasons():
     """``DivergenceMonitors`` (one compiled pass for N copies, the vector envs') gives, step by step,
-    the reasons of N ``DivergenceMonitor``s fed the same states, threaded and serial alike: a quiet
+    the reasons of N ``DivergenceMonitor``s (its one-copy case) fed the same states, so a copy's
+    checks do not depend on the other copies, threaded and serial alike: a quiet
     copy, one whose velocity field flips sign and grows (caught after 20 steps), one that leaves the
     region, one with a NaN, one too fast, one with an element pushed inside out (caught at the 10th
     check), and a copy skipped on some steps (its history untouched). A copy whose check failed is
