@@ -695,7 +695,10 @@ class InverseColumns:
 
     def rows(self, dofs) -> np.ndarray:
         """(len(dofs), n_dofs) the kept columns ``dofs`` of B as rows (all must be kept: ``missing``)."""
-        return self._rows[self._slot[np.asarray(dofs, dtype=np.int64)]]
+        slots = self._slot[np.asarray(dofs, dtype=np.int64)]
+        if np.any(slots < 0):
+            raise KeyError(f"columns of dofs {np.asarray(dofs)[slots < 0].tolist()} are not kept: solve them first")
+        return self._rows[slots]
 
     def correction(self, imposed: np.ndarray):
         """W = B[:, c] (B[c, c])^-1 (n_dofs, k) C-contiguous for the dofs c = ``imposed`` (k,), free

@@ -3,6 +3,7 @@ node-block LU when a contact imposes more dofs, and restricts it exactly to the 
 capacitance correction (``_CopyFactor.correction``, ``kernels._corrected_lu_apply``)."""
 
 import numpy as np
+import pytest
 
 from sim_core.bench import tumor_block
 from tissue_env.batched import BatchedImplicitEuler, ModelStack
@@ -149,3 +150,27 @@ def test_the_kept_columns_of_the_inverse_are_the_solved_ones_and_forgotten_past_
     many = free[100:100 + limit - 4]
     assert kept.missing(many).tolist() == many.tolist()  # 5 kept + 508 > 512: everything again
     np.testing.assert_array_equal(kept.columns(many)[:, :3], InverseColumns(ints, floats, n_dofs).columns(many[:3]))
+
+
+def test_copies_sharing_a_factor_ask_its_inverse_once_for_all_their_dofs(monkeypatch):
+    """Two copies with one factor (episodes that start alike share it) need columns of its inverse
+    that together overflow the kept columns: their union is solved at once, and both corrections
+    equal a fresh ``InverseColumns.correction`` (asked one after the other, the second request
+    forgot the columns the first counted on). Asking ``rows`` for columns not kept is an error,
+    not another dof's column."""
+    from sim_core import integrators
+    from sim_core.integrators import InverseColumns
+    monkeypatch.setattr(integrators, "CAPACITANCE_CACHE", 8)
+    integrator, free, n_dofs = _factorised_copies(1)
+    factor = integrator._factors[0]
+    first, second = free[:6], free[10:15]
+    factor.inverse(n_dofs).columns(first)  # kept from an earlier step
+    wanted = [(0, factor, first), (0, factor, second)]
+    integrator._inverse_columns(wanted, n_dofs)
+    integrator._form_corrections(wanted, n_dofs)
+    for imposed in (first, second):
+        w, _ = factor.correction(imposed, n_dofs)
+        reference = InverseColumns(factor.ints, factor.floats, n_dofs).correction(imposed)
+        np.testing.assert_allclose(w, reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+    with pytest.raises(KeyError, match="not kept"):
+        InverseColumns(factor.ints, factor.floats, n_dofs).rows(first)

@@ -765,13 +765,17 @@ class BatchedImplicitEuler:
         """Solve the columns of the inverse that the corrections ``wanted`` ([(copy, factor, imposed
         dofs)]) need and their factors do not keep yet, all copies in one compiled call on numba's
         threads (``kernels.inverse_columns_copies``: each copy's columns together, as
-        ``InverseColumns.columns`` solves them), and keep them."""
-        tasks = []
+        ``InverseColumns.columns`` solves them), and keep them. Copies that share a factor ask its
+        inverse once, for the union of their dofs (asked one after the other, a later request that
+        overflows the kept columns would forget those an earlier one counted on)."""
+        needed = {}  # id(inverse) -> (a copy with that factor, the inverse, its copies' imposed dofs)
         for index, factor, imposed in wanted:
-            if factor.has_correction(imposed):
-                continue
-            inverse = factor.inverse(dofs)
-            missing = inverse.missing(imposed)
+            if not factor.has_correction(imposed):
+                inverse = factor.inverse(dofs)
+                needed.setdefault(id(inverse), (index, inverse, []))[2].append(imposed)
+        tasks = []
+        for index, inverse, imposed in needed.values():
+            missing = inverse.missing(imposed[0] if len(imposed) == 1 else np.unique(np.concatenate(imposed)))
             if missing.size:
                 tasks.append((index, inverse, missing))
         if not tasks:
