@@ -1010,76 +1010,72 @@ class BatchedImplicitEuler:
         # one fused pass over the stacked model: forces without damping, clamped geometric stiffness,
         # volume terms
         forces = self.linearise(x0) + model.gravity_force
-        last = functools.partial(_copies_last, count)
 
         def scales(mass, damping, stiffness):  # (mass, damping, stiffness, coupling, volume, hourglass)
             return (float(mass), float(damping), float(stiffness), stiffness if coupled else 0.0,
                     stiffness if implicit_volume else 0.0, stiffness if has_hourglass else 0.0)
 
         system = scales(1.0, dt, dt * dt)  # A = M + dt D + dt^2 K
-        if self.solver == "factorised":
-            return self._simulate_rows(positions, velocities, fixed, target, dt, active, x0, v0, forces, system)
-        free = ~fixed.reshape(count, dofs).T
-        start_velocity = last(v0, n_nodes).reshape(dofs, count)
-        known = np.zeros((dofs, count))  # dv on the imposed dofs
-        moved = start_velocity.copy()  # v0 + known
-        if not free.all():
-            imposed = ~free
-            target_velocity = last((target.reshape(-1, 3) - x0) / dt, n_nodes).reshape(dofs, count)
-            known[imposed] = (target_velocity - start_velocity)[imposed]
-            moved[imposed] = target_velocity[imposed]
-        # rhs = dt f(x0, v0) - dt^2 K v0 - A known = dt f_0 + M v0 - A (v0 + known), f_0 without
-        # damping (ImplicitEuler's form): one operator product
+        # every vector a row per copy (N, 3 n), as the per-copy kernels take them; the lockstep
+        # solvers ("reference", "jacobi") take the copy index last (transposed for them)
+        x_rows, v_rows = x0.reshape(count, dofs), v0.reshape(count, dofs)
+        target_rows = target.reshape(count, dofs)
+        imposed = fixed.reshape(count, dofs)
+        free = ~imposed
+        # rhs = dt f(x0, v0) - dt^2 K v0 - A known = dt f_0 + M v0 - A (v0 + known), known = dv on the
+        # imposed dofs, f_0 without damping (ImplicitEuler's form): one operator product
+        target_velocity, moved = np.empty((count, dofs)), np.empty((count, dofs))
+        self._kernel("implicit_rows_start")(x_rows, v_rows, target_rows, imposed, dt, target_velocity, moved)
+        product = np.empty((count, dofs))
         if self.solver == "jacobi":
             data = self.lockstep_data()
-            product = np.empty((dofs, count))
-            kernels.batched_apply_operator(data, system, self._ones, moved, product)
+            columns = np.empty((dofs, count))
+            kernels.batched_apply_operator(data, system, self._ones, np.ascontiguousarray(moved.T), columns)
+            product[:] = columns.T
         else:  # the product of each copy, on numba's threads (the same floats for any count)
             stacked, hg_rows, hg_group = self._copies_first()
-            rows = np.empty((count, dofs))
-            self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, np.ascontiguousarray(moved.T), rows,
-                                         *self._hourglass_blocks())
-            product = rows.T
-        rhs = dt * last(forces, n_nodes).reshape(dofs, count) + self._dof_mass().T * start_velocity - product
-        mask = np.ascontiguousarray(free, dtype=float)
-        solution = np.empty((dofs, count))
+            self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, moved, product, *self._hourglass_blocks())
+        rhs = np.empty((count, dofs))
+        self._kernel("implicit_rows_rhs")(forces.reshape(count, dofs), self._dof_mass(), v_rows, product, dt, rhs)
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
-        if self.solver == "reference":
-            self._solve_shared(system, mask, rhs, self.warm, active, self.first_pass, solution, iterations, residual)
-        else:
-            kernels.batched_solve(data, system, mask, rhs, np.ascontiguousarray(self.warm.T), active, self.tolerance,
-                                  self.max_iterations, *self._pack_preconditioners(), self._work, solution,
-                                  iterations, residual)
         stalled = np.zeros(count, dtype=bool)
-        if self.solver == "reference":
-            # A copy whose start-of-episode preconditioner no longer fits (large deformation, a
-            # contact change) stalls: re-linearise it here, exactly, and solve it again from there.
-            converged = residual <= self.tolerance
-            stalled = active & ~converged & np.all(np.isfinite(solution), axis=0)
-        if stalled.any():
-            for index in np.flatnonzero(stalled):
-                self._refresh(index, x0.reshape(count, n_nodes, 3)[index], dt, fixed[index])
-            again = np.empty((dofs, count))
-            more = np.zeros(count, dtype=np.int64)
-            self._solve_shared(system, mask, rhs, solution.T, stalled, self.max_iterations - self.first_pass, again,
-                               more, residual)
-            solution = np.where(stalled[None, :], again, solution)
-            iterations = iterations + more
-        solution = solution.T
+        if self.solver == "factorised":
+            solution = self._solve_factorised(system, free.astype(float), rhs, self.warm, active, free, iterations,
+                                              residual)
+        else:
+            mask = np.ascontiguousarray(free.T, dtype=float)
+            rhs = np.ascontiguousarray(rhs.T)
+            solution = np.empty((dofs, count))
+            if self.solver == "reference":
+                self._solve_shared(system, mask, rhs, self.warm, active, self.first_pass, solution, iterations,
+                                   residual)
+                # A copy whose start-of-episode preconditioner no longer fits (large deformation, a
+                # contact change) stalls: re-linearise it here, exactly, and solve it again from there.
+                converged = residual <= self.tolerance
+                stalled = active & ~converged & np.all(np.isfinite(solution), axis=0)
+            else:
+                kernels.batched_solve(data, system, mask, rhs, np.ascontiguousarray(self.warm.T), active,
+                                      self.tolerance, self.max_iterations, *self._pack_preconditioners(), self._work,
+                                      solution, iterations, residual)
+            if stalled.any():
+                for index in np.flatnonzero(stalled):
+                    self._refresh(index, x0.reshape(count, n_nodes, 3)[index], dt, fixed[index])
+                again = np.empty((dofs, count))
+                more = np.zeros(count, dtype=np.int64)
+                self._solve_shared(system, mask, rhs, solution.T, stalled, self.max_iterations - self.first_pass,
+                                   again, more, residual)
+                solution = np.where(stalled[None, :], again, solution)
+                iterations = iterations + more
+            solution = solution.T
         self.warm = np.where(active[:, None], solution, self.warm)
         self.last_iterations = iterations
-        dv = np.where(free.T, solution, known.T)
-        new_velocities = v0 + dv.reshape(-1, 3)
-        new_positions = x0 + dt * new_velocities
-        imposed = fixed.reshape(-1, 3)
-        new_velocities[imposed] = ((target.reshape(-1, 3) - x0) / dt)[imposed]
-        new_positions[imposed] = target.reshape(-1, 3)[imposed]
-        new_positions = new_positions.reshape(count, n_nodes, 3)
-        new_velocities = new_velocities.reshape(count, n_nodes, 3)
-        keep = ~active
-        new_positions[keep] = positions[keep]
-        new_velocities[keep] = velocities[keep]
+        # v' = v0 + dv (the solution on free dofs), x' = x0 + dt v'; the imposed dofs at their targets
+        new_positions, new_velocities = np.empty((count, n_nodes, 3)), np.empty((count, n_nodes, 3))
+        update = self._kernel("implicit_rows_update")
+        update(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
+               positions.reshape(count, dofs), velocities.reshape(count, dofs), new_positions.reshape(count, dofs),
+               new_velocities.reshape(count, dofs))
         if (self.solver == "reference" and self.refresh_iterations and not stalled.any()
                 and iterations.max() > self.refresh_iterations):
             worst = int(np.argmax(iterations))  # one per step: a refresh costs about one batched step
@@ -1093,38 +1089,6 @@ class BatchedImplicitEuler:
         if self._mass is None or self._mass[0] != stack.version:
             self._mass = (stack.version, np.repeat(stack.model.mass, 3).reshape(stack.count, -1))
         return self._mass[1]
-
-    def _simulate_rows(self, positions, velocities, fixed, target, dt, active, x0, v0, forces, system):
-        """``simulate``'s step for solver "factorised", every vector a row per copy (N, 3 n) as the
-        per-copy kernels take them (the other solvers keep the copy index last): the same
-        operations in the same order, without the transposes."""
-        count, n_nodes = positions.shape[:2]
-        dofs = 3 * n_nodes
-        x_rows, v_rows = x0.reshape(count, dofs), v0.reshape(count, dofs)
-        target_rows = target.reshape(count, dofs)
-        imposed = fixed.reshape(count, dofs)
-        free = ~imposed
-        # rhs = dt f_0 + M v0 - A (v0 + known), known = dv on the imposed dofs (ImplicitEuler's form)
-        target_velocity, moved = np.empty((count, dofs)), np.empty((count, dofs))
-        self._kernel("implicit_rows_start")(x_rows, v_rows, target_rows, imposed, dt, target_velocity, moved)
-        stacked, hg_rows, hg_group = self._copies_first()
-        product = np.empty((count, dofs))
-        self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, moved, product, *self._hourglass_blocks())
-        rhs = np.empty((count, dofs))
-        self._kernel("implicit_rows_rhs")(forces.reshape(count, dofs), self._dof_mass(), v_rows, product, dt, rhs)
-        iterations = np.zeros(count, dtype=np.int64)
-        residual = np.zeros(count)
-        solution = self._solve_factorised(system, free.astype(float), rhs, self.warm, active, free, iterations,
-                                          residual)
-        self.warm = np.where(active[:, None], solution, self.warm)
-        self.last_iterations = iterations
-        # v' = v0 + dv (the solution on free dofs), x' = x0 + dt v'; the imposed dofs at their targets
-        new_positions, new_velocities = np.empty((count, n_nodes, 3)), np.empty((count, n_nodes, 3))
-        update = self._kernel("implicit_rows_update")
-        update(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
-               positions.reshape(count, dofs), velocities.reshape(count, dofs), new_positions.reshape(count, dofs),
-               new_velocities.reshape(count, dofs))
-        return new_positions, new_velocities
 
 
 class BatchedSymplecticEuler:
