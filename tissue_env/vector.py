@@ -27,19 +27,18 @@ Palpation 228 -> 764 (3.4x), Retraction 207 -> 1082 (5.0x); on one thread (``thr
 vector env does 2.5 / 1.8 / 3.3x the sync env's steps per CPU second. numba's idle threads spin
 about 0.8 ms between parallel regions before they sleep (``kernels.start_threads``).
 TumorPositioning's copies are preconditioned by one node-block LDL^T of the start matrix's
-symmetric part that they share (solver
-"reference") and solved in lockstep chunks of 8 on numba's threads (``kernels.solve_copies_grouped``:
-one pass over the factor and the hourglass matrix for all of a chunk's running copies); Palpation's
-and Retraction's by their own node-block LDL^T factors, capacitance-corrected for their contacts (solver
-"factorised"), a copy per thread at a time (``kernels.solve_copies_lu``), and their factorisations
-(``kernels.factor_copies``) run on the threads too. The copies' resets (their task envs' own
-``reset``) run on a pool of as many Python threads (``_reset_rows``; a static solve releases the GIL
-for most of its time). Every task measures with the next step's force pass (``share_force_pass``),
-the force pass reads each distinct hourglass matrix once for all its copies
-(``batched.StackedForceWorkspace``) and the per-copy solves read it in node blocks. What batching cannot share is each copy's own sparse
-algebra (Retraction's floor re-factorises at about two steps in three) and TumorPositioning's resets
-(a static solve for the goal, the same code in both modes: 34-36% of its vector env's CPU time in
-the README's run).
+symmetric part that they share (solver "reference") and solved in lockstep chunks of 8 on numba's
+threads (``kernels.solve_copies_grouped``: one pass over the factor and the hourglass matrix for all
+of a chunk's running copies); Palpation's and Retraction's by their own node-block LDL^T factors,
+capacitance-corrected for their contacts (solver "factorised"), a copy per thread at a time
+(``kernels.solve_copies_lu``), and their factorisations (``kernels.factor_copies``) run on the
+threads too. The copies' resets (their task envs' own ``reset``) run on a pool of as many Python
+threads (``_reset_rows``; a static solve releases the GIL for most of its time). Every task measures
+with the next step's force pass (``share_force_pass``), the force pass reads each distinct hourglass
+matrix once for all its copies (``batched.StackedForceWorkspace``) and the per-copy solves read it in
+node blocks. What batching cannot share is each copy's own sparse algebra (Retraction's floor
+re-factorises at about two steps in three) and TumorPositioning's resets (a static solve for the
+goal, the same code in both modes: 34-36% of its vector env's CPU time in the README's run).
 """
 
 from __future__ import annotations
