@@ -7,7 +7,6 @@ that both are positive semi-definite for plain springs. Equations cite shared/ph
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,31 +125,27 @@ def hourglass_block_map(matrix):
 def hourglass_blocks(model: Model):
     """The node-block (BSR, 3 x 3) form of ``model.hourglass`` for ``kernels.apply_operator_blocks``:
     (block indptr (N + 1,), block columns (nb,), row-major block values (9 nb,), ones (3 N,)), or
-    None without hourglass control. Built once per model: the matrix is constant (a caller that
-    rewrites a model's hourglass values in place, as ``tissue_env.batched.ModelStack.assign``
-    does, calls ``forget_hourglass_blocks``). The scalar CSR loops were about half of an operator
-    product and of a force pass (Palpation's 8x4x8); read in blocks, one index and three vector
-    loads per 9 values."""
-    cached = _HOURGLASS_BLOCKS.get(model, _MISSING)
-    if cached is _MISSING:
-        cached = None
-        if model.hourglass is not None:
-            indptr, indices, positions = hourglass_block_map(model.hourglass)
-            values = np.zeros(len(positions))
-            stored = positions >= 0
-            values[stored] = model.hourglass.data[positions[stored]]
-            cached = (indptr, indices, values, np.ones(model.hourglass.shape[0]))
-        _HOURGLASS_BLOCKS[model] = cached
-    return cached
+    None without hourglass control. Built once per model and kept in ``model.derived``: the matrix
+    is constant (a caller that rewrites a model's hourglass values in place, as
+    ``tissue_env.batched.ModelStack.assign`` does, calls ``forget_hourglass_blocks``). Read in
+    blocks, an operator product or a force pass loads one index and three vector entries per 9
+    values, where the scalar CSR loops were about half of their time."""
+    return model.derived.get("hourglass_blocks", lambda: _hourglass_blocks(model))
 
 
-_HOURGLASS_BLOCKS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-_MISSING = object()
+def _hourglass_blocks(model: Model):
+    if model.hourglass is None:
+        return None
+    indptr, indices, positions = hourglass_block_map(model.hourglass)
+    values = np.zeros(len(positions))
+    stored = positions >= 0
+    values[stored] = model.hourglass.data[positions[stored]]
+    return indptr, indices, values, np.ones(model.hourglass.shape[0])
 
 
 def forget_hourglass_blocks(model: Model):
     """Drop ``hourglass_blocks``' copy for ``model`` (after its hourglass values changed in place)."""
-    _HOURGLASS_BLOCKS.pop(model, None)
+    model.derived.forget("hourglass_blocks")
 
 
 class ForceWorkspace:

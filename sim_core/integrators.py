@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import threading
-import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -189,8 +188,10 @@ class SymplecticEuler:
 
     def __init__(self, monitor: bool = True):
         self.monitor = monitor
-        self._monitors: dict[int, DivergenceMonitor] = {}
-        self._workspaces: dict[int, ForceWorkspace] = {}
+        # per model (keyed by the model itself, so that a copy of the integrator and its models
+        # finds its own entries)
+        self._monitors: dict[Model, DivergenceMonitor] = {}
+        self._workspaces: dict[Model, ForceWorkspace] = {}
 
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None) -> StepReport:
         dt = _check_dt(dt)
@@ -206,17 +207,17 @@ class SymplecticEuler:
 
     def _workspace(self, model, implicit):
         """The preallocated arrays of the fused kernels for this model (kept between steps)."""
-        workspace = self._workspaces.get(id(model))
-        if workspace is None or workspace.model is not model:
-            workspace = self._workspaces[id(model)] = ForceWorkspace(model, implicit=implicit)
+        workspace = self._workspaces.get(model)
+        if workspace is None:
+            workspace = self._workspaces[model] = ForceWorkspace(model, implicit=implicit)
         return workspace
 
     def _check(self, model, state):
         if not self.monitor:
             return None
-        monitor = self._monitors.get(id(model))
-        if monitor is None or monitor.model is not model:
-            monitor = self._monitors[id(model)] = DivergenceMonitor(model)
+        monitor = self._monitors.get(model)
+        if monitor is None:
+            monitor = self._monitors[model] = DivergenceMonitor(model)
         return monitor.check(state)
 
 
@@ -348,7 +349,7 @@ class ImplicitEuler(SymplecticEuler):
         product = np.empty(n)
         blocks = hourglass_blocks(model)
         _operator(data, blocks, system, np.ones(n), moved, product)
-        rhs = dt * forces.reshape(-1) + _pattern_arrays(model)[4] * v0.reshape(-1) - product
+        rhs = dt * forces.reshape(-1) + pattern_arrays(model)[4] * v0.reshape(-1) - product
         mask = free.astype(float)
         # Warm start: the last two steps' dv extrapolated linearly (measured on sim_core.bench's sagging
         # block: 6 -> 4 BiCGSTAB iterations, 18% faster; neutral under the envs' random actions), which
@@ -358,7 +359,7 @@ class ImplicitEuler(SymplecticEuler):
             guess = 2.0 * guess - self._warm_old
         dv = np.empty(n)
         symmetric = not (coupled or implicit_volume)
-        key = (id(model), dt, _digest(control.fixed), system)
+        key = (model, dt, _digest(control.fixed), system)
         # "auto" decides per (model, dt, scales): a contact that changes the imposed set from step to
         # step (Palpation's probe, Retraction's floor) leaves the system as stiff as it was
         use_factor = self.preconditioner == "factorised" or (
@@ -536,11 +537,11 @@ def _digest(array) -> bytes:
 class _FreeStructure:
     """The CSC structure of the system matrix restricted to the free dofs (``free``), with the
     positions of its entries in the model's ``BlockPattern`` data: a factorisation only gathers
-    values, nothing is re-sliced. Built from ``_pattern_arrays`` by masks (O(nnz) numpy, once per
+    values, nothing is re-sliced. Built from ``pattern_arrays`` by masks (O(nnz) numpy, once per
     imposed set: a contact makes many)."""
 
     def __init__(self, model: Model, free: np.ndarray):
-        column, rows, transpose, self.hg_positions, _ = _pattern_arrays(model)
+        column, rows, transpose, self.hg_positions, _ = pattern_arrays(model)
         self.model = model
         self.free = free
         mask = np.zeros(model.pattern.n_dofs, bool)
@@ -554,24 +555,22 @@ class _FreeStructure:
         self.shape = (len(free), len(free))
 
 
-def _pattern_arrays(model: Model):
-    """Per model (cached while it lives): the model's symmetric block pattern read as CSC, column by
-    column (column of each entry, its row, the position in the CSR data of the entry (row,
-    column)), the pattern positions of the hourglass matrix's entries, and the mass per dof (kg)."""
-    cached = _PATTERN_ARRAYS.get(model)
-    if cached is None:
-        pattern = model.pattern
-        column = np.repeat(np.arange(pattern.n_dofs), np.diff(pattern.indptr))  # CSR row c = CSC column c
-        rows = pattern.indices.astype(np.int64)
-        transpose = pattern.positions(rows, column)  # data position of (row, column): the pattern is symmetric
-        hg_indptr, hg_indices, _ = model.hourglass_arrays
-        hg_rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
-        hg_positions = pattern.positions(hg_rows, hg_indices) if len(hg_indices) else np.zeros(0, np.int64)
-        cached = _PATTERN_ARRAYS[model] = (column, rows, transpose, hg_positions, np.repeat(model.mass, 3))
-    return cached
+def pattern_arrays(model: Model):
+    """The model's symmetric block pattern read as CSC, column by column (column of each entry, its
+    row, the position in the CSR data of the entry (row, column)), the pattern positions of the
+    hourglass matrix's entries, and the mass per dof (kg); computed once, kept in ``model.derived``."""
+    return model.derived.get("pattern_arrays", lambda: _buildpattern_arrays(model))
 
 
-_PATTERN_ARRAYS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+def _buildpattern_arrays(model: Model):
+    pattern = model.pattern
+    column = np.repeat(np.arange(pattern.n_dofs), np.diff(pattern.indptr))  # CSR row c = CSC column c
+    rows = pattern.indices.astype(np.int64)
+    transpose = pattern.positions(rows, column)  # data position of (row, column): the pattern is symmetric
+    hg_indptr, hg_indices, _ = model.hourglass_arrays
+    hg_rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
+    hg_positions = pattern.positions(hg_rows, hg_indices) if len(hg_indices) else np.zeros(0, np.int64)
+    return column, rows, transpose, hg_positions, np.repeat(model.mass, 3)
 
 
 class _Factor:
@@ -799,7 +798,7 @@ def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray, symmet
 def free_structure(model: Model, dofs: np.ndarray) -> _FreeStructure:
     """``_FreeStructure`` of the dofs ``dofs`` (sorted), with each entry's column (``columns``),
     cached per model (a few dof sets each)."""
-    cache = _STRUCTURES.setdefault(model, {})
+    cache = model.derived.get("free_structures", dict)
     key = dofs.tobytes()
     structure = cache.get(key)
     if structure is None:
@@ -808,9 +807,6 @@ def free_structure(model: Model, dofs: np.ndarray) -> _FreeStructure:
         structure = cache[key] = _FreeStructure(model, dofs)
         structure.columns = np.repeat(np.arange(len(dofs)), np.diff(structure.indptr))
     return structure
-
-
-_STRUCTURES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
 class _Restricted:

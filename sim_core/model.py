@@ -7,6 +7,8 @@ Formulas cite ``shared/physics.md`` (sections in brackets). SI units throughout.
 
 from __future__ import annotations
 
+import functools
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -132,6 +134,13 @@ class Model:
     def has_volume_forces(self) -> bool:
         return bool(np.any(self.volume_stiffness > 0))
 
+    @functools.cached_property
+    def derived(self) -> "DerivedCache":
+        """Data the solvers derive from this model on first use (pattern arrays, node-block forms,
+        free-dof structures): a cache that lives, is copied and is pickled with the model, so a
+        copy of a model (``copy.deepcopy``, ``pickle``) never consults another model's entries."""
+        return DerivedCache()
+
     def new_state(self) -> "State":
         """A state at rest: positions = rest positions, zero velocities, time 0."""
         return State(self.rest_positions.copy(), np.zeros_like(self.rest_positions))
@@ -139,6 +148,39 @@ class Model:
     def new_control(self) -> "Control":
         """A control with no imposed displacement and no external nodal force."""
         return Control.free(self.n_nodes)
+
+
+class DerivedCache:
+    """A model's derived data by name (``Model.derived``): ``get(name, build)`` returns the entry,
+    computing it with ``build()`` once. Thread-safe (a vector env resets its copies on threads);
+    ``forget(name)`` drops an entry."""
+
+    def __init__(self):
+        self._entries: dict = {}
+        self._lock = threading.Lock()
+
+    def get(self, name, build):
+        entry = self._entries.get(name, _MISSING)
+        if entry is _MISSING:
+            with self._lock:
+                entry = self._entries.get(name, _MISSING)
+                if entry is _MISSING:
+                    entry = self._entries[name] = build()
+        return entry
+
+    def forget(self, name):
+        with self._lock:
+            self._entries.pop(name, None)
+
+    def __getstate__(self):  # a lock does not pickle
+        return dict(entries=self._entries)
+
+    def __setstate__(self, state):
+        self._entries = state["entries"]
+        self._lock = threading.Lock()
+
+
+_MISSING = object()
 
 
 @dataclass

@@ -12,7 +12,6 @@ constrained tangent) so that experiments can report them.
 from __future__ import annotations
 
 import threading
-import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -22,7 +21,7 @@ import scipy.sparse.linalg as spla
 
 from . import kernels
 from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
-from .integrators import _pattern_arrays, free_structure
+from .integrators import pattern_arrays, free_structure
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
@@ -72,7 +71,7 @@ class FactorCache:
     An entry is keyed by the model's identity, the free-dof pattern, the linearisation positions
     (bitwise) and the damping: it holds exactly the factor ``solve_static`` would compute there, so a
     hit changes no result, only skips the factorisation. Least recently used entries are dropped past
-    ``size``; entries of a model that no longer exists are never matched (the model is held weakly).
+    ``size`` (an entry holds its model).
     Thread-safe (the vector envs reset their copies, which share one cache, on several threads): the
     factorisations run outside the lock, so two threads missing the same entry at once both compute
     it (the same floats).
@@ -86,17 +85,17 @@ class FactorCache:
 
     def factorise(self, model, positions, free, damping):
         """(stiffness, LU of the damped K_ff) at ``positions``: cached or computed (and stored)."""
-        key = (id(model), free.tobytes(), np.ascontiguousarray(positions, dtype=float).tobytes(), float(damping))
+        key = (model, free.tobytes(), np.ascontiguousarray(positions, dtype=float).tobytes(), float(damping))
         with self._lock:
             entry = self._entries.get(key)
-            if entry is not None and entry[0]() is model:
+            if entry is not None:
                 self._entries.move_to_end(key)
                 self.hits += 1
-                return entry[1]
+                return entry
             self.misses += 1
         value = _factorise(model, positions, free, damping)  # outside the lock: threads factorise at once
         with self._lock:
-            self._entries[key] = (weakref.ref(model), value)
+            self._entries[key] = value
             self._entries.move_to_end(key)
             while len(self._entries) > self.size:
                 self._entries.popitem(last=False)
@@ -340,12 +339,7 @@ def tangent_stiffness(model: Model, positions: np.ndarray) -> sp.csr_matrix:
 def _tangent_data(model, positions):
     if model.correction_mode not in (None, "projected"):
         return stiffness_data(model, positions)
-    workspaces = getattr(_WORKSPACES, "models", None)
-    if workspaces is None:
-        workspaces = _WORKSPACES.models = weakref.WeakKeyDictionary()
-    workspace = workspaces.get(model)
-    if workspace is None:
-        workspace = workspaces[model] = ForceWorkspace(model, implicit=True)
+    workspace = ForceWorkspace(model, implicit=True)  # scratch of this call: callers may run on threads
     workspace.compute(np.ascontiguousarray(positions, dtype=float), None, geometric=True,
                       volume_jacobian=model.has_volume_forces)
     np.divide(workspace.tension, workspace.length, out=workspace.geometric)  # Newton's tangent: not clamped
@@ -353,7 +347,7 @@ def _tangent_data(model, positions):
               1.0 if model.hourglass is not None else 0.0)
     values = np.empty(model.pattern.nnz)
     kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
-                                 _pattern_arrays(model)[3], model.pattern.diagonal_positions, values)
+                                 pattern_arrays(model)[3], model.pattern.diagonal_positions, values)
     return values
 
 
@@ -367,7 +361,6 @@ def _free_tangent(model, positions, free):
 
 #: ``_tangent_data``'s force workspace per model, one set per thread (a workspace's arrays are
 #: overwritten by every pass: the vector envs' copies share a model and reset on several threads)
-_WORKSPACES = threading.local()
 
 
 def _factorise(model, positions, free, damping):

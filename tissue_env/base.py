@@ -19,9 +19,10 @@ per Newton iteration), so it is used only at reset (initial sag under gravity, g
 
 from __future__ import annotations
 
+import copy
 import threading
-import weakref
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
@@ -137,6 +138,23 @@ def observation_arrays(parts, names, as_dict: bool):
             for name, part, end in zip(names, parts, ends)}
 
 
+@dataclass(frozen=True, eq=False)
+class EpisodeState:
+    """A snapshot of one environment's episode (``TissueEnv.get_state``): restored by
+    ``set_state`` on an environment of the same class and keywords, the next steps are those the
+    environment took after the snapshot, bit for bit."""
+
+    env_class: type
+    attributes: dict
+
+
+#: Attributes of a task environment that a snapshot shares instead of copying: caches of models and
+#: of their factorisations (a cached result is the one that would be computed), the renderer and
+#: the spaces. A task's own caches are added by its ``shared_attributes``.
+SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_start_cache", "_factor_stores", "_renderer", "mesh",
+                     "action_space", "observation_space", "spec")
+
+
 class TissueEnv(gym.Env):
     """Base class: a sim_core tissue block, a tool moved by displacement increments, observations,
     rewards and divergence handling. Not registered itself; see the task classes.
@@ -250,9 +268,9 @@ class TissueEnv(gym.Env):
         # several threads: one lock guards them
         self._cache_lock = threading.RLock()
         self._model_cache: OrderedDict = OrderedDict()
-        self._start_cache: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # model -> start positions
-        # id(model) -> FactorStore: the implicit integrator's factorisations at the model's start state
-        # (every episode's first step), per imposed set; as many as the model cache (a store holds its model)
+        self._start_cache: OrderedDict = OrderedDict()  # model -> start positions (as many as models)
+        # model -> FactorStore: the implicit integrator's factorisations at the model's start state
+        # (every episode's first step), per imposed set; as many as the model cache
         self._factor_stores: OrderedDict = OrderedDict()
         self._setup_scene()
         # Build the default model now: it validates material and geometry together (Baudet's edge
@@ -351,6 +369,10 @@ class TissueEnv(gym.Env):
             cache = self._start_cache.get(model)
             if cache is None:
                 cache = self._start_cache[model] = self._initial_positions(model, self._control())
+                if len(self._start_cache) > MODEL_CACHE_SIZE:
+                    self._start_cache.popitem(last=False)
+            else:
+                self._start_cache.move_to_end(model)
             return cache.copy()
 
     # -- Gymnasium API -----------------------------------------------------------------------------
@@ -392,13 +414,13 @@ class TissueEnv(gym.Env):
 
     def _factor_store(self, model, positions):
         with self._cache_lock:
-            store = self._factor_stores.get(id(model))
-            if store is None or store.model is not model or not np.array_equal(store.positions, positions):
-                store = self._factor_stores[id(model)] = FactorStore(model, positions)
+            store = self._factor_stores.get(model)
+            if store is None or not np.array_equal(store.positions, positions):
+                store = self._factor_stores[model] = FactorStore(model, positions)
                 if len(self._factor_stores) > MODEL_CACHE_SIZE:
                     self._factor_stores.popitem(last=False)
             else:
-                self._factor_stores.move_to_end(id(model))
+                self._factor_stores.move_to_end(model)
             return store
 
     def _start_hook(self):
@@ -412,6 +434,38 @@ class TissueEnv(gym.Env):
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._cache_lock = threading.RLock()
+
+    #: a task's caches that snapshots share (see SHARED_ATTRIBUTES)
+    shared_attributes: tuple = ()
+
+    def _shared_memo(self) -> dict:
+        """A ``copy.deepcopy`` memo that maps the objects a snapshot shares to themselves: the
+        caches (SHARED_ATTRIBUTES, ``shared_attributes``), every cached model and its arrays (a
+        model never changes), and the factor stores (the factorisations at a model's start state)."""
+        shared = [getattr(self, name) for name in SHARED_ATTRIBUTES + self.shared_attributes if hasattr(self, name)]
+        models = list(self._model_cache.values()) + [getattr(self, "model", None)]
+        shared += list(self._factor_stores.values())
+        for model in models:
+            if model is not None:
+                shared.append(model)
+                shared.extend(vars(model).values())
+        return {id(item): item for item in shared if item is not None}
+
+    def get_state(self) -> EpisodeState:
+        """A snapshot of the current episode (state, tool, goal, random generator, solver state):
+        ``set_state(snapshot)`` returns this environment, or another one of the same class and
+        keywords, to it, and its next steps are then those taken after the snapshot, bit for bit
+        (planning, tree search, replays). Caches and models are shared, not copied."""
+        shared = SHARED_ATTRIBUTES + self.shared_attributes
+        attributes = {name: value for name, value in self.__dict__.items() if name not in shared}
+        return EpisodeState(type(self), copy.deepcopy(attributes, self._shared_memo()))
+
+    def set_state(self, state: EpisodeState):
+        """Restore a snapshot of ``get_state`` (it can be restored any number of times)."""
+        if not isinstance(state, EpisodeState) or state.env_class is not type(self):
+            raise ValueError(f"set_state takes a snapshot from get_state() of a {type(self).__name__}, got "
+                             f"{type(state).__name__ if not isinstance(state, EpisodeState) else state.env_class.__name__}")
+        self.__dict__.update(copy.deepcopy(state.attributes, self._shared_memo()))
 
     def share_caches(self, other):
         """Use ``other``'s models, start states, first-step factorisations and task caches (an env

@@ -191,6 +191,8 @@ class TumorPositioningEnv(TissueEnv):
         self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
         self.workspace_low, self.workspace_high = -self.workspace, self.workspace
 
+    shared_attributes = ("_goal_factors",)
+
     def share_caches(self, other):
         super().share_caches(other)
         self._goal_factors = other._goal_factors

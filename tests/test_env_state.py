@@ -1,0 +1,96 @@
+"""An episode is a value: ``copy.deepcopy(env)``, ``pickle`` and ``get_state`` / ``set_state`` taken
+mid-episode reproduce the original's next steps bit for bit (observations, rewards, episode ends,
+infos), on every task and with every integrator. A snapshot is the task environment's
+(``env.unwrapped``); wrappers keep their own state (TimeLimit its step count), so the snapshot tests
+step the unwrapped environment."""
+
+import copy
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import tissue_env
+
+ENV_IDS = sorted(tissue_env.ENV_IDS)
+
+
+def _steps(env, actions):
+    out = []
+    for action in actions:
+        obs, reward, terminated, truncated, info = env.step(action)
+        out.append((obs, reward, terminated, truncated, info))
+        if terminated or truncated:
+            obs, info = env.reset()
+            out.append((obs, info))
+    return out
+
+
+def _assert_same(expected, actual):
+    assert len(expected) == len(actual)
+    for a, b in zip(expected, actual):
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            if isinstance(x, dict):
+                assert x.keys() == y.keys()
+                for key in x:
+                    np.testing.assert_array_equal(np.asarray(x[key], dtype=object if x[key] is None else None),
+                                                  np.asarray(y[key], dtype=object if y[key] is None else None),
+                                                  err_msg=key)
+            else:
+                np.testing.assert_array_equal(x, y)
+
+
+def _mid_episode(env_id, integrator="implicit", seed=4):
+    env = gym.make(env_id, integrator=integrator)
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    for action in rng.uniform(-1, 1, (6, 3)).astype(np.float32):
+        env.step(action)
+    return env, rng.uniform(-1, 1, (25, 3)).astype(np.float32)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("integrator", ["implicit", "static"])
+def test_deepcopy_and_pickle_reproduce_the_next_steps(env_id, integrator):
+    env, actions = _mid_episode(env_id, integrator)
+    duplicate = copy.deepcopy(env)
+    unpickled = pickle.loads(pickle.dumps(env))
+    expected = _steps(env, actions)
+    _assert_same(expected, _steps(duplicate, actions))
+    _assert_same(expected, _steps(unpickled, actions))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_get_state_set_state_restores_the_episode(env_id):
+    env, actions = _mid_episode(env_id)
+    env = env.unwrapped
+    snapshot = env.get_state()
+    expected = _steps(env, actions)
+    for _ in range(2):  # a snapshot restores any number of times
+        env.set_state(snapshot)
+        _assert_same(expected, _steps(env, actions))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_a_snapshot_restores_on_another_env_of_the_same_task(env_id):
+    env, actions = _mid_episode(env_id)
+    env = env.unwrapped
+    snapshot = env.get_state()
+    expected = _steps(env, actions)
+    other = gym.make(env_id).unwrapped
+    other.reset(seed=123)
+    other.set_state(snapshot)
+    _assert_same(expected, _steps(other, actions))
+
+
+def test_set_state_rejects_what_is_not_a_snapshot_of_the_same_task():
+    env = gym.make("tissue_env/Palpation-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="get_state"):
+        env.unwrapped.set_state({"state": None})
+    other = gym.make("tissue_env/Retraction-v0")
+    other.reset(seed=0)
+    with pytest.raises(ValueError, match="PalpationEnv"):
+        env.unwrapped.set_state(other.unwrapped.get_state())
