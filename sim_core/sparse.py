@@ -5,7 +5,7 @@ contains every spring and every element matrix. Assembly is one ``np.bincount`` 
 positions in the CSR ``data`` array: no COO rebuild, no Python loop.
 
 ``NodeBlockLU`` factorises such a matrix, restricted to whole nodes, in dense 3 x 3 node blocks:
-the implicit step's preconditioner (``integrators.node_block_factor``) and the vector envs'.
+the implicit step's preconditioner (``preconditioners.node_block_factor``) and the vector envs'.
 """
 
 from __future__ import annotations

@@ -21,7 +21,8 @@ import scipy.sparse.linalg as spla
 
 from . import kernels
 from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
-from .integrators import pattern_arrays, free_structure
+from .preconditioners import free_structure, pattern_arrays
+from .solver import DivergenceMonitor, StepReport, check_dt
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
@@ -277,9 +278,7 @@ class QuasiStatic:
         self._monitor = None  # the integrators' DivergenceMonitor of the last model stepped
 
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None):
-        from .integrators import DivergenceMonitor, StepReport, _check_dt
-
-        dt = _check_dt(dt)
+        dt = check_dt(dt)
         control = model.new_control() if control is None else control
         result = solve_static(model, control, initial=state_in.positions, tolerance=self.tolerance,
                               max_iterations=self.max_iterations, max_load_steps=self.max_load_steps,

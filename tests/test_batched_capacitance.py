@@ -67,7 +67,7 @@ def test_the_copies_inverse_columns_equal_each_factors_own():
     on numba's threads) gives the floats of its serial version and of ``InverseColumns.columns`` (one
     copy's columns solved together), zero on the imposed dofs."""
     from sim_core import kernels
-    from sim_core.integrators import InverseColumns
+    from sim_core.preconditioners import InverseColumns
     model, bottom, _ = tumor_block((5, 5, 5), 0.01)
     count, dt = 3, 0.04
     stack = ModelStack(model, count)
@@ -111,7 +111,7 @@ def test_the_batched_corrections_equal_each_factors_own():
     and serial alike (bitwise), for 1 to 40 imposed dofs; a singular Z[c] (a dof twice) is reported
     (ok False), not returned as NaN or huge values."""
     from sim_core import kernels
-    from sim_core.integrators import InverseColumns
+    from sim_core.preconditioners import InverseColumns
     integrator, free, n_dofs = _factorised_copies()
     rng = np.random.default_rng(5)
     picks = [np.sort(rng.choice(free, size, replace=False)) for size in (1, 7, 40)]
@@ -137,8 +137,8 @@ def test_the_kept_columns_of_the_inverse_are_the_solved_ones_and_forgotten_past_
     """``InverseColumns`` keeps solved columns in one array: asked again (in another order, mixed with
     new ones) it returns the floats a fresh solve gives, and it forgets them all when keeping the
     new ones would pass CAPACITANCE_CACHE."""
-    from sim_core import integrators
-    from sim_core.integrators import InverseColumns
+    from sim_core import preconditioners
+    from sim_core.preconditioners import InverseColumns
     integrator, free, n_dofs = _factorised_copies(1)
     ints, floats = integrator._lu_int[0], integrator._lu_float[0]
     kept = InverseColumns(ints, floats, n_dofs)
@@ -146,7 +146,7 @@ def test_the_kept_columns_of_the_inverse_are_the_solved_ones_and_forgotten_past_
     kept.columns(first)
     assert kept.missing(second).tolist() == free[[2, 77]].tolist()
     np.testing.assert_array_equal(kept.columns(second), InverseColumns(ints, floats, n_dofs).columns(second))
-    limit = integrators.CAPACITANCE_CACHE
+    limit = preconditioners.CAPACITANCE_CACHE
     many = free[100:100 + limit - 4]
     assert kept.missing(many).tolist() == many.tolist()  # 5 kept + 508 > 512: everything again
     np.testing.assert_array_equal(kept.columns(many)[:, :3], InverseColumns(ints, floats, n_dofs).columns(many[:3]))
@@ -158,9 +158,9 @@ def test_copies_sharing_a_factor_ask_its_inverse_once_for_all_their_dofs(monkeyp
     equal a fresh ``InverseColumns.correction`` (asked one after the other, the second request
     forgot the columns the first counted on). Asking ``rows`` for columns not kept is an error,
     not another dof's column."""
-    from sim_core import integrators
-    from sim_core.integrators import InverseColumns
-    monkeypatch.setattr(integrators, "CAPACITANCE_CACHE", 8)
+    from sim_core import preconditioners
+    from sim_core.preconditioners import InverseColumns
+    monkeypatch.setattr(preconditioners, "CAPACITANCE_CACHE", 8)
     integrator, free, n_dofs = _factorised_copies(1)
     factor = integrator._factors[0]
     first, second = free[:6], free[10:15]

@@ -224,7 +224,7 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     free = factor.ints[len(factor.ints) - 2 * k:len(factor.ints) - k]
     values = integrator._values.copy()  # the last factorisation's matrix, in the model's pattern
     factor = integrator._scalar_factor(values, np.isin(np.arange(3 * vector.n_nodes), free))
-    pattern = batched._FreeStructure(vector.stack.reference, free)
+    pattern = batched.FreeStructure(vector.stack.reference, free)
     matrix = batched.sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
     vector_in = rng.normal(size=3 * vector.n_nodes)
     mask = np.zeros(3 * vector.n_nodes)

@@ -197,7 +197,7 @@ def test_compiled_forces_match_numpy_reference(options):
 
 
 def test_divergence_monitor_reasons():
-    from sim_core.integrators import DivergenceMonitor
+    from sim_core.solver import DivergenceMonitor
     from sim_core.model import State
 
     model = build_model(HexMesh.block((2, 2, 2), 0.1), Material(1e4, 0.3, 1000))
@@ -225,7 +225,7 @@ def test_the_copies_monitor_gives_each_copys_own_monitor_reasons():
     region, one with a NaN, one too fast, one with an element pushed inside out (caught at the 10th
     check), and a copy skipped on some steps (its history untouched). A copy whose check failed is
     assigned again, as the vector env resets it."""
-    from sim_core.integrators import DivergenceMonitor, DivergenceMonitors
+    from sim_core.solver import DivergenceMonitor, DivergenceMonitors
 
     model = build_model(HexMesh.block((2, 2, 2), 0.1), Material(1e4, 0.3, 1000))
     count, rest, n = 6, model.rest_positions, model.n_nodes

@@ -10,7 +10,8 @@ import scipy.sparse.linalg as spla
 from sim_core import HexMesh, Material, build_model, kernels
 from sim_core.bench import tumor_block
 from sim_core.forces import ForceWorkspace
-from sim_core.integrators import ImplicitEuler, _FreeStructure, make_integrator, run
+from sim_core.integrators import ImplicitEuler, make_integrator, run
+from sim_core.preconditioners import FreeStructure
 
 
 def stiff_scene(shape=(6, 6, 6)):
@@ -47,7 +48,7 @@ def test_assembled_matrix_is_the_matrix_free_operator():
     workspace = ForceWorkspace(model)
     workspace.compute(state.positions, state.velocities, geometric=True, volume_jacobian=True)
     vector = np.random.default_rng(0).standard_normal(3 * model.n_nodes)
-    structure = _FreeStructure(model, np.arange(3 * model.n_nodes))
+    structure = FreeStructure(model, np.arange(3 * model.n_nodes))
     for scales in [(1.0, 0.04, 0.0016, 0.0016, 0.0016, 0.0016), (0.0, 0.0, 1.0, 1.0, 1.0, 1.0), (1.0, 0.1, 0.01, 0, 0, 0)]:
         data = np.empty(model.pattern.nnz)
         kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
@@ -165,7 +166,7 @@ def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one
     like Retraction's) is made again when a contact imposes more than 1% of its dofs, where a
     fresh factor beats a kept one the state has moved from; the 6^3 block's (about 12.7) is kept
     and corrected (test above). Both steps are solved to the tolerance."""
-    from sim_core import integrators
+    from sim_core import preconditioners
 
     for shape, cheap in (((6, 1, 3), True), ((6, 6, 6), False)):
         model = build_model(HexMesh.block(shape, 0.01), Material(5e3, 0.45, 1060.0), hourglass_control=1.0,
@@ -177,7 +178,7 @@ def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one
         state = model.new_state()
         base = model.new_control().impose(bottom, nodes[bottom])
         integrator.simulate(model, state, state.copy(), 0.04, base)
-        assert (integrator._factor.cost < integrators.CHEAP_FACTOR) == cheap
+        assert (integrator._factor.cost < preconditioners.CHEAP_FACTOR) == cheap
         held = base.copy().impose(top[:6], nodes[top[:6]] - [0.0, 0.0005, 0.0], components=(1,))
         report = integrator.simulate(model, state, state.copy(), 0.04, held)
         assert report.residual <= 1e-8
@@ -212,7 +213,7 @@ def test_bad_preconditioner_names_are_rejected(bad):
 def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
     """The node-block LU (``sparse.NodeBlockLU``, compiled numeric factorisation on a symbolic fill
     pattern) inverts a non-symmetric diagonally dominant matrix on the block's pattern to 1e-12,
-    also with single dofs decoupled (a contact imposing only y, as ``_Factor`` builds it), and a
+    also with single dofs decoupled (a contact imposing only y, as ``Factor`` builds it), and a
     second factorisation of the same pattern reuses the structure and gives the same factor. Its
     symmetric form (LDL^T, half the values) inverts the matrix's symmetric part (A + A^T) / 2 to
     1e-12, through the one- and the several-right-hand-side substitutions."""
@@ -223,7 +224,7 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
     bottom = np.flatnonzero(model.mesh.nodes[:, 1] == 0.0)
     nodes = np.setdiff1d(np.arange(model.n_nodes), bottom)
     node_dofs = (3 * nodes[:, None] + np.arange(3)).ravel()
-    whole = _FreeStructure(model, node_dofs)
+    whole = FreeStructure(model, node_dofs)
     rng = np.random.default_rng(3)
     values = rng.standard_normal(model.pattern.nnz)
     values[model.pattern.diagonal_positions] += 80.0
@@ -280,7 +281,7 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
 def test_factorised_preconditioner_uses_the_node_block_lu():
     """ImplicitEuler's factor is the node-block LU on this scene (whole nodes imposed) and gives
     the scalar SuperLU factor's trajectory to the solver tolerance."""
-    import sim_core.integrators as integrators
+    import sim_core.preconditioners as preconditioners
 
     model, control, _ = stiff_scene((4, 4, 4))
     block = ImplicitEuler(preconditioner="factorised", tolerance=1e-10)
@@ -291,23 +292,23 @@ def test_factorised_preconditioner_uses_the_node_block_lu():
         def __init__(self, *args, **kwargs):
             raise np.linalg.LinAlgError("force the scalar LU")
 
-    original = integrators.NodeBlockLU
-    integrators.NodeBlockLU = Pivots
+    original = preconditioners.NodeBlockLU
+    preconditioners.NodeBlockLU = Pivots
     try:
         scalar = ImplicitEuler(preconditioner="factorised", tolerance=1e-10)
         reference, _ = trajectory(model, control, scalar, 4)
         assert scalar._factor.block is None and scalar._factor.lu is not None
     finally:
-        integrators.NodeBlockLU = original
+        preconditioners.NodeBlockLU = original
     assert np.abs(positions - reference).max() < 1e-9
 
 
 @pytest.mark.parametrize("symmetric", [False, True])
 def test_krylov_scales_its_guess_to_the_least_residual(symmetric):
-    """The single envs' preconditioned solve (``_krylov``, BiCGSTAB or CG) starts from the guess scaled
+    """The single envs' preconditioned solve (``krylov_solve``, BiCGSTAB or CG) starts from the guess scaled
     by the factor that minimises ||b - a A x0||: a multiple of the solution (3 x, -2 x) starts
     converged (0 iterations, exact to rounding); unscaled it needed iterations (checked)."""
-    from sim_core.integrators import _krylov
+    from sim_core.krylov import krylov_solve
 
     class Identity:  # no preconditioner
         def apply(self, vector, out):
@@ -327,7 +328,7 @@ def test_krylov_scales_its_guess_to_the_least_residual(symmetric):
     kernels.apply_operator(workspace.operator_data, scales, mask, exact, rhs)
     for guess in (3.0 * exact, -2.0 * exact):
         x = np.empty_like(exact)
-        iterations, residual = _krylov(workspace.operator_data, scales, mask, rhs, guess, Identity(), 1e-10, 500,
+        iterations, residual = krylov_solve(workspace.operator_data, scales, mask, rhs, guess, Identity(), 1e-10, 500,
                                        symmetric, x)
         assert iterations == 0 and residual <= 1e-10
         np.testing.assert_allclose(x, exact, rtol=0, atol=1e-12 * np.abs(exact).max())
@@ -337,7 +338,7 @@ def test_factor_store_serves_only_the_matrix_the_step_would_factorise():
     """A FactorStore at the start state: a second integrator takes the first one's factorisation
     at that state (same imposed set) instead of factorising, and its steps are bitwise those of an
     integrator without the store; another imposed set, or a step at other positions, factorises."""
-    from sim_core.integrators import FactorStore
+    from sim_core.preconditioners import FactorStore
     model, control, _ = stiff_scene((4, 4, 4))
     store = FactorStore(model, model.new_state().positions)
     first = ImplicitEuler(preconditioner="factorised")

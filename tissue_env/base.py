@@ -30,7 +30,8 @@ from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.forces import ForceWorkspace, external_forces
-from sim_core.integrators import PRECONDITIONERS, FactorStore, ImplicitEuler, make_integrator
+from sim_core.integrators import ImplicitEuler, make_integrator
+from sim_core.preconditioners import PRECONDITIONERS, FactorStore
 from sim_core.model import State
 from sim_core.static import STATIC_CONTACT_PASSES, same_contact
 

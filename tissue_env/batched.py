@@ -28,7 +28,7 @@ matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator
 LDL^T of its symmetric part (``SYMMETRIC_FACTOR``: the matrix is symmetric up to about 1e-4 of its
 entries, and the symmetric factor holds, factorises and applies half the values of the LU:
 ``sparse.NodeBlockLU(symmetric=True)``, ``kernels.block_ldl_factor``), through
-``integrators.node_block_factor``, else SuperLU's scalar LU), kept across steps
+``preconditioners.node_block_factor``, else SuperLU's scalar LU), kept across steps
 and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does (a node-block LU restricted exactly
 to a contact's newly imposed dofs by a capacitance correction; the copies a step re-factorises are
 assembled and factorised in one compiled call, ``kernels.factor_copies``), and the copies' BiCGSTABs run
@@ -79,8 +79,9 @@ from sim_core import HexMesh
 from sim_core import kernels
 from sim_core.forces import (ForceWorkspace, forget_hourglass_blocks, hourglass_block_map, internal_forces,
                              stiffness_data)
-from sim_core.integrators import (CAPACITANCE_MAX, REFACTOR_MIN, InverseColumns, SymplecticEuler,
-                                  _FreeStructure, free_structure, node_block_factor)
+from sim_core.integrators import SymplecticEuler
+from sim_core.preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
+                                      node_block_factor)
 from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure, symmetric_structure
 from sim_core.model import Control, Model, State
 
@@ -408,7 +409,7 @@ class _CopyFactor:
         return factor
 
     def inverse(self, n_dofs: int) -> InverseColumns:
-        """The columns of its inverse kept so far (``integrators.InverseColumns``)."""
+        """The columns of its inverse kept so far (``preconditioners.InverseColumns``)."""
         if self._inverse is None:
             self._inverse = InverseColumns(self.ints, self.floats, n_dofs)
         return self._inverse
@@ -420,7 +421,7 @@ class _CopyFactor:
     def correction(self, imposed: np.ndarray, n_dofs: int):
         """A node-block LU's capacitance correction for the dofs ``imposed`` (k,) sorted, free in the
         factor but imposed now: (W, imposed) for ``kernels._corrected_lu_apply``, W from
-        ``integrators.InverseColumns.correction`` (its columns kept per dof); None where it is
+        ``preconditioners.InverseColumns.correction`` (its columns kept per dof); None where it is
         singular. Kept per imposed set (8 per factor)."""
         key = imposed.tobytes()
         if key not in self._corrections:
@@ -820,7 +821,7 @@ class BatchedImplicitEuler:
         if pattern is None:
             if len(self._patterns) >= 4 * self.stack.count:
                 self._patterns.clear()
-            pattern = self._patterns[key] = _FreeStructure(self.stack.reference, np.flatnonzero(free))
+            pattern = self._patterns[key] = FreeStructure(self.stack.reference, np.flatnonzero(free))
         matrix = sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
         try:
             with np.errstate(all="ignore"):

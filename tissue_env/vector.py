@@ -55,7 +55,7 @@ from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
 from sim_core import kernels
-from sim_core.integrators import DivergenceMonitors
+from sim_core.solver import DivergenceMonitors
 from sim_core.model import State
 
 from .base import observation_arrays
