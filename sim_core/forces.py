@@ -113,7 +113,7 @@ def hourglass_block_map(matrix):
     """The node-block (BSR, 3 x 3) layout of a CSR matrix with 3 dofs per node: (block indptr
     (N + 1,), block columns (nb,), positions (9 nb,) int64: the index in ``matrix.data`` of each
     row-major block value, -1 for the zeros a block adds). Values of another matrix of the same
-    pattern are ``data[positions]`` where positions >= 0 (``tissue_env.batched``'s per-copy
+    pattern are ``data[positions]`` where positions >= 0 (``sim_core.batched``'s per-copy
     hourglass values)."""
     probe = sp.csr_matrix((np.arange(1.0, matrix.nnz + 1.0), matrix.indices, matrix.indptr), shape=matrix.shape)
     blocks = sp.bsr_matrix(probe, blocksize=(3, 3))
@@ -127,7 +127,7 @@ def hourglass_blocks(model: Model):
     (block indptr (N + 1,), block columns (nb,), row-major block values (9 nb,), ones (3 N,)), or
     None without hourglass control. Built once per model and kept in ``model.derived``: the matrix
     is constant (a caller that rewrites a model's hourglass values in place, as
-    ``tissue_env.batched.ModelStack.assign`` does, calls ``forget_hourglass_blocks``). Read in
+    ``sim_core.batched.ModelStack.assign`` does, calls ``forget_hourglass_blocks``). Read in
     blocks, an operator product or a force pass loads one index and three vector entries per 9
     values, where the scalar CSR loops were about half of their time."""
     return model.derived.get("hourglass_blocks", lambda: _hourglass_blocks(model))

@@ -126,7 +126,7 @@ class NodeBlockLU:
             if structure is not None:
                 self._structures.move_to_end(key)
         if structure is None:
-            structure = _block_structure(matrix, np.asarray(free))
+            structure = block_structure(matrix, np.asarray(free))
             if symmetric:
                 structure = structure + symmetric_structure(structure)
             with self._lock:
@@ -150,7 +150,7 @@ class NodeBlockLU:
             raise np.linalg.LinAlgError("node-block factor: zero or non-finite pivot")
 
 
-def _block_structure(matrix, free):
+def block_structure(matrix, free):
     """``NodeBlockLU``'s symbolic part: the node ordering, the permuted block pattern of A with the
     position of each stored entry in its blocks, the block fill patterns of L and U, and the packed
     integer header."""
@@ -194,7 +194,7 @@ def _block_structure(matrix, free):
 
 
 def symmetric_structure(structure):
-    """The symmetric form of a ``_block_structure``: (a_transpose, l_to_u, ints) for
+    """The symmetric form of a ``block_structure``: (a_transpose, l_to_u, ints) for
     ``kernels.block_ldl_factor`` and ``kernels._block_ldl_solve``: the position of block (j, i) for
     each block (i, j) of A, the position in U of block (k, i) for each block (i, k) of L, and the
     packed header [-k, nb, 0, blocks of U, U indptr, U block columns, order]. Raises

@@ -1,4 +1,4 @@
-"""The batched factorised solver (tissue_env.batched, solver "factorised") keeps each copy's
+"""The batched factorised solver (sim_core.batched, solver "factorised") keeps each copy's
 node-block LU when a contact imposes more dofs, and restricts it exactly to the free dofs by a
 capacitance correction (``_CopyFactor.correction``, ``kernels._corrected_lu_apply``)."""
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim_core.bench import tumor_block
-from tissue_env.batched import BatchedImplicitEuler, ModelStack
+from sim_core.batched import BatchedImplicitEuler, ModelStack
 
 
 def test_a_moving_contact_keeps_each_copys_factor_exact_through_its_capacitance_correction():

@@ -187,7 +187,7 @@ def test_invalid_num_envs():
 
 @pytest.mark.parametrize("solver", ["factorised", "reference", "jacobi"])
 def test_every_batched_solver_gives_the_single_env_trajectories(solver):
-    """Each of the batched step's linear solvers (tissue_env.batched) equals N single envs at a
+    """Each of the batched step's linear solvers (sim_core.batched) equals N single envs at a
     tight tolerance, on Palpation, whose probe contact changes the imposed dofs during an episode
     (the factorised solver keeps or re-factorises a copy's LU when its free set changes)."""
     env_id = "tissue_env/Palpation-v0"
@@ -205,7 +205,7 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     free-dof matrix, packed for the compiled solves: applied by kernels._lu_apply it equals
     spsolve's solution (to 1e-8), and the steps stay finite."""
     from sim_core import kernels
-    from tissue_env import batched
+    from sim_core import batched
 
     monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free, **kwargs: None)
     # the fused factorisations (kernels.factor_copies) fail too: every copy takes _factorise's path
@@ -258,10 +258,10 @@ def test_reference_preconditioner_solves_each_group_with_its_factor(layout, monk
     layouts: node blocks (free dofs are whole nodes, TumorPositioning) and the scalar fallback."""
     from sim_core import kernels
     from sim_core.forces import stiffness_data
-    from tissue_env import batched
+    from sim_core import batched
 
     if layout == "scalar":
-        monkeypatch.setattr(batched._BlockFactor, "applies", staticmethod(lambda free: False))
+        monkeypatch.setattr(batched.NodeBlockLU, "applies", staticmethod(lambda free: False))
     monkeypatch.setattr(batched, "_preconditioners", batched.OrderedDict())  # factors made here, not cached
     vector = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=4, vectorization_mode="vector_entry_point")
     env = vector.unwrapped
@@ -478,7 +478,7 @@ def test_a_copy_does_not_depend_on_the_other_copies_or_the_process_cache(env_id)
     # The copies (and vector envs) share cached factors (batched._factors); what decides a factor's
     # renewal is each copy's own, and a cached factor counts as the one the first step would make.
     # So a copy's trajectory is bitwise the same whatever the other copies do and whatever ran before.
-    from tissue_env import batched
+    from sim_core import batched
     batched._factors.clear()
     cold = _copy_zero(env_id, 1)
     warm = _copy_zero(env_id, 1)  # the cache filled by the run before

@@ -2,7 +2,7 @@
 
 ``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")`` builds the task's
 ``<Task>VectorEnv``: a ``gymnasium.vector.VectorEnv`` whose N copies share one stacked sim_core
-model (``tissue_env.batched``). One env step of all copies is one batched implicit Euler step and
+model (``sim_core.batched``). One env step of all copies is one batched implicit Euler step and
 one vectorised pass for the measurements, observations, rewards and infos, instead of N Python
 step calls. Semantics are those of ``vectorization_mode="sync"``:
 
@@ -59,7 +59,7 @@ from sim_core.solver import DivergenceMonitors
 from sim_core.model import State
 
 from .base import observation_arrays
-from .batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator
+from sim_core.batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator
 
 
 #: the vector envs whose reset pool has threads: stopped before a fork (CPython's threading failed in
@@ -110,7 +110,7 @@ class TissueVectorEnv(VectorEnv):
 
     #: The task class; set by each task's vector env.
     env_class = None
-    #: How the batched implicit step solves each copy's linear system (``tissue_env.batched``):
+    #: How the batched implicit step solves each copy's linear system (``sim_core.batched``):
     #: "factorised" (each copy's sparse LU kept across steps), "reference" (the sparse LU of the
     #: start-of-episode system matrix, shared by the copies that start alike), both solved per copy
     #: on numba's threads, or "jacobi" (the Jacobi diagonal, all copies in lockstep).

@@ -75,15 +75,14 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba.typed import List as TypedList
 
-from sim_core import HexMesh
-from sim_core import kernels
-from sim_core.forces import (ForceWorkspace, forget_hourglass_blocks, hourglass_block_map, internal_forces,
-                             stiffness_data)
-from sim_core.integrators import SymplecticEuler
-from sim_core.preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
-                                      node_block_factor)
-from sim_core.sparse import NodeBlockLU as _BlockFactor, _block_structure, symmetric_structure
-from sim_core.model import Control, Model, State
+from . import kernels
+from .forces import ForceWorkspace, forget_hourglass_blocks, hourglass_block_map, internal_forces, stiffness_data
+from .integrators import SymplecticEuler
+from .mesh import HexMesh
+from .model import Control, Model, State
+from .preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
+                              node_block_factor)
+from .sparse import NodeBlockLU, block_structure, symmetric_structure
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
 #: geometry); the topology arrays (springs, edge_spring) are offset instead.
@@ -352,10 +351,10 @@ def _system_factor(model, positions, dt, fixed):
     data = stiffness_data(model, positions, volume=False, clamp=True, stiffness_scale=dt * dt,
                           damping_scale=dt, mass_scale=1.0)
     matrix = model.pattern.matrix(data).tocsr()[free][:, free].tocsc()
-    if _BlockFactor.applies(free):
+    if NodeBlockLU.applies(free):
         try:
             with np.errstate(all="ignore"):
-                factor = _BlockFactor(matrix, free, symmetric=SYMMETRIC_FACTOR)
+                factor = NodeBlockLU(matrix, free, symmetric=SYMMETRIC_FACTOR)
             if np.all(np.isfinite(factor.floats)):
                 return factor
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
@@ -543,7 +542,7 @@ class BatchedImplicitEuler:
             self._corrections = TypedList([self._no_correction[0]] * count)
             self._imposed = TypedList([self._no_correction[1]] * count)
             self._patterns = {}
-            self._structures = {}  # kernels.factor_copies' structure per node set (_block_structure)
+            self._structures = {}  # kernels.factor_copies' structure per node set (``sparse.block_structure``)
             self._incidence = _edge_incidence(stack.reference)
             #: factorise the LDL^T of the system matrix's symmetric part (``kernels.block_ldl_factor``)
             #: instead of its LU: half the values for every preconditioner application
@@ -720,7 +719,7 @@ class BatchedImplicitEuler:
             whole = free_structure(self.stack.reference, node_dofs)
             matrix = sp.csc_matrix((np.ones(len(whole.take)), whole.indices, whole.indptr), shape=whole.shape)
             try:
-                symbolic = _block_structure(matrix, node_dofs)
+                symbolic = block_structure(matrix, node_dofs)
                 a_indptr, a_indices, a_map, l_indptr, l_indices, u_indptr, u_indices, ints = symbolic
                 a_transpose, l_to_u = np.zeros(0, np.int64), np.zeros(0, np.int64)
                 if self.symmetric:
