@@ -210,7 +210,7 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
     """Pressed 5 mm over a corner cell and held, the probe's force and the tissue settle on the
     frictionless-contact equilibrium that the static active set (sim_core.resolution) finds for
     the same probe (measured: within 1e-6 N after 40 steps; the contact set held within one step)."""
-    from sim_core.resolution import _mss_solver, _solve_with_contact
+    from sim_core.studies.resolution import _mss_solver, _solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400).unwrapped
     env.terminate_on_success = False

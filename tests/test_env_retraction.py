@@ -57,7 +57,7 @@ def test_held_flap_settles_on_the_frictionless_static_equilibrium():
     equilibrium that solve_static's active set finds from the rest state (measured: within 4e-10 m;
     the post-step clamp it replaced settled up to 121% away in volume change)."""
     from sim_core.contact import Floor
-    from sim_core.resolution import _mss_solver, _solve_with_contact
+    from sim_core.studies.resolution import _mss_solver, _solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400, shape=(6, 1, 3)).unwrapped  # a coarse flap: a quick static solve
     env.terminate_on_success = False

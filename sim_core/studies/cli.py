@@ -16,8 +16,8 @@ import sys
 
 import numpy as np
 
+from ..mesh import HexMesh
 from . import experiments
-from .mesh import HexMesh
 
 
 class _Parser(argparse.ArgumentParser):
