@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from ..files import atomic_write, save_figure
 from ..integrators import stable_time_step
@@ -83,13 +84,9 @@ def time_step_table() -> list[str]:
 
 
 def elongation_figure(path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     strains = [0.01, 0.02, 0.05, 0.1]
-    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    figure = Figure(figsize=(10, 4))
+    left, right = figure.subplots(1, 2)
     for nu in NUS:
         full = [elongation(**BLOCK, poisson_ratio=nu, strain=s) for s in strains]
         springs = [elongation(**BLOCK, poisson_ratio=nu, strain=s, corrections=False, volume_conservation=False)
@@ -106,7 +103,6 @@ def elongation_figure(path: Path) -> None:
     figure.suptitle("Elongation of a 10x10x10 block: corrected Baudet model vs springs without corrections")
     figure.tight_layout()
     save_figure(figure, path, dpi=110)
-    plt.close(figure)
 
 
 def main(argv=None) -> None:

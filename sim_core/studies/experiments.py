@@ -18,13 +18,16 @@ import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+import scipy.sparse.linalg as spla
 
 from .._validate import finite_array
 from ..fem import LinearFEM
+from ..forces import stiffness_data
 from ..hyperelastic import NeoHookeanFEM
+from ..integrators import ImplicitEuler
 from ..material import Material
 from ..mesh import HexMesh
-from ..model import MSS_MODELS, Control, build_model
+from ..model import MSS_MODELS, Control, State, build_model, hourglass_projectors
 from ..static import solve_static, zero_energy_modes
 
 FEM_MODELS = ("fem-linear", "fem-neohookean")
@@ -279,8 +282,6 @@ def hourglass_content(rest_positions, elements, positions) -> float:
     mass-spring field's content to the FEM's on the same mesh says whether its zero-energy modes
     are excited.
     """
-    from ..model import hourglass_projectors
-
     rest = np.asarray(rest_positions, float)
     displacement = (np.asarray(positions, float) - rest)[elements]  # (M, 8, 3)
     total = float(np.sum(displacement**2))
@@ -307,8 +308,6 @@ def tool_patch_nodes(mesh: HexMesh, patch: int) -> np.ndarray:
 
 def _fem_lowest_eigenvalue(fem: NeoHookeanFEM, control: Control, positions) -> float:
     """Smallest eigenvalue (N/m) of the neo-Hookean tangent on the free components."""
-    import scipy.sparse.linalg as spla
-
     free = np.flatnonzero(~control.fixed.ravel())
     stiffness = fem.tangent_stiffness(positions).tocsr()[free][:, free]
     return float(spla.eigsh(stiffness, k=1, which="SA", tol=1e-6, maxiter=50 * len(free))[0][0])
@@ -327,12 +326,6 @@ def settle(model, control: Control, positions, *, amplitude: float = 0.02, dt: f
 
     Returns ``(static.StaticResult with lowest_eigenvalue, steps run, unstable_reason or None)``.
     """
-    import scipy.sparse.linalg as spla
-
-    from ..forces import stiffness_data
-    from ..integrators import ImplicitEuler
-    from ..model import State
-
     free = np.flatnonzero(~control.fixed.ravel())
     stiffness = model.pattern.matrix(stiffness_data(model, positions)).tocsr()[free][:, free]
     _, vectors = spla.eigsh(0.5 * (stiffness + stiffness.T), k=1, which="SA", tol=1e-6, maxiter=50 * len(free))
