@@ -208,7 +208,7 @@ def test_sphere_probe_holds_the_nodes_under_its_surface_at_its_height(shape, cou
 
 def test_held_press_settles_on_the_static_contact_equilibrium():
     """Pressed 5 mm over a corner cell and held, the probe's force and the tissue settle on the
-    frictionless-contact equilibrium that the static active set (sim_core.resolution) finds for
+    frictionless-contact equilibrium that the static active set (sim_core.studies.solving) finds for
     the same probe (measured: within 1e-6 N after 40 steps; the contact set held within one step)."""
     from sim_core.studies.solving import mss_solver, solve_with_contact
 
