@@ -22,7 +22,7 @@ demo: $(STAMP)
 	$(PY) -m training.demo
 
 validate: $(STAMP)
-	$(PY) -m sim_core.demo
+	$(PY) -m sim_core.studies.demo
 	$(PY) benchmarks/validation.py
 
 test: $(STAMP)

@@ -2,8 +2,8 @@
 
     python benchmarks/peers.py [--rounds 7] [--steps 100] [--no-static]
 
-Scene (the same physical block in every engine, ``sim_core.bench``'s): 10 x 10 x 10 cubes of 0.1 m
-(1331 nodes), E = 1e4 Pa, nu = 0.3, rho = 1500 kg/m^3, bottom face (y = 0) fixed, the reduced
+Scene (the same physical block in every engine, ``sim_core.studies.bench``'s): 10 x 10 x 10 cubes
+of 0.1 m (1331 nodes), E = 1e4 Pa, nu = 0.3, rho = 1500 kg/m^3, bottom face (y = 0) fixed, the reduced
 gravity 0.5 m/s^2 along -y (a few % strain), dt = 1 ms. Our model runs with the environments'
 hourglass_control = 0.5 (without it the self-weight compression buckles a zero-energy mode after
 about 5 s). The peers get the same nodes: each hex is
@@ -125,7 +125,7 @@ def mjcf(nodes, tets, pinned, *, young_modulus, poisson_ratio, mass, gravity, dt
 
 
 def machine() -> dict:
-    """Same description as ``sim_core.bench.measure`` writes into step_speed.json."""
+    """Same description as ``sim_core.studies.bench.measure`` writes into step_speed.json."""
     return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
             "cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__}
 

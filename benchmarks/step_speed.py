@@ -2,7 +2,7 @@
 
     python benchmarks/step_speed.py [--shape 10 10 10] [--repeats 200]
 
-Scene and measurements: ``sim_core.bench`` (a block of 0.1 m cubes sagging under a reduced
+Scene and measurements: ``sim_core.studies.bench`` (a block of 0.1 m cubes sagging under a reduced
 gravity). Reports medians of repeated steps (ms), full model and bare lattice (same springs, no
 corrections or volume forces) interleaved call by call, CG/BiCGSTAB iterations, a static shear solve
 (ms), the ratios to the bare lattice (explicit; implicit at a fixed 15 iterations, converged to the
@@ -23,7 +23,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from training.common import write_json  # noqa: E402
-from sim_core.bench import measure  # noqa: E402
+from sim_core.studies.bench import measure  # noqa: E402
 
 
 def main(argv=None):

@@ -9,7 +9,7 @@ contact force is along y and no shear is transmitted. For the floor that is exac
 contact; for the sphere it is Hertz's boundary condition (normal displacement prescribed, zero
 shear traction on the contact area), whose small-slope approximation it shares.
 
-The active set is updated as in a static contact solve (and ``sim_core.resolution``'s scenes,
+The active set is updated as in a static contact solve (and ``sim_core.studies.solving``'s scenes,
 ``tissue_env``'s Palpation and Retraction use the same functions):
 
 - ``release``: a node the obstacle would have to pull (the net force on it, tissue plus loads,

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._validate import finite_array
+from .elements import element_stiffness
 from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
@@ -437,8 +438,6 @@ def hourglass_projectors(nodes: np.ndarray, elements: np.ndarray) -> np.ndarray:
 
 def hourglass_matrix(mesh: HexMesh, young_modulus, poisson_ratio, alpha: float) -> sp.csr_matrix:
     """alpha sum_e (P_e x I3) K_e^FEM (P_e x I3): FEM stiffness restricted to hourglass modes (N/m)."""
-    from .fem import element_stiffness  # fem builds on this module's Control
-
     projector = hourglass_projectors(mesh.nodes, mesh.elements)
     full = np.einsum("mab,ij->maibj", projector, np.eye(3)).reshape(-1, 24, 24)
     stiffness = element_stiffness(mesh.nodes, mesh.elements, young_modulus, poisson_ratio)

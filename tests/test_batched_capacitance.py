@@ -5,7 +5,7 @@ capacitance correction (``_CopyFactor.correction``, ``kernels._corrected_lu_appl
 import numpy as np
 import pytest
 
-from sim_core.bench import tumor_block
+from sim_core.studies.bench import tumor_block
 from sim_core.batched import BatchedImplicitEuler, ModelStack
 
 

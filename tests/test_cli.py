@@ -7,11 +7,11 @@ import sys
 import meshio
 import pytest
 
-from sim_core.cli import main
+from sim_core.studies.cli import main
 
 
 def run_cli(*args):
-    process = subprocess.run([sys.executable, "-m", "sim_core.cli", *args], capture_output=True, text=True)
+    process = subprocess.run([sys.executable, "-m", "sim_core.studies.cli", *args], capture_output=True, text=True)
     return process.returncode, process.stdout, process.stderr
 
 

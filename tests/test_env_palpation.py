@@ -208,9 +208,9 @@ def test_sphere_probe_holds_the_nodes_under_its_surface_at_its_height(shape, cou
 
 def test_held_press_settles_on_the_static_contact_equilibrium():
     """Pressed 5 mm over a corner cell and held, the probe's force and the tissue settle on the
-    frictionless-contact equilibrium that the static active set (sim_core.resolution) finds for
+    frictionless-contact equilibrium that the static active set (sim_core.studies.solving) finds for
     the same probe (measured: within 1e-6 N after 40 steps; the contact set held within one step)."""
-    from sim_core.resolution import _mss_solver, _solve_with_contact
+    from sim_core.studies.solving import mss_solver, solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400).unwrapped
     env.terminate_on_success = False
@@ -222,11 +222,11 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
         env.step(np.clip((target - env._tip()) / env.max_step, -1, 1).astype(np.float32))
         forces.append(env.measures["reaction_force"][1])
     assert abs(forces[-1] - forces[-2]) < 1e-6  # settled, no oscillation
-    solve, _ = _mss_solver(env.mesh, env._material(env.young_modulus, env.poisson_ratio, env.task_key), env.gravity,
-                           env.hourglass_control, env.volume_stiffness, False)
+    solve, _ = mss_solver(env.mesh, env._material(env.young_modulus, env.poisson_ratio, env.task_key), env.gravity,
+                          env.hourglass_control, env.volume_stiffness, False)
     candidates = np.zeros(env.mesh.n_nodes, bool)
     candidates[env.top_nodes] = True
-    positions, reaction, converged, _, _, contact = _solve_with_contact(
+    positions, reaction, converged, _, _, contact = solve_with_contact(
         solve, env.base_control.copy(), env.state.positions, env.probe, candidates, env._tip())
     assert converged and np.array_equal(contact, env.contact)
     assert abs(reaction[contact, 1].sum() - forces[-1]) < 1e-4 * abs(forces[-1])

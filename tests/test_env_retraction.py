@@ -57,7 +57,7 @@ def test_held_flap_settles_on_the_frictionless_static_equilibrium():
     equilibrium that solve_static's active set finds from the rest state (measured: within 4e-10 m;
     the post-step clamp it replaced settled up to 121% away in volume change)."""
     from sim_core.contact import Floor
-    from sim_core.resolution import _mss_solver, _solve_with_contact
+    from sim_core.studies.solving import mss_solver, solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400, shape=(6, 1, 3)).unwrapped  # a coarse flap: a quick static solve
     env.terminate_on_success = False
@@ -65,11 +65,11 @@ def test_held_flap_settles_on_the_frictionless_static_equilibrium():
     for action in [(0.0, 1.0, 0.0)] * 3 + [(-1.0, 0.0, 0.0)] * 3 + [(0.0, 0.0, 0.0)] * 150:
         env.step(np.array(action, np.float32))
     assert 0 < np.count_nonzero(env.contact) < np.count_nonzero(env._floor_candidates)
-    solve, _ = _mss_solver(env.mesh, env._material(env.young_modulus, env.poisson_ratio, None), env.gravity,
-                           env.hourglass_control, env.volume_stiffness, False)
+    solve, _ = mss_solver(env.mesh, env._material(env.young_modulus, env.poisson_ratio, None), env.gravity,
+                          env.hourglass_control, env.volume_stiffness, False)
     control = env.base_control.copy().impose(env.tool_nodes, env.tool_rest + env.tool_offset)
-    positions, _, converged, _, _, _ = _solve_with_contact(solve, control, None, Floor(), env._floor_candidates,
-                                                           rest=env.mesh.nodes)
+    positions, _, converged, _, _, _ = solve_with_contact(solve, control, None, Floor(), env._floor_candidates,
+                                                          rest=env.mesh.nodes)
     assert converged
     assert np.abs(positions - env.state.positions).max() < 1e-7
     assert np.all(env.state.positions[:, 1] >= 0.0)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.experiments import _face, _face_area_shares, elongation
+from sim_core.studies.experiments import _face, _face_area_shares, elongation
 
 BLOCK = dict(shape=(10, 10, 10), spacing=0.1, young_modulus=1e4, poisson_ratio=0.4, strain=0.01)
 

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from sim_core import HexMesh, Material, build_model, kernels
-from sim_core.bench import tumor_block
+from sim_core.studies.bench import tumor_block
 from sim_core.forces import ForceWorkspace
 from sim_core.integrators import ImplicitEuler, make_integrator, run
 from sim_core.preconditioners import FreeStructure

@@ -30,7 +30,7 @@ class RetractionEnv(TissueEnv):
 
     A flap of tissue (6 x 0.8 x 3 cm, 8 x 2 x 4 hexahedra, Baudet mass-spring model of ``sim_core``,
     gravity on) lies on a rigid, frictionless floor (y = 0) and stays attached to the body along its
-    edge x = 0. Contact is an active set, as in the static scene of ``sim_core.resolution``: the
+    edge x = 0. Contact is an active set, as in the static scene of ``sim_core.studies.solving``: the
     height of every node on the floor is imposed in the implicit step (x and z stay free), a node
     the tissue pulls up is released, and a free node that goes below the floor is put back on it
     (losing its downward velocity) and joins the set. Held still, the flap settles exactly on the
@@ -172,7 +172,7 @@ class RetractionEnv(TissueEnv):
         """The tool, and the floor contact: the height of every node on the floor is imposed (y = 0,
         frictionless: x and z stay free), so the implicit step solves with the contact in place; a
         node that the tissue pulls up (net force on it upward, measured at the current state) is
-        released first, as in the static scene's active set (``sim_core.resolution``)."""
+        released first, as in the static scene's active set (``sim_core.studies.solving``)."""
         control = super()._control()
         measures = getattr(self, "measures", None)
         if self.state is not None and measures is not None and "forces" in measures:

@@ -16,8 +16,9 @@ import sys
 
 import numpy as np
 
+from ..mesh import HexMesh
 from . import experiments
-from .mesh import HexMesh
+from .bench import measure
 
 
 class _Parser(argparse.ArgumentParser):
@@ -61,8 +62,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _bench(args) -> int:
-    from .bench import measure
-
     if min(args.shape) < 1 or args.repeats < 1:
         sys.stderr.write("tissue-sim: error: --shape needs positive integers and --repeats >= 1\n")
         return 2

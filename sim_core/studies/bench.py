@@ -16,12 +16,12 @@ import time
 
 import numpy as np
 
-from . import kernels
+from .. import kernels
+from ..integrators import ImplicitEuler, SymplecticEuler, run
+from ..material import Material
+from ..mesh import HexMesh
+from ..model import build_model
 from .experiments import shear
-from .integrators import ImplicitEuler, SymplecticEuler, run
-from .material import Material
-from .mesh import HexMesh
-from .model import build_model
 
 
 def median_ms(function, repeats):
