@@ -14,7 +14,7 @@ import os
 import numpy as np
 from numba import njit, prange
 
-from .mesh import EDGES, FACES, GAUSS_GRADIENTS
+from .topology import EDGES, FACES, GAUSS_GRADIENTS
 
 _EDGES = np.ascontiguousarray(EDGES)
 _FACES = np.ascontiguousarray(FACES)
