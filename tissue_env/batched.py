@@ -98,7 +98,7 @@ SOLVERS = ("factorised", "reference", "jacobi")
 #: Solver "factorised": each copy's preconditioner is the node-block LDL^T of its system matrix's
 #: symmetric part (the matrix is symmetric up to about 1e-4 of its entries, from the corrections'
 #: coupling and the volume terms) rather than its LU: half the values to store, factorise and read
-#: at every application (``kernels.block_ldl_factor``, ``kernels._block_ldl_solve_one``).
+#: at every application (``kernels.block_ldl_factor``, ``kernels.block_ldl_solve_one``).
 SYMMETRIC_FACTOR = True
 #: Solver "reference": at most this many copies per lockstep chunk (``lockstep_chunk``).
 LOCKSTEP_CHUNK = 8
@@ -419,7 +419,7 @@ class _CopyFactor:
 
     def correction(self, imposed: np.ndarray, n_dofs: int):
         """A node-block LU's capacitance correction for the dofs ``imposed`` (k,) sorted, free in the
-        factor but imposed now: (W, imposed) for ``kernels._corrected_lu_apply``, W from
+        factor but imposed now: (W, imposed) for ``kernels.corrected_lu_apply``, W from
         ``integrators.InverseColumns.correction`` (its columns kept per dof); None where it is
         singular. Kept per imposed set (8 per factor)."""
         key = imposed.tobytes()
@@ -957,7 +957,7 @@ class BatchedImplicitEuler:
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
         """The kernel's view of the copies' preconditioners: (lu_int, lu_float, group_of), the packed
-        LUs of the groups of copies that share one (``kernels._batched_precondition``; group -1:
+        LUs of the groups of copies that share one (``kernels.batched_precondition``; group -1:
         Jacobi)."""
         count = self.stack.count
         if self.solver != "reference":
