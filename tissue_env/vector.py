@@ -417,8 +417,7 @@ class TissueVectorEnv(VectorEnv):
         """(max |L / L0 - 1| (N,), whether a spring collapsed, L <= 1e-6 L0 (N,) bool) of the spring
         lengths (N, S) m, in one compiled pass."""
         strain, collapsed = np.empty(self.num_envs), np.empty(self.num_envs, dtype=bool)
-        kernel = kernels.strain_extremes if kernels.threaded(self.threads) else kernels.strain_extremes_serial
-        kernel(length, self.rest_length, strain, collapsed)
+        kernels.variant(kernels.strain_extremes, self.threads)(length, self.rest_length, strain, collapsed)
         return strain, collapsed
 
     # -- measurements, observation, info -------------------------------------------------------------

@@ -8,6 +8,7 @@ thread, and not in a forked process, where GNU OpenMP's pool is unusable).
 from __future__ import annotations
 
 import os
+import sys
 
 import numpy as np
 from numba import njit, prange
@@ -53,6 +54,15 @@ def threaded(threads: int) -> bool:
     """Whether the parallel kernels (not their ``_serial`` versions) run for ``threads`` threads:
     more than one, and not in a forked process (``FORKED``)."""
     return threads > 1 and not FORKED[0]
+
+
+def variant(kernel, threads: int):
+    """``kernel``, a parallel kernel, when the parallel kernels run for ``threads`` threads
+    (``threaded``), else its twin ``<name>_serial`` of the same module: the same arguments, the same
+    floats, in the calling thread. The one place that chooses between the two."""
+    if threaded(threads):
+        return kernel
+    return getattr(sys.modules[kernel.__module__], kernel.__name__ + "_serial")
 
 
 #: GNU OpenMP's spin count for numba's idle threads (``start_threads``): they spin about 0.8 ms
