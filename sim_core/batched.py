@@ -98,7 +98,7 @@ SOLVERS = ("factorised", "reference", "jacobi")
 #: Solver "factorised": each copy's preconditioner is the node-block LDL^T of its system matrix's
 #: symmetric part (the matrix is symmetric up to about 1e-4 of its entries, from the corrections'
 #: coupling and the volume terms) rather than its LU: half the values to store, factorise and read
-#: at every application (``kernels.block_ldl_factor``, ``kernels._block_ldl_solve_one``).
+#: at every application (``kernels.block_ldl_factor``, ``kernels.block_ldl_solve_one``).
 SYMMETRIC_FACTOR = True
 #: Solver "reference": at most this many copies per lockstep chunk (``lockstep_chunk``).
 LOCKSTEP_CHUNK = 8
@@ -419,7 +419,7 @@ class _CopyFactor:
 
     def correction(self, imposed: np.ndarray, n_dofs: int):
         """A node-block LU's capacitance correction for the dofs ``imposed`` (k,) sorted, free in the
-        factor but imposed now: (W, imposed) for ``kernels._corrected_lu_apply``, W from
+        factor but imposed now: (W, imposed) for ``kernels.corrected_lu_apply``, W from
         ``preconditioners.InverseColumns.correction`` (its columns kept per dof); None where it is
         singular. Kept per imposed set (8 per factor)."""
         key = imposed.tobytes()
@@ -664,10 +664,6 @@ class BatchedImplicitEuler:
         self._set_factor(index, factor, free)
         return factor
 
-    def _kernel(self, name):
-        """``kernels.<name>`` on numba's threads, or its serial version (``kernels.threaded``)."""
-        return getattr(kernels, name if kernels.threaded(self.threads) else name + "_serial")
-
     def _factorise_copies(self, indices, system, covers):
         """``_factorise`` of the copies ``indices`` (T,) on their ``covers`` (T, 3 n) bool, the node-block
         LUs of the copies with one node set in one compiled call (``kernels.factor_copies``: the same
@@ -690,7 +686,7 @@ class BatchedImplicitEuler:
             if structure is not None:
                 (node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices,
                  a_transpose, l_to_u, ints, a_values, work) = structure
-                factorise = self._kernel("factor_copies")
+                factorise = kernels.variant(kernels.factor_copies, self.threads)
                 factorise(stacked, system, hg_rows, hg_group, reference.spring_positions, reference.element_positions,
                           self._hg_positions, reference.pattern.diagonal_positions, indices[members],
                           covers[members], node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
@@ -785,7 +781,8 @@ class BatchedImplicitEuler:
         np.cumsum([len(missing) for _, _, missing in tasks], out=indptr[1:])
         flat = np.concatenate([missing for _, _, missing in tasks])
         out = np.zeros((len(flat), dofs))
-        self._kernel("inverse_columns_copies")(self._lu_int, self._lu_float, copies, indptr, flat, out)
+        kernels.variant(kernels.inverse_columns_copies, self.threads)(self._lu_int, self._lu_float, copies, indptr,
+                                                                      flat, out)
         for t, (_, inverse, missing) in enumerate(tasks):
             inverse.store(missing, out[indptr[t]:indptr[t + 1]])
 
@@ -806,7 +803,7 @@ class BatchedImplicitEuler:
         flat = np.concatenate([imposed for _, imposed in tasks]).astype(np.int64)
         out = np.empty(dofs * indptr[-1])
         ok = np.zeros(len(tasks), dtype=bool)
-        self._kernel("capacitance_corrections")(columns, indptr, flat, out, ok)
+        kernels.variant(kernels.capacitance_corrections, self.threads)(columns, indptr, flat, out, ok)
         for t, (factor, imposed) in enumerate(tasks):
             correction = out[dofs * indptr[t]:dofs * indptr[t + 1]].reshape(dofs, -1) if ok[t] else None
             factor.keep_correction(imposed, correction)
@@ -891,7 +888,7 @@ class BatchedImplicitEuler:
         blocks = self._hourglass_blocks()
         rows = np.zeros_like(rhs_rows)
         work = self._row_work
-        solve = self._kernel("solve_copies_lu")
+        solve = kernels.variant(kernels.solve_copies_lu, self.threads)
         solve(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active, self.tolerance, limits,
               self._lu_int, self._lu_float, self._factor_of, self._corrections, self._imposed, work, rows, iterations,
               residual, *blocks)
@@ -931,7 +928,7 @@ class BatchedImplicitEuler:
         stacked, hg_rows, hg_group = self._copies_first()
         rows = np.zeros((self.stack.count, rhs.shape[0]))
         limits = np.full(self.stack.count, limit, dtype=np.int64)
-        self._kernel("solve_copies_grouped")(
+        kernels.variant(kernels.solve_copies_grouped, self.threads)(
             stacked, system, hg_rows, hg_group, np.ascontiguousarray(mask.T), np.ascontiguousarray(rhs.T),
             np.ascontiguousarray(guess_rows), active, self.tolerance, limits, lu_int, lu_float, group_of,
             *self._no_corrections, self._group_work, rows, iterations, residual, *self._hourglass_blocks(),
@@ -957,7 +954,7 @@ class BatchedImplicitEuler:
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
         """The kernel's view of the copies' preconditioners: (lu_int, lu_float, group_of), the packed
-        LUs of the groups of copies that share one (``kernels._batched_precondition``; group -1:
+        LUs of the groups of copies that share one (``kernels.batched_precondition``; group -1:
         Jacobi)."""
         count = self.stack.count
         if self.solver != "reference":
@@ -1025,7 +1022,8 @@ class BatchedImplicitEuler:
         # rhs = dt f(x0, v0) - dt^2 K v0 - A known = dt f_0 + M v0 - A (v0 + known), known = dv on the
         # imposed dofs, f_0 without damping (ImplicitEuler's form): one operator product
         target_velocity, moved = np.empty((count, dofs)), np.empty((count, dofs))
-        self._kernel("implicit_rows_start")(x_rows, v_rows, target_rows, imposed, dt, target_velocity, moved)
+        kernels.variant(kernels.implicit_rows_start, self.threads)(x_rows, v_rows, target_rows, imposed, dt,
+                                                                   target_velocity, moved)
         product = np.empty((count, dofs))
         if self.solver == "jacobi":
             data = self.lockstep_data()
@@ -1034,9 +1032,11 @@ class BatchedImplicitEuler:
             product[:] = columns.T
         else:  # the product of each copy, on numba's threads (the same floats for any count)
             stacked, hg_rows, hg_group = self._copies_first()
-            self._kernel("apply_copies")(stacked, system, hg_rows, hg_group, moved, product, *self._hourglass_blocks())
+            kernels.variant(kernels.apply_copies, self.threads)(stacked, system, hg_rows, hg_group, moved, product,
+                                                                *self._hourglass_blocks())
         rhs = np.empty((count, dofs))
-        self._kernel("implicit_rows_rhs")(forces.reshape(count, dofs), self._dof_mass(), v_rows, product, dt, rhs)
+        kernels.variant(kernels.implicit_rows_rhs, self.threads)(forces.reshape(count, dofs), self._dof_mass(), v_rows,
+                                                                 product, dt, rhs)
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
         stalled = np.zeros(count, dtype=bool)
@@ -1072,7 +1072,7 @@ class BatchedImplicitEuler:
         self.last_iterations = iterations
         # v' = v0 + dv (the solution on free dofs), x' = x0 + dt v'; the imposed dofs at their targets
         new_positions, new_velocities = np.empty((count, n_nodes, 3)), np.empty((count, n_nodes, 3))
-        update = self._kernel("implicit_rows_update")
+        update = kernels.variant(kernels.implicit_rows_update, self.threads)
         update(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
                positions.reshape(count, dofs), velocities.reshape(count, dofs), new_positions.reshape(count, dofs),
                new_velocities.reshape(count, dofs))

@@ -162,7 +162,7 @@ class Factor:
 class InverseColumns:
     """Columns of the inverse B of a packed node-block LU (``sparse.NodeBlockLU``'s ``ints``,
     ``floats``) over ``n_dofs`` dofs, kept per dof (at most CAPACITANCE_CACHE) and solved together
-    for those not kept yet (``kernels._block_lu_solve``), and the capacitance correction of an
+    for those not kept yet (``kernels.block_lu_solve``), and the capacitance correction of an
     imposed set built from them. Shared by ``ImplicitEuler``'s factors (``_Capacitance``) and the
     batched vector envs' per-copy factors."""
 
@@ -207,8 +207,8 @@ class InverseColumns:
             rhs[missing, np.arange(count)] = 1.0
             out = np.zeros((self.n_dofs, count))
             k = -int(self.ints[0])
-            kernels._block_lu_solve(self.ints, self.floats, rhs, out, np.arange(count, dtype=np.int64), count,
-                                    np.empty((k, count)), np.empty((3, count)))
+            kernels.block_lu_solve(self.ints, self.floats, rhs, out, np.arange(count, dtype=np.int64), count,
+                                   np.empty((k, count)), np.empty((3, count)))
             self.store(missing, out.T)
         return np.ascontiguousarray(self.rows(dofs).T)
 
@@ -223,7 +223,7 @@ class InverseColumns:
         """W = B[:, c] (B[c, c])^-1 (n_dofs, k) C-contiguous for the dofs c = ``imposed`` (k,), free
         in the factor but imposed now: (B r - W (B r)[c]) restricted to the other free dofs is the
         inverse of the matrix on them applied to r, exactly for r zero on c
-        (``kernels._corrected_lu_apply``). None where B[c, c] is singular."""
+        (``kernels.corrected_lu_apply``). None where B[c, c] is singular."""
         z = self.columns(imposed)
         try:
             return kernels.serial_product(z, np.linalg.inv(z[imposed]))
@@ -286,8 +286,8 @@ class _Capacitance:
             correction = factor.inverse.correction(self.imposed)
             if correction is not None:
                 self._correction, self._held = correction, self.imposed
-        kernels._corrected_lu_apply(factor.block.ints, factor.block.floats, self.mask, self._ones, self._correction,
-                                    self._held, self._gathered, vector, out, factor._buffer)
+        kernels.corrected_lu_apply(factor.block.ints, factor.block.floats, self.mask, self._ones, self._correction,
+                                   self._held, self._gathered, vector, out, factor._buffer)
         if len(self.extra):
             out[self.extra] = vector[self.extra] * self.inverse_diagonal
         return out

@@ -153,7 +153,7 @@ class DivergenceMonitors:
         due = rows & ((self.checks % self.inversion_every == 0) | force_inversion_check)
         status = np.empty(self.count, dtype=np.int64)
         speed = np.zeros(self.count)
-        kernel = kernels.health_copies if kernels.threaded(self.threads) else kernels.health_copies_serial
+        kernel = kernels.variant(kernels.health_copies, self.threads)
         kernel(positions, velocities, rows, self.low, self.high, self.max_speed, self.floor_speed,
                self.oscillation_steps, self.previous, self.has_previous, self.growing, due, CORNER_NEIGHBOURS,
                CORNER_SIGN, self.elements, status, speed)

@@ -78,7 +78,7 @@ class BlockPattern:
 
 class NodeBlockLU:
     """A sparse LU of a system matrix whose free dofs are whole nodes, in dense 3 x 3 node blocks,
-    packed for ``kernels.block_lu_apply`` (one right-hand side) and ``kernels._block_lu_solve``
+    packed for ``kernels.block_lu_apply`` (one right-hand side) and ``kernels.block_lu_solve``
     (several) as (``ints``, ``floats``): P A P^T = L U with P a symmetric permutation of whole
     nodes (SuperLU's minimum degree ordering of the node graph, MMD on A + A^T) and no pivoting
     (the implicit system matrix M + dt D + dt^2 K is dominated by its diagonal), so that L and U
@@ -195,7 +195,7 @@ def block_structure(matrix, free):
 
 def symmetric_structure(structure):
     """The symmetric form of a ``block_structure``: (a_transpose, l_to_u, ints) for
-    ``kernels.block_ldl_factor`` and ``kernels._block_ldl_solve``: the position of block (j, i) for
+    ``kernels.block_ldl_factor`` and ``kernels.block_ldl_solve``: the position of block (j, i) for
     each block (i, j) of A, the position in U of block (k, i) for each block (i, k) of L, and the
     packed header [-k, nb, 0, blocks of U, U indptr, U block columns, order]. Raises
     np.linalg.LinAlgError where A's or the fill's block pattern is not symmetric."""

@@ -73,7 +73,7 @@ def test_a_failed_block_factor_falls_back_to_the_scalar_factor(monkeypatch):
         assert integrator._lu_int[index] is factor.ints
 
 
-def test_covered_points_kernel_matches_covered():
+def test_points_covered_by_quads_kernel_matches_covered():
     from sim_core import kernels
     from tissue_env.retraction import covered
     rng = np.random.default_rng(1)
@@ -86,7 +86,7 @@ def test_covered_points_kernel_matches_covered():
     points[0, :4] = positions[0, quads[0], :][:, [0, 2]]  # on corners: on the boundary counts as inside
     expected = covered(points, positions[:, quads][..., [0, 2]])
     out = np.empty((count, 50), dtype=bool)
-    kernels.covered_points(points, positions, quads, out)
+    kernels.points_covered_by_quads(points, positions, quads, out)
     assert np.array_equal(out, expected)
     assert 0 < expected.sum() < expected.size
 
@@ -132,7 +132,7 @@ def test_stacked_force_workspace_equals_the_stacked_models_force_pass(env_id, gr
 
 
 def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
-    """kernels._apply_blocks with BatchedImplicitEuler._hourglass_blocks (the node-block form of each
+    """kernels.apply_blocks with BatchedImplicitEuler._hourglass_blocks (the node-block form of each
     copy's hourglass matrix, solve_copies_lu's operator) equals apply_operator with the copy's CSR
     matrix (to rounding), for copies with different hourglass matrices."""
     from sim_core import kernels
@@ -157,8 +157,8 @@ def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
         mask = (rng.uniform(size=3 * nodes) > 0.2).astype(float)
         expected, out = np.empty_like(vector), np.empty_like(vector)
         kernels.apply_operator(data, system, mask, vector, expected)
-        kernels._apply_blocks(data, system, np.ones(3 * nodes), indptr, indices, values[hg_group[c]], mask, vector,
-                              out)
+        kernels.apply_blocks(data, system, np.ones(3 * nodes), indptr, indices, values[hg_group[c]], mask, vector,
+                             out)
         np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
         hourglass = dt * dt * (stack.models[c].hourglass @ vector)  # the term this checks matters
         assert np.abs(hourglass).max() > 1e-3 * np.abs(expected).max()

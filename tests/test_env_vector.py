@@ -202,7 +202,7 @@ def test_every_batched_solver_gives_the_single_env_trajectories(solver):
 
 def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     """Where the node-block LU fails (forced here), a copy gets SuperLU's scalar factor of its
-    free-dof matrix, packed for the compiled solves: applied by kernels._lu_apply it equals
+    free-dof matrix, packed for the compiled solves: applied by kernels.lu_apply it equals
     spsolve's solution (to 1e-8), and the steps stay finite."""
     from sim_core import kernels
     from sim_core import batched
@@ -230,7 +230,7 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     mask = np.zeros(3 * vector.n_nodes)
     mask[free] = 1.0
     out = np.empty_like(vector_in)
-    kernels._lu_apply(factor.ints, factor.floats, mask, vector_in * mask, out, np.empty(k))
+    kernels.lu_apply(factor.ints, factor.floats, mask, vector_in * mask, out, np.empty(k))
     expected = batched.spla.spsolve(matrix.tocsc(), vector_in[free])
     np.testing.assert_allclose(out[free], expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
     vector.close()
@@ -252,7 +252,7 @@ def test_copies_share_models_and_caches():
 @pytest.mark.parametrize("layout", ["node blocks", "scalar"])
 def test_reference_preconditioner_solves_each_group_with_its_factor(layout, monkeypatch):
     """Solver "reference": the copies that start alike share one sparse LU (one group), and the
-    compiled solve (kernels._batched_precondition) applies each group's factor to all its copies at
+    compiled solve (kernels.batched_precondition) applies each group's factor to all its copies at
     once: the exact inverse of the group's system matrix on the free dofs, zero on the imposed ones;
     a re-linearised copy gets a factor of its own; group -1 is the Jacobi diagonal. Both factor
     layouts: node blocks (free dofs are whole nodes, TumorPositioning) and the scalar fallback."""
@@ -286,8 +286,8 @@ def test_reference_preconditioner_solves_each_group_with_its_factor(layout, monk
     mask = np.ascontiguousarray(~fixed.reshape(4, dofs).T, dtype=float)
     inverse_diagonal = rng.uniform(1.0, 2.0, (dofs, 4))
     out = np.empty_like(vectors)
-    kernels._batched_precondition(lu_int, lu_float, group_of, np.ones(4, bool), inverse_diagonal, mask, vectors, out,
-                                  np.empty(4, np.int64), np.empty((dofs, 4)), np.empty((3, 4)))
+    kernels.batched_precondition(lu_int, lu_float, group_of, np.ones(4, bool), inverse_diagonal, mask, vectors, out,
+                                 np.empty(4, np.int64), np.empty((dofs, 4)), np.empty((3, 4)))
     free = np.flatnonzero(mask[:, 0])
     for index, positions in ((0, copy.state.positions), (2, env.positions[2])):
         # copy 0 still has the start-of-episode factor, copy 2 the one at its current state

@@ -4,7 +4,7 @@ numba caches each kernel on its own. A kernel compiled in a process where its ca
 the cache must give the floats of the same kernel compiled with fresh callees, or the serial and
 threaded twins of the vector envs (``kernels.solve_copies_lu_serial`` / ``solve_copies_lu`` ...) drift
 apart by rounding depending on what earlier processes cached. With fastmath "reassoc" they did
-(``kernels._FAST``): this test failed with it and passes without.
+(``kernels.FAST``): this test failed with it and passes without.
 """
 
 import os

@@ -256,8 +256,8 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
     columns = np.array([0, 2], dtype=np.int64)
     several = np.stack([rhs, np.zeros(n_dofs), 2.0 * rhs], axis=1)
     solved = np.zeros_like(several)
-    kernels._block_lu_solve(factor.ints, factor.floats, several, solved, columns, 2,
-                            np.empty((len(node_dofs), 2)), np.empty((3, 2)))
+    kernels.block_lu_solve(factor.ints, factor.floats, several, solved, columns, 2,
+                           np.empty((len(node_dofs), 2)), np.empty((3, 2)))
     for column, scale in ((0, 1.0), (2, 2.0)):
         assert np.abs(solved[node_dofs[free], column] - scale * expected).max() < 1e-12 * np.abs(expected).max()
     # unit right-hand sides (the capacitance corrections' columns of the inverse, whose substitution
@@ -269,8 +269,8 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
         units = np.zeros((n_dofs, count))
         units[held[picked], np.arange(count)] = 1.0
         inverse = np.zeros_like(units)
-        kernels._block_lu_solve(factor.ints, factor.floats, units, inverse, np.arange(count, dtype=np.int64), count,
-                                np.empty((len(node_dofs), count)), np.empty((3, count)))
+        kernels.block_lu_solve(factor.ints, factor.floats, units, inverse, np.arange(count, dtype=np.int64), count,
+                               np.empty((len(node_dofs), count)), np.empty((3, count)))
         np.testing.assert_allclose(inverse[held], dense[:, picked], rtol=0, atol=1e-12 * np.abs(dense).max())
     singular = matrix.copy()
     singular.data[:] = 0.0

@@ -621,7 +621,7 @@ class PalpationVectorEnv(TissueVectorEnv):
         # PalpationEnv._control for every copy
         count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
         forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
-        # once for the contact update and its targets, the copies on numba's threads when threaded
+        # once for the contact update and its targets, the copies on the kernels' threads when threaded
         surface = self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads))
         self.contact = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips,
                                       surface=surface)

@@ -341,8 +341,8 @@ class RetractionVectorEnv(TissueVectorEnv):
     def _batch_task_measures(self, positions):
         # covered(self.target_points, positions[:, self._footprint][..., [0, 2]]) in one compiled pass
         hidden = np.empty(self.target_points.shape[:2], dtype=bool)
-        kernels.covered_points(self.target_points, np.ascontiguousarray(positions, dtype=float), self._footprint,
-                               hidden)
+        kernels.points_covered_by_quads(self.target_points, np.ascontiguousarray(positions, dtype=float),
+                                        self._footprint, hidden)
         exposed = 1.0 - np.mean(hidden, axis=1)
         footprint = np.stack([positions[..., 0].min(axis=1), positions[..., 0].max(axis=1)], axis=1)
         return dict(exposed_fraction=exposed, footprint=footprint)

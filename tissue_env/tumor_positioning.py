@@ -298,7 +298,7 @@ class TumorPositioningVectorEnv(TissueVectorEnv):
     # 2.7 s; about 2.9 iterations per copy either way); solved per copy on 2 threads it was 15%
     # faster again, and in lockstep chunks of 8 copies, each pass over the shared factor and hourglass
     # matrix serving all of a chunk's running copies, 1.26x (1 thread) and 1.22x (2 threads) faster
-    # than per copy (``batched._solve_shared``). The measurement's force pass is the next step's (the
+    # than per copy (``sim_core.batched._solve_shared``). The measurement's force pass is the next step's (the
     # reaction force only reads it).
     linear_solver = "reference"
     share_force_pass = True

@@ -35,7 +35,7 @@ capacitance-corrected for their contacts (solver "factorised"), a copy per threa
 threads too. The copies' resets (their task envs' own ``reset``) run on a pool of as many Python
 threads (``_reset_rows``; a static solve releases the GIL for most of its time). Every task measures
 with the next step's force pass (``share_force_pass``), the force pass reads each distinct hourglass
-matrix once for all its copies (``batched.StackedForceWorkspace``) and the per-copy solves read it in
+matrix once for all its copies (``sim_core.batched.StackedForceWorkspace``) and the per-copy solves read it in
 node blocks. What batching cannot share is each copy's own sparse algebra (Retraction's floor
 re-factorises at about two steps in three) and TumorPositioning's resets (a static solve for the
 goal, the same code in both modes: 34-36% of its vector env's CPU time in the README's run).
@@ -417,8 +417,7 @@ class TissueVectorEnv(VectorEnv):
         """(max |L / L0 - 1| (N,), whether a spring collapsed, L <= 1e-6 L0 (N,) bool) of the spring
         lengths (N, S) m, in one compiled pass."""
         strain, collapsed = np.empty(self.num_envs), np.empty(self.num_envs, dtype=bool)
-        kernel = kernels.strain_extremes if kernels.threaded(self.threads) else kernels.strain_extremes_serial
-        kernel(length, self.rest_length, strain, collapsed)
+        kernels.variant(kernels.strain_extremes, self.threads)(length, self.rest_length, strain, collapsed)
         return strain, collapsed
 
     # -- measurements, observation, info -------------------------------------------------------------

@@ -1,0 +1,70 @@
+"""Compiled (numba) kernels for the per-step hot path: forces and the implicit Euler solve.
+
+Each kernel is a plain loop over springs or elements compiled once (``cache=True`` keeps the
+machine code between runs). The serial kernels release the GIL (``nogil=True``): Python threads
+run them at once (the vector envs reset their copies on several threads, whose static solves call
+them; a kernel only writes the arrays it is given). The numpy formulation in ``sim_core.forces`` is
+the readable reference the tests compare these kernels with; formulas cite shared/physics.md. SI
+units.
+
+The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``threads`` (the thread policy and
+``variant``, the choice between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes,
+health, strain, reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the
+force passes), ``operator`` (the implicit step's matrix-free operator products and its assembled
+matrix), ``factor`` (block LU / LDL^T factors and their solves), ``krylov`` (the single-model and
+Jacobi-preconditioned batched solves), ``krylov_copies`` (the per-copy solves preconditioned by
+sparse factors), ``contact`` (the probe's projected surface), ``geometry`` (points covered by quads
+seen from above). Every public name is re-exported here: ``kernels.model_forces(...)``.
+
+numba checks a cached kernel against the file that defines it only: a kernel that calls (or
+inlines) a function of another module keeps its cached machine code when only that other module
+changes. After editing a module, delete the package's ``__pycache__`` (or ``NUMBA_CACHE_DIR``) so
+that its callers in the other modules are compiled again.
+"""
+
+from .fastmath import (  # noqa: F401
+    FAST, FAST_REDUCE,
+)
+from .threads import (  # noqa: F401
+    FORKED, SPIN_COUNT, serial_product, start_threads, threaded, variant,
+)
+from .measure import (  # noqa: F401
+    any_inverted, element_volumes, element_volumes_copies, health, health_copies, health_copies_serial,
+    hex_volume, masked_reaction, spring_lengths, spring_lengths_copies, strain_extremes,
+    strain_extremes_serial,
+)
+from .update import (  # noqa: F401
+    implicit_rows_rhs, implicit_rows_rhs_serial, implicit_rows_start, implicit_rows_start_serial,
+    implicit_rows_update, implicit_rows_update_serial, symplectic_update,
+)
+from .forces import (  # noqa: F401
+    correction_pass, fixed_direction_corrections, model_forces, model_forces_copies, scatter_springs,
+    scatter_springs_copies, spring_pass, stacked_hourglass_subtract, stacked_hourglass_subtract_groups,
+    stacked_hourglass_subtract_groups_serial, stacked_hourglass_subtract_serial, subtract_pushes,
+    volume_forces_add, volume_forces_jacobian_add, volume_jacobian_terms, volume_pass,
+)
+from .operator import (  # noqa: F401
+    apply_blocks, apply_copies, apply_copies_serial, apply_copy, apply_operator, apply_operator_blocks,
+    apply_packed, batched_apply_operator, batched_apply_packed, batched_spring_operator, bsr3_matvec_add,
+    copies_row_product, copy_data, csr_matvec_add, operator_matrix_data, operator_matrix_data_blocks,
+    spring_operator,
+)
+from .factor import (  # noqa: F401
+    block_ldl_factor, block_ldl_solve, block_ldl_solve_one, block_lu_apply, block_lu_factor, block_lu_solve,
+    capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply,
+    factor_copies, factor_copies_serial, inverse_columns_copies, inverse_columns_copies_serial, lu_apply,
+    lu_columns,
+)
+from .krylov import (  # noqa: F401
+    batched_precondition, batched_solve, solve_springs,
+)
+from .krylov_copies import (  # noqa: F401
+    bsr3_matvec_add_rows, solve_copies_grouped, solve_copies_grouped_serial, solve_copies_lu,
+    solve_copies_lu_serial,
+)
+from .contact import (  # noqa: F401
+    projected_probe_surfaces, projected_probe_surfaces_rows,
+)
+from .geometry import (  # noqa: F401
+    points_covered_by_quads,
+)

@@ -1,0 +1,708 @@
+"""Sparse factors of the implicit step's matrix: node-block LU and LDL^T factorisations, their solves
+(one or several right-hand sides, packed SuperLU factors, capacitance-corrected), the factors of
+several copies in one call (``factor_copies``), columns of their inverses and the capacitance
+corrections built from them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from .fastmath import FAST
+from .operator import copy_data, operator_matrix_data, operator_matrix_data_blocks
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lu_offsets(ints):
+    """Offsets in a packed sparse LU's ``ints`` ([k, nnz_L, nnz_U, L indptr (k + 1), L indices,
+    U indptr (k + 1), U indices, gather (k), free (k), perm_c (k)], see ``lu_apply``): (nnz_L,
+    L indptr, L indices, U indptr, U indices, gather, free, perm_c)."""
+    k = ints[0]
+    nnz_l = ints[1]
+    lp = 3
+    li = lp + k + 1
+    up = li + nnz_l
+    ui = up + k + 1
+    gather = ui + ints[2]
+    return nnz_l, lp, li, up, ui, gather, gather + k, gather + 2 * k
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _subtract_block(values, base, buffer, j, a0, a1, a2, used):
+    """a -= B x for columns t < ``used``: B the row-major 3x3 block values[base:base + 9], x the
+    rows j, j + 1, j + 2 of ``buffer`` (the node-block triangular solves' inner update)."""
+    b00, b01, b02 = values[base], values[base + 1], values[base + 2]
+    b10, b11, b12 = values[base + 3], values[base + 4], values[base + 5]
+    b20, b21, b22 = values[base + 6], values[base + 7], values[base + 8]
+    for t in range(used):
+        x0 = buffer[j, t]
+        x1 = buffer[j + 1, t]
+        x2 = buffer[j + 2, t]
+        a0[t] -= b00 * x0 + b01 * x1 + b02 * x2
+        a1[t] -= b10 * x0 + b11 * x1 + b12 * x2
+        a2[t] -= b20 * x0 + b21 * x1 + b22 * x2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulator):
+    """out[:, columns[:used]] = A^-1 vector[:, columns[:used]] through a packed node-block sparse LU
+    (``sparse.NodeBlockLU``): P A P^T = L U with P a permutation of whole nodes and L, U
+    in block CSR of dense 3 x 3 blocks (L's diagonal block last in its block row, U's first).
+    ``ints``: [-k, nb, blocks of L, blocks of U, L indptr (nb + 1), L block columns, U indptr (nb + 1),
+    U block columns, order (k): the dof at each position of P], ``values``: [L blocks, U blocks]
+    (9 row-major values each). Row-oriented substitutions: a block row accumulates the products
+    of its blocks with the solved rows of all right-hand sides (``buffer`` (k, N), the copy index
+    last; ``accumulator`` (3, N)), one index per 9 values. A symmetric factor (``ints[2]`` = 0: no
+    L) goes through ``block_ldl_solve``."""
+    if ints[2] == 0:
+        block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulator)
+        return
+    k = -ints[0]
+    nb = ints[1]
+    nnz_l = ints[2]
+    lp = 4
+    li = lp + nb + 1
+    up = li + nnz_l
+    ui = up + nb + 1
+    order = ui + ints[3]
+    u_values = 9 * nnz_l
+    for j in range(k):
+        row = ints[order + j]
+        for t in range(used):
+            buffer[j, t] = vector[row, columns[t]]
+    a0 = accumulator[0]
+    a1 = accumulator[1]
+    a2 = accumulator[2]
+    for block_row in range(nb):  # L y = b
+        i = 3 * block_row
+        for t in range(used):
+            a0[t] = buffer[i, t]
+            a1[t] = buffer[i + 1, t]
+            a2[t] = buffer[i + 2, t]
+        last = ints[lp + block_row + 1] - 1
+        for q in range(ints[lp + block_row], last):
+            _subtract_block(values, 9 * q, buffer, 3 * ints[li + q], a0, a1, a2, used)
+        base = 9 * last
+        for t in range(used):
+            y0 = a0[t] / values[base]
+            y1 = (a1[t] - values[base + 3] * y0) / values[base + 4]
+            y2 = (a2[t] - values[base + 6] * y0 - values[base + 7] * y1) / values[base + 8]
+            buffer[i, t] = y0
+            buffer[i + 1, t] = y1
+            buffer[i + 2, t] = y2
+    for block_row in range(nb - 1, -1, -1):  # U x = y
+        i = 3 * block_row
+        for t in range(used):
+            a0[t] = buffer[i, t]
+            a1[t] = buffer[i + 1, t]
+            a2[t] = buffer[i + 2, t]
+        first = ints[up + block_row]
+        for q in range(first + 1, ints[up + block_row + 1]):
+            _subtract_block(values, u_values + 9 * q, buffer, 3 * ints[ui + q], a0, a1, a2, used)
+        base = u_values + 9 * first
+        for t in range(used):
+            y2 = a2[t] / values[base + 8]
+            y1 = (a1[t] - values[base + 5] * y2) / values[base + 4]
+            y0 = (a0[t] - values[base + 1] * y1 - values[base + 2] * y2) / values[base]
+            buffer[i, t] = y0
+            buffer[i + 1, t] = y1
+            buffer[i + 2, t] = y2
+    for j in range(k):
+        row = ints[order + j]
+        for t in range(used):
+            out[row, columns[t]] = buffer[j, t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr, u_indices, out, work):
+    """Numeric LU without pivoting, P A P^T = L U, of a matrix of dense 3 x 3 blocks on a given
+    fill pattern (``sparse.NodeBlockLU``). A: block CSR (a_indptr, a_indices, a_values: 9
+    row-major values per block, the rows and columns already permuted). L: block CSR whose rows
+    hold the strictly lower block columns, sorted, then the diagonal block; U: block CSR whose rows
+    hold the diagonal block, then the upper block columns. Row-oriented (row i is scattered into
+    ``work`` (9 nb,), eliminated with the earlier rows' U, and gathered). Writes out = [L blocks,
+    U blocks] (``block_lu_apply``'s layout; L's diagonal blocks unit lower triangular, U's upper
+    triangular). Returns False when a pivot is zero or not finite."""
+    nb = a_indptr.shape[0] - 1
+    u0 = 9 * l_indptr[nb]
+    for i in range(nb):
+        for q in range(l_indptr[i], l_indptr[i + 1]):
+            w = 9 * l_indices[q]
+            for e in range(9):
+                work[w + e] = 0.0
+        for q in range(u_indptr[i], u_indptr[i + 1]):
+            w = 9 * u_indices[q]
+            for e in range(9):
+                work[w + e] = 0.0
+        for q in range(a_indptr[i], a_indptr[i + 1]):
+            w = 9 * a_indices[q]
+            for e in range(9):
+                work[w + e] += a_values[9 * q + e]
+        for q in range(l_indptr[i], l_indptr[i + 1] - 1):
+            k = l_indices[q]
+            d = u0 + 9 * u_indptr[k]  # U_kk
+            w = 9 * k
+            lq = 9 * q
+            for r in range(3):  # L_ik = W_k U_kk^-1
+                x0 = work[w + 3 * r] / out[d]
+                x1 = (work[w + 3 * r + 1] - x0 * out[d + 1]) / out[d + 4]
+                x2 = (work[w + 3 * r + 2] - x0 * out[d + 2] - x1 * out[d + 5]) / out[d + 8]
+                out[lq + 3 * r] = x0
+                out[lq + 3 * r + 1] = x1
+                out[lq + 3 * r + 2] = x2
+            for p in range(u_indptr[k] + 1, u_indptr[k + 1]):  # W_j -= L_ik U_kj
+                b = u0 + 9 * p
+                w = 9 * u_indices[p]
+                for r in range(3):
+                    l0, l1, l2 = out[lq + 3 * r], out[lq + 3 * r + 1], out[lq + 3 * r + 2]
+                    for c in range(3):
+                        work[w + 3 * r + c] -= l0 * out[b + c] + l1 * out[b + 3 + c] + l2 * out[b + 6 + c]
+        w = 9 * i  # the diagonal block: 3 x 3 LU without pivoting
+        d00, d01, d02 = work[w], work[w + 1], work[w + 2]
+        l10 = work[w + 3] / d00
+        l20 = work[w + 6] / d00
+        d11 = work[w + 4] - l10 * d01
+        d12 = work[w + 5] - l10 * d02
+        l21 = (work[w + 7] - l20 * d01) / d11
+        d22 = work[w + 8] - l20 * d02 - l21 * d12
+        if not (np.isfinite(l10) and np.isfinite(l20) and np.isfinite(l21) and np.isfinite(d22) and d22 != 0.0):
+            return False
+        lq = 9 * (l_indptr[i + 1] - 1)
+        for e in range(9):
+            out[lq + e] = 0.0
+        out[lq] = out[lq + 4] = out[lq + 8] = 1.0
+        out[lq + 3] = l10
+        out[lq + 6] = l20
+        out[lq + 7] = l21
+        d = u0 + 9 * u_indptr[i]
+        for e in range(9):
+            out[d + e] = 0.0
+        out[d], out[d + 1], out[d + 2] = d00, d01, d02
+        out[d + 4], out[d + 5], out[d + 8] = d11, d12, d22
+        for p in range(u_indptr[i] + 1, u_indptr[i + 1]):  # U_ij = L_ii^-1 W_j
+            b = u0 + 9 * p
+            w = 9 * u_indices[p]
+            for c in range(3):
+                y0 = work[w + c]
+                y1 = work[w + 3 + c] - l10 * y0
+                out[b + c] = y0
+                out[b + 3 + c] = y1
+                out[b + 6 + c] = work[w + 6 + c] - l20 * y0 - l21 * y1
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _invert3(values, base, out, target):
+    """out[target:target + 9] = the inverse of the row-major 3 x 3 block values[base:base + 9];
+    False where its determinant is zero or not finite."""
+    a, b, c = values[base], values[base + 1], values[base + 2]
+    d, e, f = values[base + 3], values[base + 4], values[base + 5]
+    g, h, i = values[base + 6], values[base + 7], values[base + 8]
+    c00, c01, c02 = e * i - f * h, c * h - b * i, b * f - c * e
+    det = a * c00 + d * c01 + g * c02
+    if not (np.isfinite(det) and det != 0.0):
+        return False
+    s = 1.0 / det
+    out[target], out[target + 1], out[target + 2] = c00 * s, c01 * s, c02 * s
+    out[target + 3], out[target + 4], out[target + 5] = (f * g - d * i) * s, (a * i - c * g) * s, (c * d - a * f) * s
+    out[target + 6], out[target + 7], out[target + 8] = (d * h - e * g) * s, (b * g - a * h) * s, (a * e - b * d) * s
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def block_ldl_factor(a_indptr, a_indices, a_values, a_transpose, l_indptr, l_indices, l_to_u, u_indptr, u_indices,
+                     out, work):
+    """Numeric block LDL^T without pivoting, S = U^T D U, of the symmetric part S = (A + A^T) / 2 of
+    a matrix of dense 3 x 3 blocks with a symmetric block pattern, on a given fill pattern
+    (``sparse.NodeBlockLU``'s symmetric form): U unit upper block triangular, D block diagonal.
+    A as ``block_lu_factor`` takes it, with ``a_transpose`` (nnz blocks,) the position of block
+    (j, i) for each block (i, j); U's pattern (u_indptr, u_indices: the diagonal block first in each
+    row, then the upper block columns, sorted) and L's = U's transpose (l_indptr, l_indices: the lower
+    block columns of each row, sorted, then the diagonal), ``l_to_u`` the position in U of the block
+    (k, i) for each L block (i, k). Row-oriented, up-looking, on the upper triangle only: about half
+    the block products of ``block_lu_factor``. Writes out (9 nnz_U,) = U's off-diagonal blocks and, in
+    each diagonal slot, D_i^-1 (``block_ldl_solve``'s layout). Returns False when a D_i is
+    singular or not finite."""
+    nb = a_indptr.shape[0] - 1
+    m = np.empty(9)
+    for i in range(nb):
+        for q in range(u_indptr[i], u_indptr[i + 1]):
+            w = 9 * u_indices[q]
+            for e in range(9):
+                work[w + e] = 0.0
+        for q in range(a_indptr[i], a_indptr[i + 1]):  # the upper part of row i of (A + A^T) / 2
+            j = a_indices[q]
+            if j < i:
+                continue
+            w, a, t = 9 * j, 9 * q, 9 * a_transpose[q]
+            for r in range(3):
+                for c in range(3):
+                    work[w + 3 * r + c] += 0.5 * (a_values[a + 3 * r + c] + a_values[t + 3 * c + r])
+        for q in range(l_indptr[i], l_indptr[i + 1] - 1):
+            k = l_indices[q]
+            p = l_to_u[q]  # the block (k, i) of D U (not yet scaled)
+            d = 9 * u_indptr[k]  # D_k^-1
+            b = 9 * p
+            for r in range(3):  # m = D_k^-1 (D U)_ki = U_ki
+                for c in range(3):
+                    m[3 * r + c] = (out[d + 3 * r] * out[b + c] + out[d + 3 * r + 1] * out[b + 3 + c]
+                                    + out[d + 3 * r + 2] * out[b + 6 + c])
+            for p2 in range(p, u_indptr[k + 1]):  # W_j -= U_ki^T (D U)_kj, j >= i
+                g = 9 * p2
+                w = 9 * u_indices[p2]
+                for r in range(3):
+                    m0, m1, m2 = m[r], m[3 + r], m[6 + r]
+                    for c in range(3):
+                        work[w + 3 * r + c] -= m0 * out[g + c] + m1 * out[g + 3 + c] + m2 * out[g + 6 + c]
+            for e in range(9):
+                out[b + e] = m[e]
+        d = 9 * u_indptr[i]
+        if not _invert3(work, 9 * i, out, d):
+            return False
+        for q in range(u_indptr[i] + 1, u_indptr[i + 1]):  # (D U)_ij, scaled when row j is eliminated
+            w = 9 * u_indices[q]
+            b = 9 * q
+            for e in range(9):
+                out[b + e] = work[w + e]
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulator):
+    """``block_lu_solve`` through a packed node-block LDL^T (``block_ldl_factor``): P S P^T = U^T D U.
+    ``ints``: [-k, nb, 0, blocks of U, U indptr (nb + 1), U block columns, order (k)], ``values``: U's
+    blocks with D_i^-1 in each diagonal slot. U^T z = b by a forward sweep that scatters each solved
+    block row into the later rows, then x = U^-1 D^-1 z by a backward sweep: U's blocks are read
+    twice, half the values of the LU's two sweeps. The forward sweep starts at the first block row
+    where b is not zero (columns of the inverse: unit vectors)."""
+    if used == 1:
+        block_ldl_solve_one(ints, values, vector[:, columns[0]], out[:, columns[0]], buffer[:, 0])
+        return
+    k = -ints[0]
+    nb = ints[1]
+    up = 4
+    ui = up + nb + 1
+    order = ui + ints[3]
+    start = nb  # the first block row with a non-zero right-hand side: z is zero before it
+    for j in range(k):
+        row = ints[order + j]
+        for t in range(used):
+            value = vector[row, columns[t]]
+            buffer[j, t] = value
+            if value != 0.0 and j // 3 < start:
+                start = j // 3
+    for block_row in range(start, nb):  # U^T z = b: z_i is final, then b_j -= U_ij^T z_i
+        i = 3 * block_row
+        for q in range(ints[up + block_row] + 1, ints[up + block_row + 1]):
+            base = 9 * q
+            j = 3 * ints[ui + q]
+            b00, b01, b02 = values[base], values[base + 1], values[base + 2]
+            b10, b11, b12 = values[base + 3], values[base + 4], values[base + 5]
+            b20, b21, b22 = values[base + 6], values[base + 7], values[base + 8]
+            for t in range(used):
+                z0 = buffer[i, t]
+                z1 = buffer[i + 1, t]
+                z2 = buffer[i + 2, t]
+                buffer[j, t] -= b00 * z0 + b10 * z1 + b20 * z2
+                buffer[j + 1, t] -= b01 * z0 + b11 * z1 + b21 * z2
+                buffer[j + 2, t] -= b02 * z0 + b12 * z1 + b22 * z2
+    a0 = accumulator[0]
+    a1 = accumulator[1]
+    a2 = accumulator[2]
+    for block_row in range(nb - 1, -1, -1):  # U x = D^-1 z
+        i = 3 * block_row
+        first = ints[up + block_row]
+        base = 9 * first
+        for t in range(used):
+            z0 = buffer[i, t]
+            z1 = buffer[i + 1, t]
+            z2 = buffer[i + 2, t]
+            a0[t] = values[base] * z0 + values[base + 1] * z1 + values[base + 2] * z2
+            a1[t] = values[base + 3] * z0 + values[base + 4] * z1 + values[base + 5] * z2
+            a2[t] = values[base + 6] * z0 + values[base + 7] * z1 + values[base + 8] * z2
+        for q in range(first + 1, ints[up + block_row + 1]):
+            _subtract_block(values, 9 * q, buffer, 3 * ints[ui + q], a0, a1, a2, used)
+        for t in range(used):
+            buffer[i, t] = a0[t]
+            buffer[i + 1, t] = a1[t]
+            buffer[i + 2, t] = a2[t]
+    for j in range(k):
+        row = ints[order + j]
+        for t in range(used):
+            out[row, columns[t]] = buffer[j, t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def block_ldl_solve_one(ints, values, vector, out, buffer):
+    """``block_ldl_solve`` for one right-hand side (n,) (the Krylov solves' case), its running
+    values in registers: 0.25 against 0.36 ms through the loop over columns (a Palpation copy)."""
+    k = -ints[0]
+    nb = ints[1]
+    up = 4
+    ui = up + nb + 1
+    order = ui + ints[3]
+    start = nb  # the first block row with a non-zero right-hand side (a unit vector's: late)
+    for j in range(k):
+        value = vector[ints[order + j]]
+        buffer[j] = value
+        if value != 0.0 and start == nb:
+            start = j // 3
+    for block_row in range(start, nb):  # U^T z = b
+        i = 3 * block_row
+        z0 = buffer[i]
+        z1 = buffer[i + 1]
+        z2 = buffer[i + 2]
+        for q in range(ints[up + block_row] + 1, ints[up + block_row + 1]):
+            base = 9 * q
+            j = 3 * ints[ui + q]
+            buffer[j] -= values[base] * z0 + values[base + 3] * z1 + values[base + 6] * z2
+            buffer[j + 1] -= values[base + 1] * z0 + values[base + 4] * z1 + values[base + 7] * z2
+            buffer[j + 2] -= values[base + 2] * z0 + values[base + 5] * z1 + values[base + 8] * z2
+    for block_row in range(nb - 1, -1, -1):  # U x = D^-1 z
+        i = 3 * block_row
+        first = ints[up + block_row]
+        base = 9 * first
+        z0 = buffer[i]
+        z1 = buffer[i + 1]
+        z2 = buffer[i + 2]
+        a0 = values[base] * z0 + values[base + 1] * z1 + values[base + 2] * z2
+        a1 = values[base + 3] * z0 + values[base + 4] * z1 + values[base + 5] * z2
+        a2 = values[base + 6] * z0 + values[base + 7] * z1 + values[base + 8] * z2
+        for q in range(first + 1, ints[up + block_row + 1]):
+            base = 9 * q
+            j = 3 * ints[ui + q]
+            x0 = buffer[j]
+            x1 = buffer[j + 1]
+            x2 = buffer[j + 2]
+            a0 -= values[base] * x0 + values[base + 1] * x1 + values[base + 2] * x2
+            a1 -= values[base + 3] * x0 + values[base + 4] * x1 + values[base + 5] * x2
+            a2 -= values[base + 6] * x0 + values[base + 7] * x1 + values[base + 8] * x2
+        buffer[i] = a0
+        buffer[i + 1] = a1
+        buffer[i + 2] = a2
+    for j in range(k):
+        out[ints[order + j]] = buffer[j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def block_lu_apply(ints, values, mask, vector, out, buffer):
+    """out = mask * A^-1 vector (n,) through a packed node-block LU: ``block_lu_solve`` with one
+    column (a copy specialised for one right-hand side was measured only 9-11% faster); the dofs
+    the factor does not hold get 0. ``buffer`` (k,) scratch."""
+    k = -ints[0]
+    columns = np.zeros(1, dtype=np.int64)
+    for i in range(out.shape[0]):
+        out[i] = 0.0
+    block_lu_solve(ints, values, vector.reshape(-1, 1), out.reshape(-1, 1), columns, 1,
+                    buffer[:k].reshape(-1, 1), np.empty((3, 1)))
+    for i in range(out.shape[0]):
+        out[i] *= mask[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def lu_columns(ints, values, vector, out, columns, used, buffer, accumulator):
+    """out[:, columns[:used]] = A^-1 vector[:, columns[:used]] through one packed sparse LU: a
+    node-block factor (``ints[0]`` < 0, ``block_lu_solve``), SuperLU's scalar layout (``ints[0]`` =
+    k > 0, ``lu_apply``'s; column sweeps with all right-hand sides at once) or none (k = 0: the
+    identity). Each entry of L and U is read once for all the columns. The rows of ``out`` that the
+    factor does not hold are left as they are. ``buffer`` (>= |k|, >= used) and ``accumulator`` (3, >= used) scratch."""
+    k = ints[0]
+    if k < 0:
+        block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulator)
+        return
+    if k == 0:
+        for i in range(vector.shape[0]):
+            for t in range(used):
+                out[i, columns[t]] = vector[i, columns[t]]
+        return
+    nnz_l, lp, li, up, ui, gather, free, perm_c = _lu_offsets(ints)
+    for j in range(k):
+        row = ints[gather + j]
+        for t in range(used):
+            buffer[j, t] = vector[row, columns[t]]
+    for j in range(k):  # L (CSC, diagonal first): column sweeps, all right-hand sides at once
+        diagonal = values[ints[lp + j]]
+        for t in range(used):
+            buffer[j, t] /= diagonal
+        for q in range(ints[lp + j] + 1, ints[lp + j + 1]):
+            row = ints[li + q]
+            value = values[q]
+            for t in range(used):
+                buffer[row, t] -= value * buffer[j, t]
+    for j in range(k - 1, -1, -1):  # U (CSC, diagonal last)
+        end = ints[up + j + 1] - 1
+        diagonal = values[nnz_l + end]
+        for t in range(used):
+            buffer[j, t] /= diagonal
+        for q in range(ints[up + j], end):
+            row = ints[ui + q]
+            value = values[nnz_l + q]
+            for t in range(used):
+                buffer[row, t] -= value * buffer[j, t]
+    for i in range(k):
+        row = ints[free + i]
+        source = ints[perm_c + i]
+        for t in range(used):
+            out[row, columns[t]] = buffer[source, t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def lu_apply(ints, values, mask, vector, out, buffer):
+    """out = mask * A^-1 vector through one packed sparse LU: Pr A Pc = L U on the copy's free dofs
+    (SuperLU's convention). ``ints``: [k, nnz_L, nnz_U, L indptr (k + 1), L indices, U indptr (k + 1),
+    U indices, gather (k), free (k), perm_c (k)] (CSC, sorted indices: L's diagonal first, U's last in
+    each column), ``values``: [L data, U data]; gather[j] = the dof that Pr puts in position j. The
+    factor's free dofs may include dofs the mask imposes (a factor of a larger free set: an
+    approximate inverse). k = 0: no factor (out = mask * vector)."""
+    k = ints[0]
+    if k == 0:
+        for i in range(vector.shape[0]):
+            out[i] = mask[i] * vector[i]
+        return
+    if k < 0:  # a node-block factor (``sparse.NodeBlockLU``)
+        block_lu_apply(ints, values, mask, vector, out, buffer)
+        return
+    nnz_l, lp, li, up, ui, gather, free, perm_c = _lu_offsets(ints)
+    for j in range(k):
+        buffer[j] = vector[ints[gather + j]]
+    for j in range(k):
+        value = buffer[j] / values[ints[lp + j]]
+        buffer[j] = value
+        if value != 0.0:
+            for q in range(ints[lp + j] + 1, ints[lp + j + 1]):
+                buffer[ints[li + q]] -= values[q] * value
+    for j in range(k - 1, -1, -1):
+        end = ints[up + j + 1] - 1
+        value = buffer[j] / values[nnz_l + end]
+        buffer[j] = value
+        if value != 0.0:
+            for q in range(ints[up + j], end):
+                buffer[ints[ui + q]] -= values[nnz_l + q] * value
+    for i in range(vector.shape[0]):
+        out[i] = 0.0
+    for i in range(k):
+        row = ints[free + i]
+        out[row] = mask[row] * buffer[ints[perm_c + i]]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def corrected_lu_apply(ints, values, mask, ones, correction, imposed, gathered, vector, out, buffer):
+    """out = mask * (y - correction @ y[imposed]) with y = A^-1 vector (``lu_apply`` without mask):
+    a factor of a larger free set F restricted exactly to the free dofs ``mask`` (capacitance
+    correction, ``correction`` (3 n, k) = B[:, imposed] (B[imposed, imposed])^-1 with B the
+    factor's inverse and ``imposed`` (k,) the dofs of F imposed now; exact for a vector zero on
+    them). k = 0: ``lu_apply`` with ``mask``. ``ones`` (3 n,) ones, ``gathered`` (>= k,) scratch."""
+    k = imposed.shape[0]
+    if k == 0:
+        lu_apply(ints, values, mask, vector, out, buffer)
+        return
+    lu_apply(ints, values, ones, vector, out, buffer)
+    correct_masked(out, correction, imposed, gathered, mask)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def correct_masked(out, correction, imposed, gathered, mask):
+    """out = mask * (out - correction @ out[imposed]): a capacitance correction (``corrected_lu_apply``)
+    on an unmasked solve ``out`` (3 n,); ``gathered`` (>= k,) scratch."""
+    k = imposed.shape[0]
+    for j in range(k):
+        gathered[j] = out[imposed[j]]
+    for i in range(out.shape[0]):
+        value = out[i]
+        for j in range(k):
+            value -= correction[i, j] * gathered[j]
+        out[i] = mask[i] * value
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _inverse_columns_task(lu_int, lu_float, copies, indptr, dofs, out, t):
+    """``inverse_columns_copies``' columns of task ``t``."""
+    first, count = indptr[t], indptr[t + 1] - indptr[t]
+    ints, values = lu_int[copies[t]], lu_float[copies[t]]
+    n_dofs = out.shape[1]
+    rhs = np.zeros((n_dofs, count))
+    solved = np.zeros((n_dofs, count))
+    for i in range(count):
+        rhs[dofs[first + i], i] = 1.0
+    k = -ints[0]
+    block_lu_solve(ints, values, rhs, solved, np.arange(count), count, np.empty((k, count)), np.empty((3, count)))
+    for i in range(count):
+        for j in range(n_dofs):
+            out[first + i, j] = solved[j, i]
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def inverse_columns_copies(lu_int, lu_float, copies, indptr, dofs, out):
+    """Columns of the inverse of several copies' node-block factors (``preconditioners.InverseColumns``,
+    the capacitance corrections' columns): task t solves the unit vectors of the dofs
+    ``dofs[indptr[t]:indptr[t + 1]]`` together through the factor of copy ``copies[t]``
+    (``lu_int[c]``, ``lu_float[c]``: ``block_lu_solve``), into the rows ``out[indptr[t]:indptr[t + 1]]``
+    ((total, 3 n), zero where the factor holds no dof). The tasks on numba's threads."""
+    for t in prange(copies.shape[0]):
+        _inverse_columns_task(lu_int, lu_float, copies, indptr, dofs, out, np.int64(t))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def inverse_columns_copies_serial(lu_int, lu_float, copies, indptr, dofs, out):
+    """``inverse_columns_copies`` in this thread only (one thread, a forked process)."""
+    for t in range(copies.shape[0]):
+        _inverse_columns_task(lu_int, lu_float, copies, indptr, dofs, out, t)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                 diagonal_positions, c, cover, node_dofs, take, rows, columns, a_map, a_indptr, a_indices, l_indptr,
+                 l_indices, u_indptr, u_indices, a_transpose, l_to_u, values, a_values, work, out, node_edge,
+                 node_sign):
+    """``factor_copies``' factorisation of copy ``c`` on its cover ``cover`` (3 n,) into ``out``, with
+    ``values``, ``a_values`` and ``work`` its own scratch; False where a pivot is zero or not finite."""
+    data = copy_data(stacked, hg_rows, hg_group, c)
+    if node_edge.shape[0] == stacked[6].shape[0]:  # one row per element: the node-pair assembly
+        operator_matrix_data_blocks(data, scales, spring_positions, element_positions, hg_positions,
+                                    diagonal_positions, node_edge, node_sign, values)
+    else:
+        operator_matrix_data(data, scales, spring_positions, element_positions, hg_positions, diagonal_positions,
+                             values)
+    a_values[:] = 0.0
+    for q in range(take.shape[0]):
+        r = rows[q]
+        col = columns[q]
+        if r == col or (cover[node_dofs[r]] and cover[node_dofs[col]]):
+            a_values[a_map[q]] = values[take[q]]
+    if l_to_u.shape[0]:
+        return block_ldl_factor(a_indptr, a_indices, a_values, a_transpose, l_indptr, l_indices, l_to_u, u_indptr,
+                                u_indices, out, work)
+    return block_lu_factor(a_indptr, a_indices, a_values, l_indptr, l_indices, u_indptr, u_indices, out, work)
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def factor_copies(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                  diagonal_positions, copies, covers, node_dofs, take, rows, columns, a_map, a_indptr, a_indices,
+                  l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u, ints, values, a_values, work, lu_int,
+                  lu_float, ok, node_edge, node_sign):
+    """The node-block LUs of several copies' system matrices in one call, each exactly as
+    ``operator_matrix_data`` followed by ``preconditioners.node_block_factor`` (``sparse.NodeBlockLU``,
+    ``block_lu_factor``) computes it: for copy c = ``copies[t]`` of the stacked model (``stacked``,
+    ``hg_rows``, ``hg_group`` as ``solve_copies_lu`` takes them), the matrix of the operator with
+    ``scales`` is assembled on the model's pattern (``values`` (nnz,) scratch), restricted to the
+    whole nodes ``node_dofs`` (k,) (``preconditioners.FreeStructure``: ``take``, ``rows``, ``columns``
+    of its CSC entries) with the dofs not in ``covers[t]`` (3 n,) decoupled (rows and columns zero,
+    diagonal kept), scattered into the permuted block matrix (``a_map``, ``a_values`` scratch) and
+    factorised on the fill pattern (l_*, u_*): an LU (``block_lu_factor``), or with ``l_to_u`` not
+    empty the LDL^T of its symmetric part (``block_ldl_factor``, ``ints`` its header; the symmetric
+    form of ``sparse.NodeBlockLU``). With ``node_edge`` and ``node_sign`` (M, 8, 3), the
+    assembly is ``operator_matrix_data_blocks`` (the same matrix up to rounding, faster); empty
+    (0, 8, 3): ``operator_matrix_data``. A factor that succeeds is a new array
+    ``lu_float[c]``, with ``lu_int[c] = ints`` (the structure's packed header); ``ok[t]`` False (and
+    ``lu_int``/``lu_float`` untouched) where a pivot is zero or not finite. The copies are shared
+    among numba's threads, each with its own scratch (``values``, ``a_values``, ``work`` serve a
+    single copy); the factors are stored after the parallel loop."""
+    count = copies.shape[0]
+    size = 9 * (u_indices.shape[0] + (0 if l_to_u.shape[0] else l_indices.shape[0]))
+    outs = [np.empty(size) for _ in range(count)]
+    for entry in prange(count):  # the copies on all of numba's threads, each with its own scratch
+        t = np.int64(entry)
+        own = count == 1
+        ok[t] = _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                             diagonal_positions, copies[t], covers[t], node_dofs, take, rows, columns, a_map,
+                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u,
+                             values if own else np.empty(values.shape[0]),
+                             a_values if own else np.empty(a_values.shape[0]),
+                             work if own else np.empty(work.shape[0]), outs[t], node_edge, node_sign)
+    for t in range(count):
+        if ok[t]:
+            lu_int[copies[t]] = ints
+            lu_float[copies[t]] = outs[t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def factor_copies_serial(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                         diagonal_positions, copies, covers, node_dofs, take, rows, columns, a_map, a_indptr,
+                         a_indices, l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u, ints, values,
+                         a_values, work, lu_int, lu_float, ok, node_edge, node_sign):
+    """``factor_copies`` in this thread only, the copies one after the other with the scratch
+    ``values``, ``a_values``, ``work``: for one thread, and in a forked process, where GNU OpenMP's
+    pool must not be used (``FORKED``)."""
+    size = 9 * (u_indices.shape[0] + (0 if l_to_u.shape[0] else l_indices.shape[0]))
+    for t in range(copies.shape[0]):
+        out = np.empty(size)
+        ok[t] = _factor_copy(stacked, scales, hg_rows, hg_group, spring_positions, element_positions, hg_positions,
+                             diagonal_positions, copies[t], covers[t], node_dofs, take, rows, columns, a_map,
+                             a_indptr, a_indices, l_indptr, l_indices, u_indptr, u_indices, a_transpose, l_to_u,
+                             values, a_values, work, out, node_edge, node_sign)
+        if ok[t]:
+            lu_int[copies[t]] = ints
+            lu_float[copies[t]] = out
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _capacitance_task(columns, indptr, imposed, out, ok, t):
+    """``capacitance_corrections``' task ``t``: Gauss-Jordan inverse of C with partial pivoting, then
+    W = Z C^-1 into its slice of ``out``."""
+    first, last = indptr[t], indptr[t + 1]
+    k = last - first
+    n = columns.shape[1]
+    system = np.empty((k, k))
+    inverse = np.zeros((k, k))
+    for a in range(k):
+        for b in range(k):
+            system[a, b] = columns[first + b, imposed[first + a]]
+        inverse[a, a] = 1.0
+    scale = 0.0
+    for a in range(k):
+        for b in range(k):
+            scale = max(scale, abs(system[a, b]))
+    for col in range(k):
+        pivot = col
+        for a in range(col + 1, k):
+            if abs(system[a, col]) > abs(system[pivot, col]):
+                pivot = a
+        if not abs(system[pivot, col]) > 1e-14 * scale:  # singular to working precision (or NaN)
+            ok[t] = False
+            return
+        if pivot != col:
+            for b in range(k):
+                system[col, b], system[pivot, b] = system[pivot, b], system[col, b]
+                inverse[col, b], inverse[pivot, b] = inverse[pivot, b], inverse[col, b]
+        factor = 1.0 / system[col, col]
+        for b in range(k):
+            system[col, b] *= factor
+            inverse[col, b] *= factor
+        for a in range(k):
+            if a != col:
+                multiple = system[a, col]
+                if multiple != 0.0:
+                    for b in range(k):
+                        system[a, b] -= multiple * system[col, b]
+                        inverse[a, b] -= multiple * inverse[col, b]
+    base = n * first
+    for i in range(n):
+        for j in range(k):
+            out[base + i * k + j] = 0.0
+    for q in range(k):
+        for i in range(n):
+            value = columns[first + q, i]
+            if value != 0.0:
+                for j in range(k):
+                    out[base + i * k + j] += value * inverse[q, j]
+    ok[t] = True
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def capacitance_corrections(columns, indptr, imposed, out, ok):
+    """Several capacitance corrections W = Z (Z[c])^-1 at once (``preconditioners.InverseColumns.correction``,
+    the batched vector envs' ``_correct``): task t's columns of the inverse are the rows
+    ``columns[indptr[t]:indptr[t + 1]]`` (k_t, 3 n) (Z^T), for its imposed dofs
+    ``imposed[indptr[t]:indptr[t + 1]]`` (c); its W (3 n, k_t) C-order goes to
+    ``out[3 n indptr[t]:3 n indptr[t + 1]]``. ok[t] False where Z[c] is singular to working
+    precision (pivot below 1e-14 of its largest entry). The tasks on numba's threads."""
+    for t in prange(indptr.shape[0] - 1):
+        _capacitance_task(columns, indptr, imposed, out, ok, np.int64(t))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def capacitance_corrections_serial(columns, indptr, imposed, out, ok):
+    """``capacitance_corrections`` in this thread only (one thread, a forked process)."""
+    for t in range(indptr.shape[0] - 1):
+        _capacitance_task(columns, indptr, imposed, out, ok, t)

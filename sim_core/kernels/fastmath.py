@@ -1,0 +1,24 @@
+"""The fastmath flag sets of the compiled kernels: which LLVM floating-point liberties each may take.
+
+A kernel's floats depend on these sets, so each kernel keeps the one it was validated with: the
+serial and threaded twins of the vector envs must round alike, bit for bit.
+"""
+
+from __future__ import annotations
+
+#: fastmath without the no-NaN / no-inf assumptions, so a diverging run still shows NaN to the monitor,
+#: and without reassociation, so a kernel's floats do not depend on how LLVM optimised it. With
+#: "reassoc", a kernel compiled in a process where its callees were loaded from numba's cache rounded
+#: differently (1e-16 to 1e-14 relative) from the same kernel compiled with fresh callees: a serial
+#: kernel cached by one process and its threaded twin compiled by the next gave different
+#: trajectories (tests/test_env_vector.py's bit-for-bit test failed after
+#: ``pytest tests/test_batched_fused.py -k grouped``; it passes without "reassoc"). Measured without it
+#: (benchmarks/vector_env_speed.py, 2 interleaved runs): the envs ran 4-16% faster, sync and vector
+#: alike (TumorPositioning's vector env 864/887 -> 1013/1027 steps/s, Palpation's 1404/1371 ->
+#: 1566/1636); the static solve 205 -> 187 ms (``tissue-sim bench`` at 10^3).
+FAST = {"nsz", "arcp", "contract"}
+#: ``FAST`` with reassociation, for the single-model Jacobi Krylov kernels only (``apply_operator``,
+#: ``solve_springs``: no serial / threaded twin whose floats must match; ``spring_operator``, which
+#: the copies' kernels call too, has none): their vectorised reductions kept the bare lattice's
+#: 15-iteration CG step at 0.65 ms (0.78 ms without).
+FAST_REDUCE = FAST | {"reassoc"}

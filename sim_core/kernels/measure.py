@@ -1,0 +1,247 @@
+"""Measurements of the current state: spring lengths, exact hexahedron volumes, the health checks
+(finite, speed, bounds, inverted corners), strain extremes and the reaction on masked nodes, for one
+model and for N stacked copies.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def spring_lengths(positions, springs, length):
+    """Lengths (m) of every spring into ``length`` (S,)."""
+    for s in range(springs.shape[0]):
+        a, b = springs[s, 0], springs[s, 1]
+        dx = positions[b, 0] - positions[a, 0]
+        dy = positions[b, 1] - positions[a, 1]
+        dz = positions[b, 2] - positions[a, 2]
+        length[s] = np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+#: VTK corner of each lexicographic corner a + 2 b + 4 c.
+_LEXICOGRAPHIC_TO_VTK = np.array([0, 1, 3, 2, 4, 5, 7, 6])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def hex_volume(corner, d=None):
+    """Exact volume (m^3) of a trilinear hexahedron from its (8, 3) corners, VTK order.
+
+    The integral of det J is a cubic form in the corners; written with d_i = x_i - x_0 for the
+    corners in lexicographic order (i = a + 2 b + 4 c at local (a, b, c)) it is (1/12) sum of 15
+    triple products, grouped here into 9 cross products (coefficients fitted to, and tested
+    against, 2x2x2 Gauss quadrature, which is exact for this integrand).
+    """
+    if d is None:
+        d = np.empty((8, 3))  # scratch (pass one in hot loops: no allocation per element)
+    for n in range(8):
+        vtk = _LEXICOGRAPHIC_TO_VTK[n]
+        for c in range(3):
+            d[n, c] = corner[vtk, c] - corner[0, c]
+    a = _cross(d[2, 0], d[2, 1], d[2, 2], d[3, 0], d[3, 1], d[3, 2])
+    b = _cross(d[3, 0], d[3, 1], d[3, 2], d[5, 0] + d[7, 0], d[5, 1] + d[7, 1], d[5, 2] + d[7, 2])
+    e = _cross(d[5, 0], d[5, 1], d[5, 2], d[4, 0] - d[7, 0], d[4, 1] - d[7, 1], d[4, 2] - d[7, 2])
+    volume = d[1, 0] * (a[0] + b[0] + e[0]) + d[1, 1] * (a[1] + b[1] + e[1]) + d[1, 2] * (a[2] + b[2] + e[2])
+    a = _cross(d[3, 0], d[3, 1], d[3, 2], d[6, 0] + d[7, 0], d[6, 1] + d[7, 1], d[6, 2] + d[7, 2])
+    b = _cross(d[6, 0], d[6, 1], d[6, 2], d[7, 0] - d[4, 0], d[7, 1] - d[4, 1], d[7, 2] - d[4, 2])
+    volume += d[2, 0] * (b[0] - a[0]) + d[2, 1] * (b[1] - a[1]) + d[2, 2] * (b[2] - a[2])
+    a = _cross(d[6, 0] - d[5, 0], d[6, 1] - d[5, 1], d[6, 2] - d[5, 2], d[7, 0], d[7, 1], d[7, 2])
+    volume += d[3, 0] * a[0] + d[3, 1] * a[1] + d[3, 2] * a[2]
+    six_seven = _cross(d[6, 0], d[6, 1], d[6, 2], d[7, 0], d[7, 1], d[7, 2])
+    a = _cross(d[5, 0], d[5, 1], d[5, 2], d[6, 0] + d[7, 0], d[6, 1] + d[7, 1], d[6, 2] + d[7, 2])
+    volume += d[4, 0] * (a[0] - six_seven[0]) + d[4, 1] * (a[1] - six_seven[1]) + d[4, 2] * (a[2] - six_seven[2])
+    volume -= d[5, 0] * six_seven[0] + d[5, 1] * six_seven[1] + d[5, 2] * six_seven[2]
+    return volume / 12.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def element_volumes(positions, elements, out):
+    """``out[e]`` = exact volume (m^3) of every trilinear hexahedron (``hex_volume``), no temporaries
+    per element: 10x faster than the batched Gauss determinants of ``mesh.hex_volumes``."""
+    corner, d = np.empty((8, 3)), np.empty((8, 3))
+    for e in range(elements.shape[0]):
+        for n in range(8):
+            for c in range(3):
+                corner[n, c] = positions[elements[e, n], c]
+        out[e] = hex_volume(corner, d)
+    return out
+
+
+#: The 15 (a, b, c, sign) of V = 1/12 sum sign d_a . (d_b x d_c), lexicographic corners.
+_VOLUME_TRIPLES = np.array([
+    [1, 2, 3, 1], [1, 3, 5, 1], [1, 3, 7, 1], [1, 4, 5, -1], [1, 5, 7, -1], [2, 3, 6, -1], [2, 3, 7, -1],
+    [2, 4, 6, 1], [2, 6, 7, 1], [3, 5, 7, -1], [3, 6, 7, 1], [4, 5, 6, 1], [4, 5, 7, 1], [4, 6, 7, -1],
+    [5, 6, 7, -1]])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def health(positions, velocities, low, high):
+    """(all finite, max speed in m/s, all nodes inside [low, high]) in one pass."""
+    finite = True
+    inside = True
+    max_speed_squared = 0.0
+    for node in range(positions.shape[0]):
+        speed_squared = 0.0
+        for c in range(3):
+            x = positions[node, c]
+            v = velocities[node, c]
+            if not (np.isfinite(x) and np.isfinite(v)):
+                finite = False
+            if x < low[c] or x > high[c]:
+                inside = False
+            speed_squared += v * v
+        if speed_squared > max_speed_squared:
+            max_speed_squared = speed_squared
+    return finite, np.sqrt(max_speed_squared), inside
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def any_inverted(positions, elements, neighbours, signs):
+    """True when a corner Jacobian (signed corner frame volume) of any element is <= 0."""
+    for m in range(elements.shape[0]):
+        for corner in range(8):
+            o = elements[m, corner]
+            a, b, c = elements[m, neighbours[corner, 0]], elements[m, neighbours[corner, 1]], elements[m, neighbours[corner, 2]]
+            ax, ay, az = positions[a, 0] - positions[o, 0], positions[a, 1] - positions[o, 1], positions[a, 2] - positions[o, 2]
+            bx, by, bz = positions[b, 0] - positions[o, 0], positions[b, 1] - positions[o, 1], positions[b, 2] - positions[o, 2]
+            cx, cy, cz = positions[c, 0] - positions[o, 0], positions[c, 1] - positions[o, 1], positions[c, 2] - positions[o, 2]
+            det = ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+            if signs[corner] * det <= 0.0:
+                return True
+    return False
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def spring_lengths_copies(count, positions, springs, length):
+    """``spring_lengths`` of a stacked model of ``count`` copies (copies first: copy c's springs are
+    the c-th equal slice), the copies on numba's threads (the same floats)."""
+    per = springs.shape[0] // count
+    for c in prange(count):
+        spring_lengths(positions, springs[c * per:(c + 1) * per], length[c * per:(c + 1) * per])
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def element_volumes_copies(count, positions, elements, out):
+    """``element_volumes`` of a stacked model of ``count`` copies (copy c's elements the c-th equal
+    slice), the copies on numba's threads (the same floats)."""
+    per = elements.shape[0] // count
+    for c in prange(count):
+        element_volumes(positions, elements[c * per:(c + 1) * per], out[c * per:(c + 1) * per])
+    return out
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _strain_row(length, rest_length, strain, collapsed, c):
+    largest = 0.0
+    undefined = False
+    short = False
+    for s in range(length.shape[1]):
+        ratio = abs(length[c, s] / rest_length[c, s] - 1.0)
+        if ratio != ratio:
+            undefined = True
+        elif ratio > largest:
+            largest = ratio
+        if not length[c, s] > 1e-6 * rest_length[c, s]:
+            short = True
+    strain[c] = np.nan if undefined else largest
+    collapsed[c] = short
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def strain_extremes(length, rest_length, strain, collapsed):
+    """Per row of spring lengths (N, S) m against ``rest_length`` (N, S): strain[c] = max |L / L0 - 1|
+    (NaN where a ratio is NaN, as numpy's max) and collapsed[c] = not all L > 1e-6 L0 (a NaN length
+    counts as collapsed, as numpy's comparison)."""
+    for c in prange(length.shape[0]):
+        _strain_row(length, rest_length, strain, collapsed, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def strain_extremes_serial(length, rest_length, strain, collapsed):
+    """``strain_extremes`` in this thread only."""
+    for c in range(length.shape[0]):
+        _strain_row(length, rest_length, strain, collapsed, c)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def masked_reaction(forces, mask, out):
+    """out[c] = -sum over nodes of ``forces[c]`` (N, n, 3) N where ``mask`` (N, n, 3) holds: the tool's
+    reaction per copy, summed node after node as numpy's sum over axis 1."""
+    for c in range(forces.shape[0]):
+        for k in range(3):
+            out[c, k] = -forces[c, 0, k] if mask[c, 0, k] else 0.0
+        for node in range(1, forces.shape[1]):
+            for k in range(3):
+                out[c, k] += -forces[c, node, k] if mask[c, node, k] else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                 has_previous, growing, due, neighbours, signs, elements, status, speed, c):
+    status[c] = 0
+    if not rows[c]:
+        return
+    finite, fastest, inside = health(positions[c], velocities[c], low[c], high[c])
+    speed[c] = fastest
+    if not finite:
+        status[c] = 1
+        return
+    if fastest > max_speed[c]:
+        status[c] = 2
+        return
+    if not inside:
+        status[c] = 3
+        return
+    if has_previous[c]:  # the oscillation test against the last checked velocities
+        new = 0.0
+        old = 0.0
+        cross = 0.0
+        for node in range(velocities.shape[1]):
+            for k in range(3):
+                v = velocities[c, node, k]
+                p = previous[c, node, k]
+                new += v * v
+                old += p * p
+                cross += v * p
+        reversing = cross < -0.5 * np.sqrt(new * old)
+        fast = new > velocities.shape[1] * floor_speed[c] ** 2
+        growing[c] = growing[c] + 1 if reversing and new > old and fast else 0
+    has_previous[c] = True
+    for node in range(velocities.shape[1]):
+        for k in range(3):
+            previous[c, node, k] = velocities[c, node, k]
+    if growing[c] >= oscillation_steps[c]:
+        status[c] = 5
+    elif due[c] and any_inverted(positions[c], elements, neighbours, signs):
+        status[c] = 4
+
+
+@njit(cache=True, error_model="numpy", parallel=True)
+def health_copies(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                  has_previous, growing, due, neighbours, signs, elements, status, speed):
+    """``solver.DivergenceMonitors.check``'s tests for the copies ``rows`` (N,) bool of positions
+    and velocities (N, n, 3), in this order: status[c] = 1 non-finite, 2 a node faster than
+    ``max_speed[c]`` m/s (speed[c] its speed), 3 a node outside [low[c], high[c]] (N, 3) m; else the
+    oscillation test against ``previous[c]`` (the copy's last checked velocities, where
+    ``has_previous[c]``; then set to these): ``growing[c]`` counts the consecutive checks whose
+    velocity field reverses (cosine below -0.5) and grows with v.v > n ``floor_speed[c]``^2, and
+    reaching ``oscillation_steps[c]`` gives 5; else, where ``due[c]``, 4 for an inverted element
+    (``any_inverted`` on ``elements``); 0 healthy."""
+    for c in prange(positions.shape[0]):
+        _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                     has_previous, growing, due, neighbours, signs, elements, status, speed, np.int64(c))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def health_copies_serial(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                         has_previous, growing, due, neighbours, signs, elements, status, speed):
+    """``health_copies`` in this thread only."""
+    for c in range(positions.shape[0]):
+        _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
+                     has_previous, growing, due, neighbours, signs, elements, status, speed, c)

@@ -1,0 +1,93 @@
+"""The kernels' thread policy: when the parallel kernels run, and numba's thread pool.
+
+A parallel kernel ``name`` has a twin ``name_serial`` that computes the same floats in the calling
+thread only; ``variant`` is the one place that picks between them (``threaded``: more than one
+thread, and not in a forked process, where GNU OpenMP's pool is unusable).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import numpy as np
+from numba import njit, prange
+
+from .fastmath import FAST
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def serial_product(a, b):
+    """a @ b (m, k) x (k, p) in this thread: a product of a few-column matrix by a small one
+    (``preconditioners.InverseColumns.correction``: m the dofs, k = p the imposed dofs, at most
+    ``CAPACITANCE_MAX``). Through numpy, OpenBLAS runs such a product on its thread pool, whose
+    threads then spin on the other cores after every call: Retraction's vector env at N = 16 used
+    1.9 CPU seconds per wall second that way, at the same wall time."""
+    m, k = a.shape
+    p = b.shape[1]
+    out = np.zeros((m, p))
+    for i in range(m):
+        for q in range(k):
+            value = a[i, q]
+            if value != 0.0:
+                for j in range(p):
+                    out[i, j] += value * b[q, j]
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _touch_threads(out):
+    """A parallel loop: its first call starts numba's thread pool (``start_threads``)."""
+    for i in prange(out.shape[0]):
+        out[i] = i
+
+
+#: [True] in a process forked from this one (``os.register_at_fork``): GNU OpenMP's thread pool is
+#: not fork-safe (numba terminates a forked child that enters a parallel region of a pool its parent
+#: started), so the batched vector envs use the serial kernels there (``solve_copies_lu_serial``,
+#: ``factor_copies_serial``).
+FORKED = [False]
+os.register_at_fork(after_in_child=lambda: FORKED.__setitem__(0, True))
+
+
+def threaded(threads: int) -> bool:
+    """Whether the parallel kernels (not their ``_serial`` versions) run for ``threads`` threads:
+    more than one, and not in a forked process (``FORKED``)."""
+    return threads > 1 and not FORKED[0]
+
+
+def variant(kernel, threads: int):
+    """``kernel``, a parallel kernel, when the parallel kernels run for ``threads`` threads
+    (``threaded``), else its twin ``<name>_serial`` of the same module: the same arguments, the same
+    floats, in the calling thread. The one place that chooses between the two."""
+    if threaded(threads):
+        return kernel
+    return getattr(sys.modules[kernel.__module__], kernel.__name__ + "_serial")
+
+
+#: GNU OpenMP's spin count for numba's idle threads (``start_threads``): they spin about 0.8 ms
+#: after a parallel region (measured: 0.84-0.96 ms of CPU per pause of 20-200 ms; 0.15-0.21 ms
+#: sleeping at once, OMP_WAIT_POLICY=PASSIVE; 6-7 ms with libgomp's default of 300000), long enough
+#: to bridge the Python between a step's parallel kernels, short enough that a pause (a policy
+#: update) finds them asleep
+SPIN_COUNT = 30000
+
+
+def start_threads():
+    """Start numba's thread pool (the parallel kernels: ``factor_copies``, ``solve_copies_lu``) with
+    idle threads that spin briefly, then sleep. With numba's OpenMP layer, GNU OpenMP reads
+    ``OMP_WAIT_POLICY`` and ``GOMP_SPINCOUNT`` once, when it loads. A thread woken from sleep costs
+    about 70-80 us per parallel region here (an empty region: 2.5 us with spinning threads), and a
+    vector env step runs a dozen regions: Palpation's vector env at N = 16 ran 674-704 env steps/s
+    with sleeping threads (PASSIVE), 754-765 with SPIN_COUNT (TumorPositioning 813 -> 857,
+    Retraction 1033 -> 1145), at 2-8% less work per CPU second; libgomp's default spin count gave
+    771-778 and kept a core busy for 7 ms after every region. ``GOMP_SPINCOUNT`` is set for the load
+    only, and only when the user has set neither variable; a pool already started is left as it is."""
+    unset = "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ
+    if unset:
+        os.environ["GOMP_SPINCOUNT"] = str(SPIN_COUNT)
+    try:
+        _touch_threads(np.empty(4))
+    finally:
+        if unset:
+            os.environ.pop("GOMP_SPINCOUNT", None)
