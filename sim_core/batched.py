@@ -1,10 +1,9 @@
-"""Batched physics for the vector environments: N copies of one scene stepped together.
+"""Batched solvers for N worlds of one scene stepped together (the vector environments).
 
-The N copies share one topology (the task's block), so they are one sim_core ``Model`` on a mesh
-made of N disjoint copies of the block (``ModelStack``): node ``j`` of copy ``i`` is node
-``i * n_nodes + j`` of the stacked model, and every per-spring, per-element and per-node array is
-the concatenation of the copies' arrays. A copy whose material changes (a new episode with
-another inclusion or Young's modulus) overwrites its slot; nothing is rebuilt.
+The N worlds share one topology (the task's block), so they are one sim_core ``Model`` on a mesh
+made of N disjoint copies of the block (``sim_core.stack.ModelStack``). A world whose material
+changes (a new episode with another inclusion or Young's modulus) overwrites its slot; nothing is
+rebuilt.
 
 ``BatchedImplicitEuler`` advances all copies by the discrete equation of sim_core's
 ``ImplicitEuler`` (corrections="implicit"):
@@ -76,23 +75,17 @@ import scipy.sparse.linalg as spla
 from numba.typed import List as TypedList
 
 from . import kernels
-from .forces import ForceWorkspace, forget_hourglass_blocks, hourglass_block_map, internal_forces, stiffness_data
+from .forces import stiffness_data
 from .integrators import SymplecticEuler
-from .mesh import HexMesh
 from .model import Control, Model, State
 from .preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
                               node_block_factor)
 from .sparse import NodeBlockLU, block_structure, symmetric_structure
+from .stack import ModelStack, StackedForceWorkspace
 
-#: Model arrays that hold one value per node, spring or element of a copy (its material and rest
-#: geometry); the topology arrays (springs, edge_spring) are offset instead.
-VALUE_FIELDS = ("mass", "rest_length", "stiffness", "damping", "axis_rest_length", "correction_matrix",
-                "rest_volume", "volume_stiffness", "young_modulus", "poisson_ratio", "density")
-#: Preconditioners kept per process, keyed by the content of (model, reference positions, dt,
-#: imposed dofs): the N copies of a vector env (and several vector envs) share them.
+#: Start-of-episode preconditioners an integrator keeps, keyed by the content of (model, reference
+#: positions, dt, imposed dofs): its N copies share them across episodes.
 PRECONDITIONER_CACHE_SIZE = 64
-_preconditioners: OrderedDict = OrderedDict()
-_factors: OrderedDict = OrderedDict()
 #: The batched implicit step's linear solvers (``BatchedImplicitEuler``).
 SOLVERS = ("factorised", "reference", "jacobi")
 #: Solver "factorised": each copy's preconditioner is the node-block LDL^T of its system matrix's
@@ -114,233 +107,9 @@ def lockstep_chunk(count: int) -> int:
     return max(1, min(LOCKSTEP_CHUNK, (count + 1) // 2))
 
 
-class ModelStack:
-    """N copies of one block as one sim_core ``Model`` (``self.model``); ``assign(i, model)``
-    puts a model of the same block (any material) into copy ``i``.
-
-    Args:
-        model: a model of the block (copied into every slot).
-        count: number of copies N.
-    """
-
-    def __init__(self, model: Model, count: int):
-        self.count = int(count)
-        self.n_nodes = model.n_nodes
-        self.n_springs = len(model.springs)
-        self.n_elements = model.mesh.n_elements
-        self.reference = model
-        nodes = np.tile(model.mesh.nodes, (count, 1))
-        offsets = np.arange(count)[:, None, None]
-        elements = (model.mesh.elements[None] + self.n_nodes * offsets).reshape(-1, 8)
-        springs = (model.springs[None] + self.n_nodes * offsets).reshape(-1, 2)
-        edge_spring = (model.edge_spring[None] + self.n_springs * offsets).reshape(-1, 12)
-        hourglass = None
-        if model.hourglass is not None:
-            single = model.hourglass
-            self.hourglass_nnz = single.nnz
-            rows = 3 * self.n_nodes
-            indptr = np.concatenate([[0], (single.indptr[1:][None] + single.nnz * np.arange(count)[:, None]).ravel()])
-            indices = (single.indices[None] + rows * np.arange(count)[:, None]).ravel()
-            hourglass = sp.csr_matrix((np.tile(single.data, count), indices, indptr),
-                                      shape=(rows * count, rows * count))
-        values = {name: np.concatenate([getattr(model, name)] * count) for name in VALUE_FIELDS}
-        self.model = Model(
-            mesh=HexMesh(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
-            correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
-            options=dict(model.options), **values,
-        )
-        # slots of each copy in the per-dof arrays the Model derived at construction
-        self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
-        self.models = [model] * count
-        self._hourglass_keys = [_digest(model.hourglass.data) if model.hourglass is not None else None] * count
-        self._hourglass_by_key = {self._hourglass_keys[0]: model.hourglass}
-        self._hourglass_groups = None
-        self.version = 0
-        self._copies_last = None
-
-    def _check(self, model: Model):
-        same = (model.n_nodes == self.n_nodes and len(model.springs) == self.n_springs
-                and model.mesh.n_elements == self.n_elements and model.correction_mode == self.reference.correction_mode
-                and (model.hourglass is None) == (self.reference.hourglass is None)
-                and np.array_equal(model.springs, self.reference.springs)
-                and np.array_equal(model.mesh.elements, self.reference.mesh.elements))
-        if not same:
-            raise ValueError("ModelStack.assign needs a model of the same block (mesh, springs, options)")
-
-    def assign(self, index: int, model: Model):
-        """Copy ``model``'s values into copy ``index`` (a no-op when it is already there)."""
-        if self.models[index] is model:
-            return
-        self._check(model)
-        stacked = self.model
-        for name in VALUE_FIELDS:
-            single = getattr(model, name)
-            getattr(stacked, name)[index * len(single):(index + 1) * len(single)] = single
-        nodes = slice(index * self.n_nodes, (index + 1) * self.n_nodes)
-        stacked.gravity_force[nodes] = model.gravity_force
-        stacked.mass_data[self._mass_positions[index]] = np.repeat(model.mass, 3)
-        if model.hourglass is not None:
-            data = slice(index * self.hourglass_nnz, (index + 1) * self.hourglass_nnz)
-            stacked.hourglass.data[data] = model.hourglass.data
-            if stacked.hourglass_arrays[2] is not stacked.hourglass.data:
-                stacked.hourglass_arrays[2][data] = model.hourglass.data
-            forget_hourglass_blocks(stacked)  # its hourglass values changed in place
-            key = _digest(model.hourglass.data)
-            self._hourglass_by_key.setdefault(key, model.hourglass)
-            self._hourglass_keys[index] = key
-            self._hourglass_groups = None
-        self.models[index] = model
-        self.version += 1
-
-    def copies_last(self):
-        """The copies' material arrays with the copy index last (``kernels.batched_spring_operator``'s
-        layout): dict of stiffness, damping (S, N), mass (n, N), correction_matrix (M, 3, 3, N),
-        axis_rest_length (M, 3, N), hourglass data (nnz, G) of the G distinct hourglass matrices and
-        hourglass_group (N,) the column of each copy; rebuilt after ``assign``."""
-        if self._copies_last is None or self._copies_last[0] != self.version:
-            model, count = self.model, self.count
-
-            def last(array):
-                array = np.asarray(array, dtype=float)
-                return np.ascontiguousarray(np.moveaxis(array.reshape((count, -1) + array.shape[1:]), 0, -1))
-
-            arrays = {name: last(getattr(model, name)) for name in
-                      ("stiffness", "damping", "mass", "correction_matrix", "axis_rest_length")}
-            groups = self.hourglass_groups()  # copies with equal hourglass matrices share a column
-            arrays["hourglass"] = np.zeros((self.hourglass_nnz if groups else 0, max(len(groups), 1)))
-            arrays["hourglass_group"] = np.zeros(count, dtype=np.int64)
-            for g, (matrix, copies) in enumerate(groups):
-                arrays["hourglass"][:, g] = matrix.data
-                arrays["hourglass_group"][copies] = g
-            self._copies_last = (self.version, arrays)
-        return self._copies_last[1]
-
-    def hourglass_groups(self):
-        """[(single-copy hourglass matrix, copy indices)] grouping the copies with equal matrices."""
-        if self._hourglass_groups is None:
-            keys = self._hourglass_keys
-            self._hourglass_groups = [] if keys[0] is None else [
-                (self._hourglass_by_key[key], np.array([i for i, k in enumerate(keys) if k == key]))
-                for key in dict.fromkeys(keys)]
-            used = set(keys)
-            self._hourglass_by_key = {k: m for k, m in self._hourglass_by_key.items() if k in used}
-        return self._hourglass_groups
-
-
-def stacked_internal_forces(stack: ModelStack, positions, velocities=None, springs=None, push=None):
-    """(N * n, 3) ``sim_core.forces.internal_forces`` of the stacked model, with the hourglass term
-    as one sparse product per group of equal copies (the stacked CSR product was measured 4x
-    slower); the other terms are sim_core's."""
-    model = stack.model
-    forces = internal_forces(model, positions, velocities, springs=springs, push=push, hourglass=False)
-    groups = stack.hourglass_groups()
-    if groups:
-        displacement = (positions - model.rest_positions).reshape(stack.count, -1)
-        rows = forces.reshape(stack.count, -1)
-        for matrix, copies in groups:
-            rows[copies] -= (matrix @ displacement[copies].T).T
-    return forces
-
-
-class StackedForceWorkspace(ForceWorkspace):
-    """``sim_core.forces.ForceWorkspace`` of a ``ModelStack``'s stacked model whose hourglass term is
-    one pass over ONE copy's hourglass matrix for all copies (``kernels.stacked_hourglass_subtract``,
-    the copies with equal matrices sharing a column of values): the stacked CSR matrix is N times a
-    copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
-    1.8x slower per copy than a single env's. Where the copies hold different matrices, the pass
-    reads each in node blocks once for all its copies instead (``kernels.stacked_hourglass_subtract_groups``;
-    the copies-last CSR pass gathered one value per copy and entry). Same forces up to rounding."""
-
-    def __init__(self, stack: ModelStack, implicit: bool = True, threads: int = 1):
-        super().__init__(stack.model, implicit=implicit)
-        self.stack = stack
-        #: the hourglass pass runs on numba's threads when ``kernels.threaded(threads)``
-        self.threads = int(threads)
-        self._displacement = np.empty((3 * stack.n_nodes, stack.count))
-        self._blocks = None  # hourglass_blocks: (stack version, arrays)
-        self._block_map = None
-
-    def hourglass_blocks(self):
-        """The node-block (BSR) form of the copies' hourglass matrices: (block indptr (n + 1,), block
-        columns (nb,), values (G, 9 nb) per column of ``ModelStack.copies_last``'s hourglass data),
-        rebuilt after ``ModelStack.assign``."""
-        stack = self.stack
-        if self._blocks is None or self._blocks[0] != stack.version:
-            if self._block_map is None:  # the position in the CSR data of each block entry (-1: none)
-                single = stack.reference.hourglass
-                self._block_map = ((np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
-                                    np.zeros(0, np.int64)) if single is None else hourglass_block_map(single))
-            indptr, indices, positions = self._block_map
-            hg_rows = stack.copies_last()["hourglass"].T
-            values = np.zeros((len(hg_rows), len(positions)))
-            if len(positions):
-                stored = positions >= 0
-                values[:, stored] = hg_rows[:, positions[stored]]
-            self._blocks = (stack.version, (indptr, indices, values))
-        return self._blocks[1]
-
-    def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False):
-        if kernels.threaded(self.threads):  # one copy per thread at a time: the same floats
-            forces = self._compute_copies(positions, velocities, geometric, volume_jacobian)
-        else:
-            forces = super().compute(positions, velocities, hourglass=False, geometric=geometric,
-                                     volume_jacobian=volume_jacobian)
-        if hourglass and self.has_hourglass:
-            stack = self.stack
-            values = stack.copies_last()
-            threaded = kernels.threaded(self.threads)
-            positions = np.ascontiguousarray(positions, dtype=float)
-            if values["hourglass"].shape[1] > 1:  # copies of different matrices: each read once, in node blocks
-                group = values["hourglass_group"]
-                order = np.argsort(group, kind="stable").astype(np.int64)
-                group_start = np.searchsorted(group[order], np.arange(values["hourglass"].shape[1] + 1))
-                indptr, indices, block_rows = self.hourglass_blocks()
-                args = (indptr, indices, block_rows, order, group_start.astype(np.int64), positions,
-                        self.rest_positions, forces)
-                if threaded:  # a block of rows per thread
-                    kernels.stacked_hourglass_subtract_groups(*args, numba.get_num_threads())
-                else:
-                    kernels.stacked_hourglass_subtract_groups_serial(*args)
-                return forces
-            hg_indptr, hg_indices, _ = stack.reference.hourglass_arrays
-            args = (hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"], positions,
-                    self.rest_positions, forces, self._displacement)
-            if threaded:  # a block of rows per thread
-                kernels.stacked_hourglass_subtract(*args, numba.get_num_threads())
-            else:
-                kernels.stacked_hourglass_subtract_serial(*args)
-        return forces
-
-
-    def add_damping(self, velocities, forces):
-        """``ForceWorkspace.add_damping``, one copy per thread when threaded (the same floats)."""
-        if not kernels.threaded(self.threads):
-            return super().add_damping(velocities, forces)
-        kernels.scatter_springs_copies(self.stack.count, self.model.springs, self.unit, self._zero_tension,
-                                       self.model.damping, velocities, True, forces)
-        return forces
-
-    def _compute_copies(self, positions, velocities, geometric, volume_jacobian):
-        """``ForceWorkspace.compute`` without the hourglass term, by ``kernels.model_forces_copies``."""
-        model, reference = self.model, self.stack.reference
-        use_velocity = velocities is not None
-        kernels.model_forces_copies(
-            self.stack.count, positions, velocities if use_velocity else positions, use_velocity, reference.springs,
-            model.stiffness, model.rest_length, model.damping, reference.mesh.elements, reference.edge_spring,
-            model.correction_matrix, model.axis_rest_length, self.correction_kind, model.rest_edge_direction,
-            model.rest_volume, model.volume_stiffness, self.has_volume, self.length, self.unit, self.tension,
-            self.push, self.forces, geometric, self.geometric, volume_jacobian and self.has_volume,
-            self.volume_coefficient, self.volume_direction, self.volume_gradient)
-        return self.forces
-
-
 def _copies_last(count, array, rows):
     """A stacked array (count * rows, ...) as (rows, ..., count): the copy index last, contiguous."""
     return np.ascontiguousarray(np.moveaxis(array.reshape((count, rows) + array.shape[1:]), 0, -1))
-
-
-def _digest(array) -> bytes:
-    return hashlib.blake2b(np.ascontiguousarray(array).tobytes(), digest_size=16).digest()
 
 
 def _system_factor(model, positions, dt, fixed):
@@ -374,7 +143,7 @@ class _CopyFactor:
     """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner, or a node-block LU
     with ``refactored``) of one copy's free-dof system matrix, packed for
     ``kernels.solve_copies_lu`` (``ints``, ``floats``). Shared by the copies and episodes that start
-    alike (``_factors``): what decides its renewal (the iterations right after the factorisation)
+    alike (``BatchedImplicitEuler._kept_first``): what decides its renewal (the iterations right after the factorisation)
     is each copy's own (``BatchedImplicitEuler._set_baseline``)."""
 
     def __init__(self, matrix=None, free=None):
@@ -502,6 +271,10 @@ class BatchedImplicitEuler:
         count, dofs = stack.count, 3 * stack.n_nodes
         self.warm = np.zeros((count, dofs))
         self._preconditioners = [None] * count
+        # the preconditioners (solver "reference") and first-step factors (solver "factorised") kept
+        # for episodes that start alike, by content (PRECONDITIONER_CACHE_SIZE each)
+        self._kept_starts: OrderedDict = OrderedDict()
+        self._kept_first: OrderedDict = OrderedDict()
         self._groups = None
         self.last_iterations = np.zeros(count, dtype=int)
         self.workspace = StackedForceWorkspace(stack, implicit=True, threads=self.threads)
@@ -575,24 +348,24 @@ class BatchedImplicitEuler:
         if self.solver == "factorised":
             free = ~np.asarray(fixed, dtype=bool).ravel()
             kind = (key, "ldl" if self.symmetric else "lu")
-            entry = _factors.get(kind)
+            entry = self._kept_first.get(kind)
             if entry is None:  # factorised by the copy's first step, at this linearisation
                 self._set_factor(index, None, free)
                 self._pending[index] = (kind, free)
             else:  # the factor the copy's first step would make (if its imposed set is still ``fixed``)
-                _factors.move_to_end(kind)
+                self._kept_first.move_to_end(kind)
                 self._set_factor(index, entry, free)
                 self._pending[index] = None
             self._adopted[index] = entry is not None
             self._stale[index] = False  # a renewal the last episode asked for
             return
-        entry = _preconditioners.get(key)
+        entry = self._kept_starts.get(key)
         if entry is None:
-            entry = _preconditioners[key] = _system_factor(model, positions, dt, fixed)
-            if len(_preconditioners) > PRECONDITIONER_CACHE_SIZE:
-                _preconditioners.popitem(last=False)
+            entry = self._kept_starts[key] = _system_factor(model, positions, dt, fixed)
+            if len(self._kept_starts) > PRECONDITIONER_CACHE_SIZE:
+                self._kept_starts.popitem(last=False)
         else:
-            _preconditioners.move_to_end(key)
+            self._kept_starts.move_to_end(key)
         self._use(index, entry)
 
     def _use(self, index, entry):
@@ -876,9 +649,9 @@ class BatchedImplicitEuler:
         for index, factor in zip(todo, self._factorise_copies(todo, system, covers)):
             pending = self._pending[index]
             if pending is not None and np.array_equal(pending[1], free_rows[index]) and factor.ints[0] > 0:
-                _factors[pending[0]] = factor
-                if len(_factors) > PRECONDITIONER_CACHE_SIZE:
-                    _factors.popitem(last=False)
+                self._kept_first[pending[0]] = factor
+                if len(self._kept_first) > PRECONDITIONER_CACHE_SIZE:
+                    self._kept_first.popitem(last=False)
             self._pending[index] = None
             self._stale[index] = False
             fresh[index] = True

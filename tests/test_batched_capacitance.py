@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sim_core.studies.bench import tumor_block
-from sim_core.batched import BatchedImplicitEuler, ModelStack
+from sim_core.batched import BatchedImplicitEuler
+from sim_core.stack import ModelStack
 
 
 def test_a_moving_contact_keeps_each_copys_factor_exact_through_its_capacitance_correction():

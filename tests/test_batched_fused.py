@@ -108,7 +108,7 @@ def test_stacked_force_workspace_equals_the_stacked_models_force_pass(env_id, gr
     share it; each copy's own in node blocks where they differ) gives the stacked model's forces
     (ForceWorkspace) to rounding."""
     from sim_core.forces import ForceWorkspace
-    from sim_core.batched import StackedForceWorkspace
+    from sim_core.stack import StackedForceWorkspace
     envs = _stepped(env_id, count=4, steps=6, seed=0)
     stack = envs.stack
     # Palpation's copies draw different inclusions (hourglass matrices), TumorPositioning's share one
@@ -171,7 +171,7 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
     floats as the serial pass over the stacked model, bit for bit (the vector envs' results do not
     depend on the thread count), and the products equal the lockstep kernel's to rounding."""
     from sim_core import kernels
-    from sim_core.batched import StackedForceWorkspace
+    from sim_core.stack import StackedForceWorkspace
     for env_id in ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0"):
         envs = _stepped(env_id, count=4, steps=6, seed=0)
         stack = envs.stack
@@ -317,7 +317,7 @@ def test_threaded_measurement_kernels_give_the_serial_floats():
     the springs' damping forces) run one copy per thread when threaded: the same floats as the
     serial pass, bit for bit."""
     from sim_core import kernels
-    from sim_core.batched import StackedForceWorkspace
+    from sim_core.stack import StackedForceWorkspace
     envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
     stack, count = envs.stack, envs.num_envs
     model = stack.model

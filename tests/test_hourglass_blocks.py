@@ -75,7 +75,7 @@ def test_values_changed_in_place_need_forget():
 
 
 def test_model_stack_assign_refreshes_the_stacked_blocks():
-    from sim_core.batched import ModelStack
+    from sim_core.stack import ModelStack
 
     soft, stiff = _model(5e3), _model(2e4)
     stack = ModelStack(soft, 2)

@@ -35,7 +35,7 @@ capacitance-corrected for their contacts (solver "factorised"), a copy per threa
 threads too. The copies' resets (their task envs' own ``reset``) run on a pool of as many Python
 threads (``_reset_rows``; a static solve releases the GIL for most of its time). Every task measures
 with the next step's force pass (``share_force_pass``), the force pass reads each distinct hourglass
-matrix once for all its copies (``sim_core.batched.StackedForceWorkspace``) and the per-copy solves read it in
+matrix once for all its copies (``sim_core.stack.StackedForceWorkspace``) and the per-copy solves read it in
 node blocks. What batching cannot share is each copy's own sparse algebra (Retraction's floor
 re-factorises at about two steps in three) and TumorPositioning's resets (a static solve for the
 goal, the same code in both modes: 34-36% of its vector env's CPU time in the README's run).
@@ -48,7 +48,6 @@ import weakref
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -59,7 +58,8 @@ from sim_core.solver import DivergenceMonitors
 from sim_core.model import State
 
 from .base import observation_arrays
-from sim_core.batched import BatchedImplicitEuler, ModelStack, StackedForceWorkspace, make_batched_integrator
+from sim_core.batched import BatchedImplicitEuler, make_batched_integrator
+from sim_core.stack import ModelStack, StackedForceWorkspace
 
 
 #: the vector envs whose reset pool has threads: stopped before a fork (CPython's threading failed in
@@ -80,7 +80,7 @@ def _thread_count(threads) -> int:
     """The vector env's thread count (see ``TissueVectorEnv``), checked; starts numba's pool with
     briefly spinning idle threads (``kernels.start_threads``) when it uses more than one (one
     thread, and a forked process, use the serial kernels and never start it)."""
-    available = numba.config.NUMBA_NUM_THREADS
+    available = kernels.available_threads()
     if threads is None:
         threads = available
     elif isinstance(threads, bool) or not float(threads).is_integer() or not 1 <= int(threads) <= available:
@@ -300,14 +300,8 @@ class TissueVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        if not kernels.threaded(self.threads):  # the serial kernels: numba's pool is not touched
+        with kernels.using_threads(self.threads):  # serial kernels for one thread: the pool is not touched
             return self._step(actions)
-        previous = numba.get_num_threads()
-        numba.set_num_threads(self.threads)
-        try:
-            return self._step(actions)
-        finally:
-            numba.set_num_threads(previous)
 
     def _step(self, actions):
         count = self.num_envs

@@ -26,7 +26,7 @@ from .fastmath import (  # noqa: F401
     FAST, FAST_REDUCE,
 )
 from .threads import (  # noqa: F401
-    FORKED, SPIN_COUNT, serial_product, start_threads, threaded, variant,
+    FORKED, SPIN_COUNT, available_threads, serial_product, start_threads, threaded, using_threads, variant,
 )
 from .measure import (  # noqa: F401
     any_inverted, element_volumes, element_volumes_copies, health, health_copies, health_copies_serial,

@@ -7,9 +7,11 @@ thread, and not in a forked process, where GNU OpenMP's pool is unusable).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -63,6 +65,27 @@ def variant(kernel, threads: int):
     if threaded(threads):
         return kernel
     return getattr(sys.modules[kernel.__module__], kernel.__name__ + "_serial")
+
+
+def available_threads() -> int:
+    """The threads the parallel kernels can use: numba's ``NUMBA_NUM_THREADS`` (the cores it found,
+    unless the user set it)."""
+    return int(numba.config.NUMBA_NUM_THREADS)
+
+
+@contextlib.contextmanager
+def using_threads(threads: int):
+    """Run the parallel kernels on ``threads`` threads inside the block, then restore the count the
+    caller had (nothing is changed when ``threaded(threads)`` is false: the serial twins run)."""
+    if not threaded(threads):
+        yield
+        return
+    previous = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
 
 
 #: GNU OpenMP's spin count for numba's idle threads (``start_threads``): they spin about 0.8 ms

@@ -1,0 +1,227 @@
+"""N worlds of one scene as one model: ``ModelStack`` puts N copies of a block (each its own
+material) into one sim_core ``Model`` on a mesh made of N disjoint copies of the block: node ``j`` of
+world ``i`` is node ``i * n_nodes + j`` of the stacked model, and every per-spring, per-element and
+per-node array is the concatenation of the worlds' arrays. ``StackedForceWorkspace`` is the fused
+force pass over the stacked model, world by world on numba's threads. SI units."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+from . import kernels
+from .forces import ForceWorkspace, forget_hourglass_blocks, hourglass_block_map
+from .mesh import HexMesh
+from .model import Model
+from .preconditioners import digest
+
+
+#: Model arrays that hold one value per node, spring or element of a copy (its material and rest
+#: geometry); the topology arrays (springs, edge_spring) are offset instead.
+VALUE_FIELDS = ("mass", "rest_length", "stiffness", "damping", "axis_rest_length", "correction_matrix",
+                "rest_volume", "volume_stiffness", "young_modulus", "poisson_ratio", "density")
+
+class ModelStack:
+    """N copies of one block as one sim_core ``Model`` (``self.model``); ``assign(i, model)``
+    puts a model of the same block (any material) into copy ``i``.
+
+    Args:
+        model: a model of the block (copied into every slot).
+        count: number of copies N.
+    """
+
+    def __init__(self, model: Model, count: int):
+        self.count = int(count)
+        self.n_nodes = model.n_nodes
+        self.n_springs = len(model.springs)
+        self.n_elements = model.mesh.n_elements
+        self.reference = model
+        nodes = np.tile(model.mesh.nodes, (count, 1))
+        offsets = np.arange(count)[:, None, None]
+        elements = (model.mesh.elements[None] + self.n_nodes * offsets).reshape(-1, 8)
+        springs = (model.springs[None] + self.n_nodes * offsets).reshape(-1, 2)
+        edge_spring = (model.edge_spring[None] + self.n_springs * offsets).reshape(-1, 12)
+        hourglass = None
+        if model.hourglass is not None:
+            single = model.hourglass
+            self.hourglass_nnz = single.nnz
+            rows = 3 * self.n_nodes
+            indptr = np.concatenate([[0], (single.indptr[1:][None] + single.nnz * np.arange(count)[:, None]).ravel()])
+            indices = (single.indices[None] + rows * np.arange(count)[:, None]).ravel()
+            hourglass = sp.csr_matrix((np.tile(single.data, count), indices, indptr),
+                                      shape=(rows * count, rows * count))
+        values = {name: np.concatenate([getattr(model, name)] * count) for name in VALUE_FIELDS}
+        self.model = Model(
+            mesh=HexMesh(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
+            correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
+            options=dict(model.options), **values,
+        )
+        # slots of each copy in the per-dof arrays the Model derived at construction
+        self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
+        self.models = [model] * count
+        self._hourglass_keys = [digest(model.hourglass.data) if model.hourglass is not None else None] * count
+        self._hourglass_by_key = {self._hourglass_keys[0]: model.hourglass}
+        self._hourglass_groups = None
+        self.version = 0
+        self._copies_last = None
+
+    def _check(self, model: Model):
+        same = (model.n_nodes == self.n_nodes and len(model.springs) == self.n_springs
+                and model.mesh.n_elements == self.n_elements and model.correction_mode == self.reference.correction_mode
+                and (model.hourglass is None) == (self.reference.hourglass is None)
+                and np.array_equal(model.springs, self.reference.springs)
+                and np.array_equal(model.mesh.elements, self.reference.mesh.elements))
+        if not same:
+            raise ValueError("ModelStack.assign needs a model of the same block (mesh, springs, options)")
+
+    def assign(self, index: int, model: Model):
+        """Copy ``model``'s values into copy ``index`` (a no-op when it is already there)."""
+        if self.models[index] is model:
+            return
+        self._check(model)
+        stacked = self.model
+        for name in VALUE_FIELDS:
+            single = getattr(model, name)
+            getattr(stacked, name)[index * len(single):(index + 1) * len(single)] = single
+        nodes = slice(index * self.n_nodes, (index + 1) * self.n_nodes)
+        stacked.gravity_force[nodes] = model.gravity_force
+        stacked.mass_data[self._mass_positions[index]] = np.repeat(model.mass, 3)
+        if model.hourglass is not None:
+            data = slice(index * self.hourglass_nnz, (index + 1) * self.hourglass_nnz)
+            stacked.hourglass.data[data] = model.hourglass.data
+            if stacked.hourglass_arrays[2] is not stacked.hourglass.data:
+                stacked.hourglass_arrays[2][data] = model.hourglass.data
+            forget_hourglass_blocks(stacked)  # its hourglass values changed in place
+            key = digest(model.hourglass.data)
+            self._hourglass_by_key.setdefault(key, model.hourglass)
+            self._hourglass_keys[index] = key
+            self._hourglass_groups = None
+        self.models[index] = model
+        self.version += 1
+
+    def copies_last(self):
+        """The copies' material arrays with the copy index last (``kernels.batched_spring_operator``'s
+        layout): dict of stiffness, damping (S, N), mass (n, N), correction_matrix (M, 3, 3, N),
+        axis_rest_length (M, 3, N), hourglass data (nnz, G) of the G distinct hourglass matrices and
+        hourglass_group (N,) the column of each copy; rebuilt after ``assign``."""
+        if self._copies_last is None or self._copies_last[0] != self.version:
+            model, count = self.model, self.count
+
+            def last(array):
+                array = np.asarray(array, dtype=float)
+                return np.ascontiguousarray(np.moveaxis(array.reshape((count, -1) + array.shape[1:]), 0, -1))
+
+            arrays = {name: last(getattr(model, name)) for name in
+                      ("stiffness", "damping", "mass", "correction_matrix", "axis_rest_length")}
+            groups = self.hourglass_groups()  # copies with equal hourglass matrices share a column
+            arrays["hourglass"] = np.zeros((self.hourglass_nnz if groups else 0, max(len(groups), 1)))
+            arrays["hourglass_group"] = np.zeros(count, dtype=np.int64)
+            for g, (matrix, copies) in enumerate(groups):
+                arrays["hourglass"][:, g] = matrix.data
+                arrays["hourglass_group"][copies] = g
+            self._copies_last = (self.version, arrays)
+        return self._copies_last[1]
+
+    def hourglass_groups(self):
+        """[(single-copy hourglass matrix, copy indices)] grouping the copies with equal matrices."""
+        if self._hourglass_groups is None:
+            keys = self._hourglass_keys
+            self._hourglass_groups = [] if keys[0] is None else [
+                (self._hourglass_by_key[key], np.array([i for i, k in enumerate(keys) if k == key]))
+                for key in dict.fromkeys(keys)]
+            used = set(keys)
+            self._hourglass_by_key = {k: m for k, m in self._hourglass_by_key.items() if k in used}
+        return self._hourglass_groups
+
+
+class StackedForceWorkspace(ForceWorkspace):
+    """``sim_core.forces.ForceWorkspace`` of a ``ModelStack``'s stacked model whose hourglass term is
+    one pass over ONE copy's hourglass matrix for all copies (``kernels.stacked_hourglass_subtract``,
+    the copies with equal matrices sharing a column of values): the stacked CSR matrix is N times a
+    copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
+    1.8x slower per copy than a single env's. Where the copies hold different matrices, the pass
+    reads each in node blocks once for all its copies instead (``kernels.stacked_hourglass_subtract_groups``;
+    the copies-last CSR pass gathered one value per copy and entry). Same forces up to rounding."""
+
+    def __init__(self, stack: ModelStack, implicit: bool = True, threads: int = 1):
+        super().__init__(stack.model, implicit=implicit)
+        self.stack = stack
+        #: the hourglass pass runs on numba's threads when ``kernels.threaded(threads)``
+        self.threads = int(threads)
+        self._displacement = np.empty((3 * stack.n_nodes, stack.count))
+        self._blocks = None  # hourglass_blocks: (stack version, arrays)
+        self._block_map = None
+
+    def hourglass_blocks(self):
+        """The node-block (BSR) form of the copies' hourglass matrices: (block indptr (n + 1,), block
+        columns (nb,), values (G, 9 nb) per column of ``ModelStack.copies_last``'s hourglass data),
+        rebuilt after ``ModelStack.assign``."""
+        stack = self.stack
+        if self._blocks is None or self._blocks[0] != stack.version:
+            if self._block_map is None:  # the position in the CSR data of each block entry (-1: none)
+                single = stack.reference.hourglass
+                self._block_map = ((np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
+                                    np.zeros(0, np.int64)) if single is None else hourglass_block_map(single))
+            indptr, indices, positions = self._block_map
+            hg_rows = stack.copies_last()["hourglass"].T
+            values = np.zeros((len(hg_rows), len(positions)))
+            if len(positions):
+                stored = positions >= 0
+                values[:, stored] = hg_rows[:, positions[stored]]
+            self._blocks = (stack.version, (indptr, indices, values))
+        return self._blocks[1]
+
+    def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False):
+        if kernels.threaded(self.threads):  # one copy per thread at a time: the same floats
+            forces = self._compute_copies(positions, velocities, geometric, volume_jacobian)
+        else:
+            forces = super().compute(positions, velocities, hourglass=False, geometric=geometric,
+                                     volume_jacobian=volume_jacobian)
+        if hourglass and self.has_hourglass:
+            stack = self.stack
+            values = stack.copies_last()
+            threaded = kernels.threaded(self.threads)
+            positions = np.ascontiguousarray(positions, dtype=float)
+            if values["hourglass"].shape[1] > 1:  # copies of different matrices: each read once, in node blocks
+                group = values["hourglass_group"]
+                order = np.argsort(group, kind="stable").astype(np.int64)
+                group_start = np.searchsorted(group[order], np.arange(values["hourglass"].shape[1] + 1))
+                indptr, indices, block_rows = self.hourglass_blocks()
+                args = (indptr, indices, block_rows, order, group_start.astype(np.int64), positions,
+                        self.rest_positions, forces)
+                if threaded:  # a block of rows per thread
+                    kernels.stacked_hourglass_subtract_groups(*args, numba.get_num_threads())
+                else:
+                    kernels.stacked_hourglass_subtract_groups_serial(*args)
+                return forces
+            hg_indptr, hg_indices, _ = stack.reference.hourglass_arrays
+            args = (hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"], positions,
+                    self.rest_positions, forces, self._displacement)
+            if threaded:  # a block of rows per thread
+                kernels.stacked_hourglass_subtract(*args, numba.get_num_threads())
+            else:
+                kernels.stacked_hourglass_subtract_serial(*args)
+        return forces
+
+
+    def add_damping(self, velocities, forces):
+        """``ForceWorkspace.add_damping``, one copy per thread when threaded (the same floats)."""
+        if not kernels.threaded(self.threads):
+            return super().add_damping(velocities, forces)
+        kernels.scatter_springs_copies(self.stack.count, self.model.springs, self.unit, self._zero_tension,
+                                       self.model.damping, velocities, True, forces)
+        return forces
+
+    def _compute_copies(self, positions, velocities, geometric, volume_jacobian):
+        """``ForceWorkspace.compute`` without the hourglass term, by ``kernels.model_forces_copies``."""
+        model, reference = self.model, self.stack.reference
+        use_velocity = velocities is not None
+        kernels.model_forces_copies(
+            self.stack.count, positions, velocities if use_velocity else positions, use_velocity, reference.springs,
+            model.stiffness, model.rest_length, model.damping, reference.mesh.elements, reference.edge_spring,
+            model.correction_matrix, model.axis_rest_length, self.correction_kind, model.rest_edge_direction,
+            model.rest_volume, model.volume_stiffness, self.has_volume, self.length, self.unit, self.tension,
+            self.push, self.forces, geometric, self.geometric, volume_jacobian and self.has_volume,
+            self.volume_coefficient, self.volume_direction, self.volume_gradient)
+        return self.forces
