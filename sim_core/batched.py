@@ -68,7 +68,6 @@ import functools
 import hashlib
 from collections import OrderedDict
 
-import numba
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -78,6 +77,7 @@ from . import kernels
 from .forces import stiffness_data
 from .integrators import SymplecticEuler
 from .model import Control, Model, State
+from .solver import DivergenceMonitors, WorldsReport
 from .preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
                               node_block_factor)
 from .sparse import NodeBlockLU, block_structure, symmetric_structure
@@ -229,7 +229,43 @@ def _edge_incidence(model: Model):
     return node_edge, node_sign
 
 
-class BatchedImplicitEuler:
+class WorldsSolver:
+    """The solver contract (``sim_core.solver``) for the N worlds of a ``ModelStack``: ``prepare``
+    a world at the start of its episode, then ``step(state_in, state_out, control, dt, active)``
+    with states and controls of shape (N, n, 3) and ``active`` an (N,) world mask, which returns a
+    ``WorldsReport`` whose divergence reasons come from the worlds' ``DivergenceMonitors``. A
+    subclass provides ``simulate(positions, velocities, fixed, target, dt, active)`` -> (positions,
+    velocities), new (N, n, 3) arrays in which the inactive worlds keep their state."""
+
+    def _start_worlds(self, stack: ModelStack, threads: int):
+        self.stack = stack
+        self.monitors = DivergenceMonitors(stack.count, stack.n_nodes, stack.reference.mesh.elements,
+                                           threads=threads)
+        self.last_iterations = np.zeros(stack.count, dtype=int)
+        self.last_residual = np.zeros(stack.count)
+
+    def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
+        """World ``index`` starts an episode of ``model`` at ``positions`` (n, 3) m with the imposed
+        components ``fixed`` (n, 3) bool and time step ``dt`` s: its divergence history starts again."""
+        self.monitors.assign(index, model)
+
+    def step(self, state_in: State, state_out: State, control: Control, dt: float, active=None) -> WorldsReport:
+        """Advance the ``active`` worlds (None: all) by ``dt`` s from ``state_in`` into ``state_out``
+        under ``control`` (``fixed``, ``target`` (N, n, 3); its forces must be zero: the worlds'
+        external loads are their models' gravity). The other worlds keep their state."""
+        count = self.stack.count
+        active = np.ones(count, dtype=bool) if active is None else np.asarray(active, dtype=bool)
+        if active.shape != (count,):
+            raise ValueError(f"active must be None or an ({count},) bool world mask, got shape {active.shape}")
+        positions, velocities = self.simulate(state_in.positions, state_in.velocities, control.fixed,
+                                              control.target, dt, active)
+        reasons = np.full(count, None, dtype=object)
+        reasons[active] = self.monitors.check(positions, velocities, active)[active]
+        state_out.positions, state_out.velocities, state_out.time = positions, velocities, state_in.time + dt
+        return WorldsReport(self.last_iterations.copy(), self.last_residual.copy(), reasons)
+
+
+class BatchedImplicitEuler(WorldsSolver):
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
     copy, run one copy at a time on numba's threads (solver "factorised"), in lockstep per thread
     with one pass over a shared factor for its copies ("reference") or in lockstep ("jacobi"); see
@@ -254,7 +290,8 @@ class BatchedImplicitEuler:
                  threads: int | None = None):
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-        self.stack = stack
+        self.threads = kernels.available_threads() if threads is None else int(threads)
+        self._start_worlds(stack, self.threads)
         self.solver = solver
         #: solver "factorised": None re-factorises a copy when a solve needs more than max(8, 2 x the
         #: iterations right after its last factorisation) (``ImplicitEuler``'s rule); an integer R also
@@ -267,7 +304,6 @@ class BatchedImplicitEuler:
         #: iterations before a stalled copy is re-linearised and solved again
         self.first_pass = min(30, self.max_iterations // 2)
         self.refreshes = 0
-        self.threads = numba.config.NUMBA_NUM_THREADS if threads is None else int(threads)
         count, dofs = stack.count, 3 * stack.n_nodes
         self.warm = np.zeros((count, dofs))
         self._preconditioners = [None] * count
@@ -276,7 +312,6 @@ class BatchedImplicitEuler:
         self._kept_starts: OrderedDict = OrderedDict()
         self._kept_first: OrderedDict = OrderedDict()
         self._groups = None
-        self.last_iterations = np.zeros(count, dtype=int)
         self.workspace = StackedForceWorkspace(stack, implicit=True, threads=self.threads)
         self._elongation = np.empty((stack.n_springs, count))
         self._delta = np.empty((stack.n_springs, count))
@@ -336,6 +371,7 @@ class BatchedImplicitEuler:
         (n, 3) m, the episode's start; geometric terms clamped as the integrator does) on the dofs
         not in ``fixed`` (n, 3) (``_system_factor``). Shared (cached) between copies and episodes that
         start alike: the copies holding the same factor form one group, solved together."""
+        super().prepare(index, model, positions, dt, fixed)
         self.warm[index] = 0.0
         if self.solver == "jacobi":
             return
@@ -842,7 +878,7 @@ class BatchedImplicitEuler:
                 iterations = iterations + more
             solution = solution.T
         self.warm = np.where(active[:, None], solution, self.warm)
-        self.last_iterations = iterations
+        self.last_iterations, self.last_residual = iterations, residual
         # v' = v0 + dv (the solution on free dofs), x' = x0 + dt v'; the imposed dofs at their targets
         new_positions, new_velocities = np.empty((count, n_nodes, 3)), np.empty((count, n_nodes, 3))
         update = kernels.variant(kernels.implicit_rows_update, self.threads)
@@ -864,17 +900,13 @@ class BatchedImplicitEuler:
         return self._mass[1]
 
 
-class BatchedSymplecticEuler:
+class BatchedSymplecticEuler(WorldsSolver):
     """sim_core's symplectic Euler on a ``ModelStack`` (every operation is per node, so the
     stacked step is exactly N single steps)."""
 
-    def __init__(self, stack: ModelStack):
-        self.stack = stack
+    def __init__(self, stack: ModelStack, threads: int = 1):
+        self._start_worlds(stack, int(threads))
         self._integrator = SymplecticEuler(monitor=False)
-        self.last_iterations = np.zeros(stack.count, dtype=int)
-
-    def prepare(self, index, model, positions, dt, fixed):
-        pass
 
     def simulate(self, positions, velocities, fixed, target, dt, active):
         count, n_nodes = positions.shape[:2]
@@ -896,6 +928,6 @@ def make_batched_integrator(name: str, stack: ModelStack, tolerance: float, solv
     if name == "implicit":
         return BatchedImplicitEuler(stack, tolerance=tolerance, solver=solver, amortise=amortise, threads=threads)
     if name == "explicit":
-        return BatchedSymplecticEuler(stack)
+        return BatchedSymplecticEuler(stack, threads=1 if threads is None else threads)
     raise ValueError(f"the batched vector env steps integrator 'implicit' or 'explicit', got {name!r}; "
                      "for 'static' use gym.make_vec(..., vectorization_mode='sync') or 'async'")

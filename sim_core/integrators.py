@@ -1,8 +1,10 @@
 """Time integration: symplectic (semi-implicit) Euler, implicit Euler (Baraff and Witkin), the
 quasi-static solver by name (``make_integrator``), the stable explicit time step and ``run``.
 
-Every integrator has one verb, ``simulate(model, state_in, state_out, dt, control) -> StepReport``
-(``sim_core.solver``: the report, the divergence monitors). A diverging run is reported
+Every integrator keeps the solver contract of ``sim_core.solver``: bound to a model (``bind``,
+``make_integrator(name, model=model)``), ``step(state_in, state_out, control, dt) -> StepReport``;
+``simulate(model, state_in, state_out, dt, control)`` is the same step with the model named at the
+call. A diverging run is reported
 (``StepReport.unstable_reason``), never left to produce an unexplained NaN. The implicit step's
 factorised preconditioners are in ``sim_core.preconditioners``, its Krylov solves in
 ``sim_core.krylov``. SI units: s, m, m/s, N.
@@ -22,11 +24,11 @@ from .krylov import apply_system, krylov_solve
 from .model import Control, Model, State
 from .preconditioners import (AUTO_MAX_DOFS, PRECONDITIONERS, REFACTOR_MIN, RESTRICTED_MAX_CHANGED, Factor,
                               FactorStore, auto_switch_iterations, digest, free_structure, pattern_arrays)
-from .solver import DivergenceMonitor, StepReport, check_dt, impose_control
+from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt, impose_control
 from .static import QuasiStatic
 
 
-class SymplecticEuler:
+class SymplecticEuler(OneWorldSolver):
     """Semi-implicit (symplectic) Euler: v += dt M^-1 f(x, v); x += dt v.
 
     Stable for dt below ``stable_time_step(model)`` (about 2 / omega_max, less with damping).
@@ -318,14 +320,17 @@ def _system_key(key):
 INTEGRATORS = {"explicit": SymplecticEuler, "implicit": ImplicitEuler}
 
 
-def make_integrator(name: str, **options):
+def make_integrator(name: str, model: Model | None = None, **options):
     """Integrator by name: "explicit" (symplectic Euler), "implicit" (Baraff-Witkin Euler) or "static"
-    (``sim_core.static.QuasiStatic``: a static equilibrium per step)."""
+    (``sim_core.static.QuasiStatic``: a static equilibrium per step), bound to ``model`` when given
+    (its ``step`` verb, ``sim_core.solver``)."""
     if name == "static":
-        return QuasiStatic(**options)
-    if name not in INTEGRATORS:
+        solver = QuasiStatic(**options)
+    elif name in INTEGRATORS:
+        solver = INTEGRATORS[name](**options)
+    else:
         raise ValueError(f"integrator must be one of {tuple(INTEGRATORS) + ('static',)}, got {name!r}")
-    return INTEGRATORS[name](**options)
+    return solver if model is None else solver.bind(model)
 
 
 # -- stable time step --------------------------------------------------------------------------

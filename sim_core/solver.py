@@ -1,6 +1,14 @@
-"""The solvers' shared contract: what a step reports (``StepReport``), the time step check, the
-imposed components of a control, and the divergence monitors that every solver runs over its
-worlds (``DivergenceMonitors``; ``DivergenceMonitor`` is its one-world case). SI units."""
+"""The solvers' shared contract.
+
+Every solver has one verb, ``solver.step(state_in, state_out, control, dt, active=None)``: it
+advances the worlds of its model by ``dt`` seconds under ``control`` (imposed positions, forces)
+from ``state_in`` into ``state_out`` and reports what it did and whether a world diverged. A solver
+of one world (``sim_core.integrators``' explicit and implicit Euler, ``sim_core.static.QuasiStatic``;
+``bind`` gives it its model) returns a ``StepReport``; a solver of N worlds (``sim_core.batched``:
+states and controls of shape (N, n, 3), ``active`` an (N,) world mask) a ``WorldsReport``, the same
+fields per world. Both run the same divergence checks (``DivergenceMonitors``, of which
+``DivergenceMonitor`` is the one-world case). Here also: the time step check and the imposed
+components of a control. SI units."""
 
 from __future__ import annotations
 
@@ -25,6 +33,51 @@ class StepReport:
     @property
     def unstable(self) -> bool:
         return self.unstable_reason is not None
+
+
+@dataclass
+class WorldsReport:
+    """What one step of N worlds did, per world: ``iterations`` (N,) of the linear solver,
+    ``residual`` (N,) its relative residual and ``unstable_reason`` (N,) object (None where the
+    world is healthy, and for the worlds the step left alone)."""
+
+    iterations: np.ndarray
+    residual: np.ndarray
+    unstable_reason: np.ndarray
+
+    @property
+    def unstable(self) -> np.ndarray:
+        """(N,) bool: the worlds that diverged in this step."""
+        return np.array([reason is not None for reason in self.unstable_reason], dtype=bool)
+
+
+class OneWorldSolver:
+    """The ``step`` verb of a solver of one world, on top of its ``simulate(model, state_in,
+    state_out, dt, control)``: ``bind(model)`` (or ``make_integrator(name, model=model)``) gives the
+    solver the model it steps."""
+
+    model: Model | None = None
+
+    def bind(self, model: Model):
+        """Step ``model`` from now on (returns the solver)."""
+        if not isinstance(model, Model):
+            raise ValueError(f"bind takes a sim_core Model (build_model), got {type(model).__name__}")
+        self.model = model
+        return self
+
+    def step(self, state_in: State, state_out: State, control: Control | None, dt: float, active=None) -> StepReport:
+        """Advance the bound model's world by ``dt`` s from ``state_in`` into ``state_out`` under
+        ``control`` (None: nothing imposed). ``active``: None or True steps it; False copies
+        ``state_in`` into ``state_out`` and advances the clock (the one-world case of a world mask)."""
+        if self.model is None:
+            raise ValueError("this solver has no model: bind one first (solver.bind(model), or "
+                             "make_integrator(name, model=model))")
+        if active is not None and not bool(np.all(active)):
+            dt = check_dt(dt)
+            state_out.positions, state_out.velocities = state_in.positions.copy(), state_in.velocities.copy()
+            state_out.time = state_in.time + dt
+            return StepReport()
+        return self.simulate(self.model, state_in, state_out, dt, control)
 
 
 def check_dt(dt) -> float:

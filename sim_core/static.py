@@ -22,7 +22,7 @@ import scipy.sparse.linalg as spla
 from . import kernels
 from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
 from .preconditioners import free_structure, pattern_arrays
-from .solver import DivergenceMonitor, StepReport, check_dt
+from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
 from .model import Control, Model, State
 
@@ -242,7 +242,7 @@ class _KeptTangent:
         self._key, self._value = None, None
 
 
-class QuasiStatic:
+class QuasiStatic(OneWorldSolver):
     """Quasi-static stepping: each step is the static equilibrium (``solve_static``) under the
     step's control, solved from the previous positions, so the state has no inertia, damping or
     lag behind the tool: the observations at every tool position are those of the static scene.

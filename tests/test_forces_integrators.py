@@ -6,7 +6,7 @@ import pytest
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.forces import external_forces, internal_forces, stiffness_data
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, make_integrator, run, stable_time_step
-from sim_core.model import State
+from sim_core.model import Control, State
 
 
 def finite_difference_stiffness(model, positions, step=1e-7):
@@ -325,3 +325,47 @@ def test_a_run_at_the_edge_of_the_explicit_limit_is_flagged_before_it_explodes()
     assert edge.unstable and "oscillation" in edge.unstable_reason
     safe = run(model, model.new_state(), SymplecticEuler(), 0.8 * estimate, 500, control)
     assert not safe.unstable
+
+
+def test_every_solver_keeps_one_step_contract():
+    """Explicit, implicit and quasi-static solvers of one world and the implicit and explicit solvers
+    of N worlds step with one verb, ``step(state_in, state_out, control, dt, active=None)``; a world
+    left out by ``active`` keeps its state; an unbound solver says what is missing."""
+    from sim_core.batched import BatchedImplicitEuler, BatchedSymplecticEuler
+    from sim_core.solver import StepReport, WorldsReport
+    from sim_core.stack import ModelStack
+
+    mesh = HexMesh.block((3, 2, 2), 0.01)
+    model = build_model(mesh, Material(5e3, 0.45, 1060), gravity=(0, -9.81, 0), hourglass_control=1.0)
+    control = model.new_control().impose(np.flatnonzero(mesh.nodes[:, 0] == 0), mesh.nodes[mesh.nodes[:, 0] == 0])
+    for name, dt in (("explicit", 1e-4), ("implicit", 0.01), ("static", 0.01)):
+        solver = make_integrator(name, model=model)
+        state, out = model.new_state(), model.new_state()
+        report = solver.step(state, out, control, dt)
+        assert isinstance(report, StepReport) and not report.unstable
+        reference = model.new_state()
+        make_integrator(name).simulate(model, model.new_state(), reference, dt, control)
+        np.testing.assert_array_equal(out.positions, reference.positions)  # the same step as simulate
+        skipped = model.new_state()
+        solver.step(out, skipped, control, dt, active=False)
+        np.testing.assert_array_equal(skipped.positions, out.positions)
+        assert skipped.time == pytest.approx(out.time + dt)
+    with pytest.raises(ValueError, match="bind"):
+        make_integrator("implicit").step(model.new_state(), model.new_state(), control, 0.01)
+
+    stack = ModelStack(model, 3)
+    fixed = np.broadcast_to(control.fixed, (3,) + control.fixed.shape).copy()
+    target = np.broadcast_to(control.target, fixed.shape).copy()
+    for solver, dt in ((BatchedImplicitEuler(stack, solver="factorised", threads=1), 0.01),
+                       (BatchedSymplecticEuler(stack), 1e-4)):
+        for index in range(3):
+            solver.prepare(index, model, mesh.nodes, dt, control.fixed)
+        rest = np.broadcast_to(mesh.nodes, fixed.shape).copy()
+        state = State(rest, np.zeros_like(rest))
+        out = State(rest.copy(), np.zeros_like(rest))
+        active = np.array([True, False, True])
+        report = solver.step(state, out, Control(fixed, target, np.zeros_like(rest)), dt, active)
+        assert isinstance(report, WorldsReport) and not report.unstable.any()
+        np.testing.assert_array_equal(out.positions[1], rest[1])
+        assert np.abs(out.positions[0] - rest[0]).max() > 0  # gravity moved the stepped worlds
+        np.testing.assert_array_equal(out.positions[0], out.positions[2])

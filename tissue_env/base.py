@@ -393,7 +393,7 @@ class TissueEnv(gym.Env):
         self.rest_volume = float(self.model.rest_volume.sum())
         options = (dict(tolerance=self.solver_tolerance, preconditioner=self.preconditioner)
                    if self.integrator_name == "implicit" else {})
-        self.integrator = make_integrator(self.integrator_name, **options)
+        self.integrator = make_integrator(self.integrator_name, model=self.model, **options)
         positions = self._start_positions(self.model)
         if self.integrator_name == "implicit":
             # Every episode of a model starts from the same state: its first step's factorisation is
@@ -544,7 +544,7 @@ class TissueEnv(gym.Env):
         state, scratch = self.state, self._scratch
         try:
             with np.errstate(all="ignore"):
-                report = self.integrator.simulate(self.model, state, scratch, self.dt, control)
+                report = self.integrator.step(state, scratch, control, self.dt)
             reason = report.unstable_reason
         except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as error:
             reason = f"physics error: {error}"

@@ -54,12 +54,11 @@ from gymnasium.vector.utils import batch_space
 from gymnasium.vector.vector_env import AutoresetMode
 
 from sim_core import kernels
-from sim_core.solver import DivergenceMonitors
-from sim_core.model import State
+from sim_core.batched import BatchedImplicitEuler, make_batched_integrator
+from sim_core.model import Control, State
+from sim_core.stack import ModelStack, StackedForceWorkspace
 
 from .base import observation_arrays
-from sim_core.batched import BatchedImplicitEuler, make_batched_integrator
-from sim_core.stack import ModelStack, StackedForceWorkspace
 
 
 #: the vector envs whose reset pool has threads: stopped before a fork (CPython's threading failed in
@@ -167,7 +166,7 @@ class TissueVectorEnv(VectorEnv):
         self.workspace_high = np.zeros((count, 3))
         self.rest_volume = np.ones(count)
         self.elapsed = np.zeros(count, dtype=int)
-        self.monitors = DivergenceMonitors(count, self.n_nodes, env.mesh.elements, threads=self.threads)
+        self._no_force = np.zeros_like(self.positions)  # the worlds' loads are their models' gravity
         self._autoreset = np.zeros(count, dtype=bool)
         self._pool = None  # the reset threads (``_reset_rows``), started at the first threaded reset
         self._started = False
@@ -226,7 +225,6 @@ class TissueVectorEnv(VectorEnv):
         self.velocities[index] = env.state.velocities
         self._lengths[index] = self._spring_lengths(self.positions)[index]
         self.integrator.prepare(index, env.model, env.state.positions, env.dt, env.control.fixed)
-        self.monitors.assign(index, env.model)
         self.tool_offset[index] = env.tool_offset
         self.workspace_low[index] = env.workspace_low
         self.workspace_high[index] = env.workspace_high
@@ -367,17 +365,19 @@ class TissueVectorEnv(VectorEnv):
         reasons = np.full(count, None, dtype=object)
         running = active.copy()
         positions, velocities = self.positions, self.velocities
+        control = Control(fixed, target, self._no_force)
         for _ in range(self.substeps):
+            new = State(positions, velocities)
             try:
                 with np.errstate(all="ignore"):
-                    new_positions, new_velocities = self.integrator.simulate(
-                        positions, velocities, fixed, target, self.dt, running)
+                    # each world's divergence checks (non-finite positions or velocities first) included
+                    report = self.integrator.step(State(positions, velocities), new, control, self.dt, running)
             except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as error:
                 for index in np.flatnonzero(running):
                     reasons[index] = f"physics error: {error}"
                 break
-            # each copy's DivergenceMonitor checks, non-finite positions or velocities first
-            reasons[running] = self.monitors.check(new_positions, new_velocities, running)[running]
+            new_positions, new_velocities = new.positions, new.velocities
+            reasons[running] = report.unstable_reason[running]
             healthy = running & np.array([reason is None for reason in reasons])
             self._batch_after_substep(new_positions, new_velocities, healthy)
             with np.errstate(all="ignore"):
