@@ -35,6 +35,8 @@ from sim_core.preconditioners import PRECONDITIONERS, FactorStore
 from sim_core.model import State
 from sim_core.static import STATIC_CONTACT_PASSES, same_contact
 
+from .rendering import Renderer
+
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
 #: by a healthy simulation, that keeps every observation inside the observation space.
 OBS_LIMIT = 100.0
@@ -667,8 +669,6 @@ class TissueEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
-        from .rendering import Renderer
-
         if self._renderer is None:
             self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
                                       human=self.render_mode == "human", fps=self.metadata["render_fps"])

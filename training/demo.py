@@ -31,11 +31,11 @@ def frame_strip(run_dir: Path, out: Path, seed: int, frames_wanted: int = 6) -> 
     import gymnasium as gym
     from PIL import Image
 
-    from .evaluate import _agent_policy
+    from .evaluate import agent_policy
 
     config = json.loads((run_dir / "config.json").read_text())
     env = gym.make(ENV, render_mode="rgb_array", **config.get("env_kwargs", {}))
-    policy = _agent_policy(run_dir, config)
+    policy = agent_policy(run_dir, config)
     observation, _ = env.reset(seed=seed)
     frames = [env.render()]
     done = False

@@ -64,7 +64,9 @@ class _ObservationTracker:
         return self.env.render()
 
 
-def _agent_policy(run_dir: Path, config: dict):
+def agent_policy(run_dir: Path, config: dict):
+    """The trained agent of ``run_dir`` (its final model, else its newest checkpoint) as a policy
+    ``(observation, env) -> action`` (deterministic)."""
     model_path = run_dir / "model.zip"
     if not model_path.is_file():
         checkpoints = sorted((run_dir / "checkpoints").glob("model_*_steps.zip"),
@@ -116,7 +118,7 @@ def evaluate(run_dir: Path, episodes: int, seed: int, render: str | None = None)
     env = gym.make(config["env"], render_mode="rgb_array" if render else None, **kwargs)
     frames = [] if render else None
     result = dict(env=config["env"], algo=config["algo"], run_dir=str(run_dir), episodes=episodes, seed=seed)
-    result["agent"] = _episodes(env, _agent_policy(run_dir, config), seeds, frames)
+    result["agent"] = _episodes(env, agent_policy(run_dir, config), seeds, frames)
     rng = np.random.default_rng(seed)
     space = env.action_space
     result["random"] = _episodes(
