@@ -63,26 +63,21 @@ def test_deepcopy_and_pickle_reproduce_the_next_steps(env_id, integrator):
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_get_state_set_state_restores_the_episode(env_id):
+@pytest.mark.parametrize("target", ["same env, twice", "another env"])
+def test_get_state_set_state_restores_the_episode(env_id, target):
+    """A snapshot restores any number of times, on its own env or on another env of the task."""
     env, actions = _mid_episode(env_id)
     env = env.unwrapped
     snapshot = env.get_state()
     expected = _steps(env, actions)
-    for _ in range(2):  # a snapshot restores any number of times
-        env.set_state(snapshot)
-        _assert_same(expected, _steps(env, actions))
-
-
-@pytest.mark.parametrize("env_id", ENV_IDS)
-def test_a_snapshot_restores_on_another_env_of_the_same_task(env_id):
-    env, actions = _mid_episode(env_id)
-    env = env.unwrapped
-    snapshot = env.get_state()
-    expected = _steps(env, actions)
-    other = gym.make(env_id).unwrapped
-    other.reset(seed=123)
-    other.set_state(snapshot)
-    _assert_same(expected, _steps(other, actions))
+    targets = [env, env]
+    if target == "another env":
+        other = gym.make(env_id).unwrapped
+        other.reset(seed=123)
+        targets = [other]
+    for restored in targets:
+        restored.set_state(snapshot)
+        _assert_same(expected, _steps(restored, actions))
 
 
 def test_set_state_rejects_what_is_not_a_snapshot_of_the_same_task():
