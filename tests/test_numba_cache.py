@@ -59,3 +59,24 @@ def test_threaded_kernels_compiled_against_cached_callees_give_the_serial_floats
     assert len(serial) == len(threaded) == 81
     for one, two in zip(serial, threaded):
         np.testing.assert_array_equal(one, two)
+
+
+def test_a_kernel_cache_written_from_other_sources_is_dropped(tmp_path):
+    """numba checks a cached kernel against its own file only; the kernels package drops its cache
+    when any kernel module (or the topology constants they compile in) changed since it was written."""
+    from sim_core.kernels import STAMP, drop_stale_cache
+
+    source = tmp_path / "kernel.py"
+    source.write_text("x = 1\n")
+    cache = tmp_path / "__pycache__"
+    cache.mkdir()
+    (cache / "kernel.f-1.py311.nbi").write_bytes(b"index")
+    (cache / "kernel.f-1.py311.1.nbc").write_bytes(b"code")
+    assert drop_stale_cache(cache, [source])  # no stamp yet: the cache's sources are unknown
+    assert not list(cache.glob("*.nb?")) and (cache / STAMP).is_file()
+    (cache / "kernel.f-1.py311.nbi").write_bytes(b"index")
+    assert not drop_stale_cache(cache, [source])  # same sources: kept
+    assert (cache / "kernel.f-1.py311.nbi").is_file()
+    source.write_text("x = 2\n")
+    assert drop_stale_cache(cache, [source])  # a source changed: dropped
+    assert not (cache / "kernel.f-1.py311.nbi").exists()

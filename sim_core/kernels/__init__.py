@@ -4,8 +4,7 @@ Each kernel is a plain loop over springs or elements compiled once (``cache=True
 machine code between runs). The serial kernels release the GIL (``nogil=True``): Python threads
 run them at once (the vector envs reset their copies on several threads, whose static solves call
 them; a kernel only writes the arrays it is given). The numpy formulation in ``sim_core.forces`` is
-the readable reference the tests compare these kernels with; formulas cite shared/physics.md. SI
-units.
+the readable reference the tests compare these kernels with. SI units.
 
 The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``threads`` (the thread policy and
 ``variant``, the choice between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes,
@@ -17,10 +16,48 @@ sparse factors), ``contact`` (the probe's projected surface), ``geometry`` (poin
 seen from above). Every public name is re-exported here: ``kernels.model_forces(...)``.
 
 numba checks a cached kernel against the file that defines it only: a kernel that calls (or
-inlines) a function of another module keeps its cached machine code when only that other module
-changes. After editing a module, delete the package's ``__pycache__`` (or ``NUMBA_CACHE_DIR``) so
-that its callers in the other modules are compiled again.
+inlines) a function of another module, or reads a constant of ``sim_core.topology``, would keep its
+cached machine code when only that other file changes. So the package drops its whole cache when
+the source of any kernel module or of the topology changed since the cache was written
+(``drop_stale_cache``, at import, before any kernel is compiled or loaded), as a single file of
+kernels did. A cache elsewhere (``NUMBA_CACHE_DIR``) is the user's to clear.
 """
+
+import hashlib
+import os
+import tempfile
+from pathlib import Path
+
+#: the sources a kernel's machine code depends on
+SOURCES = sorted(Path(__file__).parent.glob("*.py")) + [Path(__file__).parent.parent / "topology.py"]
+STAMP = "kernel-sources.blake2b"
+
+
+def drop_stale_cache(cache: Path, sources=SOURCES) -> bool:
+    """Delete numba's cached kernels (``*.nbi``, ``*.nbc``) in ``cache`` unless they were written
+    from the current ``sources`` (a digest kept in ``cache / STAMP``); returns whether it did. A
+    cache that cannot be written is left as it is (an installed package: its sources do not change)."""
+    digest = hashlib.blake2b(b"".join(path.read_bytes() for path in sources), digest_size=16).hexdigest()
+    stamp = cache / STAMP
+    try:
+        if stamp.read_text() == digest:
+            return False
+    except OSError:
+        pass
+    try:
+        cache.mkdir(exist_ok=True)
+        for path in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
+            path.unlink(missing_ok=True)
+        handle, temporary = tempfile.mkstemp(dir=cache, prefix=STAMP)  # written whole, then renamed
+        with os.fdopen(handle, "w") as out:
+            out.write(digest)
+        os.replace(temporary, stamp)
+    except OSError:
+        return False
+    return True
+
+
+drop_stale_cache(Path(__file__).parent / "__pycache__")
 
 from .fastmath import (  # noqa: F401
     FAST, FAST_REDUCE,
