@@ -244,7 +244,7 @@ def test_copies_share_models_and_caches():
     for copy in others:
         assert copy.model is first.model
         assert copy._model_cache is first._model_cache and copy._start_cache is first._start_cache
-        assert copy._factor_stores is first._factor_stores and copy._goal_factors is first._goal_factors
+        assert copy._factor_stores is first._factor_stores and copy.goal_factors is first.goal_factors
     vector.close()
 
 
