@@ -199,6 +199,7 @@ def test_flat_probe_radius_is_9_mm_whatever_the_shape(shape, count):
     assert unwrapped.probe_radius == 0.009
     unwrapped.state = None  # the rest mesh
     unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - 0.002, 0.0])
+    # the contact set for a tool offset at the rest mesh has no public entry point outside a step
     control = unwrapped._control()
     contact = unwrapped.mesh.nodes[unwrapped.contact_nodes]
     distance = np.hypot(contact[:, 0] - 0.03, contact[:, 2] - 0.03)
@@ -219,6 +220,7 @@ def test_sphere_probe_holds_the_nodes_under_its_surface_at_its_height(shape, cou
     unwrapped.state = None  # the rest mesh
     depth = 0.005 if shape != (5, 3, 5) else 0.0065
     unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - depth, 0.0])
+    # the contact set for a tool offset at the rest mesh has no public entry point outside a step
     control = unwrapped._control()
     top = unwrapped.mesh.nodes[unwrapped.top_nodes]
     r = np.hypot(top[:, 0] - 0.03, top[:, 2] - 0.03)
