@@ -653,6 +653,25 @@ class BatchedImplicitEuler(WorldsSolver):
             self._first = (stack.version, (stacked, hg_rows, values["hourglass_group"]))
         return self._first[1]
 
+    def copies_first(self):
+        """The per-copy kernels' (``kernels.apply_copies``, ``kernels.solve_copies_lu``) view of the
+        stacked model at the workspace's last linearisation: (data, hourglass rows (G, nnz),
+        hourglass group (N,)), SI units; with ``self.workspace.hourglass_blocks()`` their operator."""
+        return self._copies_first()
+
+    @property
+    def factor_lists(self):
+        """Solver "factorised": (ints, floats), each copy's packed preconditioner factor as
+        ``kernels.solve_copies_lu`` takes it (node-block LU: ints[0] < 0; SuperLU's: ints[0] = k free
+        dofs; identity: 0). Read-only views of the integrator's lists."""
+        return self._lu_int, self._lu_float
+
+    @property
+    def correction_lists(self):
+        """Solver "factorised": (W, imposed dofs), each copy's capacitance correction of its factor
+        as ``kernels.solve_copies_lu`` takes it ((3 n, k) and (k,) dof indices; k = 0: none)."""
+        return self._corrections, self._imposed
+
     def _hourglass_blocks(self):
         """``kernels.solve_copies_lu``'s node-block (BSR) form of the copies' hourglass matrices:
         (block indptr (n + 1,), block columns (nb,), values (G, 9 nb) per group of ``_copies_first``'s

@@ -42,7 +42,7 @@ def test_a_moving_contact_keeps_each_copys_factor_exact_through_its_capacitance_
     for step in range(1, 6):
         kept.warm[:] = 0.0  # the same start as a fresh integrator's
         out, _ = kept.simulate(positions, velocities, *contact(step), dt, active)
-        assert all(len(kept._imposed[copy]) == 4 + step for copy in range(count))  # corrected
+        assert all(len(kept.correction_lists[1][copy]) == 4 + step for copy in range(count))  # corrected
         fresh = BatchedImplicitEuler(stack, tolerance=1e-8, solver="factorised")
         fresh_out, _ = fresh.simulate(positions, velocities, *contact(step), dt, active)
         assert np.all(kept.last_iterations <= fresh.last_iterations + 1), (step, kept.last_iterations,
@@ -84,11 +84,12 @@ def test_the_copies_inverse_columns_equal_each_factors_own():
     dofs = np.concatenate(picks).astype(np.int64)
     n_dofs = 3 * model.n_nodes
     threaded, serial = np.zeros((6, n_dofs)), np.zeros((6, n_dofs))
-    kernels.inverse_columns_copies(integrator._lu_int, integrator._lu_float, copies, indptr, dofs, threaded)
-    kernels.inverse_columns_copies_serial(integrator._lu_int, integrator._lu_float, copies, indptr, dofs, serial)
+    kernels.inverse_columns_copies(*integrator.factor_lists, copies, indptr, dofs, threaded)
+    kernels.inverse_columns_copies_serial(*integrator.factor_lists, copies, indptr, dofs, serial)
     np.testing.assert_array_equal(threaded, serial)
+    ints, floats = integrator.factor_lists
     for t, picked in enumerate(picks):
-        own = InverseColumns(integrator._lu_int[t], integrator._lu_float[t], n_dofs).columns(picked)
+        own = InverseColumns(ints[t], floats[t], n_dofs).columns(picked)
         np.testing.assert_array_equal(threaded[indptr[t]:indptr[t + 1]], own.T)
         assert np.all(threaded[indptr[t]:indptr[t + 1]][:, ~np.isin(np.arange(n_dofs), free)] == 0.0)
 
@@ -117,7 +118,8 @@ def test_the_batched_corrections_equal_each_factors_own():
     rng = np.random.default_rng(5)
     picks = [np.sort(rng.choice(free, size, replace=False)) for size in (1, 7, 40)]
     picks.append(np.array([free[2], free[2], free[9]]))  # singular: two equal columns
-    inverses = [InverseColumns(integrator._lu_int[t % 3], integrator._lu_float[t % 3], n_dofs) for t in range(4)]
+    ints, floats = integrator.factor_lists
+    inverses = [InverseColumns(ints[t % 3], floats[t % 3], n_dofs) for t in range(4)]
     columns = np.concatenate([inverse.columns(picked).T for inverse, picked in zip(inverses, picks)])
     indptr = np.cumsum([0] + [len(picked) for picked in picks]).astype(np.int64)
     flat = np.concatenate(picks).astype(np.int64)
@@ -141,7 +143,7 @@ def test_the_kept_columns_of_the_inverse_are_the_solved_ones_and_forgotten_past_
     from sim_core import preconditioners
     from sim_core.preconditioners import InverseColumns
     integrator, free, n_dofs = _factorised_copies(1)
-    ints, floats = integrator._lu_int[0], integrator._lu_float[0]
+    ints, floats = (factors[0] for factors in integrator.factor_lists)
     kept = InverseColumns(ints, floats, n_dofs)
     first, second = free[[5, 1, 30]], free[[30, 2, 5, 77]]
     kept.columns(first)

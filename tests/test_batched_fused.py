@@ -49,8 +49,8 @@ def test_fused_factorisations_equal_the_per_copy_factors():
         # the same assembly and elimination (the compiler may contract or reorder the compiled
         # elimination's floating-point operations differently inside the fused kernel: rounding)
         np.testing.assert_allclose(factor.floats, floats, rtol=1e-12, atol=1e-12 * np.abs(floats).max())
-        assert np.shares_memory(integrator._lu_float[index], factor.floats)
-        assert np.array_equal(integrator._lu_int[index], ints)
+        assert np.shares_memory(integrator.factor_lists[1][index], factor.floats)
+        assert np.array_equal(integrator.factor_lists[0][index], ints)
         assert np.array_equal(integrator._factor_free[index], covers[index])
     # the copies' factors differ (their states do): a kernel that mixed copies up would fail above
     assert not np.allclose(factors[0].floats, factors[3].floats)
@@ -70,7 +70,7 @@ def test_a_failed_block_factor_falls_back_to_the_scalar_factor(monkeypatch):
     factors = integrator._factorise_copies(np.arange(2), system, covers)
     for index, factor in enumerate(factors):
         assert factor.ints[0] == np.count_nonzero(covers[index])  # SuperLU's scalar factor
-        assert integrator._lu_int[index] is factor.ints
+        assert integrator.factor_lists[0][index] is factor.ints
 
 
 def test_points_covered_by_quads_kernel_matches_covered():
@@ -132,15 +132,15 @@ def test_stacked_force_workspace_equals_the_stacked_models_force_pass(env_id, gr
 
 
 def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
-    """kernels.apply_blocks with BatchedImplicitEuler._hourglass_blocks (the node-block form of each
+    """kernels.apply_blocks with StackedForceWorkspace.hourglass_blocks (the node-block form of each
     copy's hourglass matrix, solve_copies_lu's operator) equals apply_operator with the copy's CSR
     matrix (to rounding), for copies with different hourglass matrices."""
     from sim_core import kernels
     envs = _stepped("tissue_env/Palpation-v0", count=4, steps=4, seed=0)
     integrator, stack = envs.integrator, envs.stack
     assert len(stack.hourglass_groups()) > 1
-    stacked, hg_rows, hg_group = integrator._copies_first()
-    indptr, indices, values = integrator._hourglass_blocks()
+    stacked, hg_rows, hg_group = integrator.copies_first()
+    indptr, indices, values = integrator.workspace.hourglass_blocks()
     assert values.shape == (len(hg_rows), 9 * len(indices))
     springs, elements, nodes = len(stack.reference.springs), stack.n_elements, stack.n_nodes
     dt = envs.dt
@@ -188,8 +188,8 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
                 np.testing.assert_array_equal(getattr(threaded, name), getattr(serial, name), err_msg=name)
         integrator = envs.integrator
         integrator.linearise(positions + 1e-7)  # a fresh linearisation for the products
-        stacked, hg_rows, hg_group = integrator._copies_first()
-        blocks = integrator._hourglass_blocks()
+        stacked, hg_rows, hg_group = integrator.copies_first()
+        blocks = integrator.workspace.hourglass_blocks()
         system = _system(integrator, envs.dt)
         vector = np.random.default_rng(1).normal(size=(envs.num_envs, 3 * envs.n_nodes))
         out = {}
@@ -214,8 +214,8 @@ def test_per_copy_solves_scale_their_guess_to_the_least_residual():
     # (8, 4, 8): unpreconditioned, the default (10, 5, 10) needs about 3000 iterations from zero
     envs = _stepped("tissue_env/Palpation-v0", count=3, steps=4, seed=1, shape=(8, 4, 8))
     integrator = envs.integrator
-    stacked, hg_rows, hg_group = integrator._copies_first()
-    blocks = integrator._hourglass_blocks()
+    stacked, hg_rows, hg_group = integrator.copies_first()
+    blocks = integrator.workspace.hourglass_blocks()
     count, dofs = envs.num_envs, 3 * envs.n_nodes
     system = _system(integrator, envs.dt)
     exact = np.random.default_rng(2).normal(size=(count, dofs))
@@ -250,9 +250,8 @@ def _solve_inputs(envs, factor_of, seed=4):
     rng = np.random.default_rng(seed)
     rhs = rng.normal(size=(count, dofs)) * free
     guess = rng.normal(size=(count, dofs))
-    return (integrator._copies_first(), integrator._hourglass_blocks(), free.astype(float), rhs, guess,
-            (integrator._lu_int, integrator._lu_float, np.asarray(factor_of, dtype=np.int64), integrator._corrections,
-             integrator._imposed))
+    return (integrator.copies_first(), integrator.workspace.hourglass_blocks(), free.astype(float), rhs, guess,
+            (*integrator.factor_lists, np.asarray(factor_of, dtype=np.int64), *integrator.correction_lists))
 
 
 def test_grouped_lockstep_solves_equal_the_per_copy_solves():
@@ -263,7 +262,7 @@ def test_grouped_lockstep_solves_equal_the_per_copy_solves():
     threaded kernel gives the serial one's floats exactly."""
     from sim_core import kernels
     envs = _stepped("tissue_env/Palpation-v0", count=6, steps=10, seed=2)
-    assert any(len(imposed) for imposed in envs.integrator._imposed)  # corrections are exercised
+    assert any(len(imposed) for imposed in envs.integrator.correction_lists[1])  # corrections are exercised
     count, dofs = envs.num_envs, 3 * envs.n_nodes
     system = _system(envs.integrator, 2.0 * envs.dt)  # the factors are approximate: several iterations
     for factor_of in (np.arange(count), [0, 0, 3, 3, 0, 5]):

@@ -8,6 +8,17 @@ from sim_core import contact
 from sim_core.resolution import Scene, scene_errors, solve_scene
 
 
+def probe_height(probe, x, z, tip):
+    """The probe's lower surface (m) over the horizontal points x, z for a tip (3,) m, +inf outside
+    its radius: flat at the tip's height, or the sphere of the probe's radius whose bottom is the tip."""
+    r2 = (x - tip[0]) ** 2 + (z - tip[2]) ** 2
+    if probe.tip == "flat":
+        height = np.full(r2.shape, tip[1])
+    else:
+        height = tip[1] + probe.radius - np.sqrt(np.maximum(probe.radius**2 - r2, 0.0))
+    return np.where(r2 <= probe.radius**2, height, np.inf)
+
+
 def test_probe_surfaces():
     probe, flat = contact.Probe(0.009), contact.Probe(0.009, "flat")
     tip = np.array([0.03, 0.02, 0.03])
@@ -155,8 +166,8 @@ def test_projected_surface_kernel_equals_its_definition(tip):
     for _ in range(20):
         positions = mesh.nodes + rng.normal(0.0, 5e-4, mesh.nodes.shape)
         tip_position = np.array([rng.uniform(0.01, 0.05), 0.03 - rng.uniform(0.0, 0.008), rng.uniform(0.01, 0.05)])
-        heights = probe._height(positions[:, 0, None] + projection.offsets[:, 0],
-                                positions[:, 2, None] + projection.offsets[:, 1], tip_position[None, None, :])
+        heights = probe_height(probe, positions[:, 0, None] + projection.offsets[:, 0],
+                               positions[:, 2, None] + projection.offsets[:, 1], tip_position)
         reference = projection.reference[:, None]
         below = heights < reference
         average = (projection.weights * np.where(below, heights, reference)).sum(axis=1)

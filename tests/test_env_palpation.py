@@ -10,6 +10,22 @@ from tissue_env.episodes import random_policy, run_episode, scripted_policy
 ENV_ID = "tissue_env/Palpation-v0"
 
 
+def tip_of(env):
+    """The probe tip (3,) m: its start plus the tool offset (both public attributes)."""
+    return env.probe_start + env.tool_offset
+
+
+def static_solver(model):
+    """``solve_with_contact``'s solve on ``model`` (the env's episode model): ``solve_static`` to
+    1e-8, two load steps from the rest state, as ``sim_core.studies.solving.mss_solver`` builds it."""
+    from sim_core.static import solve_static
+
+    def solve(control, initial):
+        result = solve_static(model, control, initial=initial, load_steps=2 if initial is None else 1, tolerance=1e-8)
+        return result.positions, result.reaction, result.converged, None
+    return solve
+
+
 def test_scripted_sweep_succeeds_and_random_probing_rarely_does():
     env = gym.make(ENV_ID)
     scripted = [run_episode(env, scripted_policy, seed) for seed in range(20)]
@@ -61,7 +77,7 @@ def test_success_needs_the_press_held_for_hold_steps():
     target[1] = unwrapped.top_y - unwrapped.success_depth - 0.001
     held = []
     for _ in range(40):
-        action = np.clip((target - unwrapped._tip()) / unwrapped.max_step, -1, 1).astype(np.float32)
+        action = np.clip((target - tip_of(unwrapped)) / unwrapped.max_step, -1, 1).astype(np.float32)
         _, _, terminated, _, info = env.step(action)
         held.append(info["press_steps"])
         if terminated:
@@ -70,15 +86,24 @@ def test_success_needs_the_press_held_for_hold_steps():
 
 
 def test_inclusion_is_stiffer_under_the_probe():
-    """Pressing 3 mm over the inclusion needs more force than over the other candidate cells."""
+    """Pressing 4 mm over the inclusion (the scripted sweep's press, each cell's reading the
+    ``apparent_modulus`` of the last step held there) needs more force than over the other cells."""
     env = gym.make(ENV_ID, max_episode_steps=400)
     env.reset(seed=0)
     unwrapped = env.unwrapped
     unwrapped.terminate_on_success = False
-    while unwrapped._sweep is None or unwrapped._sweep["index"] < len(unwrapped.inclusion_cells):
-        env.step(unwrapped.scripted_action())
-    stiffness = unwrapped._sweep["stiffness"]
     cells = unwrapped.inclusion_cells
+    centres, depth = unwrapped.cell_centres, unwrapped.top_y - 0.004  # the sweep's press depth
+    stiffness = np.full(len(cells), np.nan)
+    for _ in range(400):
+        _, _, _, truncated, info = env.step(unwrapped.scripted_action())
+        tip = tip_of(unwrapped)
+        over = np.flatnonzero(np.all(np.abs(centres - tip[[0, 2]]) <= 1e-6, axis=1))
+        if len(over) and tip[1] <= depth + 1e-6:  # pressed over a cell: the latest reading is what the sweep keeps
+            stiffness[over[0]] = info["apparent_modulus"]
+        elif np.all(np.isfinite(stiffness)) or truncated:  # every cell pressed and the probe gone on
+            break
+    assert np.all(np.isfinite(stiffness)), stiffness
     inclusion = int(np.flatnonzero((cells == unwrapped.inclusion_cell).all(axis=1))[0])
     assert np.argmax(stiffness) == inclusion and stiffness[inclusion] > 1.05 * np.median(stiffness)
 
@@ -94,7 +119,7 @@ def test_palpation_map_records_the_latest_press_and_rewards_the_first_once(shape
     def go(goal, steps=12):
         infos = []
         for _ in range(steps):
-            tip = unwrapped._tip()
+            tip = tip_of(unwrapped)
             action = np.clip((goal - tip) / unwrapped.max_step, -1, 1).astype(np.float32)
             obs, _, terminated, _, info = env.step(action)
             infos.append(info)
@@ -174,6 +199,7 @@ def test_flat_probe_radius_is_9_mm_whatever_the_shape(shape, count):
     assert unwrapped.probe_radius == 0.009
     unwrapped.state = None  # the rest mesh
     unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - 0.002, 0.0])
+    # the contact set for a tool offset at the rest mesh has no public entry point outside a step
     control = unwrapped._control()
     contact = unwrapped.mesh.nodes[unwrapped.contact_nodes]
     distance = np.hypot(contact[:, 0] - 0.03, contact[:, 2] - 0.03)
@@ -194,6 +220,7 @@ def test_sphere_probe_holds_the_nodes_under_its_surface_at_its_height(shape, cou
     unwrapped.state = None  # the rest mesh
     depth = 0.005 if shape != (5, 3, 5) else 0.0065
     unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - depth, 0.0])
+    # the contact set for a tool offset at the rest mesh has no public entry point outside a step
     control = unwrapped._control()
     top = unwrapped.mesh.nodes[unwrapped.top_nodes]
     r = np.hypot(top[:, 0] - 0.03, top[:, 2] - 0.03)
@@ -210,7 +237,7 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
     """Pressed 5 mm over a corner cell and held, the probe's force and the tissue settle on the
     frictionless-contact equilibrium that the static active set (sim_core.studies.solving) finds for
     the same probe (measured: within 1e-6 N after 40 steps; the contact set held within one step)."""
-    from sim_core.studies.solving import mss_solver, solve_with_contact
+    from sim_core.studies.solving import solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400).unwrapped
     env.terminate_on_success = False
@@ -219,15 +246,14 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
     forces = []
     for step in range(60):
         target = goal if step >= 10 else np.array([goal[0], env.top_y, goal[2]])
-        env.step(np.clip((target - env._tip()) / env.max_step, -1, 1).astype(np.float32))
+        env.step(np.clip((target - tip_of(env)) / env.max_step, -1, 1).astype(np.float32))
         forces.append(env.measures["reaction_force"][1])
     assert abs(forces[-1] - forces[-2]) < 1e-6  # settled, no oscillation
-    solve, _ = mss_solver(env.mesh, env._material(env.young_modulus, env.poisson_ratio, env.task_key), env.gravity,
-                          env.hourglass_control, env.volume_stiffness, False)
+    solve = static_solver(env.model)
     candidates = np.zeros(env.mesh.n_nodes, bool)
     candidates[env.top_nodes] = True
     positions, reaction, converged, _, _, contact = solve_with_contact(
-        solve, env.base_control.copy(), env.state.positions, env.probe, candidates, env._tip())
+        solve, env.base_control.copy(), env.state.positions, env.probe, candidates, tip_of(env))
     assert converged and np.array_equal(contact, env.contact)
     assert abs(reaction[contact, 1].sum() - forces[-1]) < 1e-4 * abs(forces[-1])
     assert np.abs(positions - env.state.positions).max() < 1e-6
@@ -253,7 +279,7 @@ def held_reading(env, x, z, seed):
     """Apparent modulus (Pa) of a press at (x, z) m straight down at full speed to 6 mm, held 2
     steps (what the palpation map then holds), from a reset with ``seed``."""
     env.reset(seed=seed)
-    env.tool_offset = env.tool_offset + np.array([x, 0.0, z]) - env._tip() * [1, 0, 1]
+    env.tool_offset = env.tool_offset + np.array([x, 0.0, z]) - tip_of(env) * [1, 0, 1]
     for action in ([0, -1, 0], [0, -1, 0], [0, 0, 0], [0, 0, 0]):
         _, _, _, _, info = env.step(np.array(action, np.float32))
     return info["apparent_modulus"]

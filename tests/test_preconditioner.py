@@ -152,6 +152,7 @@ def test_a_moving_contact_keeps_the_factor_exact_through_its_capacitance_correct
     kept.simulate(model, state, state.copy(), 0.04, model.new_control().impose(bottom, nodes[bottom]))
     for step in range(1, 6):
         out, fresh_out = state.copy(), state.copy()
+        # ImplicitEuler has no public way to drop its warm start (sim_core.integrators)
         kept._warm = kept._warm_old = None  # the same start as a fresh integrator's
         report = kept.simulate(model, state, out, 0.04, contact(step))
         fresh = ImplicitEuler(preconditioner="factorised", tolerance=1e-8)
@@ -178,6 +179,7 @@ def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one
         state = model.new_state()
         base = model.new_control().impose(bottom, nodes[bottom])
         integrator.simulate(model, state, state.copy(), 0.04, base)
+        # the kept factor's cost estimate has no public view on ImplicitEuler
         assert (integrator._factor.cost < preconditioners.CHEAP_FACTOR) == cheap
         held = base.copy().impose(top[:6], nodes[top[:6]] - [0.0, 0.0005, 0.0], components=(1,))
         report = integrator.simulate(model, state, state.copy(), 0.04, held)
@@ -286,6 +288,7 @@ def test_factorised_preconditioner_uses_the_node_block_lu():
     model, control, _ = stiff_scene((4, 4, 4))
     block = ImplicitEuler(preconditioner="factorised", tolerance=1e-10)
     positions, _ = trajectory(model, control, block, 4)
+    # which factor ImplicitEuler holds (node blocks or SuperLU) has no public view
     assert block._factor.block is not None
 
     class Pivots:

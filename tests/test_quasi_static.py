@@ -71,11 +71,12 @@ def test_env_static_steps_end_on_the_contact_equilibrium(task):
         scale = np.abs(forces).max()
         assert np.abs(forces[free]).max() <= 1e-4 * scale  # equilibrium on every free component
         if task == "Palpation":
-            gaps = contact.gap(unwrapped.probe, state.positions, unwrapped._tip())
-            candidates = unwrapped._probe_candidates
+            gaps = contact.gap(unwrapped.probe, state.positions, unwrapped.probe_start + unwrapped.tool_offset)
+            candidates = np.isin(np.arange(unwrapped.mesh.n_nodes), unwrapped.top_nodes)  # the probe's
         else:
             gaps = state.positions[:, 1]
-            candidates = unwrapped._floor_candidates
+            # the floor's: every node but the attached and the grasped ones
+            candidates = ~np.isin(np.arange(unwrapped.mesh.n_nodes), np.union1d(unwrapped.fixed_nodes, unwrapped.tool_nodes))
         assert np.all(gaps[candidates & ~unwrapped.contact] >= -1e-7)  # nothing through the obstacle
         assert np.all(np.abs(gaps[unwrapped.contact]) <= 1e-6)  # the held nodes on its surface
         if terminated or truncated:
@@ -108,6 +109,7 @@ def test_kept_tangent_saves_factorisations_not_accuracy(monkeypatch):
     bottom = np.flatnonzero(mesh.nodes[:, 1] == 0)
     top = np.flatnonzero(np.isclose(mesh.nodes[:, 1], 0.04))
     calls = []
+    # no public counter of solve_static's factorisations (the predictor's and Newton's): count the calls
     original = static._factorise
 
     def counting(*args, **kwargs):

@@ -13,6 +13,7 @@ import tissue_env.tumor_positioning as tumor_positioning  # noqa: E402
 def test_reset_speed_counts_goal_solves_and_restores_the_solvers(tmp_path):
     """Seeds 1-3 of TumorPositioning: every reset solves its goal at least once, the counters are
     removed afterwards, and the JSON is written."""
+    # the benchmark counts factorisations by patching static._factorise: the test checks it restores it
     solve, factorise = tumor_positioning.solve_static, static._factorise
     row = reset_speed.measure("tissue_env/TumorPositioning-v0", 3)
     assert tumor_positioning.solve_static is solve and static._factorise is factorise

@@ -57,6 +57,7 @@ def test_matmul_tangent_matches_the_einsum_definition():
     mesh = sa.block(2)
     fem = NeoHookeanFEM(mesh, Material(sa.YOUNG, sa.POISSON, sa.DENSITY))
     x = mesh.nodes + np.random.default_rng(1).normal(scale=5e-4, size=mesh.nodes.shape)
+    # the Lame parameters per quadrature point have no public view on NeoHookeanFEM
     mu, lam = fem._point_parameters()
     tangent = material_tangent(fem.deformation_gradients(x), mu, lam)
     expected = np.einsum("mp,mpnB,mpaBcD,mpkD->mnakc", fem.weights, fem.gradients, tangent, fem.gradients).reshape(-1, 24, 24)
@@ -147,4 +148,5 @@ def test_warm_start_extrapolates_only_after_converged_solves():
         for _ in range(3):
             integrator.simulate(model, state, scratch, 0.01, control)
             state, scratch = scratch, state
+        # whether ImplicitEuler extrapolates its warm start has no public view
         assert (integrator._warm_old is not None) == extrapolates

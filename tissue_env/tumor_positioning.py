@@ -193,6 +193,12 @@ class TumorPositioningEnv(TissueEnv):
 
     shared_attributes = ("_goal_factors",)
 
+    @property
+    def goal_factors(self) -> FactorCache:
+        """The ``FactorCache`` of the goal solves' start tangent LUs (shared by the copies of a vector
+        env); its ``hits`` and ``misses`` count the factorisations it saved and made."""
+        return self._goal_factors
+
     def share_caches(self, other):
         super().share_caches(other)
         self._goal_factors = other._goal_factors
