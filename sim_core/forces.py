@@ -125,9 +125,9 @@ def hourglass_block_map(matrix):
 def hourglass_blocks(model: Model):
     """The node-block (BSR, 3 x 3) form of ``model.hourglass`` for ``kernels.apply_operator_blocks``:
     (block indptr (N + 1,), block columns (nb,), row-major block values (9 nb,), ones (3 N,)), or
-    None without hourglass control. Built once per model and kept in ``model.derived``: the matrix
-    is constant (a caller that rewrites a model's hourglass values in place, as
-    ``sim_core.batched.ModelStack.assign`` does, calls ``forget_hourglass_blocks``). Read in
+    None without hourglass control. Built once per model and kept in ``model.derived``: a model's
+    matrix is constant (the one model whose values change, ``sim_core.stack.StackedModel``, drops
+    it when they do). Read in
     blocks, an operator product or a force pass loads one index and three vector entries per 9
     values, where the scalar CSR loops were about half of their time."""
     return model.derived.get("hourglass_blocks", lambda: _hourglass_blocks(model))
@@ -141,11 +141,6 @@ def _hourglass_blocks(model: Model):
     stored = positions >= 0
     values[stored] = model.hourglass.data[positions[stored]]
     return indptr, indices, values, np.ones(model.hourglass.shape[0])
-
-
-def forget_hourglass_blocks(model: Model):
-    """Drop ``hourglass_blocks``' copy for ``model`` (after its hourglass values changed in place)."""
-    model.derived.forget("hourglass_blocks")
 
 
 class ForceWorkspace:

@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import kernels
-from .forces import ForceWorkspace, forget_hourglass_blocks, hourglass_block_map
+from .forces import ForceWorkspace, hourglass_block_map
 from .mesh import HexMesh
 from .model import Model
 from .preconditioners import digest
@@ -22,8 +22,22 @@ from .preconditioners import digest
 VALUE_FIELDS = ("mass", "rest_length", "stiffness", "damping", "axis_rest_length", "correction_matrix",
                 "rest_volume", "volume_stiffness", "young_modulus", "poisson_ratio", "density")
 
+class StackedModel(Model):
+    """The model of a ``ModelStack``'s N worlds. Unlike any other ``Model`` its per-world values
+    change: ``ModelStack.assign`` rewrites a world's slice of the value arrays (``VALUE_FIELDS``,
+    the gravity forces, the masses per dof, the hourglass values) in place, then calls
+    ``values_changed``, which drops the data derived from them (``Model.derived``) and advances
+    ``ModelStack.version``, which the N-world solvers' own caches compare with theirs. Its topology
+    (mesh, springs, patterns) never changes."""
+
+    def values_changed(self):
+        """Drop the derived data that depends on the values (``assign`` calls it)."""
+        for name in ("hourglass_blocks", "pattern_arrays"):
+            self.derived.forget(name)
+
+
 class ModelStack:
-    """N copies of one block as one sim_core ``Model`` (``self.model``); ``assign(i, model)``
+    """N copies of one block as one ``StackedModel`` (``self.model``); ``assign(i, model)``
     puts a model of the same block (any material) into copy ``i``.
 
     Args:
@@ -52,7 +66,7 @@ class ModelStack:
             hourglass = sp.csr_matrix((np.tile(single.data, count), indices, indptr),
                                       shape=(rows * count, rows * count))
         values = {name: np.concatenate([getattr(model, name)] * count) for name in VALUE_FIELDS}
-        self.model = Model(
+        self.model = StackedModel(
             mesh=HexMesh(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
             options=dict(model.options), **values,
@@ -92,11 +106,11 @@ class ModelStack:
             stacked.hourglass.data[data] = model.hourglass.data
             if stacked.hourglass_arrays[2] is not stacked.hourglass.data:
                 stacked.hourglass_arrays[2][data] = model.hourglass.data
-            forget_hourglass_blocks(stacked)  # its hourglass values changed in place
             key = digest(model.hourglass.data)
             self._hourglass_by_key.setdefault(key, model.hourglass)
             self._hourglass_keys[index] = key
             self._hourglass_groups = None
+        stacked.values_changed()
         self.models[index] = model
         self.version += 1
 

@@ -6,7 +6,7 @@ change in place (``ModelStack.assign``) must not keep stale blocks."""
 import numpy as np
 
 from sim_core import kernels
-from sim_core.forces import ForceWorkspace, forget_hourglass_blocks, hourglass_blocks
+from sim_core.forces import ForceWorkspace, hourglass_blocks
 from sim_core.krylov import apply_system
 from sim_core.material import Material
 from sim_core.mesh import HexMesh
@@ -61,13 +61,18 @@ def test_block_operator_and_forces_equal_the_scalar_csr_ones():
     assert np.all(blocked[mask == 0.0] == 0.0)
 
 
-def test_values_changed_in_place_need_forget():
-    model = _model()
+def test_a_stacked_model_drops_its_blocks_when_its_values_change():
+    """The stacked model of N worlds is the one model whose values change in place; its node-block
+    hourglass form is derived data it must drop then (``StackedModel.values_changed``)."""
+    from sim_core.stack import ModelStack
+
+    stack = ModelStack(_model(), 1)
+    model = stack.model
     x, v = _state(model)
     ForceWorkspace(model).compute(x, v)  # the blocks are built and kept
-    model.hourglass.data *= 2.0  # as ModelStack.assign writes another copy's values
+    model.hourglass.data *= 2.0  # as ModelStack.assign writes another world's values
     stale = ForceWorkspace(model).compute(x, v).copy()
-    forget_hourglass_blocks(model)
+    model.values_changed()
     fresh = ForceWorkspace(model).compute(x, v).copy()
     reference = _scalar_forces(model, x, v)
     assert np.abs(fresh - reference).max() <= 1e-13 * np.abs(reference).max()
