@@ -11,7 +11,7 @@ whose first Piola-Kirchhoff stress and material tangent are
     P = mu (F - F^-T) + lambda ln J F^-T,
     dP_aB/dF_cD = mu d_ac d_BD + (mu - lambda ln J) F^-1_Bc F^-1_Da + lambda F^-1_Ba F^-1_Dc.
 
-mu = G = E / (2 (1 + nu)) and lambda = E nu / ((1 + nu)(1 - 2 nu)) (physics.md notation), so the
+mu = G = E / (2 (1 + nu)) and lambda = E nu / ((1 + nu)(1 - 2 nu)) (docs/physics.md notation), so the
 law reduces to linear isotropic elasticity with the same E and nu at small strain. Everything is
 vectorised over elements and Gauss points (einsum); the tangent is assembled into the fixed CSR
 pattern of ``sparse.BlockPattern`` and the equilibrium is found by Newton's method with a
@@ -34,7 +34,7 @@ from .static import ramp_load
 
 # -- constitutive law (pointwise, vectorised over any leading axes) ----------------------------
 def lame_parameters(young_modulus, poisson_ratio):
-    """(mu, lambda) in Pa from E (Pa) and nu (physics.md notation)."""
+    """(mu, lambda) in Pa from E (Pa) and nu (docs/physics.md notation)."""
     young_modulus, nu = np.asarray(young_modulus, float), np.asarray(poisson_ratio, float)
     return young_modulus / (2 * (1 + nu)), young_modulus * nu / ((1 + nu) * (1 - 2 * nu))
 
@@ -105,7 +105,7 @@ class NeoHookeanFEM:
         mesh: ``HexMesh`` of trilinear hexahedra (rest positions in m).
         material: ``Material`` (E in Pa, nu, rho in kg/m^3; scalars or one value per element).
 
-    Lumped masses are rho V / 8 per element node (physics.md section 5), so gravity on them equals
+    Lumped masses are rho V / 8 per element node (docs/physics.md section 5), so gravity on them equals
     the consistent body load of the trilinear elements.
     """
 

@@ -77,7 +77,7 @@ class ImplicitEuler(SymplecticEuler):
         (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1.
 
     K holds the springs (geometric term clamped at zero so the matrix is SPD) and the corrections'
-    push along the current edges. The corrections' strain coupling is not symmetric (physics.md 3):
+    push along the current edges. The corrections' strain coupling is not symmetric (docs/physics.md 3):
     ``corrections="explicit"`` leaves it in f only and solves with Jacobi-preconditioned conjugate
     gradient; ``corrections="implicit"`` adds it, and the volume forces' rank-one stiffness
     (matrix-free), to the system and solves with BiCGSTAB. Measured
@@ -342,7 +342,7 @@ def _damped_limit(omega: float, zeta: float) -> float:
 
 def stable_time_step(model: Model, control: Control | None = None, *, method: str = "eigen",
                      positions: np.ndarray | None = None, damping: bool = True) -> float:
-    """Largest stable symplectic-Euler time step in s (physics.md section 5).
+    """Largest stable symplectic-Euler time step in s (docs/physics.md section 5).
 
     Args:
         method: "eigen" (Arnoldi on M^-1 K for omega_max, the damping ratio of that mode from its

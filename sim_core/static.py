@@ -1,6 +1,6 @@
 """Static equilibrium of the mass-spring model: damped Newton with line search and load stepping.
 
-Zero-energy modes (physics.md section 6): the 16-spring hexahedron has 3 non-rigid hourglass
+Zero-energy modes (docs/physics.md section 6): the 16-spring hexahedron has 3 non-rigid hourglass
 modes per block, so the tangent stiffness can be singular even when rigid motion is removed.
 The solver handles them with a Levenberg-Marquardt term ``mu diag(K)`` in the Newton system: the
 step is the regularised (near minimum-norm) one, so a mode that no force excites keeps its initial
@@ -488,7 +488,7 @@ def _line_search(model, positions, free, applied, step, norm):
 
 def zero_energy_modes(model: Model, control: Control | None = None, positions=None, relative_tolerance=1e-8,
                       n_modes: int = 16):
-    """Count the zero-energy modes of the constrained tangent stiffness (physics.md section 6).
+    """Count the zero-energy modes of the constrained tangent stiffness (docs/physics.md section 6).
 
     Args:
         control: which components are imposed (rigid motions left free count as modes too).

@@ -1,4 +1,4 @@
-"""Validation experiments of DESIGN.md: elongation, shear and flexion of a structured block.
+"""Validation experiments: elongation, shear and flexion of a structured block.
 
 Each experiment builds the block, imposes its boundary conditions, solves for static equilibrium
 with the physics named by ``model`` and measures moduli the way a materials lab would. Mass-spring
@@ -74,7 +74,7 @@ class ExperimentResult:
 
 
 def position_errors(result, reference, rest_positions=None) -> tuple[float, float]:
-    """(%e_dm, %e_max) of ``result`` against ``reference`` (physics.md section 7).
+    """(%e_dm, %e_max) of ``result`` against ``reference`` (docs/physics.md section 7).
 
     %e_dm = sqrt(mean_p |x_p - x_p^ref|^2) / o_max * 100, %e_max = max_p |x_p - x_p^ref| / o_max * 100,
     o_max = max_p |x_p^ref - X_p|. Arguments are ``ExperimentResult`` objects or (N, 3) arrays (then
@@ -160,7 +160,7 @@ def _strain_or_force(strain, force):
 # -- experiments ---------------------------------------------------------------------------------
 def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, force=None,
                model="baudet", density=1000.0, **options) -> ExperimentResult:
-    """Uniaxial pull along x (DESIGN.md): measured Young's modulus and Poisson's ratio.
+    """Uniaxial pull along x: measured Young's modulus and Poisson's ratio.
 
     Args:
         shape: (nx, ny, nz) elements; ny and nz must be even (the rigid-motion anchors sit at
@@ -218,7 +218,7 @@ def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, for
 
 def shear(shape, spacing, young_modulus, poisson_ratio, *, angle_deg, model="baudet",
           density=1000.0, **options) -> ExperimentResult:
-    """Simple shear (DESIGN.md): face y = 0 fixed, face y = Ly moved by tan(angle) Ly along x.
+    """Simple shear: face y = 0 fixed, face y = Ly moved by tan(angle) Ly along x.
 
     Returns the measured shear modulus G = (x reaction on the top / (Lx Lz)) / tan(angle), Pa.
     """
@@ -247,7 +247,7 @@ def shear(shape, spacing, young_modulus, poisson_ratio, *, angle_deg, model="bau
 
 def flexion(shape, spacing, young_modulus, poisson_ratio, *, density, gravity=9.81, model="baudet",
             **options) -> ExperimentResult:
-    """Cantilever under gravity (DESIGN.md): face x = 0 fixed, gravity (0, -gravity, 0).
+    """Cantilever under gravity: face x = 0 fixed, gravity (0, -gravity, 0).
 
     Returns ``tip_deflection``: mean y displacement of face x = Lx in m (negative downward).
     """
@@ -273,7 +273,7 @@ def flexion(shape, spacing, young_modulus, poisson_ratio, *, density, gravity=9.
 
 # -- tool loading: indentation and pull by a patch of top-face nodes (issue 3, Fig. 5 and 6) ----
 def hourglass_content(rest_positions, elements, positions) -> float:
-    """Share of a displacement field that lies in the elements' hourglass spaces (physics.md 6).
+    """Share of a displacement field that lies in the elements' hourglass spaces (docs/physics.md 6).
 
     Each element's nodal displacements u_e (8, 3) are projected on its hourglass space
     (``model.hourglass_projectors``: the nodal fields orthogonal to every affine one); the result
@@ -317,7 +317,7 @@ def settle(model, control: Control, positions, *, amplitude: float = 0.02, dt: f
            max_steps: int = 2000, rest_speed: float = 1e-5):
     """Follow the dynamics away from an unstable equilibrium: where a simulation really ends up.
 
-    A static solver can converge to a saddle (hourglass buckling under compression, physics.md 6);
+    A static solver can converge to a saddle (hourglass buckling under compression, docs/physics.md 6);
     any disturbance moves a dynamic simulation off it. This perturbs ``positions`` along the
     eigenvector of the lowest eigenvalue of the constrained tangent (largest nodal displacement
     ``amplitude`` times the smallest element edge), runs damped implicit Euler (``dt`` s) until
