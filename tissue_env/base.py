@@ -349,6 +349,12 @@ class TissueEnv(gym.Env):
         """A hand-written controller's action for the current state (a baseline)."""
         raise NotImplementedError
 
+    def _require_reset(self, call):
+        """Raise RuntimeError for ``call`` (e.g. "render()") when no episode has started yet: the
+        state, the tool and the task's goal are drawn by ``reset``."""
+        if self.state is None:
+            raise RuntimeError(f"call reset() before {call}")
+
     # -- model building --------------------------------------------------------------------------
     def _model(self, young_modulus, poisson_ratio, task_key):
         key = (float(young_modulus), float(poisson_ratio), task_key)
@@ -491,8 +497,7 @@ class TissueEnv(gym.Env):
             raise ValueError(f"action must have shape (3,), got {action.shape}")
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action must be finite (no NaN or infinity), got {action.tolist()}")
-        if self.state is None:
-            raise RuntimeError("call reset() before step()")
+        self._require_reset("step()")
         action = np.clip(action, -1.0, 1.0)
         self.tool_offset = self.constrain_tool(
             np.clip(self.tool_offset + self.max_step * action, self.workspace_low, self.workspace_high))
@@ -669,10 +674,11 @@ class TissueEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
+        self._require_reset("render()")
         if self._renderer is None:
             self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
                                       human=self.render_mode == "human", fps=self.metadata["render_fps"])
-        positions = self.state.positions if self.state is not None else self.mesh.nodes
+        positions = self.state.positions
         displacement = np.linalg.norm(positions - self.mesh.nodes, axis=1)
         frame = self._renderer.draw(positions, displacement, self._markers(), self._extra_drawing())
         return frame if self.render_mode == "rgb_array" else None

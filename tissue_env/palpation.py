@@ -529,6 +529,7 @@ class PalpationEnv(TissueEnv):
         end nearest the start), hold it ``settle_steps``, record the apparent modulus (what the
         palpation map records), then press ``success_depth`` + 1 mm over the stiffest one and hold
         it there."""
+        self._require_reset("scripted_action()")
         if self._sweep is None:
             centres = self.cell_centres.copy()
             rows = np.unique(centres[:, 0], return_inverse=True)[1]

@@ -253,6 +253,7 @@ class RetractionEnv(TissueEnv):
     def scripted_action(self, lift_height=0.04, hold=(0.005, 0.05)):
         """Lift and pull: raise the free edge to ``lift_height`` m, then bring it over the attached
         edge to (x, y) = ``hold`` m, keeping z."""
+        self._require_reset("scripted_action()")
         tool = self.tool_rest.mean(axis=0) + self.tool_offset
         if tool[1] < lift_height - 1e-6 and tool[0] > hold[0] + 0.02:
             goal = np.array([tool[0], lift_height, tool[2]])

@@ -284,6 +284,7 @@ class TumorPositioningEnv(TissueEnv):
         The tool position integrates the error, so it converges to the tool displacement that
         produced the goal (the tumour moves less than the tool: gain > 1 speeds this up).
         """
+        self._require_reset("scripted_action()")
         error = self.goal - self.measures["tumor"]
         return np.clip(gain * error / self.max_step, -1.0, 1.0).astype(np.float32)
 

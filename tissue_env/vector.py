@@ -528,6 +528,8 @@ class TissueVectorEnv(VectorEnv):
     def render(self):
         if self.render_mode is None:
             return None
+        if not self._started:
+            raise RuntimeError("call reset() before render()")
         frames = []
         for index, env in enumerate(self.envs):
             if env.state is not None:
