@@ -158,7 +158,7 @@ class NeoHookeanFEM:
     def element_tangents(self, positions: np.ndarray) -> np.ndarray:
         """(M, 24, 24) consistent tangents d(f_e)/d(x_e) in N/m (node-major dofs)."""
         # K[m, (n a), (k c)] = sum_p w_mp sum_BD G[m,p,n,B] A[m,p,a,B,c,D] G[m,p,k,D], contracted
-        # by two batched matmuls (about 10x faster than the equivalent einsum at 16^3 elements).
+        # by two batched matmuls (BLAS: much faster than the equivalent einsum on large meshes).
         mu, lam = self._point_parameters()
         tangent = material_tangent(self.deformation_gradients(positions), mu, lam)  # (M, P, 3,3,3,3)
         tangent = tangent * self.weights[..., None, None, None, None]

@@ -201,8 +201,8 @@ class ImplicitEuler(SymplecticEuler):
         apply_system(data, blocks, system, np.ones(n), moved, product)
         rhs = dt * forces.reshape(-1) + pattern_arrays(model)[4] * v0.reshape(-1) - product
         mask = free.astype(float)
-        # Warm start: the last two steps' dv extrapolated linearly (measured on sim_core.studies.bench's sagging
-        # block: 6 -> 4 BiCGSTAB iterations, 18% faster; neutral under the envs' random actions), which
+        # Warm start: the last two steps' dv extrapolated linearly (fewer BiCGSTAB iterations on
+        # sim_core.studies.bench's sagging block; neutral under the envs' random actions), which
         # the factorised solve (krylov_solve) scales to the least residual before iterating.
         guess = self._warm if self._warm is not None and self._warm.shape == rhs.shape else np.zeros_like(rhs)
         if self._warm_old is not None and self._warm_old.shape == rhs.shape:

@@ -577,8 +577,8 @@ class PalpationVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``PalpationEnv``)."""
 
     env_class = PalpationEnv
-    # The measurement's force pass is the next step's (the same observations, bitwise): N = 16,
-    # 1.1x -> 1.2x sync (496 -> 638 env steps per CPU s, benchmarks/vector_env_speed.py).
+    # The measurement's force pass is the next step's (the same observations, bitwise): one force
+    # pass per step instead of two (benchmarks/vector_env_speed.py, the performance page).
     share_force_pass = True
 
     def __init__(self, num_envs=1, **kwargs):

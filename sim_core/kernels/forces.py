@@ -228,8 +228,8 @@ def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, 
 def _volume_forces(positions, elements, rest_volume, kappa, forces, jacobian, coefficient, direction, gradient):
     """Adds every element's volume-conservation force (docs/physics.md 4) to ``forces`` (N, 3), with
     exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
-    straight-line body per element (generated code, no scratch arrays; 2.4x faster than
-    the earlier two-pass version). With ``jacobian``, also fills the rank-one stiffness terms of
+    straight-line body per element (generated code, no scratch arrays: faster than two passes
+    through them). With ``jacobian``, also fills the rank-one stiffness terms of
     ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3); without it those
     arrays are not touched (may be empty).
     """
