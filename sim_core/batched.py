@@ -43,13 +43,13 @@ factor (one cache entry) and each copy's BiCGSTAB is preconditioned by its group
 (``_solve_shared``, ``kernels.solve_copies_grouped``): the copies are split into chunks
 (``lockstep_chunk``: half of them, at most 8), shared among the threads, and each chunk runs in
 lockstep, so that a triangular solve reads a shared factor once for all the chunk's running copies
-of it (at TumorPositioning's 7^3, 3.2e5 values in L and U: 0.12 ms for one copy, 0.41 ms for 16
-together), and so does the hourglass term of the operator products (2/3 of a product's time per
-copy); the rest of the products and the vector updates stay per copy, and a copy that has
-converged drops out (it costs its own iterations, 2.6 on average, against 5.1 for the slowest of
-16). Over 150 random TumorPositioning steps with 16 copies this is 1.26x the per-copy solves
-(``kernels.solve_copies_lu``, each copy reading the factor alone) on one thread and 1.22x on two;
-the chunks depend on the copy count only, so any thread count gives the same trajectories. The
+of it (a pass over a factor costs little more for a chunk of copies than for one), and so does the
+hourglass term of the operator products (most of a product's time); the rest of the products and
+the vector updates stay per copy, and a copy that has converged drops out (it costs its own
+iterations, not the slowest copy's). This beats the per-copy solves (``kernels.solve_copies_lu``,
+each copy reading the factor alone) on one thread and on two (benchmarks/vector_env_speed.py, the
+performance page); the chunks depend on the copy count only, so any thread count gives the same
+trajectories. The
 start matrix stays close to the current one while the tissue moves a few millimetres: about 3
 iterations per copy. When it no longer fits (large deformation, a probe contact that changes the
 imposed dofs), the copy that needed the most iterations (more than ``refresh_iterations``) is
@@ -99,10 +99,10 @@ LOCKSTEP_CHUNK = 8
 
 def lockstep_chunk(count: int) -> int:
     """Copies per lockstep chunk of solver "reference" (``kernels.solve_copies_grouped``) for
-    ``count`` copies: half of them (two chunks for two threads: 4 TumorPositioning copies in one
-    chunk ran 7% slower on 2 threads than per copy), at most ``LOCKSTEP_CHUNK`` (a pass over a
-    shared factor costs about as much for 8 copies as for 16: 0.41 ms at TumorPositioning's 7^3, so
-    16 copies lose nothing in 2 chunks and more copies give more chunks for more threads). It
+    ``count`` copies: half of them (two chunks, one for each of two threads: a single chunk on two
+    threads is slower than solving per copy), at most ``LOCKSTEP_CHUNK`` (a pass over a shared
+    factor costs about as much for 8 copies as for 16, so 16 copies lose nothing in 2 chunks and
+    more copies give more chunks for more threads). It
     depends on the copy count only, so the floats do not depend on the thread count."""
     return max(1, min(LOCKSTEP_CHUNK, (count + 1) // 2))
 
@@ -412,8 +412,8 @@ class BatchedImplicitEuler(WorldsSolver):
     def _refresh(self, index, positions, dt, fixed):
         """Re-linearise copy ``index``'s preconditioner at its current ``positions``: after large
         tool motions the start matrix is a poorer approximation and its solver needs more
-        iterations, which all copies wait for (measured: 6 -> 20 iterations over 150 random steps
-        without refresh, about 7 with it). The copy gets a factor of its own (it leaves its group)."""
+        iterations, which all copies wait for (without refreshes the iteration count of random
+        steps grows several-fold). The copy gets a factor of its own (it leaves its group)."""
         self._use(index, _system_factor(self.stack.models[index], positions, dt, fixed))
         self.refreshes += 1
 

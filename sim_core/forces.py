@@ -2,7 +2,7 @@
 
 Sign conventions: ``forces`` are the forces acting on the nodes (N); ``stiffness`` matrices are
 K = -d(forces)/d(positions) (N/m) and damping matrices D = -d(forces)/d(velocities) (N s/m), so
-that both are positive semi-definite for plain springs. Equations cite shared/physics.md.
+that both are positive semi-definite for plain springs. Equations cite docs/physics.md.
 """
 
 from __future__ import annotations

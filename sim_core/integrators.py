@@ -77,7 +77,7 @@ class ImplicitEuler(SymplecticEuler):
         (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1.
 
     K holds the springs (geometric term clamped at zero so the matrix is SPD) and the corrections'
-    push along the current edges. The corrections' strain coupling is not symmetric (physics.md 3):
+    push along the current edges. The corrections' strain coupling is not symmetric (docs/physics.md 3):
     ``corrections="explicit"`` leaves it in f only and solves with Jacobi-preconditioned conjugate
     gradient; ``corrections="implicit"`` adds it, and the volume forces' rank-one stiffness
     (matrix-free), to the system and solves with BiCGSTAB. Measured
@@ -201,8 +201,8 @@ class ImplicitEuler(SymplecticEuler):
         apply_system(data, blocks, system, np.ones(n), moved, product)
         rhs = dt * forces.reshape(-1) + pattern_arrays(model)[4] * v0.reshape(-1) - product
         mask = free.astype(float)
-        # Warm start: the last two steps' dv extrapolated linearly (measured on sim_core.studies.bench's sagging
-        # block: 6 -> 4 BiCGSTAB iterations, 18% faster; neutral under the envs' random actions), which
+        # Warm start: the last two steps' dv extrapolated linearly (fewer BiCGSTAB iterations on
+        # sim_core.studies.bench's sagging block; neutral under the envs' random actions), which
         # the factorised solve (krylov_solve) scales to the least residual before iterating.
         guess = self._warm if self._warm is not None and self._warm.shape == rhs.shape else np.zeros_like(rhs)
         if self._warm_old is not None and self._warm_old.shape == rhs.shape:
@@ -342,7 +342,7 @@ def _damped_limit(omega: float, zeta: float) -> float:
 
 def stable_time_step(model: Model, control: Control | None = None, *, method: str = "eigen",
                      positions: np.ndarray | None = None, damping: bool = True) -> float:
-    """Largest stable symplectic-Euler time step in s (physics.md section 5).
+    """Largest stable symplectic-Euler time step in s (docs/physics.md section 5).
 
     Args:
         method: "eigen" (Arnoldi on M^-1 K for omega_max, the damping ratio of that mode from its

@@ -34,8 +34,8 @@ def krylov_solve(data, scales, mask, rhs, guess, factor: Factor, tolerance, max_
         return 0, 0.0
     apply_system(data, blocks, scales, mask, x, v)
     # the guess scaled by the factor that minimises ||b - a A x0|| (0: no guess), never a worse start
-    # than none (the extrapolated dv is a poor guess after a random action: TumorPositioning's mean
-    # iterations 3.57 -> 2.84 over 400 random steps, 19% more steps/s; smooth actions 3.56 -> 3.50)
+    # than none (the extrapolated dv is a poor guess after a random action: scaling it saves
+    # iterations under random actions and costs nothing under smooth ones)
     b = rhs * mask
     vv = float(v @ v)
     scale = float(b @ v) / vv if vv > 0.0 else 0.0

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._validate import finite_array, positive
 
-#: Baudet's edge stiffness of a cube, ``E l (4 nu + 1) / (8 (1 + nu))`` (physics.md section 2),
+#: Baudet's edge stiffness of a cube, ``E l (4 nu + 1) / (8 (1 + nu))`` (docs/physics.md section 2),
 #: is not positive for nu <= -1/4, so the mass-spring model cannot represent such materials.
 MIN_POISSON_RATIO = -0.25
 MAX_POISSON_RATIO = 0.5

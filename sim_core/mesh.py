@@ -1,4 +1,4 @@
-"""Hexahedral meshes: the structured block of DESIGN.md and general 8-node hex meshes.
+"""Hexahedral meshes: the validation experiments' structured block and general 8-node hex meshes.
 
 Node order of a hexahedron is VTK's: 0 (0,0,0), 1 (1,0,0), 2 (1,1,0), 3 (0,1,0), 4 (0,0,1),
 5 (1,0,1), 6 (1,1,1), 7 (0,1,1) in local coordinates. Lengths are in metres.
@@ -87,7 +87,8 @@ class HexMesh:
         """Structured block of ``shape = (nx, ny, nz)`` hexahedra with ``spacing`` metres.
 
         Occupies [0, nx dx] x [0, ny dy] x [0, nz dz]; node (i, j, k) sits at (i dx, j dy, k dz)
-        and has index i + (nx + 1) (j + (ny + 1) k) (DESIGN.md).
+        and has index i + (nx + 1) (j + (ny + 1) k): the node order of the experiments' contract,
+        x fastest, then y, then z.
         """
         nx, ny, nz = _parse_shape(shape)
         spacing = _parse_spacing(spacing)

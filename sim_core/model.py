@@ -1,8 +1,8 @@
 """Build an immutable Baudet mass-spring model from a hexahedral mesh and a material.
 
-Model / State / Control follow Warp's split (see shared/STYLE.md): the ``Model`` never changes
+Model / State / Control follow Warp's split: the ``Model`` never changes
 during a run, a ``State`` is what an integrator steps, a ``Control`` is what the user imposes.
-Formulas cite ``shared/physics.md`` (sections in brackets). SI units throughout.
+Formulas cite ``docs/physics.md`` (sections in brackets). SI units throughout.
 """
 
 from __future__ import annotations
@@ -233,7 +233,7 @@ def _edge_directions(positions, elements):
     return vectors / np.linalg.norm(vectors, axis=2, keepdims=True)
 
 
-# -- stiffness formulas (physics.md section 2 and 3) -------------------------------------------
+# -- stiffness formulas (docs/physics.md sections 2 and 3) ----------------------------------
 def baudet_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio):
     """Per-element spring stiffnesses (N/m) of Baudet's hexahedron [2].
 
@@ -260,7 +260,7 @@ def baudet_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio):
 
 
 def correction_coefficients(axis_lengths: np.ndarray, poisson_ratio) -> np.ndarray:
-    """(M, 3, 3) C[i, j] of physics.md section 3 (zero on the diagonal); cube: -(4 nu - 1) / 2."""
+    """(M, 3, 3) C[i, j] of docs/physics.md section 3 (zero on the diagonal); cube: -(4 nu - 1) / 2."""
     nu = poisson_ratio
     d2 = (axis_lengths**2).sum(axis=1)
     coefficients = np.zeros((len(axis_lengths), 3, 3))

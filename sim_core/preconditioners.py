@@ -40,10 +40,10 @@ AUTO_MAX_DOFS = 30000
 #: A factorisation serves another imposed set (``Factor.restricted``) when at most this share of its
 #: free dofs gets Jacobi: dofs free now on nodes it does not hold (the SuperLU fallback,
 #: ``_Restricted``: every dof whose status changed). More, and factorising again is cheaper than the
-#: extra iterations. Measured with ``_Restricted`` (env steps per CPU second, random actions):
-#: Palpation at 8x4x8 (a probe contact, ~1000 dofs) 174 without reuse, 393 at 1%, 369 without a
-#: limit; Retraction at 8x2x4 (the floor, ~360 dofs) 367-382 without reuse, 400 at 1%, 319 without
-#: a limit. Imposed dofs on the nodes it holds (a contact's) are corrected exactly (``_Capacitance``).
+#: extra iterations. Chosen for the contact tasks (Palpation's probe, Retraction's floor): 1% gave
+#: more env steps per CPU second than no reuse and than reuse without a limit (random actions; see
+#: the performance page). Imposed dofs on the nodes it holds (a contact's) are corrected exactly
+#: (``_Capacitance``).
 RESTRICTED_MAX_CHANGED = 0.01
 #: Re-factorise when a solve needs more than max(REFACTOR_MIN, 2 x the count right after factorising).
 REFACTOR_MIN = 8
@@ -103,10 +103,9 @@ class Factor:
     capacitance correction (``_Capacitance``) whose columns of the inverse are solved at first use per
     factorisation and kept, so a contact that moves onto other nodes keeps the factor and its
     iteration count; dofs free now but imposed at the factorisation get Jacobi. The
-    node-block LU's substitutions read one index per 3 x 3 block, 1.9x faster than SuperLU's
-    scalar solve at TumorPositioning's 6^3 (0.22 against 0.42 ms), and its numeric factorisation
-    (compiled, on a structure kept per node set) 1.4x faster (5.8 against 8.1 ms; 2.6x at
-    Retraction's 8x2x4). Where it fails, SuperLU's scalar LU of the free-dof matrix (minimum-degree
+    node-block LU's substitutions read one index per 3 x 3 block, faster than SuperLU's scalar
+    solve, and so is its numeric factorisation (compiled, on a structure kept per node set; see
+    ``sparse.NodeBlockLU``). Where it fails, SuperLU's scalar LU of the free-dof matrix (minimum-degree
     ordering on A + A^T, symmetric mode: the matrix is symmetric up to the corrections' coupling),
     restricted to another imposed set by ``_Restricted``."""
 

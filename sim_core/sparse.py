@@ -84,17 +84,16 @@ class NodeBlockLU:
     (the implicit system matrix M + dt D + dt^2 K is dominated by its diagonal), so that L and U
     keep the node blocks. The fill is that of SuperLU's scalar ordering (1.65e5 entries at
     TumorPositioning's 6^3 block, in 1.9e4 blocks), and the substitutions read one index per 9
-    values: 1.9x faster than SuperLU's scalar solve for one right-hand side at 6^3.
+    values: faster than SuperLU's scalar solve for one right-hand side.
 
     The ordering and the block fill pattern (a symbolic SuperLU factor of the node graph) are
     computed once per matrix pattern and free set; each factorisation is then numeric only
-    (``kernels.block_lu_factor``): 5.8 against 8.1 ms for SuperLU's scalar factor at 6^3, 0.6 against
-    1.6 ms at Retraction's 8x2x4.
+    (``kernels.block_lu_factor``), faster than SuperLU's scalar factorisation (see the performance
+    page).
 
     With ``symmetric``, the factor is instead the block LDL^T of the matrix's symmetric part
     (A + A^T) / 2, P S P^T = U^T D U (``kernels.block_ldl_factor``), stored as U alone with D^-1 in
-    its diagonal blocks: half the values, factorised in about 0.4x the time and applied in about
-    0.6x (Palpation's 8x4x8 block: 9.5 against 23.6 ms, 0.25 against 0.44 ms per application); a
+    its diagonal blocks: half the values, so it factorises and applies in less time than the LU; a
     preconditioner for a matrix that is symmetric up to small terms (the implicit system's
     corrections' coupling and volume terms: about 1e-4 of its entries).
 

@@ -154,7 +154,7 @@ class StackedForceWorkspace(ForceWorkspace):
     one pass over ONE copy's hourglass matrix for all copies (``kernels.stacked_hourglass_subtract``,
     the copies with equal matrices sharing a column of values): the stacked CSR matrix is N times a
     copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
-    1.8x slower per copy than a single env's. Where the copies hold different matrices, the pass
+    slower per copy than a single env's. Where the copies hold different matrices, the pass
     reads each in node blocks once for all its copies instead (``kernels.stacked_hourglass_subtract_groups``;
     the copies-last CSR pass gathered one value per copy and entry). Same forces up to rounding."""
 

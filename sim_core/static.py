@@ -1,6 +1,6 @@
 """Static equilibrium of the mass-spring model: damped Newton with line search and load stepping.
 
-Zero-energy modes (physics.md section 6): the 16-spring hexahedron has 3 non-rigid hourglass
+Zero-energy modes (docs/physics.md section 6): the 16-spring hexahedron has 3 non-rigid hourglass
 modes per block, so the tangent stiffness can be singular even when rigid motion is removed.
 The solver handles them with a Levenberg-Marquardt term ``mu diag(K)`` in the Newton system: the
 step is the regularised (near minimum-norm) one, so a mode that no force excites keeps its initial
@@ -259,8 +259,8 @@ class QuasiStatic(OneWorldSolver):
     assembly and sparse factorisation: slower than one implicit Euler step (measured in
     benchmarks/dynamic_convergence.py --integrator static), for observations without lag. The
     predictor's tangent is kept from step to step (same model and free dofs) while steps
-    converge within REUSE_ITERATIONS: TumorPositioning's static env 63 -> 79-83 steps per CPU s,
-    Palpation +14%, Retraction +3% (random actions; observations within the solve tolerance).
+    converge within REUSE_ITERATIONS: fewer factorisations, so more steps per CPU second for every
+    task's static env (random actions; observations within the solve tolerance).
     """
 
     name = "static"
@@ -327,7 +327,7 @@ def tangent_stiffness(model: Model, positions: np.ndarray) -> sp.csr_matrix:
     positions)`` (springs with their unclamped geometric term, the corrections' full coupling, the
     volume forces' rank-one term, hourglass), assembled by the compiled kernels
     (``kernels.operator_matrix_data``, the implicit step's assembly): equal to rounding (2e-15
-    relative, tests/test_static_cache.py) and 3.5x faster at 6x6x6 (2.4 against 8.4 ms). Models whose corrections push along
+    relative, tests/test_static_cache.py) and several times faster. Models whose corrections push along
     the rest directions (``correction_mode="fixed"``) use ``stiffness_data``."""
     positions = np.asarray(positions, dtype=float)
     if positions.shape != (model.n_nodes, 3) or not np.all(np.isfinite(positions)):
@@ -365,9 +365,8 @@ def _free_tangent(model, positions, free):
 def _factorise(model, positions, free, damping):
     """(K, sparse LU of K_ff + damping |diag(K_ff)|) at ``positions``. SuperLU with the minimum
     degree ordering on K + K^T in symmetric mode, pivoting only below a tenth of the column's
-    largest entry: where SuperLU's default threshold pivots (TumorPositioning's 6x6x6 block with
-    positions perturbed by 1 mm) 1.7x faster (8.4 against 14.3 ms, 28% less fill) with the same
-    residual (1e-13); near rest the same factor and time."""
+    largest entry: where SuperLU's default threshold pivots (a block with perturbed positions) this
+    is faster, with less fill and the same residual; near rest the same factor and time."""
     stiffness, reduced = _free_tangent(model, positions, free)
     matrix = (reduced + sp.diags(damping * np.abs(reduced.diagonal()))).tocsc()
     return stiffness, spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1,
@@ -409,8 +408,8 @@ def _newton(model, positions, free, applied, tolerance, max_iterations, factor=N
     halves it); the diagonal damping only grows while the tangent is singular. Escalating it after
     a rejected step as well (up to |diag K|, near-gradient steps) made a failing TumorPositioning
     goal retry factorise 20-27 times before giving up; over seeds 1-1000 it never turned a failure
-    into a converged solve (the same goals, bit for bit), and ``benchmarks/reset_speed.py`` read
-    the mean reset 24.2 / 23.7 -> 21.9 / 22.1 ms and the slowest 398 / 356 -> 198 / 194 ms."""
+    into a converged solve (the same goals, bit for bit), and stopping instead makes resets faster,
+    the slowest ones most (``benchmarks/reset_speed.py``, the performance page)."""
     force = _residual(model, positions, applied)
     residual = _relative(force, free, applied)
     norm = np.linalg.norm(force.ravel()[free])
@@ -488,7 +487,7 @@ def _line_search(model, positions, free, applied, step, norm):
 
 def zero_energy_modes(model: Model, control: Control | None = None, positions=None, relative_tolerance=1e-8,
                       n_modes: int = 16):
-    """Count the zero-energy modes of the constrained tangent stiffness (physics.md section 6).
+    """Count the zero-energy modes of the constrained tangent stiffness (docs/physics.md section 6).
 
     Args:
         control: which components are imposed (rigid motions left free count as modes too).

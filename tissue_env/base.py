@@ -5,7 +5,7 @@ A task subclasses ``TissueEnv`` and fills in a few hooks (which nodes are fixed,
 imposes positions, the task features, the reward terms, the reset distribution); see
 ``tumor_positioning.py`` for the smallest example. SI units throughout (m, kg, s, Pa, N).
 
-Physics per env step (measured, see ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
+Physics per env step (its cost: ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
 Euler steps of ``dt`` s (``sim_core.integrators.ImplicitEuler``). It is stable far past the explicit
 limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms
 for TumorPositioning and Palpation) per env step is enough, and with the springs' critical damping the block
@@ -13,8 +13,9 @@ settles to the quasi-static equilibrium within a few steps of a slow tool (check
 ``solve_static`` in tests/test_env_tumor_positioning.py). Each task's ``default_shape`` is the
 most accurate shape that keeps 300 env steps/s (``benchmarks/env_accuracy.py``; README, "How the
 default resolution is chosen").
-A full ``solve_static`` per env step was measured about 10 times slower (a sparse LU factorisation
-per Newton iteration), so it is used only at reset (initial sag under gravity, goal generation).
+A full ``solve_static`` per env step costs several implicit steps (a sparse LU factorisation per
+Newton iteration), so it is used only at reset (initial sag under gravity, goal generation) and by
+the opt-in "static" integrator.
 """
 
 from __future__ import annotations
@@ -128,8 +129,8 @@ def check_shape(name, value, minimum):
 def observation_arrays(parts, names, as_dict: bool):
     """The observation from its features ``parts`` (float64 arrays, the feature index last): one
     float32 array (their concatenation) or a dict ``names`` -> array, with NaN set to 0 and every
-    value clipped to +-OBS_LIMIT in one pass over the concatenation (a pass per feature cost 0.4 ms
-    of a TumorPositioning step)."""
+    value clipped to +-OBS_LIMIT in one pass over the concatenation (a pass per feature was a
+    noticeable share of a step)."""
     flat = np.concatenate(parts, axis=-1)
     np.nan_to_num(flat, copy=False, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
     np.clip(flat, -OBS_LIMIT, OBS_LIMIT, out=flat)
@@ -171,7 +172,7 @@ class TissueEnv(gym.Env):
         integrator: "implicit" (default, linearised implicit Euler), "static" (a static equilibrium
             per env step, ``sim_core.static.QuasiStatic``, with a contact's active set iterated
             to convergence within the step: observations without the dynamic lag, those of the
-            static scene at every tool position, at 2-5x the cost of an implicit step; single
+            static scene at every tool position, at several times the cost of an implicit step; single
             envs and ``vectorization_mode="sync"``/``"async"``) or "explicit" (symplectic Euler,
             needs dt below about 1 ms; for experiments on stability).
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
@@ -188,19 +189,19 @@ class TissueEnv(gym.Env):
         observation_type: "state" (default), "deformation" (adds the displacement of the surface
             nodes) or "dict" (the "deformation" features as a Dict space).
         young_modulus_range, poisson_ratio_range: None or (low, high): domain randomisation, a new
-            value drawn at every reset (the model is rebuilt, about 0.1 s).
+            value drawn at every reset (the model is rebuilt: a slower reset).
         volume_weight: weight of the |relative volume change| penalty.
         strain_threshold, strain_weight: penalty strain_weight * max(0, max spring strain - threshold)
             (a damage proxy).
         instability_penalty: reward (negated) of the step where the simulation diverges.
         solver_tolerance: relative residual of the implicit integrator's linear solve (the task's
-            ``default_solver_tolerance``: 1e-4, measured 1.5x faster than 1e-6 with positions within
+            ``default_solver_tolerance``: 1e-4, fewer iterations than 1e-6 with positions within
             0.01 mm of the 1e-6 run; TumorPositioning and Palpation 1e-2, see their docstrings).
         preconditioner: the implicit integrator's ("auto" default, "jacobi" or "factorised";
             ``sim_core.integrators.ImplicitEuler``): "auto" starts with Jacobi and switches to a
             sparse LU of the system matrix, kept across steps, when Jacobi needs more than about
-            5 sqrt(free dofs / 400) iterations. Measured against "jacobi": 1.5x env steps/s on
-            TumorPositioning at its default shape, 2.85x at (7, 7, 7) with dt 40 ms.
+            5 sqrt(free dofs / 400) iterations: more env steps/s than "jacobi", the more so the
+            finer the mesh and the longer dt (``benchmarks/env_speed.py``).
         render_mode: None, "rgb_array" or "human".
     """
 
@@ -349,6 +350,12 @@ class TissueEnv(gym.Env):
         """A hand-written controller's action for the current state (a baseline)."""
         raise NotImplementedError
 
+    def _require_reset(self, call):
+        """Raise RuntimeError for ``call`` (e.g. "render()") when no episode has started yet: the
+        state, the tool and the task's goal are drawn by ``reset``."""
+        if self.state is None:
+            raise RuntimeError(f"call reset() before {call}")
+
     # -- model building --------------------------------------------------------------------------
     def _model(self, young_modulus, poisson_ratio, task_key):
         key = (float(young_modulus), float(poisson_ratio), task_key)
@@ -491,8 +498,7 @@ class TissueEnv(gym.Env):
             raise ValueError(f"action must have shape (3,), got {action.shape}")
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action must be finite (no NaN or infinity), got {action.tolist()}")
-        if self.state is None:
-            raise RuntimeError("call reset() before step()")
+        self._require_reset("step()")
         action = np.clip(action, -1.0, 1.0)
         self.tool_offset = self.constrain_tool(
             np.clip(self.tool_offset + self.max_step * action, self.workspace_low, self.workspace_high))
@@ -669,10 +675,11 @@ class TissueEnv(gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
+        self._require_reset("render()")
         if self._renderer is None:
             self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
                                       human=self.render_mode == "human", fps=self.metadata["render_fps"])
-        positions = self.state.positions if self.state is not None else self.mesh.nodes
+        positions = self.state.positions
         displacement = np.linalg.norm(positions - self.mesh.nodes, axis=1)
         frame = self._renderer.draw(positions, displacement, self._markers(), self._extra_drawing())
         return frame if self.render_mode == "rgb_array" else None

@@ -529,6 +529,7 @@ class PalpationEnv(TissueEnv):
         end nearest the start), hold it ``settle_steps``, record the apparent modulus (what the
         palpation map records), then press ``success_depth`` + 1 mm over the stiffest one and hold
         it there."""
+        self._require_reset("scripted_action()")
         if self._sweep is None:
             centres = self.cell_centres.copy()
             rows = np.unique(centres[:, 0], return_inverse=True)[1]
@@ -576,8 +577,8 @@ class PalpationVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``PalpationEnv``)."""
 
     env_class = PalpationEnv
-    # The measurement's force pass is the next step's (the same observations, bitwise): N = 16,
-    # 1.1x -> 1.2x sync (496 -> 638 env steps per CPU s, benchmarks/vector_env_speed.py).
+    # The measurement's force pass is the next step's (the same observations, bitwise): one force
+    # pass per step instead of two (benchmarks/vector_env_speed.py, the performance page).
     share_force_pass = True
 
     def __init__(self, num_envs=1, **kwargs):

@@ -253,6 +253,7 @@ class RetractionEnv(TissueEnv):
     def scripted_action(self, lift_height=0.04, hold=(0.005, 0.05)):
         """Lift and pull: raise the free edge to ``lift_height`` m, then bring it over the attached
         edge to (x, y) = ``hold`` m, keeping z."""
+        self._require_reset("scripted_action()")
         tool = self.tool_rest.mean(axis=0) + self.tool_offset
         if tool[1] < lift_height - 1e-6 and tool[0] > hold[0] + 0.02:
             goal = np.array([tool[0], lift_height, tool[2]])
@@ -277,11 +278,11 @@ class RetractionVectorEnv(TissueVectorEnv):
     env_class = RetractionEnv
     # The flap swings through large rotations: its matrix changes fast and factorises cheaply
     # (a few hundred free dofs), so a copy's factor is refreshed once its extra iterations add up.
-    # The Jacobi lockstep ran faster in an early version, but its trajectories strayed up to 7x
-    # further from the exact ones than the single env's in one CI run (this chaotic flap, random
-    # actions), against 0.01-0.03 (normalised units) for the factors: kept. The measurement's force
-    # pass is the next step's (observations equal to 5e-17 with and without): N = 16, 1.5x -> 1.7x
-    # sync (749 -> 1150 env steps per CPU s, benchmarks/vector_env_speed.py).
+    # The Jacobi lockstep was faster, but its trajectories strayed much further from the exact ones
+    # than the single env's (this chaotic flap, random actions), where the factors' stay close:
+    # the factors are kept. The measurement's force
+    # pass is the next step's (observations equal to 5e-17 with and without): one force pass per
+    # step instead of two (benchmarks/vector_env_speed.py, the performance page).
     refactor_amortise = 6
     share_force_pass = True
 

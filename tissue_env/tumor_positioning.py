@@ -15,17 +15,17 @@ from .vector import TissueVectorEnv
 
 # Goal solves: keep the (cached) start tangent while it contracts the residual by 0.95 per step,
 # with Anderson mixing over 5 steps, and give up past 8 load increments (the last converged goal is
-# kept). Measured over 40 resets (seeds 1-40): mean 10.2 -> 7.5 ms at the default shape against
-# contraction 0.7 / depth 3; at (8, 8, 8) the increment cap bounds a 20 mm press that took 6 s to
-# fail; goals within 2e-7 m of the plain Newton ones.
+# kept). Chosen for the reset time (``benchmarks/reset_speed.py``, the performance page): long
+# chord runs, accelerated, reuse one factorisation for most of a goal; the increment cap bounds the
+# time a goal that cannot converge (a deep press on a fine mesh) takes to fail. The goals stay
+# within 2e-7 m of the plain Newton ones.
 GOAL_SOLVER = dict(chord_contraction=0.95, acceleration=5, max_load_steps=8)
 #: A retry (a larger displacement, solved from the previous equilibrium) gives up sooner: the
-#: failing ones (large compressions at the workspace corners) took 0.75-1.5 s. Over seeds 1-200
-#: the goals are the same (to 2e-8 m), the mean reset 60.6 -> 55.3 ms and the slowest 1.2 -> 0.66 s.
-#: Since Newton gives up a load step at a rejected fresh-tangent step (``sim_core.static._newton``)
-#: a failing retry (15 of seeds 1-1000) stops after a few factorisations, not 20-27: the same
-#: goals, the mean reset 24.2 / 23.7 -> 21.9 / 22.1 ms and the slowest 398 / 356 -> 198 / 194 ms
-#: (``benchmarks/reset_speed.py``, two runs of each version).
+#: failing ones (large compressions at the workspace corners) are the slowest resets, and giving up
+#: sooner leaves the goals the same (to 2e-8 m over seeds 1-200). Since Newton gives up a load step
+#: at a rejected fresh-tangent step (``sim_core.static._newton``) a failing retry (15 of seeds
+#: 1-1000) stops after a few factorisations, not 20-27, with the same goals
+#: (``benchmarks/reset_speed.py``).
 GOAL_RETRY_SOLVER = dict(GOAL_SOLVER, max_load_steps=2, max_iterations=20)
 
 
@@ -60,7 +60,7 @@ class TumorPositioningEnv(TissueEnv):
     4^3 31%, 10.9%, 31.7%), its observations with the tool at full speed within 3.5%, 2.5% and 4.0%
     of the 16^3 mesh's (``benchmarks/dynamic_convergence.py``); the lag behind the static
     equilibrium of a tool moving at full speed is within 4.3%, 0.8% and 3.1%. The loose solver tolerance leaves these lags unchanged (an inexact solve keeps the
-    equilibria) and runs about 25% faster; no divergence in 100 random-action episodes. After a tool
+    equilibria) and runs faster; no divergence in 100 random-action episodes. After a tool
     move the tumour settles to the static equilibrium within a few steps (tested).
 
     ## Action Space
@@ -284,6 +284,7 @@ class TumorPositioningEnv(TissueEnv):
         The tool position integrates the error, so it converges to the tool displacement that
         produced the goal (the tumour moves less than the tool: gain > 1 speeds this up).
         """
+        self._require_reset("scripted_action()")
         error = self.goal - self.measures["tumor"]
         return np.clip(gain * error / self.max_step, -1.0, 1.0).astype(np.float32)
 
@@ -298,14 +299,13 @@ class TumorPositioningVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``TumorPositioningEnv``)."""
 
     env_class = TumorPositioningEnv
-    # Measured (N = 16, 100 random steps): the start-of-episode node-block LU shared by the copies
-    # as every copy's preconditioner, solved in lockstep, was 2.5x faster in the physics step than
-    # per-copy LUs kept up to date (solver "factorised", one copy after the other: 1.1 s against
-    # 2.7 s; about 2.9 iterations per copy either way); solved per copy on 2 threads it was 15%
-    # faster again, and in lockstep chunks of 8 copies, each pass over the shared factor and hourglass
-    # matrix serving all of a chunk's running copies, 1.26x (1 thread) and 1.22x (2 threads) faster
-    # than per copy (``sim_core.batched._solve_shared``). The measurement's force pass is the next step's (the
-    # reaction force only reads it).
+    # Solver "reference": the start-of-episode node-block factor, shared by the copies that start
+    # alike as every copy's preconditioner, costs no more iterations per copy than per-copy factors
+    # kept up to date (solver "factorised") and saves their factorisations: the tool moves the tissue
+    # only a few millimetres from the start. Solved in lockstep chunks, each pass over the shared
+    # factor and hourglass matrix serves all of a chunk's running copies (``sim_core.batched._solve_shared``;
+    # benchmarks/vector_env_speed.py and the performance page). The measurement's force pass is the
+    # next step's (the reaction force only reads it).
     linear_solver = "reference"
     share_force_pass = True
 

@@ -20,12 +20,10 @@ same episodes, and their trajectories agree up to the linear solvers' tolerance
 (tests/test_env_vector.py). Only the per-step work is batched. A task provides the vectorised
 counterparts of its hooks (``_batch_control``, ``_batch_task_measures``, ...).
 
-Measured at N = 16 against ``vectorization_mode="sync"`` (benchmarks/vector_env_speed.py, random
-actions, registered episode lengths, medians of 3 interleaved rounds on a shared 2-core VM; the
-README's run): env steps per wall second, sync -> vector env, TumorPositioning 243 -> 875 (3.6x),
-Palpation 228 -> 764 (3.4x), Retraction 207 -> 1082 (5.0x); on one thread (``threads=1``) the
-vector env does 2.5 / 1.8 / 3.3x the sync env's steps per CPU second. numba's idle threads spin
-about 0.8 ms between parallel regions before they sleep (``kernels.start_threads``).
+The vector env does several times the env steps per second of ``vectorization_mode="sync"``, on
+one thread (``threads=1``) as on several (benchmarks/vector_env_speed.py measures it; the
+performance page). numba's idle threads spin briefly between parallel regions before they sleep
+(``kernels.start_threads``).
 TumorPositioning's copies are preconditioned by one node-block LDL^T of the start matrix's
 symmetric part that they share (solver "reference") and solved in lockstep chunks of 8 on numba's
 threads (``kernels.solve_copies_grouped``: one pass over the factor and the hourglass matrix for all
@@ -38,7 +36,7 @@ with the next step's force pass (``share_force_pass``), the force pass reads eac
 matrix once for all its copies (``sim_core.stack.StackedForceWorkspace``) and the per-copy solves read it in
 node blocks. What batching cannot share is each copy's own sparse algebra (Retraction's floor
 re-factorises at about two steps in three) and TumorPositioning's resets (a static solve for the
-goal, the same code in both modes: 34-36% of its vector env's CPU time in the README's run).
+goal, the same code in both modes: a large share of its vector env's CPU time).
 """
 
 from __future__ import annotations
@@ -243,7 +241,7 @@ class TissueVectorEnv(VectorEnv):
         when the vector env has more than one (``kernels.threaded``): most of a reset's time (a goal
         or start solve: SuperLU, the nogil compiled kernels) runs without the GIL, and each copy's
         reset reads only its own env and the lock-guarded shared caches, so the results are those of
-        the serial loop (measured: TumorPositioning's 16 resets 1.5x faster on 2 threads). Then each
+        the serial loop, faster on 2 threads. Then each
         copy's state is loaded into the batch, in row order."""
         envs = self.envs
 
@@ -528,6 +526,8 @@ class TissueVectorEnv(VectorEnv):
     def render(self):
         if self.render_mode is None:
             return None
+        if not self._started:
+            raise RuntimeError("call reset() before render()")
         frames = []
         for index, env in enumerate(self.envs):
             if env.state is not None:

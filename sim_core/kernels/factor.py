@@ -336,7 +336,7 @@ def block_ldl_solve(ints, values, vector, out, columns, used, buffer, accumulato
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def block_ldl_solve_one(ints, values, vector, out, buffer):
     """``block_ldl_solve`` for one right-hand side (n,) (the Krylov solves' case), its running
-    values in registers: 0.25 against 0.36 ms through the loop over columns (a Palpation copy)."""
+    values in registers: faster than the loop over columns."""
     k = -ints[0]
     nb = ints[1]
     up = 4
@@ -388,7 +388,7 @@ def block_ldl_solve_one(ints, values, vector, out, buffer):
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def block_lu_apply(ints, values, mask, vector, out, buffer):
     """out = mask * A^-1 vector (n,) through a packed node-block LU: ``block_lu_solve`` with one
-    column (a copy specialised for one right-hand side was measured only 9-11% faster); the dofs
+    column (a copy specialised for one right-hand side gained too little to keep); the dofs
     the factor does not hold get 0. ``buffer`` (k,) scratch."""
     k = -ints[0]
     columns = np.zeros(1, dtype=np.int64)

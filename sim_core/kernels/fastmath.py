@@ -12,13 +12,12 @@ from __future__ import annotations
 #: differently (1e-16 to 1e-14 relative) from the same kernel compiled with fresh callees: a serial
 #: kernel cached by one process and its threaded twin compiled by the next gave different
 #: trajectories (tests/test_env_vector.py's bit-for-bit test failed after
-#: ``pytest tests/test_batched_fused.py -k grouped``; it passes without "reassoc"). Measured without it
-#: (benchmarks/vector_env_speed.py, 2 interleaved runs): the envs ran 4-16% faster, sync and vector
-#: alike (TumorPositioning's vector env 864/887 -> 1013/1027 steps/s, Palpation's 1404/1371 ->
-#: 1566/1636); the static solve 205 -> 187 ms (``tissue-sim bench`` at 10^3).
+#: ``pytest tests/test_batched_fused.py -k grouped``; it passes without "reassoc"). Without it the
+#: envs and the static solve also ran faster, not slower (benchmarks/vector_env_speed.py,
+#: ``tissue-sim bench``; the performance page).
 FAST = {"nsz", "arcp", "contract"}
 #: ``FAST`` with reassociation, for the single-model Jacobi Krylov kernels only (``apply_operator``,
 #: ``solve_springs``: no serial / threaded twin whose floats must match; ``spring_operator``, which
-#: the copies' kernels call too, has none): their vectorised reductions kept the bare lattice's
-#: 15-iteration CG step at 0.65 ms (0.78 ms without).
+#: the copies' kernels call too, has none): their vectorised reductions keep the bare lattice's
+#: CG step faster than without.
 FAST_REDUCE = FAST | {"reassoc"}

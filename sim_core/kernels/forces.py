@@ -33,7 +33,7 @@ def spring_pass(positions, springs, stiffness, rest_length, length, unit, tensio
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def correction_pass(length, edge_spring, correction_matrix, axis_rest_length, push):
-    """T_j per element (physics.md 3): push[m, j] = sum_k W[m, j, k] eps_k."""
+    """T_j per element (docs/physics.md 3): push[m, j] = sum_k W[m, j, k] eps_k."""
     eps = np.empty(3)
     for m in range(edge_spring.shape[0]):
         for axis in range(3):
@@ -83,7 +83,7 @@ def fixed_direction_corrections(elements, push, rest_direction, forces):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def volume_jacobian_terms(positions, elements, rest_volume, kappa, coefficient, direction, gradient):
-    """Per element the volume forces' stiffness K_v = c h grad(V)^T (physics.md 4): the coefficient
+    """Per element the volume forces' stiffness K_v = c h grad(V)^T (docs/physics.md 4): the coefficient
     c = 2 kappa |dV| / V0^2 (N/m^4... per m^3 of volume change), the force directions h (M, 8, 3),
     a_S / (4 A_H) summed over the node's faces, and the volume gradient (M, 8, 3) in m^2."""
     forces = np.zeros_like(positions)  # (the forces themselves are not returned here)
@@ -92,7 +92,7 @@ def volume_jacobian_terms(positions, elements, rest_volume, kappa, coefficient, 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def volume_pass(positions, elements, rest_volume, kappa, forces):
-    """Volume-conservation forces (physics.md 4) with exact trilinear element volumes."""
+    """Volume-conservation forces (docs/physics.md 4) with exact trilinear element volumes."""
     volume_forces_add(positions, elements, rest_volume, kappa, forces)
 
 
@@ -124,7 +124,7 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
         unit[s, 2] = dz / current
         tension[s] = stiffness[s] * (current - rest_length[s])
     forces[:] = 0.0
-    for m in range(elements.shape[0] if correction_kind != 0 else 0):  # corrections (physics.md 3)
+    for m in range(elements.shape[0] if correction_kind != 0 else 0):  # corrections (docs/physics.md 3)
         e0 = 0.25 * (length[edge_spring[m, 0]] + length[edge_spring[m, 1]] + length[edge_spring[m, 2]]
                      + length[edge_spring[m, 3]]) / axis_rest_length[m, 0] - 1.0
         e1 = 0.25 * (length[edge_spring[m, 4]] + length[edge_spring[m, 5]] + length[edge_spring[m, 6]]
@@ -211,7 +211,7 @@ def model_forces_copies(count, positions, velocities, use_velocity, springs, sti
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def volume_forces_add(positions, elements, rest_volume, kappa, forces):
-    """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3): the
+    """Adds every element's volume-conservation force (docs/physics.md 4) to ``forces`` (N, 3): the
     body of ``volume_forces_jacobian_add`` without the stiffness terms."""
     none = np.empty((0, 8, 3))
     _volume_forces(positions, elements, rest_volume, kappa, forces, False, np.empty(0), none, none)
@@ -226,10 +226,10 @@ def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def _volume_forces(positions, elements, rest_volume, kappa, forces, jacobian, coefficient, direction, gradient):
-    """Adds every element's volume-conservation force (physics.md 4) to ``forces`` (N, 3), with
+    """Adds every element's volume-conservation force (docs/physics.md 4) to ``forces`` (N, 3), with
     exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
-    straight-line body per element (generated code, no scratch arrays; 2.4x faster than
-    the earlier two-pass version). With ``jacobian``, also fills the rank-one stiffness terms of
+    straight-line body per element (generated code, no scratch arrays: faster than two passes
+    through them). With ``jacobian``, also fills the rank-one stiffness terms of
     ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3); without it those
     arrays are not touched (may be empty).
     """

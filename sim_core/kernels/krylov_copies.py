@@ -255,8 +255,8 @@ def _apply_rows(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_in
     """out[c] = mask[c] * A_c vector[c] (``apply_copy``) for every copy c = first + i with
     ``running[i]``: the spring, coupling and volume terms per copy (``scales`` without the hourglass
     term), the hourglass term for all the running copies of a group at once
-    (``bsr3_matvec_add_rows``: one pass over the group's node-block matrix, 2/3 of a product at
-    TumorPositioning's 7^3: 43 of 67 us per copy)."""
+    (``bsr3_matvec_add_rows``: one pass over the group's node-block matrix, the larger part of an
+    operator product's time per copy)."""
     size = running.shape[0]
     springs_only = (scales[0], scales[1], scales[2], scales[3], scales[4], 0.0 * scales[5])
     for i in range(size):
@@ -405,8 +405,8 @@ def solve_copies_grouped(stacked, scales, hg_rows, hg_group, mask, rhs, guess, a
     """``solve_copies_lu`` (its arguments, results and stopping rule) for copies that share their
     factors (``factor_of``): the copies in contiguous chunks of ``chunk``, shared among numba's
     threads, each chunk solved in lockstep (``_solve_lockstep``): every step of the substitutions
-    reads a shared factor once for all the chunk's running copies of it instead of once per copy (at
-    TumorPositioning's 7^3, one copy's node-block solve 0.12 ms, 16 together 0.41 ms). The chunks
+    reads a shared factor once for all the chunk's running copies of it instead of once per copy
+    (many copies' substitutions cost little more than one copy's). The chunks
     depend on the copy count only, so any thread count gives the same floats. ``work`` (8, N, 3 n)."""
     n_copies, dofs = rhs.shape
     ones = np.ones(dofs)

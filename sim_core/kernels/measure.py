@@ -63,7 +63,7 @@ def hex_volume(corner, d=None):
 @njit(cache=True, nogil=True, error_model="numpy")
 def element_volumes(positions, elements, out):
     """``out[e]`` = exact volume (m^3) of every trilinear hexahedron (``hex_volume``), no temporaries
-    per element: 10x faster than the batched Gauss determinants of ``mesh.hex_volumes``."""
+    per element: much faster than the batched Gauss determinants of ``mesh.hex_volumes``."""
     corner, d = np.empty((8, 3)), np.empty((8, 3))
     for e in range(elements.shape[0]):
         for n in range(8):

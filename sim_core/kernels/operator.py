@@ -433,8 +433,8 @@ def apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block
     """``apply_packed`` with the hourglass term read from the node-block (BSR) form of the hourglass matrix
     (``hg_block_indptr`` (n + 1,), ``hg_block_indices`` (nb,) node columns, ``hg_block_data`` (9 nb,)
     row-major 3 x 3 blocks) instead of the CSR arrays in ``data``: one index and three vector loads
-    per 9 values (2.3x faster than the scalar CSR loop at Palpation's 8x4x8, where that loop was 80%
-    of the operator product). The same sums, in the same column order per row (rounding aside)."""
+    per 9 values (faster than the scalar CSR loop, which dominated the operator product). The same
+    sums, in the same column order per row (rounding aside)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
     spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],

@@ -23,8 +23,8 @@ def serial_product(a, b):
     """a @ b (m, k) x (k, p) in this thread: a product of a few-column matrix by a small one
     (``preconditioners.InverseColumns.correction``: m the dofs, k = p the imposed dofs, at most
     ``CAPACITANCE_MAX``). Through numpy, OpenBLAS runs such a product on its thread pool, whose
-    threads then spin on the other cores after every call: Retraction's vector env at N = 16 used
-    1.9 CPU seconds per wall second that way, at the same wall time."""
+    threads then spin on the other cores after every call: CPU time spent for no wall time gained
+    (a vector env's steps make many such calls)."""
     m, k = a.shape
     p = b.shape[1]
     out = np.zeros((m, p))
@@ -88,23 +88,21 @@ def using_threads(threads: int):
         numba.set_num_threads(previous)
 
 
-#: GNU OpenMP's spin count for numba's idle threads (``start_threads``): they spin about 0.8 ms
-#: after a parallel region (measured: 0.84-0.96 ms of CPU per pause of 20-200 ms; 0.15-0.21 ms
-#: sleeping at once, OMP_WAIT_POLICY=PASSIVE; 6-7 ms with libgomp's default of 300000), long enough
-#: to bridge the Python between a step's parallel kernels, short enough that a pause (a policy
-#: update) finds them asleep
+#: GNU OpenMP's spin count for numba's idle threads (``start_threads``): a tenth of libgomp's
+#: default of 300000, so that they spin long enough to bridge the Python between a step's parallel
+#: kernels and short enough that a pause (a policy update) finds them asleep instead of holding a
+#: core (see benchmarks/vector_env_speed.py and the performance page)
 SPIN_COUNT = 30000
 
 
 def start_threads():
     """Start numba's thread pool (the parallel kernels: ``factor_copies``, ``solve_copies_lu``) with
     idle threads that spin briefly, then sleep. With numba's OpenMP layer, GNU OpenMP reads
-    ``OMP_WAIT_POLICY`` and ``GOMP_SPINCOUNT`` once, when it loads. A thread woken from sleep costs
-    about 70-80 us per parallel region here (an empty region: 2.5 us with spinning threads), and a
-    vector env step runs a dozen regions: Palpation's vector env at N = 16 ran 674-704 env steps/s
-    with sleeping threads (PASSIVE), 754-765 with SPIN_COUNT (TumorPositioning 813 -> 857,
-    Retraction 1033 -> 1145), at 2-8% less work per CPU second; libgomp's default spin count gave
-    771-778 and kept a core busy for 7 ms after every region. ``GOMP_SPINCOUNT`` is set for the load
+    ``OMP_WAIT_POLICY`` and ``GOMP_SPINCOUNT`` once, when it loads. Waking a sleeping thread costs
+    far more than an empty parallel region with spinning threads, and a vector env step runs a dozen
+    regions: a short spin makes the vector envs faster than sleeping threads (OMP_WAIT_POLICY=PASSIVE)
+    at a little more CPU time per step, and nearly as fast as libgomp's default spin count without
+    keeping a core busy after every region. ``GOMP_SPINCOUNT`` is set for the load
     only, and only when the user has set neither variable; a pool already started is left as it is."""
     unset = "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ
     if unset:

@@ -26,7 +26,7 @@ simulation does not stay there). The error of a quantity is ``scene_errors``' (i
 
 Resolution ``n`` means elements no larger than ``max(size) / n`` along any axis (``Scene.shape``).
 Shapes whose elements the mass-spring model rejects (too elongated for Baudet's stiffness,
-physics.md section 2) are reported as inadmissible. The settings do not change the number of
+docs/physics.md section 2) are reported as inadmissible. The settings do not change the number of
 unknowns; their measured solve times are reported next to the errors.
 SI units: m, Pa, N, kg/m^3, m/s^2.
 """

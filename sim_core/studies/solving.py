@@ -8,7 +8,7 @@ over its imposed components); ``target``, the position of the target point (tril
 in its rest element); ``volume``, the relative volume change (V - V0) / V0 of the block.
 
 Error of a quantity q over the K tested displacements (the position-error convention of
-physics.md section 7, normalised by the largest reference value rather than case by case, so a
+docs/physics.md section 7, normalised by the largest reference value rather than case by case, so a
 nearly zero value at a small displacement does not dominate):
 
     error_q = max_k |q_k - q_k^ref| / max_k |q_k^ref|,    target: q = x - X (its displacement).
