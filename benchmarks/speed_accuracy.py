@@ -208,7 +208,7 @@ def material_points(per_side: int = 5) -> np.ndarray:
 
 
 def interpolation_weights(shape, spacing, points):
-    """Trilinear interpolation of nodal fields of a structured block (DESIGN.md numbering) at
+    """Trilinear interpolation of nodal fields of a structured block (node (i, j, k) at index i + (nx+1)(j + (ny+1) k)) at
     material ``points`` (P, 3) m given in rest coordinates.
 
     The cell of a point is floor(X / h) clipped to the block (points on the far faces use the last

@@ -5,7 +5,7 @@
 
 Writes docs/figures/validation_*.png (matplotlib, Agg), one CSV per figure in benchmarks/results/
 and benchmarks/results/validation_summary.json (the number that sums up each figure, quoted in
-docs/validation.md). Material everywhere: E = 1e4 Pa, rho = 1500 kg/m^3 (physics.md section 7).
+docs/validation.md). Material everywhere: E = 1e4 Pa, rho = 1500 kg/m^3 (docs/physics.md section 7).
 
 Grids chosen to keep the run short (each is said in the figure's title and in docs/validation.md):
 - Elongation (Fig. 1, 5): a 4x4x4 block. With these boundary conditions the exact solution of every
@@ -717,7 +717,7 @@ def figure_zero_energy_modes():
 
 # -- Fig. 7: non-cubic elements ----------------------------------------------------------------
 def admissible(aspect, nu):
-    """True when every Baudet edge stiffness of an element (1, 1, aspect) is positive (physics.md 2)."""
+    """True when every Baudet edge stiffness of an element (1, 1, aspect) is positive (docs/physics.md 2)."""
     edge, _ = baudet_stiffness(np.array([[1.0, 1.0, aspect]]), np.array([1.0]), np.array([nu]))
     return bool(np.all(edge > 0))
 
@@ -743,7 +743,7 @@ def figure_non_cubic():
             fem = shear((6, 6, 6), spacing, E0, nu, angle_deg=5, model="fem-linear")
             pull = elongation((6, 6, 6), spacing, E0, nu, strain=0.001)
             x, y, z = spacing
-            predicted = (x * x + y * y + z * z) / (3 * z * z)  # physics.md 2: shear in the plane normal to z
+            predicted = (x * x + y * y + z * z) / (3 * z * z)  # docs/physics.md 2: shear in the plane normal to z
             rows.append(dict(aspect=aspect, orientation=orientation, shear_ratio=mss.shear_modulus / g0,
                              shear_ratio_to_fem=mss.shear_modulus / fem.shear_modulus,
                              fem_shear_ratio=fem.shear_modulus / g0, predicted_shear_ratio=predicted,
@@ -767,7 +767,7 @@ def figure_non_cubic():
         a = [r["aspect"] for r in data]
         axes[1].plot(a, [r["shear_ratio_to_fem"] for r in data], marker + "-", label=f"baudet / fem-linear, odd axis {orientation}")
         axes[1].plot(a, [r["predicted_shear_ratio"] for r in data], "k" + marker, mfc="none", markersize=9,
-                     label=f"element G_xy / G = D^2 / (3 z^2) (physics.md 2), {orientation}")
+                     label=f"element G_xy / G = D^2 / (3 z^2) (docs/physics.md 2), {orientation}")
         axes[2].plot(a, [r["shear_e_dm"] for r in data], marker + "-", label=f"shear %e_dm, odd axis {orientation}")
         axes[2].plot(a, [abs(r["elongation_E_ratio"] - 1) * 100 for r in data], marker + "--",
                      label=f"elongation at 0.1%: |E/E0 - 1| (%), {orientation}")

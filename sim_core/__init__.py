@@ -8,7 +8,7 @@ Quick start::
     control = model.new_control().impose(bottom_nodes, mesh.nodes[bottom_nodes])
     equilibrium = solve_static(model, control)
 
-All quantities are SI: m, kg, s, Pa, N. Formulas follow shared/physics.md.
+All quantities are SI: m, kg, s, Pa, N. Formulas follow docs/physics.md.
 """
 
 from .material import Material

@@ -1,4 +1,4 @@
-"""Contracts every tissue_env task keeps (DESIGN.md, issue 4): checkers, vector envs, determinism,
+"""Contracts every tissue_env task keeps: checkers, vector envs, determinism,
 action and constructor validation, divergence handling, info keys, rendering."""
 
 import warnings

@@ -55,7 +55,7 @@ def test_forces_vanish_at_rest_and_under_rigid_motion():
 
 
 def test_volume_force_is_restoring():
-    """A uniformly shrunken element is pushed outward, an expanded one inward (physics.md 4)."""
+    """A uniformly shrunken element is pushed outward, an expanded one inward (docs/physics.md 4)."""
     mesh = HexMesh.block((1, 1, 1), 0.1)
     model = build_model(mesh, Material(1e4, 0.3, 1000), corrections=False)
     springs_only = build_model(mesh, Material(1e4, 0.3, 1000), corrections=False, volume_conservation=False)

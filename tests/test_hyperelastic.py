@@ -1,7 +1,7 @@
 """fem-neohookean (sim_core.hyperelastic): the large-deformation reference is right.
 
 Patch test, rigid-rotation invariance, tangent against finite differences, agreement with
-fem-linear at small strain, and physics.md section 8's large-deflection flexion floor. Each test
+fem-linear at small strain, and docs/physics.md section 8's large-deflection flexion floor. Each test
 states the tolerance it proves.
 """
 

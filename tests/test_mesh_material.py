@@ -41,7 +41,7 @@ def test_spring_count_closed_form(shape):
 
 
 def test_shared_springs_sum_stiffness():
-    """An interior edge belongs to 4 elements, a face edge to 2, a block edge to 1 (physics.md 2)."""
+    """An interior edge belongs to 4 elements, a face edge to 2, a block edge to 1 (docs/physics.md 2)."""
     young, nu, h = 1e4, 0.3, 0.1
     mesh = HexMesh.block((2, 2, 2), h)
     model = build_model(mesh, Material(young, nu, 1000))

@@ -1,6 +1,6 @@
 """baudet-original reproduces the report's Poisson-ratio defect; baudet does not (issue 3).
 
-10x10x10 block of 0.1 m cubes, E = 1e4 Pa, nu = 0.4, strain 1% (physics.md section 3). Each test
+10x10x10 block of 0.1 m cubes, E = 1e4 Pa, nu = 0.4, strain 1% (docs/physics.md section 3). Each test
 states the tolerance it proves.
 """
 

@@ -68,7 +68,7 @@ def test_without_corrections_springs_obey_cauchy(nu):
 
 
 def test_cube_closed_forms():
-    """k_edge = E l (4nu+1) / (8(1+nu)), k_d = 3 E l / (8(1+nu)), C = -(4nu-1)/2 (physics.md 2-3)."""
+    """k_edge = E l (4nu+1) / (8(1+nu)), k_d = 3 E l / (8(1+nu)), C = -(4nu-1)/2 (docs/physics.md 2-3)."""
     from sim_core.model import baudet_stiffness, correction_coefficients
 
     young, nu, length = 2e4, 0.35, 0.05
@@ -82,7 +82,7 @@ def test_cube_closed_forms():
 
 @pytest.mark.parametrize("spacing", [(0.1, 0.1, 0.1), (0.1, 0.1, 0.12), (0.12, 0.1, 0.1)])
 def test_non_cubic_shear_limitation_is_as_predicted(spacing):
-    """One k_d: shear in the plane normal to axis k measures G D^2 / (3 k^2) (physics.md 2).
+    """One k_d: shear in the plane normal to axis k measures G D^2 / (3 k^2) (docs/physics.md 2).
 
     Homogeneous simple shear u_x = gamma y imposed on every node; G from the top reaction.
     """

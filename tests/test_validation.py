@@ -1,4 +1,4 @@
-"""Block experiments against the floors of physics.md section 8 (issue: sim_core engine).
+"""Block experiments against the floors of docs/physics.md section 8 (issue: sim_core engine).
 
 10x10x10 block of 0.1 m cubes, E = 1e4 Pa. Each test states the tolerance it proves.
 """
