@@ -126,7 +126,7 @@ def test_rllib_runners_build_their_vector_envs_on_one_thread():
 
 @pytest.mark.parametrize("env_id", ["tissue_env/Retraction-v0", "tissue_env/Palpation-v0"])
 def test_batched_vec_env_steps_the_episodes_of_make_vec_env(env_id):
-    """``training.vec_env.BatchedVecEnv`` (stable-baselines3 on the batched vector env) with seed s
+    """``tissue_env.sb3.BatchedVecEnv`` (stable-baselines3 on the batched vector env) with seed s
     draws the episodes of ``make_vec_env``'s DummyVecEnv with seed s and follows them (solver
     tolerance 1e-9: observations within 1e-4), with SB3's same-step reset: the same dones, the
     terminal observation and TimeLimit.truncated in the info, the next episode's first observation
@@ -137,7 +137,7 @@ def test_batched_vec_env_steps_the_episodes_of_make_vec_env(env_id):
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from training.common import make_env
-    from training.vec_env import BatchedVecEnv
+    from tissue_env.sb3 import BatchedVecEnv
 
     kwargs = dict(solver_tolerance=1e-9, max_episode_steps=12)
     batched = BatchedVecEnv(env_id, 3, kwargs)
@@ -190,7 +190,7 @@ def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_
 
 def test_batched_vec_env_input_errors():
     """A task without a batched vector env, and per-copy reset options, are refused with what is allowed."""
-    from training.vec_env import BatchedVecEnv
+    from tissue_env.sb3 import BatchedVecEnv
     with pytest.raises(ValueError, match="has no batched vector env; those with one"):
         BatchedVecEnv("CartPole-v1", 2)
     with pytest.raises(ValueError, match="threads as its own threads= argument"):

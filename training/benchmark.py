@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--vec-env", choices=("dummy", "batched"), default="dummy",
-                        help="the training envs (batched: training.vec_env.BatchedVecEnv; its runs, figures and "
+                        help="the training envs (batched: tissue_env.sb3.BatchedVecEnv; its runs, figures and "
                              "--out default carry the suffix _batched)")
     parser.add_argument("--runs-dir", default=str(ROOT / "runs" / "benchmark"))
     parser.add_argument("--out", default=None, help="default benchmarks/results/training[_batched].json")

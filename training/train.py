@@ -46,7 +46,7 @@ def parse_args(argv=None):
     parser.add_argument("--vec-env", choices=("auto", "dummy", "subproc", "batched"), default="auto",
                         help="auto: SubprocVecEnv when --n-envs > 1 (PPO, 4 envs, 4096 steps on 2 idle "
                              "cores: 9.5 s against 11.4 s with DummyVecEnv), else DummyVecEnv; batched: the "
-                             "task's batched vector env in this process (training.vec_env.BatchedVecEnv)")
+                             "task's batched vector env in this process (tissue_env.sb3.BatchedVecEnv)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: PPO ran 20x slower with 2)")
     parser.add_argument("--env-threads", type=int, default=None,
                         help="--vec-env batched: the vector env's threads (its per-copy solves, factorisations, "
@@ -136,7 +136,7 @@ def _make_envs(config, run_dir, seed_offset=0, resume=False):
                                  monitor_dir=str(monitor_dir), env_kwargs=config["env_kwargs"],
                                  monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
         return train_env, eval_env
-    from .vec_env import BatchedVecEnv, monitored
+    from tissue_env.sb3 import BatchedVecEnv, monitored
 
     monitor_dir.mkdir(parents=True, exist_ok=True)
     train_env = monitored(BatchedVecEnv(config["env"], config["n_envs"], config["env_kwargs"],
