@@ -23,12 +23,9 @@ from .plot import plot
 from .train import train
 
 ROOT = Path(__file__).resolve().parents[1]
-#: Training budget (env steps) per task and algorithm, chosen from pilot runs.
-BUDGET = {
-    "tissue_env/TumorPositioning-v0": {"ppo": 15000, "sac": 8000},
-    "tissue_env/Palpation-v0": {"ppo": 180000, "sac": 60000},
-    "tissue_env/Retraction-v0": {"ppo": 30000, "sac": 15000},
-}
+#: The tasks benchmarked by default. The training budget (env steps) per task and algorithm, chosen
+#: from pilot runs, is the n_timesteps of the task's entry in hyperparams/<algo>.yml.
+ENVS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
 
 
 def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy") -> Path:
@@ -37,7 +34,7 @@ def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy
         return run_dir
     hyperparams = load_hyperparams(algo, env_id)
     n_envs = int(hyperparams.pop("n_envs", 1))
-    timesteps = BUDGET.get(env_id, {}).get(algo, 20000)
+    timesteps = int(hyperparams.pop("n_timesteps", 20000))
     config = dict(env=env_id, algo=algo, timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env,
                   threads=1, env_kwargs={}, hyperparams=hyperparams, eval_freq=max(timesteps // 10, 1),
                   eval_episodes=10, checkpoint_freq=max(timesteps // 5, 1))
@@ -48,7 +45,7 @@ def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", nargs="+", default=list(BUDGET))
+    parser.add_argument("--envs", nargs="+", default=list(ENVS))
     parser.add_argument("--algos", nargs="+", default=["ppo", "sac"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=20)
