@@ -262,6 +262,28 @@ def test_hyperparameter_files_pass_rl_zoo3s_checks(path, tmp_path):
         model.env.close()
 
 
+def test_demo_and_benchmark_write_under_runs_unless_published(tmp_path):
+    """make demo and python -m training.benchmark leave the committed figures and results alone:
+    by default they write under runs/ (or --output-dir); only --publish targets docs/figures/ and
+    benchmarks/results/."""
+    from training import benchmark, demo
+
+    root = Path(__file__).resolve().parents[1]
+    assert demo.figures_dir(demo.parse_args([])) == root / "runs" / "demo"
+    assert demo.figures_dir(demo.parse_args(["--output-dir", str(tmp_path)])) == tmp_path
+    assert demo.figures_dir(demo.parse_args(["--publish"])) == root / "docs" / "figures"
+
+    out, figures = benchmark.outputs(benchmark.parse_args([]))
+    assert (out, figures) == (root / "runs" / "benchmark" / "training.json", root / "runs" / "benchmark")
+    out, figures = benchmark.outputs(benchmark.parse_args(["--vec-env", "batched", "--output-dir", str(tmp_path)]))
+    assert (out, figures) == (tmp_path / "training_batched.json", tmp_path)
+    out, figures = benchmark.outputs(benchmark.parse_args(["--publish"]))
+    assert (out, figures) == (root / "benchmarks" / "results" / "training.json", root / "docs" / "figures")
+    for module in (demo, benchmark):
+        with pytest.raises(SystemExit):
+            module.parse_args(["--publish", "--output-dir", str(tmp_path)])
+
+
 def test_train_takes_the_budget_and_the_noise_from_the_hyperparameter_file(tmp_path):
     """Without --timesteps a run trains for the entry's n_timesteps; rl_zoo3's noise_type /
     noise_std become the off-policy algorithm's action noise; rl_zoo3 keys the scripts do not
