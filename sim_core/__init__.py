@@ -11,12 +11,22 @@ Quick start::
 All quantities are SI: m, kg, s, Pa, N. Formulas follow docs/physics.md.
 """
 
+from importlib import metadata as _metadata
+
 from .material import Material
 from .mesh import HexMesh
 from .model import Control, Model, State, build_model
 from .static import StaticResult, solve_static, zero_energy_modes
 
+#: The version of pyproject.toml; used when the package runs from a clone that is not installed.
+_SOURCE_VERSION = "0.1.0"
+
+try:
+    __version__ = _metadata.version("tissue-gym")
+except _metadata.PackageNotFoundError:  # a clone on sys.path, not installed
+    __version__ = _SOURCE_VERSION
+
 __all__ = [
-    "Control", "HexMesh", "Material", "Model", "State", "StaticResult", "build_model",
+    "__version__", "Control", "HexMesh", "Material", "Model", "State", "StaticResult", "build_model",
     "solve_static", "zero_energy_modes",
 ]

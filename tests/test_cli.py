@@ -7,6 +7,7 @@ import sys
 import meshio
 import pytest
 
+from sim_core.mesh import HexMesh
 from sim_core.studies.cli import main
 
 
@@ -60,3 +61,57 @@ def test_bench_json(capsys):
     for key in ("explicit_step_ms", "implicit_step_ms", "cg_iterations", "static_solve_ms", "machine"):
         assert key in result
     assert result["explicit_step_ms"] > 0 and result["static_solve_converged"] is True
+
+
+def test_version():
+    import sim_core
+
+    code, out, err = run_cli("--version")
+    assert code == 0, err
+    assert out.strip() == f"tissue-sim {sim_core.__version__}"
+    assert sim_core.__version__.count(".") >= 2
+
+
+@pytest.mark.parametrize("name, word", [("out.xyz", "'.xyz'"), ("out", "no extension"),
+                                        ("missing/out.vtu", "does not exist")])
+def test_save_is_checked_before_computing(tmp_path, monkeypatch, capsys, name, word):
+    """A --save file the mesh writer would refuse fails at once (exit 2, one line naming the
+    supported formats or the missing folder), not with a meshio traceback after the solve."""
+    from sim_core.studies import cli
+
+    def not_reached(**_):
+        raise AssertionError("computed before checking --save")
+
+    monkeypatch.setattr(cli.experiments, "elongation", not_reached)
+    assert main(["elongation", "--shape", "4", "4", "4", "--save", str(tmp_path / name)]) == 2
+    err = capsys.readouterr().err
+    assert word in err and len(err.strip().splitlines()) == 1
+    if "does not exist" not in word:
+        assert all(ext in err for ext in cli.SAVE_FORMATS)
+
+
+def test_save_formats_keep_the_hexahedra_and_the_displacement(tmp_path):
+    """Every extension --save accepts writes a file that reads back with its hexahedra and the
+    displacement point data."""
+    from sim_core.studies.cli import SAVE_FORMATS
+
+    mesh = HexMesh.block((2, 2, 2), 0.1)
+    for extension in SAVE_FORMATS:
+        path = tmp_path / f"block{extension}"
+        mesh.write(path, point_data={"displacement": mesh.nodes * 0.01})
+        back = meshio.read(path)
+        assert [cells.type for cells in back.cells] == ["hexahedron"], extension
+        assert back.point_data["displacement"].shape == (27, 3), extension
+
+
+def test_warmup_steps_every_task_and_vector_env(capsys):
+    import tissue_env
+
+    assert main(["warmup", "--steps", "1"]) == 0
+    out = capsys.readouterr().out
+    for env_id in tissue_env.ENV_IDS:
+        assert f"{env_id}: built, reset and stepped 1 times in" in out
+        assert f"{env_id} vector env (N = 2)" in out
+    assert out.strip().splitlines()[-1].startswith("warmup done in")
+    code, out, err = run_cli("warmup", "--steps", "0")
+    assert code == 2 and "--steps" in err

@@ -126,7 +126,7 @@ def test_rllib_runners_build_their_vector_envs_on_one_thread():
 
 @pytest.mark.parametrize("env_id", ["tissue_env/Retraction-v0", "tissue_env/Palpation-v0"])
 def test_batched_vec_env_steps_the_episodes_of_make_vec_env(env_id):
-    """``training.vec_env.BatchedVecEnv`` (stable-baselines3 on the batched vector env) with seed s
+    """``tissue_env.sb3.BatchedVecEnv`` (stable-baselines3 on the batched vector env) with seed s
     draws the episodes of ``make_vec_env``'s DummyVecEnv with seed s and follows them (solver
     tolerance 1e-9: observations within 1e-4), with SB3's same-step reset: the same dones, the
     terminal observation and TimeLimit.truncated in the info, the next episode's first observation
@@ -137,7 +137,7 @@ def test_batched_vec_env_steps_the_episodes_of_make_vec_env(env_id):
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from training.common import make_env
-    from training.vec_env import BatchedVecEnv
+    from tissue_env.sb3 import BatchedVecEnv
 
     kwargs = dict(solver_tolerance=1e-9, max_episode_steps=12)
     batched = BatchedVecEnv(env_id, 3, kwargs)
@@ -190,7 +190,7 @@ def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_
 
 def test_batched_vec_env_input_errors():
     """A task without a batched vector env, and per-copy reset options, are refused with what is allowed."""
-    from training.vec_env import BatchedVecEnv
+    from tissue_env.sb3 import BatchedVecEnv
     with pytest.raises(ValueError, match="has no batched vector env; those with one"):
         BatchedVecEnv("CartPole-v1", 2)
     with pytest.raises(ValueError, match="threads as its own threads= argument"):
@@ -203,3 +203,113 @@ def test_batched_vec_env_input_errors():
     with pytest.raises(ValueError, match="same options"):
         envs.reset()
     envs.close()
+
+
+HYPERPARAMS = sorted((Path(__file__).resolve().parents[1] / "training" / "hyperparams").glob("*.yml"))
+
+
+def _env_ids(path):
+    import yaml
+
+    return [key for key in yaml.safe_load(path.read_text()) if key != "default"]
+
+
+def test_training_loader_reads_every_entry_of_every_hyperparameter_file():
+    """training.common.load_hyperparams reads every env id of every file: a registered task, an
+    n_timesteps budget, a policy, and keywords the algorithm's constructor accepts (the keys the
+    training script handles itself removed)."""
+    import inspect
+
+    import gymnasium as gym
+
+    import tissue_env  # noqa: F401
+    from training.common import algorithm_class, load_hyperparams
+
+    assert {path.stem for path in HYPERPARAMS} == {"ppo", "sac", "td3"}
+    for path in HYPERPARAMS:
+        algo = path.stem
+        accepted = set(inspect.signature(algorithm_class(algo).__init__).parameters)
+        ids = _env_ids(path)
+        assert set(ids) == set(tissue_env.ENV_IDS), path.name
+        for env_id in ids:
+            assert env_id in gym.registry
+            hyperparams = load_hyperparams(algo, env_id)
+            assert int(hyperparams.pop("n_timesteps")) > 0 and hyperparams.pop("policy") == "MlpPolicy"
+            for key in ("n_envs", "normalize", "noise_type", "noise_std"):
+                hyperparams.pop(key, None)
+            assert set(hyperparams) <= accepted, (path.name, env_id, set(hyperparams) - accepted)
+
+
+@pytest.mark.parametrize("path", HYPERPARAMS, ids=lambda path: path.name)
+def test_hyperparameter_files_pass_rl_zoo3s_checks(path, tmp_path):
+    """rl_zoo3 sets up an experiment from every entry of the file with its own code: it reads the
+    entry, preprocesses it (n_timesteps, schedules, normalize, policy_kwargs, the keys it removes),
+    builds the envs and the action noise, and constructs the model (eval_freq -1: no evaluation)."""
+    pytest.importorskip("rl_zoo3")
+    import argparse
+
+    import tissue_env  # noqa: F401  (registers the tasks, as rl_zoo3's --gym-packages tissue_env does)
+    from rl_zoo3.exp_manager import ExperimentManager
+    from training.common import algorithm_class
+
+    for env_id in _env_ids(path):
+        manager = ExperimentManager(argparse.Namespace(), path.stem, env_id, str(tmp_path / "zoo"), config=str(path),
+                                    eval_freq=-1, verbose=0)
+        model, saved = manager.setup_experiment()
+        assert isinstance(model, algorithm_class(path.stem)), env_id
+        assert manager.n_timesteps == int(saved["n_timesteps"]) > 0
+        assert manager.n_envs == model.n_envs == int(saved.get("n_envs", 1))
+        model.env.close()
+
+
+def test_demo_and_benchmark_write_under_runs_unless_published(tmp_path):
+    """make demo and python -m training.benchmark leave the committed figures and results alone:
+    by default they write under runs/ (or --output-dir); only --publish targets docs/figures/ and
+    benchmarks/results/."""
+    from training import benchmark, demo
+
+    root = Path(__file__).resolve().parents[1]
+    assert demo.figures_dir(demo.parse_args([])) == root / "runs" / "demo"
+    assert demo.figures_dir(demo.parse_args(["--output-dir", str(tmp_path)])) == tmp_path
+    assert demo.figures_dir(demo.parse_args(["--publish"])) == root / "docs" / "figures"
+
+    out, figures = benchmark.outputs(benchmark.parse_args([]))
+    assert (out, figures) == (root / "runs" / "benchmark" / "training.json", root / "runs" / "benchmark")
+    out, figures = benchmark.outputs(benchmark.parse_args(["--vec-env", "batched", "--output-dir", str(tmp_path)]))
+    assert (out, figures) == (tmp_path / "training_batched.json", tmp_path)
+    out, figures = benchmark.outputs(benchmark.parse_args(["--publish"]))
+    assert (out, figures) == (root / "benchmarks" / "results" / "training.json", root / "docs" / "figures")
+    for module in (demo, benchmark):
+        with pytest.raises(SystemExit):
+            module.parse_args(["--publish", "--output-dir", str(tmp_path)])
+
+
+def test_train_takes_the_budget_and_the_noise_from_the_hyperparameter_file(tmp_path):
+    """Without --timesteps a run trains for the entry's n_timesteps; rl_zoo3's noise_type /
+    noise_std become the off-policy algorithm's action noise; rl_zoo3 keys the scripts do not
+    implement, or Python strings where a mapping is needed, are refused with exit code 2."""
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+    from training.common import action_noise
+    from training.train import _validated, parse_args
+
+    config = tmp_path / "td3.yml"
+    config.write_text("default: &default\n  n_timesteps: 1234\n  policy: MlpPolicy\n  noise_type: normal\n"
+                      "  noise_std: 0.2\n")
+    _, settings = _validated(parse_args(["--env", ENV, "--algo", "td3", "--config", str(config),
+                                         "--runs-dir", str(tmp_path)]))
+    assert settings["timesteps"] == 1234 and "n_timesteps" not in settings["hyperparams"]
+    noise = action_noise(dict(settings["hyperparams"]), 3)
+    assert isinstance(noise, NormalActionNoise) and np.allclose(noise._sigma, 0.2)
+    assert isinstance(action_noise({"noise_type": "ornstein-uhlenbeck", "noise_std": 0.1}, 2),
+                      OrnsteinUhlenbeckActionNoise)
+    assert isinstance(action_noise({"action_noise_std": 0.1}, 2), NormalActionNoise)  # runs saved before
+    assert action_noise({"learning_rate": 1e-3}, 2) is None
+    for text, word in (("default:\n  frame_stack: 4\n", "frame_stack"),
+                       ("default:\n  policy_kwargs: 'dict(net_arch=[8])'\n", "YAML mapping"),
+                       ("default:\n  noise_type: pink\n", "noise_type must be one of"),
+                       ("other/Env-v0:\n  gamma: 0.9\n", "has no entry for"),
+                       ("default:\n  policy: MlpPolicy\n", "--timesteps is required")):
+        config.write_text(text)
+        code, out, err = run("training.train", "--env", ENV, "--algo", "td3", "--config", str(config))
+        assert code == 2 and word in err and "Traceback" not in err, (text, err)

@@ -13,6 +13,9 @@ episode end and keywords. Every task has a hand-written baseline controller,
 Every task also has a batched vector env (``tissue_env.vector``), registered as its
 ``vector_entry_point``: ``gym.make_vec(id, num_envs=16, vectorization_mode="vector_entry_point")``
 steps all copies in one batched physics step (benchmarks/vector_env_speed.py).
+``tissue_env.sb3.BatchedVecEnv`` is the same as a stable-baselines3 ``VecEnv``; that module needs
+stable-baselines3 (``pip install "tissue-gym[train]"``) and is not imported here, so
+``import tissue_env`` needs only the base dependencies.
 """
 
 import gymnasium

@@ -1,11 +1,14 @@
 """Train PPO and SAC with several seeds on every task and tabulate them against random and scripted.
 
     python -m training.benchmark [--envs ID ...] [--algos ppo sac] [--seeds 0 1 2] [--episodes 20]
+        [--output-dir DIR | --publish] [--out FILE.json]
 
 Each (env, algo, seed) run goes to runs/benchmark/...; a finished run (result.json present) is not
 trained again, an interrupted one resumes from its checkpoint, so the script can be stopped and
-restarted without losing work. Writes benchmarks/results/training.json (atomically) and
-docs/figures/learning_<task>.png, and prints a markdown table for the README.
+restarted without losing work. Writes training.json (atomically) and learning_<task>_<algo>.png
+into runs/benchmark/ (or ``--output-dir``), and prints a markdown table for the README;
+``--publish`` writes them into benchmarks/results/ and docs/figures/ instead, replacing the
+committed results the README quotes.
 """
 
 from __future__ import annotations
@@ -23,12 +26,12 @@ from .plot import plot
 from .train import train
 
 ROOT = Path(__file__).resolve().parents[1]
-#: Training budget (env steps) per task and algorithm, chosen from pilot runs.
-BUDGET = {
-    "tissue_env/TumorPositioning-v0": {"ppo": 15000, "sac": 8000},
-    "tissue_env/Palpation-v0": {"ppo": 180000, "sac": 60000},
-    "tissue_env/Retraction-v0": {"ppo": 30000, "sac": 15000},
-}
+#: The tasks benchmarked by default. The training budget (env steps) per task and algorithm, chosen
+#: from pilot runs, is the n_timesteps of the task's entry in hyperparams/<algo>.yml.
+ENVS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
+#: where --publish writes the summary and the learning curves (committed)
+PUBLISHED_RESULTS = ROOT / "benchmarks" / "results"
+PUBLISHED_FIGURES = ROOT / "docs" / "figures"
 
 
 def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy") -> Path:
@@ -37,7 +40,7 @@ def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy
         return run_dir
     hyperparams = load_hyperparams(algo, env_id)
     n_envs = int(hyperparams.pop("n_envs", 1))
-    timesteps = BUDGET.get(env_id, {}).get(algo, 20000)
+    timesteps = int(hyperparams.pop("n_timesteps", 20000))
     config = dict(env=env_id, algo=algo, timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env,
                   threads=1, env_kwargs={}, hyperparams=hyperparams, eval_freq=max(timesteps // 10, 1),
                   eval_episodes=10, checkpoint_freq=max(timesteps // 5, 1))
@@ -46,23 +49,42 @@ def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy
     return train(config, run_dir, resume=resume, progress=False)
 
 
-def main(argv=None) -> int:
+def outputs(args) -> tuple[Path, Path]:
+    """The summary JSON and the folder of the learning curves: benchmarks/results/ and docs/figures/
+    with --publish, else --output-dir (default runs/benchmark/); --out names the JSON."""
+    suffix = "" if args.vec_env == "dummy" else f"_{args.vec_env}"
+    if args.publish:
+        results, figures = PUBLISHED_RESULTS, PUBLISHED_FIGURES
+    else:
+        results = figures = Path(args.output_dir or ROOT / "runs" / "benchmark")
+    out = Path(args.out) if args.out else results / f"training{suffix}.json"
+    return out, figures
+
+
+def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--envs", nargs="+", default=list(BUDGET))
+    parser.add_argument("--envs", nargs="+", default=list(ENVS))
     parser.add_argument("--algos", nargs="+", default=["ppo", "sac"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--vec-env", choices=("dummy", "batched"), default="dummy",
-                        help="the training envs (batched: training.vec_env.BatchedVecEnv; its runs, figures and "
+                        help="the training envs (batched: tissue_env.sb3.BatchedVecEnv; its runs, figures and "
                              "--out default carry the suffix _batched)")
     parser.add_argument("--runs-dir", default=str(ROOT / "runs" / "benchmark"))
-    parser.add_argument("--out", default=None, help="default benchmarks/results/training[_batched].json")
-    args = parser.parse_args(argv)
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--output-dir", default=None,
+                       help="folder of training[_batched].json and the learning curves (default runs/benchmark)")
+    where.add_argument("--publish", action="store_true",
+                       help="write them into benchmarks/results/ and docs/figures/ (the committed ones)")
+    parser.add_argument("--out", default=None, help="the summary JSON (default <output folder>/training[_batched].json)")
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
     suffix = "" if args.vec_env == "dummy" else f"_{args.vec_env}"
-    if args.out is None:
-        args.out = str(ROOT / "benchmarks" / "results" / f"training{suffix}.json")
     runs = Path(args.runs_dir)
-    out = Path(args.out)
+    out, figures = outputs(args)
     summary = json.loads(out.read_text()) if out.is_file() else {}
     for env_id in args.envs:
         check_env_id(env_id)
@@ -77,7 +99,7 @@ def main(argv=None) -> int:
                 print(f"  seed {seed}: success {evaluations[-1]['agent']['success_rate']:.0%} "
                       f"({time.perf_counter() - start:.0f} s)", flush=True)
             task = env_id.split("/")[-1]
-            plot(dirs, ROOT / "docs" / "figures" / f"learning_{task}_{algo}{suffix}.png")
+            plot(dirs, figures / f"learning_{task}_{algo}{suffix}.png")
             key = f"{env_id} {algo}"
             summary[key] = dict(
                 env=env_id, algo=algo, seeds=args.seeds, timesteps=json.loads((dirs[0] / "config.json").read_text())["timesteps"],
@@ -87,7 +109,8 @@ def main(argv=None) -> int:
                 random=evaluations[0]["random"], scripted=evaluations[0]["scripted"],
                 vec_env=args.vec_env,
                 command=f"python -m training.benchmark --envs {env_id} --algos {algo} --seeds "
-                        + " ".join(map(str, args.seeds)) + (f" --vec-env {args.vec_env}" if suffix else ""),
+                        + " ".join(map(str, args.seeds)) + (f" --vec-env {args.vec_env}" if suffix else "")
+                        + (" --publish" if args.publish else ""),
             )
             write_json(out, summary)
     print("\n| task | algo | success (mean over seeds) | return | random success / return | scripted success / return | train wall-clock |")

@@ -62,20 +62,70 @@ def algorithm_class(algo: str):
     return {"ppo": PPO, "sac": SAC, "td3": TD3}[check_algo(algo)]
 
 
+#: rl_zoo3 keys of a hyperparameter entry that training.train does not implement (it refuses
+#: them rather than train without them).
+UNSUPPORTED_ZOO_KEYS = ("env_wrapper", "vec_env_wrapper", "frame_stack", "callback", "normalize_kwargs")
+#: rl_zoo3 exploration noise types and the stable-baselines3 classes (training.train builds them).
+NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
+
+
 def load_hyperparams(algo: str, env_id: str, config: str | None = None) -> dict:
-    """Hyperparameters for (algo, env id): the env's entry of hyperparams/<algo>.yml (or of
-    ``config``) on top of its ``default`` entry."""
+    """Hyperparameters for (algo, env id) from hyperparams/<algo>.yml (or ``config``).
+
+    The files are in rl_zoo3's format: one entry per environment id with ``n_timesteps``,
+    ``policy``, the rl_zoo3 keys ``n_envs``, ``normalize`` (true, or a mapping of VecNormalize
+    keywords) and ``noise_type`` / ``noise_std`` (off-policy exploration), and the algorithm's
+    constructor keywords. The entry is read on top of a ``default`` entry (the files' YAML anchor,
+    which their entries also merge with ``<<: *default``; a file of only ``default`` applies to
+    every id). ``policy_kwargs`` and ``normalize`` must be YAML mappings, not rl_zoo3's Python
+    strings, and the rl_zoo3 keys in ``UNSUPPORTED_ZOO_KEYS`` are refused."""
     import yaml
 
     path = Path(config) if config else HYPERPARAMS / f"{algo}.yml"
     if not path.is_file():
         raise UsageError(f"hyperparameter file {path} does not exist")
-    table = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(table, dict):
-        raise UsageError(f"{path} must map environment ids to hyperparameters")
+    try:
+        table = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as error:
+        raise UsageError(f"{path} is not valid YAML: {error}") from error
+    if not isinstance(table, dict) or not all(isinstance(entry, dict) for entry in table.values()):
+        raise UsageError(f"{path} must map environment ids to mappings of hyperparameters")
+    if env_id not in table and "default" not in table:
+        raise UsageError(f"{path} has no entry for {env_id} (and no default); its ids: {', '.join(table)}")
     merged = dict(table.get("default", {}))
     merged.update(table.get(env_id, {}))
+    unsupported = [key for key in UNSUPPORTED_ZOO_KEYS if key in merged]
+    if unsupported:
+        raise UsageError(f"{path} [{env_id}]: rl_zoo3 key(s) {', '.join(unsupported)} not supported by the "
+                         "training scripts")
+    for key in ("policy_kwargs", "normalize"):
+        if isinstance(merged.get(key), str):
+            raise UsageError(f"{path} [{env_id}]: write {key} as a YAML mapping (e.g. {{net_arch: [64, 64]}}), "
+                             f"not as a Python string ({merged[key]!r})")
+    if merged.get("noise_type") is not None and merged["noise_type"] not in NOISE_TYPES:
+        raise UsageError(f"{path} [{env_id}]: noise_type must be one of {', '.join(NOISE_TYPES)}, "
+                         f"got {merged['noise_type']!r}")
     return merged
+
+
+def action_noise(hyperparams: dict, n_actions: int):
+    """Pop the exploration-noise keys from ``hyperparams`` and return stable-baselines3's noise:
+    rl_zoo3's ``noise_type`` (normal, ornstein-uhlenbeck) and ``noise_std``, or the older
+    ``action_noise_std`` (normal) of runs saved before the files followed rl_zoo3; None without."""
+    import numpy as np
+
+    noise_type = hyperparams.pop("noise_type", None)
+    noise_std = hyperparams.pop("noise_std", None)
+    legacy = hyperparams.pop("action_noise_std", None)
+    if noise_type is None and legacy is not None:
+        noise_type, noise_std = "normal", legacy
+    if noise_type is None:
+        return None
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+    sigma = float(0.1 if noise_std is None else noise_std) * np.ones(n_actions)
+    cls = NormalActionNoise if noise_type == "normal" else OrnsteinUhlenbeckActionNoise
+    return cls(mean=np.zeros(n_actions), sigma=sigma)
 
 
 def run_name(env_id: str) -> str:

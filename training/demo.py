@@ -1,9 +1,11 @@
 """``make demo``: train a short PPO run on TumorPositioning-v0, evaluate it against random actions
 and the scripted controller, and write a learning curve and a strip of frames of one episode.
 
-    python -m training.demo [--timesteps 12000] [--seed 0] [--episodes 20]
+    python -m training.demo [--timesteps 12000] [--seed 0] [--episodes 20] [--output-dir DIR | --publish]
 
-About 2-3 minutes on 2 cores. Prints where the outputs are.
+About 2-3 minutes on 2 cores. Prints where the outputs are. The run and the two figures go under
+runs/demo/ of the clone (or ``--output-dir``); ``--publish`` writes the figures into docs/figures/
+instead, replacing the committed ones that the README shows.
 """
 
 from __future__ import annotations
@@ -24,6 +26,28 @@ from .train import train
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = "tissue_env/TumorPositioning-v0"
+#: where --publish writes the figures (committed, shown by the README)
+PUBLISHED = ROOT / "docs" / "figures"
+
+
+def parse_args(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--timesteps", type=int, default=12000)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--runs-dir", default=str(ROOT / "runs" / "demo"))
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--output-dir", default=None, help="folder of the figures (default: --runs-dir)")
+    where.add_argument("--publish", action="store_true",
+                       help=f"write the figures into {PUBLISHED.relative_to(ROOT)}/ (the committed ones)")
+    return parser.parse_args(argv)
+
+
+def figures_dir(args) -> Path:
+    """Where the figures go: docs/figures/ with --publish, else --output-dir, else --runs-dir."""
+    if args.publish:
+        return PUBLISHED
+    return Path(args.output_dir or args.runs_dir)
 
 
 def frame_strip(run_dir: Path, out: Path, seed: int, frames_wanted: int = 6) -> Path:
@@ -52,15 +76,11 @@ def frame_strip(run_dir: Path, out: Path, seed: int, frames_wanted: int = 6) -> 
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--timesteps", type=int, default=12000)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--episodes", type=int, default=20)
-    parser.add_argument("--runs-dir", default=str(ROOT / "runs" / "demo"))
-    args = parser.parse_args(argv)
+    args = parse_args(argv)
     check_env_id(ENV)
     hyperparams = load_hyperparams("ppo", ENV)
     n_envs = int(hyperparams.pop("n_envs", 4))
+    hyperparams.pop("n_timesteps", None)  # the demo's budget is --timesteps
     stamp = time.strftime("%Y%m%d-%H%M%S")
     run_dir = Path(args.runs_dir) / "tissue_env_TumorPositioning-v0" / "ppo" / f"seed{args.seed}-{stamp}"
     config = dict(env=ENV, algo="ppo", timesteps=args.timesteps, seed=args.seed, n_envs=n_envs, vec_env="dummy",
@@ -71,7 +91,8 @@ def main(argv=None) -> int:
     train(config, run_dir, progress=False)
     trained = time.perf_counter() - start
     result = evaluate(run_dir, args.episodes, seed=1000)
-    figures = ROOT / "docs" / "figures"
+    figures = figures_dir(args)
+    figures.mkdir(parents=True, exist_ok=True)
     curve = plot([run_dir], figures / "demo_learning_curve.png")
     strip = frame_strip(run_dir, figures / "demo_episode.png", seed=1000)
     print()

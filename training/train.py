@@ -1,6 +1,6 @@
 """Train a stable-baselines3 agent on a registered environment.
 
-    python -m training.train --env tissue_env/TumorPositioning-v0 --algo ppo --timesteps 50000 --seed 0 [--n-envs 4]
+    python -m training.train --env tissue_env/TumorPositioning-v0 --algo ppo [--timesteps 50000] --seed 0 [--n-envs 4]
         [--config FILE] [--resume RUN_DIR] [--runs-dir runs] [--vec-env dummy|subproc|batched] [--threads 1]
         [--env-threads N]
 
@@ -8,6 +8,9 @@ The run folder runs/<env>/<algo>/seed<S>-<timestamp>/ holds config.json, model.z
 vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation), checkpoints/
 (model, normaliser and an off-policy replay buffer, so an interrupted run resumes without loss with --resume), tb/ (tensorboard)
 and result.json. The folder's path is printed as the last line.
+
+Hyperparameters come from training/hyperparams/<algo>.yml (or ``--config``), rl_zoo3's format
+(``training.common.load_hyperparams``): the entry's ``n_timesteps`` is the default ``--timesteps``.
 """
 
 from __future__ import annotations
@@ -21,8 +24,8 @@ import warnings
 from datetime import datetime
 from pathlib import Path
 
-from .common import (UsageError, parse_env_kwargs, algorithm_class, check_algo, check_env_id, fail, load_hyperparams, make_env,
-                     run_name, write_json)
+from .common import (UsageError, action_noise, algorithm_class, check_algo, check_env_id, fail, load_hyperparams,
+                     make_env, parse_env_kwargs, run_name, write_json)
 
 PROGRAM = "training.train"
 
@@ -36,17 +39,20 @@ def parse_args(argv=None):
     parser = _Parser(prog=f"python -m {PROGRAM}", description="Train an SB3 agent on a tissue_env task.")
     parser.add_argument("--env", help="environment id, e.g. tissue_env/TumorPositioning-v0")
     parser.add_argument("--algo", default="ppo", help="ppo | sac | td3")
-    parser.add_argument("--timesteps", type=int, help="total environment steps")
+    parser.add_argument("--timesteps", type=int,
+                        help="total environment steps (default: the hyperparameter file's n_timesteps)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--n-envs", type=int, default=None, help="parallel environments (default: from config)")
-    parser.add_argument("--config", default=None, help="YAML file of hyperparameters keyed by env id")
+    parser.add_argument("--config", default=None,
+                        help="YAML file of hyperparameters keyed by env id, in rl_zoo3's format "
+                             "(default training/hyperparams/<algo>.yml)")
     parser.add_argument("--resume", default=None, metavar="RUN_DIR",
                         help="continue an interrupted run from its latest checkpoint (--timesteps: new total)")
     parser.add_argument("--runs-dir", default="runs")
     parser.add_argument("--vec-env", choices=("auto", "dummy", "subproc", "batched"), default="auto",
                         help="auto: SubprocVecEnv when --n-envs > 1 (PPO, 4 envs, 4096 steps on 2 idle "
                              "cores: 9.5 s against 11.4 s with DummyVecEnv), else DummyVecEnv; batched: the "
-                             "task's batched vector env in this process (training.vec_env.BatchedVecEnv)")
+                             "task's batched vector env in this process (tissue_env.sb3.BatchedVecEnv)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: PPO ran 20x slower with 2)")
     parser.add_argument("--env-threads", type=int, default=None,
                         help="--vec-env batched: the vector env's threads (its per-copy solves, factorisations, "
@@ -84,7 +90,7 @@ def _validated(args):
         raise UsageError("--env is required (or --resume RUN_DIR)")
     check_env_id(args.env)
     check_algo(args.algo)
-    if args.timesteps is None or args.timesteps <= 0:
+    if args.timesteps is not None and args.timesteps <= 0:
         raise UsageError(f"--timesteps must be a positive integer, got {args.timesteps}")
     if args.n_envs is not None and args.n_envs <= 0:
         raise UsageError(f"--n-envs must be positive, got {args.n_envs}")
@@ -92,6 +98,12 @@ def _validated(args):
         raise UsageError(f"--threads must be positive, got {args.threads}")
     env_kwargs = parse_env_kwargs(args.env_kwargs)
     hyperparams = load_hyperparams(args.algo, args.env, args.config)
+    budget = hyperparams.pop("n_timesteps", None)
+    if args.timesteps is None:
+        if budget is None:
+            raise UsageError("--timesteps is required: the hyperparameter file has no n_timesteps "
+                             f"for {args.env}")
+        args.timesteps = int(budget)
     n_envs = args.n_envs or int(hyperparams.pop("n_envs", 1))
     hyperparams.pop("n_envs", None)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -136,7 +148,7 @@ def _make_envs(config, run_dir, seed_offset=0, resume=False):
                                  monitor_dir=str(monitor_dir), env_kwargs=config["env_kwargs"],
                                  monitor_kwargs=dict(info_keywords=("is_success",), override_existing=not resume))
         return train_env, eval_env
-    from .vec_env import BatchedVecEnv, monitored
+    from tissue_env.sb3 import BatchedVecEnv, monitored
 
     monitor_dir.mkdir(parents=True, exist_ok=True)
     train_env = monitored(BatchedVecEnv(config["env"], config["n_envs"], config["env_kwargs"],
@@ -199,18 +211,17 @@ def _checkpoint_callback():
 
 
 def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = True) -> Path:
-    import numpy as np
     import torch
     from stable_baselines3.common.callbacks import CallbackList, EvalCallback
-    from stable_baselines3.common.noise import NormalActionNoise
 
     _Checkpoints = _checkpoint_callback()
 
     torch.set_num_threads(int(config["threads"]))
     run_dir.mkdir(parents=True, exist_ok=True)
     hyperparams = dict(config["hyperparams"])
+    hyperparams.pop("n_timesteps", None)  # the budget is config["timesteps"]
     normalize = hyperparams.pop("normalize", False)
-    noise_std = hyperparams.pop("action_noise_std", None)
+    noise = {key: hyperparams.pop(key) for key in ("noise_type", "noise_std", "action_noise_std") if key in hyperparams}
     policy = hyperparams.pop("policy", "MlpPolicy")
     algo_cls = algorithm_class(config["algo"])
 
@@ -230,9 +241,9 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
         if buffer.is_file():  # off-policy: continue with the transitions collected so far
             model.load_replay_buffer(str(buffer))
     else:
-        if noise_std is not None:
-            n_actions = train_env.action_space.shape[0]
-            hyperparams["action_noise"] = NormalActionNoise(np.zeros(n_actions), noise_std * np.ones(n_actions))
+        exploration = action_noise(noise, train_env.action_space.shape[0])
+        if exploration is not None:
+            hyperparams["action_noise"] = exploration
         model = algo_cls(policy, train_env, seed=config["seed"], verbose=0, tensorboard_log=str(run_dir / "tb"),
                          **hyperparams)
         done = 0
