@@ -11,8 +11,8 @@ limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one step of ``default
 for TumorPositioning and Palpation) per env step is enough, and with the springs' critical damping the block
 settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
 ``solve_static`` in tests/test_env_tumor_positioning.py). Each task's ``default_shape`` is the
-most accurate shape that keeps 300 env steps/s (``benchmarks/env_accuracy.py``; README, "How the
-default resolution is chosen").
+most accurate shape that keeps a speed budget of 300 env steps/s (``benchmarks/env_accuracy.py``;
+the environment accuracy page of the documentation).
 A full ``solve_static`` per env step costs several implicit steps (a sparse LU factorisation per
 Newton iteration), so it is used only at reset (initial sag under gravity, goal generation) and by
 the opt-in "static" integrator.

@@ -230,21 +230,7 @@ class PalpationEnv(TissueEnv):
 
     ## Version History
 
-    - v0: initial version (unreleased changes: random probe start away from the inclusion, the
-      success press must be held for ``hold_steps``, observation 14 is the hold progress,
-      ``inclusion_ratio_range`` and ``inclusion_region`` for domain randomisation, the batched
-      vector env, the palpation map observation, the exploration and approach rewards; the probe
-      radius (``probe_radius`` = 9 mm), the inclusion (``inclusion_size`` box) and its candidate
-      positions are physical sizes, so ``shape`` only sets the resolution: a finer shape no longer
-      shrinks the probe and the inclusion to its elements, and the elements are stiffened by their
-      volume share in the inclusion box; the probe has a hemispherical end and
-      an active-set contact (``probe_tip``), and the defaults moved from (5, 3, 5), 20 ms, 1e-4 to
-      (8, 4, 8), 40 ms, 1e-2, so that its observations converge with the mesh; the palpation map
-      records the first press 4 mm deep, it was 3 mm; then the probe's indentation is projected
-      on the top nodes' basis functions (``probe_sampling``) and measured from the start surface,
-      and the map holds the apparent modulus of the latest press, kPa: it held the indentation
-      stiffness of the first press, N/m / 100; then the default shape moved to (10, 5, 10), the
-      most accurate at the speed budget, and ``force_limit`` from 1 to 2 N with it).
+    - v0: the version of the first release (its changes before it: CHANGELOG.md).
     """
 
     default_shape = (10, 5, 10)

@@ -119,9 +119,7 @@ class RetractionEnv(TissueEnv):
 
     ## Version History
 
-    - v0: initial version (unreleased changes: the batched vector env; the exposure reward became
-      exposed fraction - 1; the floor is an active-set contact inside the implicit step instead of
-      a clamp after it).
+    - v0: the version of the first release (its changes before it: CHANGELOG.md).
     """
 
     #: The most accurate shape that keeps 300 env steps/s with a 1.25x margin

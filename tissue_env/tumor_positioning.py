@@ -149,8 +149,7 @@ class TumorPositioningEnv(TissueEnv):
 
     ## Version History
 
-    - v0: initial version (unreleased changes: ``goal_scale_range``; the batched vector env;
-      ``tool_size``: the grasped patch is a physical square, no longer 1.5 elements around the centre).
+    - v0: the version of the first release (its changes before it: CHANGELOG.md).
     """
 
     default_shape = (7, 7, 7)
