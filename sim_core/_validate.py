@@ -35,3 +35,39 @@ def positive(name: str, value, unit: str) -> np.ndarray:
     if np.any(array <= 0):
         raise ValueError(f"{name} must be > 0 {unit}, got {value!r}")
     return array
+
+
+def real_scalar(name: str, value, allowed: str) -> float:
+    """``value`` as a float when it is one real number (not a bool, string or array), else a
+    ``ValueError`` saying what ``name`` must be (``allowed``, e.g. "a finite number > 0")."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        if isinstance(value, np.ndarray) and value.ndim == 0 and np.issubdtype(value.dtype, np.number) \
+                and not np.issubdtype(value.dtype, np.complexfloating):
+            return float(value)
+        kind = f"an array of shape {np.shape(value)}" if isinstance(value, (np.ndarray, list, tuple)) \
+            else f"{type(value).__name__} {value!r}"
+        raise ValueError(f"{name} must be {allowed}, got {kind}")
+    return float(value)
+
+
+def positive_scalar(name: str, value, unit: str = "") -> float:
+    """A finite real number > 0 (``unit`` for the message, e.g. "m"), as a float."""
+    allowed = "a finite number > 0" + (f" ({unit})" if unit else "")
+    number = real_scalar(name, value, allowed)
+    if not np.isfinite(number) or number <= 0:
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    return number
+
+
+def integer_at_least(name: str, value, minimum: int) -> int:
+    """An integer >= ``minimum`` (an integral float such as 40.0 is accepted), as an int."""
+    allowed = f"an integer >= {minimum}"
+    number = real_scalar(name, value, allowed)
+    if not np.isfinite(number) or not number.is_integer() or number < minimum:
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    return int(number)
+
+
+def count_not_finite(array) -> int:
+    """How many entries of ``array`` are NaN or infinite."""
+    return int(np.size(array) - np.count_nonzero(np.isfinite(array)))

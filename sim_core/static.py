@@ -24,6 +24,7 @@ from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_
 from .preconditioners import free_structure, pattern_arrays
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
+from ._validate import count_not_finite, integer_at_least, positive_scalar, real_scalar
 from .model import Control, Model, State
 
 
@@ -117,6 +118,146 @@ def _free_dofs(control: Control) -> np.ndarray:
     return np.flatnonzero(~control.fixed.ravel())
 
 
+def _initial_positions(model, initial) -> np.ndarray:
+    try:
+        start = np.array(initial, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"initial must be a ({model.n_nodes}, 3) array of positions in m, got {type(initial).__name__}") \
+            from error
+    if start.shape != (model.n_nodes, 3):
+        raise ValueError(f"initial must be a ({model.n_nodes}, 3) array of positions in m (one row per node), "
+                         f"got shape {start.shape}")
+    bad = count_not_finite(start)
+    if bad:
+        raise ValueError(f"initial has {bad} non-finite entries (NaN or infinity); start positions must all be finite (m)")
+    return start
+
+
+def check_control(model: Model, control: Control) -> Control:
+    """Raise ``ValueError`` unless ``control`` fits ``model``: ``fixed`` an (N, 3) bool array,
+    ``target`` and ``force`` (N, 3) numeric arrays, ``force`` finite everywhere and ``target``
+    finite where ``fixed``. Returns ``control`` itself (its arrays are not copied)."""
+    shape = (model.n_nodes, 3)
+    for name in ("fixed", "target", "force"):
+        array = getattr(control, name, None)
+        if not isinstance(array, np.ndarray) or array.shape != shape:
+            got = f"shape {array.shape}" if isinstance(array, np.ndarray) else f"{type(array).__name__}"
+            raise ValueError(f"control.{name} must be a {shape} array (one row per node of the model, x y z), "
+                             f"got {got}; build controls with model.new_control()")
+    if control.fixed.dtype != bool:
+        raise ValueError(f"control.fixed must be a boolean (N, 3) mask (True where a component is imposed), "
+                         f"got dtype {control.fixed.dtype}")
+    for name in ("target", "force"):
+        dtype = getattr(control, name).dtype
+        if not (np.issubdtype(dtype, np.floating) or np.issubdtype(dtype, np.integer)):
+            raise ValueError(f"control.{name} must hold real numbers, got dtype {dtype}")
+    bad = count_not_finite(control.force)
+    if bad:
+        raise ValueError(f"control.force has {bad} non-finite entries (NaN or infinity); nodal forces must all be "
+                         "finite numbers in N")
+    bad = count_not_finite(control.target[control.fixed])
+    if bad:
+        raise ValueError(f"control.target has {bad} non-finite entries (NaN or infinity) where control.fixed is True; "
+                         "imposed positions must be finite numbers in m")
+    return control
+
+
+#: Share of a rigid motion's squared norm on the imposed components below which the supports do
+#: not hold it, and share of the load's norm along unheld motions above which the load is not
+#: balanced by anything (a load meant to be balanced is, to rounding: 1e-15)
+_HELD = 1e-10
+_UNBALANCED = 1e-6
+
+
+def _axis_name(vector) -> str:
+    vector = np.asarray(vector, dtype=float) / np.linalg.norm(vector)
+    axis = int(np.argmax(np.abs(vector)))
+    if abs(vector[axis]) > 1.0 - 1e-9:
+        return "xyz"[axis]
+    return "(" + ", ".join(f"{v:.3g}" for v in np.where(np.abs(vector) < 1e-9, 0.0, vector)) + ")"
+
+
+def unconstrained_motions(positions, fixed) -> list[tuple[str, np.ndarray]]:
+    """The rigid-body motions that no imposed component holds: [(name, (N, 3) field)], a basis of
+    the linearised rigid motions about ``positions`` (N, 3) m that vanish on every component where
+    ``fixed`` (N, 3) bool is True ("translation along y", "rotation about z (axis through ...)")."""
+    positions = np.asarray(positions, dtype=float)
+    centre = positions.mean(axis=0)
+    relative = positions - centre
+    size = float(np.sqrt(np.mean(np.sum(relative**2, axis=1)))) or 1.0
+    fields = np.zeros((6,) + positions.shape)  # rotations about x, y, z (scaled by 1 / size), translations
+    for axis in range(3):
+        fields[axis] = np.cross(np.eye(3)[axis], relative) / size
+        fields[3 + axis][:, axis] = 1.0
+    basis = fields.reshape(6, -1).T
+    held = basis[np.asarray(fixed, dtype=bool).ravel()]
+    import scipy.linalg
+
+    values, vectors = scipy.linalg.eigh(held.T @ held, basis.T @ basis)
+    null = vectors[:, values < _HELD]
+    if null.shape[1] == 0:
+        return []
+    rows = null.T / np.abs(null.T).max(axis=1, keepdims=True)
+    pivot_row = 0  # reduced row echelon form, rotations first: one named motion per row
+    for column in range(6):
+        if pivot_row == len(rows):
+            break
+        best = pivot_row + int(np.argmax(np.abs(rows[pivot_row:, column])))
+        if abs(rows[best, column]) < 1e-8:
+            continue
+        rows[[pivot_row, best]] = rows[[best, pivot_row]]
+        rows[pivot_row] /= rows[pivot_row, column]
+        for other in range(len(rows)):
+            if other != pivot_row:
+                rows[other] -= rows[other, column] * rows[pivot_row]
+        pivot_row += 1
+    motions = []
+    for row in rows:
+        rotation, translation = row[:3], row[3:]
+        field = (row @ fields.reshape(6, -1)).reshape(positions.shape)
+        if np.linalg.norm(rotation) > 1e-8:
+            point = centre + size * np.cross(rotation, translation) / float(rotation @ rotation)
+            point = np.where(np.abs(point) < 1e-9 * size, 0.0, point)  # rounding of an axis through 0
+            name = _axis_name(rotation)
+            if len(name) == 1:  # an axis along x, y or z: where it crosses the other two
+                where = "at " + ", ".join(f"{'xyz'[a]} = {point[a]:.4g}" for a in range(3) if "xyz"[a] != name)
+            else:
+                where = "through (" + ", ".join(f"{v:.4g}" for v in point) + ")"
+            motions.append((f"rotation about {name} (axis {where} m)", field))
+        else:
+            motions.append((f"translation along {_axis_name(translation)}", field))
+    return motions
+
+
+def check_supports(model: Model, control: Control, positions, load) -> None:
+    """Raise ``ValueError`` when the load (gravity plus ``control.force``, N) pushes along a
+    rigid-body motion that no imposed component holds: no static equilibrium exists (Newton would
+    only report a failed load step). Rigid motions left free by the supports are allowed when the
+    load does no work along them, a zero load included (a free block at rest, a block on a
+    frictionless floor under vertical gravity): the solver's regularised steps leave them at rest."""
+    load_norm = float(np.linalg.norm(load))
+    if load_norm == 0.0:
+        return
+    motions = unconstrained_motions(positions, control.fixed)
+    if not motions:
+        return
+    fields = np.stack([field.ravel() for _, field in motions], axis=1)
+    orthonormal = np.linalg.qr(fields)[0]
+    if np.linalg.norm(orthonormal.T @ load.ravel()) <= _UNBALANCED * load_norm:
+        return
+    pushed = [name for name, field in motions
+              if abs(float(field.ravel() @ load.ravel())) > _UNBALANCED * load_norm * np.linalg.norm(field)]
+    names = ", ".join(name for name, _ in motions)
+    raise ValueError(
+        f"under-constrained static problem: the imposed components (control.fixed, {int(control.fixed.sum())} of "
+        f"{control.fixed.size}) leave {len(motions)} rigid-body motion(s) free: {names}; the load (gravity + "
+        f"control.force) pushes along {', '.join(pushed) or names}, so no static equilibrium exists. Impose those "
+        "components on some nodes (control.impose(nodes, positions, components)): a translation along an axis needs "
+        "that component imposed on at least one node, a rotation about an axis needs the components perpendicular to "
+        "it imposed on nodes off the axis (two distinct points, or one point's two components); or remove the load "
+        "along the free motions")
+
+
 def _residual(model, positions, applied):
     return internal_forces(model, positions) + applied
 
@@ -166,13 +307,20 @@ def solve_static(
         acceleration: Anderson mixing depth for the chord steps (0: plain chord steps), which
             speeds up a chord iteration with an old tangent.
     """
-    control = model.new_control() if control is None else control
-    start = model.rest_positions.copy() if initial is None else np.array(initial, dtype=float)
-    if start.shape != (model.n_nodes, 3) or not np.all(np.isfinite(start)):
-        raise ValueError(f"initial must be a finite ({model.n_nodes}, 3) array")
+    tolerance = positive_scalar("tolerance", tolerance, "a relative force residual, e.g. 1e-8")
+    max_iterations = integer_at_least("max_iterations", max_iterations, 1)
+    load_steps = integer_at_least("load_steps", load_steps, 1)
+    max_load_steps = integer_at_least("max_load_steps", max_load_steps, 1)
+    chord_contraction = real_scalar("chord_contraction", chord_contraction, "a number in (0, 1)")
+    if not 0.0 < chord_contraction < 1.0:
+        raise ValueError(f"chord_contraction must be a number in (0, 1) (default 0.25), got {chord_contraction!r}")
+    acceleration = integer_at_least("acceleration", acceleration, 0)
+    control = model.new_control() if control is None else check_control(model, control)
+    start = model.rest_positions.copy() if initial is None else _initial_positions(model, initial)
     free = _free_dofs(control)
     fixed = control.fixed
     full_load = external_forces(model, control)
+    check_supports(model, control, start, full_load)
     ramp_loads = initial is None
     state = {"positions": start.copy()}
 
