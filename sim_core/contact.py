@@ -45,6 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
+from ._validate import real_scalar
 
 TIPS = ("sphere", "flat")
 #: Where a probe is sampled: "projected" (its indentation projected on the surface nodes' basis
@@ -65,6 +66,11 @@ class Floor:
     height: float = 0.0
     #: +1: the obstacle bounds y from below (the admissible side is y >= surface)
     side = 1.0
+
+    def __post_init__(self):
+        height = real_scalar("floor height", self.height, "one finite number (m)")
+        if not np.isfinite(height):
+            raise ValueError(f"floor height must be one finite number (m), got {self.height!r}")
 
     def surface(self, positions, tip=None):
         """Surface height (m) under each node: (..., n) of ``height``."""
@@ -147,9 +153,10 @@ class Probe:
     side = -1.0
 
     def __post_init__(self):
-        if not np.isfinite(self.radius) or self.radius <= 0:
-            raise ValueError(f"probe radius must be a finite length > 0 in m, got {self.radius!r}")
-        if self.tip not in TIPS:
+        radius = real_scalar("probe radius", self.radius, "one finite number > 0 (a length in m, e.g. 0.005)")
+        if not np.isfinite(radius) or radius <= 0:
+            raise ValueError(f"probe radius must be one finite number > 0 (a length in m, e.g. 0.005), got {self.radius!r}")
+        if not isinstance(self.tip, str) or self.tip not in TIPS:
             raise ValueError(f"probe tip must be one of {TIPS}, got {self.tip!r}")
         if self.projection is not None and not isinstance(self.projection, SurfaceProjection):
             raise ValueError(f"projection must be None or a SurfaceProjection, got {type(self.projection).__name__}")
@@ -173,6 +180,12 @@ class Probe:
         where the probe reaches below the rest height nowhere on the support. ``parallel``: the
         N rows on numba's threads (the vector envs; the same floats)."""
         positions, tip = np.asarray(positions), np.asarray(tip)
+        if (tip.shape != (3,) and tip.shape != positions.shape[:-2] + (3,)) or not np.issubdtype(tip.dtype, np.number):
+            raise ValueError(f"probe tip position must be an (x, y, z) point in m: shape (3,) for positions (n, 3), "
+                             f"(3,) or (N, 3) for stacked positions (N, n, 3); got shape {tip.shape} for positions "
+                             f"{positions.shape}")
+        if not np.all(np.isfinite(tip)):
+            raise ValueError(f"probe tip position must be finite (m), got {tip.tolist()}")
         projection = self.projection
         if projection is None:
             return self._height(positions[..., 0], positions[..., 2], tip[..., None, :])
