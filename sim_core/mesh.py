@@ -171,14 +171,61 @@ class HexMesh:
 
     @classmethod
     def read(cls, path) -> "HexMesh":
-        """Read the hexahedra of a mesh file with meshio (.msh, .vtu, .vtk, ...)."""
-        import meshio
+        """Read the hexahedra of a mesh file with meshio (.msh, .vtu, .vtk, ...).
 
-        mesh = meshio.read(path)
-        blocks = [cells.data for cells in mesh.cells if cells.type == "hexahedron"]
+        Raises ``FileNotFoundError`` when ``path`` does not exist (as ``open`` does) and
+        ``ValueError``, naming the file, for everything else that is wrong with it: not a file, an
+        extension meshio does not read, an empty file, one meshio cannot parse as its format
+        (corrupt, truncated, another format; chained from meshio's error, including the
+        ``SystemExit`` some of meshio's readers raise), no hexahedra in it (the cell types found
+        are listed), or hexahedra that do not form a valid mesh (``HexMesh``'s checks).
+        """
+        import contextlib
+        import io
+
+        import meshio
+        from meshio._helpers import _filetypes_from_path  # the extension lookup meshio.read uses
+
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(2, "mesh file not found", str(path))
+        if not path.is_file():
+            raise ValueError(f"{path} is not a file: HexMesh.read needs a mesh file (.vtu, .vtk, .msh, ...)")
+        try:
+            formats = _filetypes_from_path(path)
+        except Exception as error:
+            raise ValueError(
+                f"{path}: unsupported mesh file extension {repr(''.join(path.suffixes)) if path.suffix else '(none)'}; HexMesh.read "
+                "reads meshio's formats that hold hexahedra, e.g. .vtu, .vtk, .msh (Gmsh), .xdmf, .med, .inp"
+            ) from error
+        file_format = f"{path.suffix} ({' or '.join(formats)})" if len(formats) > 1 else f"{path.suffix} ({formats[0]})"
+        if path.stat().st_size == 0:
+            raise ValueError(f"{path} is empty (0 bytes): not a {file_format} mesh; write one with HexMesh.write")
+        log = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(log), contextlib.redirect_stdout(log):
+                mesh = meshio.read(path)
+        except (Exception, SystemExit) as error:  # meshio's vtu/vtk readers exit on a bad file
+            detail = " ".join((log.getvalue() + " " + (str(error) if not isinstance(error, SystemExit) else "")).split())
+            raise ValueError(
+                f"{path} is not a readable {file_format} mesh (corrupt, truncated or another format): "
+                f"{type(error).__name__}{': ' + detail if detail else ''}"
+            ) from error
+        blocks = [np.asarray(cells.data) for cells in mesh.cells if cells.type == "hexahedron"]
         if not blocks:
-            raise ValueError(f"{path} contains no hexahedra")
-        return cls(np.asarray(mesh.points, dtype=float)[:, :3], np.concatenate(blocks))
+            found = ", ".join(f"{len(cells.data)} {cells.type}" for cells in mesh.cells) or "no cells at all"
+            raise ValueError(f"{path} contains no hexahedra (found {found}); HexMesh needs 8-node hexahedral "
+                             "cells (meshio type 'hexahedron')")
+        points = np.asarray(mesh.points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"{path}: points must be 3D, (N, 3) coordinates in m; got an array of shape {points.shape}")
+        bad = int(np.size(points) - np.count_nonzero(np.isfinite(points)))
+        if bad:
+            raise ValueError(f"{path}: {bad} point coordinates are not finite (NaN or infinity); they must be numbers in m")
+        try:
+            return cls(points, np.concatenate(blocks))
+        except ValueError as error:
+            raise ValueError(f"{path}: its hexahedra do not form a valid mesh: {error}") from error
 
     def write_obj(self, path, positions=None) -> None:
         """Export the boundary surface as a Wavefront .obj of quads (positions in m)."""
