@@ -216,9 +216,22 @@ class Control:
 
     def impose(self, nodes, positions, components=(0, 1, 2)) -> "Control":
         """Impose ``positions`` (broadcast to (len(nodes), 3), m) on the given components."""
-        nodes = np.atleast_1d(np.asarray(nodes, dtype=int))
-        positions = finite_array("positions", np.broadcast_to(positions, (len(nodes), 3)))
+        raw = np.atleast_1d(np.asarray(nodes))
+        if raw.ndim != 1 or not (np.issubdtype(raw.dtype, np.integer) or (raw.size == 0 and raw.dtype == float)):
+            raise ValueError(f"nodes must be a 1D sequence of integer node indices, got {raw.dtype} of shape {raw.shape}")
+        nodes = raw.astype(int)
+        n_nodes = len(self.fixed)
+        if nodes.size and (nodes.min() < -n_nodes or nodes.max() >= n_nodes):
+            raise ValueError(f"node indices must lie in [0, {n_nodes - 1}], got [{nodes.min()}, {nodes.max()}]")
+        try:
+            positions = np.broadcast_to(positions, (len(nodes), 3))
+        except ValueError as error:
+            raise ValueError(f"positions must broadcast to ({len(nodes)}, 3) (one (x, y, z) in m per node), "
+                             f"got shape {np.shape(positions)}") from error
+        positions = finite_array("positions", positions)
         components = list(np.atleast_1d(components))
+        if not components or any(isinstance(c, (bool, np.bool_)) or c not in (0, 1, 2) for c in components):
+            raise ValueError(f"components must be among 0, 1, 2 (x, y, z), got {components!r}")
         index = np.ix_(nodes, components)
         self.fixed[index] = True
         self.target[index] = positions[:, components]
