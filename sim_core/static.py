@@ -16,6 +16,7 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -191,8 +192,6 @@ def unconstrained_motions(positions, fixed) -> list[tuple[str, np.ndarray]]:
         fields[3 + axis][:, axis] = 1.0
     basis = fields.reshape(6, -1).T
     held = basis[np.asarray(fixed, dtype=bool).ravel()]
-    import scipy.linalg
-
     values, vectors = scipy.linalg.eigh(held.T @ held, basis.T @ basis)
     null = vectors[:, values < _HELD]
     if null.shape[1] == 0:
@@ -306,6 +305,16 @@ def solve_static(
             and moderate displacements; the converged result stays within ``tolerance``.
         acceleration: Anderson mixing depth for the chord steps (0: plain chord steps), which
             speeds up a chord iteration with an old tangent.
+
+    Raises ``ValueError`` before solving, saying what was wrong and what is allowed, for: a
+    tolerance that is not a finite number > 0; max_iterations, load_steps or max_load_steps
+    that are not integers >= 1 (acceleration >= 0; chord_contraction in (0, 1)); ``initial``
+    or ``control`` arrays not of the model's (N, 3) shape; NaN or infinity in ``initial``,
+    ``control.force`` or ``control.target`` where ``control.fixed``; and an under-constrained
+    problem whose load has no equilibrium (``check_supports``): the load pushes along a
+    rigid-body motion that no imposed component holds. Free rigid motions the load does not push
+    along (a zero load, a block on a frictionless floor under vertical gravity) are allowed: the
+    regularised Newton steps leave them at rest.
     """
     tolerance = positive_scalar("tolerance", tolerance, "a relative force residual, e.g. 1e-8")
     max_iterations = integer_at_least("max_iterations", max_iterations, 1)
