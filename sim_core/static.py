@@ -423,13 +423,9 @@ class QuasiStatic(OneWorldSolver):
     name = "static"
 
     def __init__(self, tolerance: float = 1e-6, max_iterations: int = 20, max_load_steps: int = 8, monitor: bool = True):
-        if not tolerance > 0:
-            raise ValueError(f"tolerance must be > 0, got {tolerance}")
-        if int(max_iterations) < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
-        if int(max_load_steps) < 1:
-            raise ValueError(f"max_load_steps must be >= 1, got {max_load_steps}")
-        self.tolerance, self.max_iterations, self.max_load_steps = float(tolerance), int(max_iterations), int(max_load_steps)
+        self.tolerance = positive_scalar("tolerance", tolerance, "a relative force residual, e.g. 1e-6")
+        self.max_iterations = integer_at_least("max_iterations", max_iterations, 1)
+        self.max_load_steps = integer_at_least("max_load_steps", max_load_steps, 1)
         self.monitor = monitor
         self._factors = _KeptTangent()
         self._monitor = None  # the integrators' DivergenceMonitor of the last model stepped

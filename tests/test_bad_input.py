@@ -240,3 +240,15 @@ def test_one_node_held_under_gravity(block):
     control = model.new_control().impose([0], mesh.nodes[0])
     with pytest.raises(ValueError, match="pushes along rotation about x .*rotation about z"):
         solve_static(model, control)
+
+
+@pytest.mark.parametrize("keyword, message", [
+    (dict(tolerance=float("inf")), r"tolerance must be a finite number > 0 \(a relative force residual, e.g. 1e-6\), got inf"),
+    (dict(max_iterations=2.5), "max_iterations must be an integer >= 1, got 2.5"),
+    (dict(max_load_steps="8"), "max_load_steps must be an integer >= 1, got str '8'"),
+])
+def test_quasi_static_arguments(keyword, message):
+    from sim_core.static import QuasiStatic
+
+    with pytest.raises(ValueError, match=message):
+        QuasiStatic(**keyword)
