@@ -194,8 +194,9 @@ class HexMesh:
         try:
             formats = _filetypes_from_path(path)
         except Exception as error:
+            extension = repr("".join(path.suffixes)) if path.suffix else "(none)"
             raise ValueError(
-                f"{path}: unsupported mesh file extension {repr(''.join(path.suffixes)) if path.suffix else '(none)'}; HexMesh.read "
+                f"{path}: unsupported mesh file extension {extension}; HexMesh.read "
                 "reads meshio's formats that hold hexahedra, e.g. .vtu, .vtk, .msh (Gmsh), .xdmf, .med, .inp"
             ) from error
         file_format = f"{path.suffix} ({' or '.join(formats)})" if len(formats) > 1 else f"{path.suffix} ({formats[0]})"
