@@ -237,6 +237,12 @@ def check_supports(model: Model, control: Control, positions, load) -> None:
     load_norm = float(np.linalg.norm(load))
     if load_norm == 0.0:
         return
+    held = np.asarray(positions, dtype=float)[np.asarray(control.fixed).all(axis=1)]
+    if len(held) >= 3:  # three fully held points not on one line hold every rigid motion
+        spread = held - held.mean(axis=0)
+        singular = np.linalg.svd(spread, compute_uv=False)
+        if singular[1] > 1e-9 * max(singular[0], 1e-300):
+            return
     motions = unconstrained_motions(positions, control.fixed)
     if not motions:
         return
