@@ -248,6 +248,18 @@ def callbacks(run_dir: Path, checkpoint_freq: int, eval_env, eval_freq: int, eva
 
 
 # ----------------------------------------------------------------------------- the run record
+def remove_stale_temporaries(*folders) -> list[Path]:
+    """Remove the temporaries of writes a killed session never finished (``atomic_path``'s
+    ``.<name>.<random>.tmp<suffix>``); only one session of a run writes at a time."""
+    removed = []
+    for folder in folders:
+        if Path(folder).is_dir():
+            for path in Path(folder).glob(".*.tmp*"):
+                path.unlink(missing_ok=True)
+                removed.append(path)
+    return removed
+
+
 def process_start_time() -> float:
     """This process's start (seconds since the epoch; from /proc, else now): a session's wall
     clock includes the interpreter's start and the imports."""
@@ -299,15 +311,22 @@ class RunRecord:
         self._stop = threading.Event()
         self._thread = None
 
+    def start(self):
+        """Write the record now and then every ``heartbeat`` seconds (so that a killed session's
+        time is counted to within a heartbeat)."""
+        with self.lock:
+            self._write()
+        self._thread = threading.Thread(target=self._beat, name="run-record", daemon=True)
+        self._thread.start()
+
     def begin(self, start_step: int, resume: dict | None):
+        """The session trains from ``start_step``; ``resume``: its resume event (step, skipped files, ...)."""
         with self.lock:
             self.session["start_step"] = self.session["end_step"] = int(start_step)
             if resume is not None:
                 self.resumes.append(resume)
                 self.resumed_from = resume["step"]
             self._write()
-        self._thread = threading.Thread(target=self._beat, name="run-record", daemon=True)
-        self._thread.start()
 
     def _beat(self):
         while not self._stop.wait(self.heartbeat):

@@ -180,14 +180,19 @@ def _normalise(train_env, eval_env, run_dir, normalize, resume_stats=None):
 def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = True) -> Path:
     """Train (or, with ``resume``, continue from the newest checkpoint that loads) to
     ``config["timesteps"]`` env steps. Every file is written atomically (``training.checkpoints``)."""
+    from . import checkpoints as ckpt
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    folder = run_dir / "checkpoints"
+    if resume:
+        ckpt.remove_stale_temporaries(run_dir, folder)
+    record = ckpt.RunRecord(run_dir / "result.json")
+    record.start()  # before the heavy imports: their time is part of the session's
+
     import torch
     from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
-    from . import checkpoints as ckpt
-
     torch.set_num_threads(int(config["threads"]))
-    run_dir.mkdir(parents=True, exist_ok=True)
-    record = ckpt.RunRecord(run_dir / "result.json")
     hyperparams = dict(config["hyperparams"])
     hyperparams.pop("n_timesteps", None)  # the budget is config["timesteps"]
     normalize = hyperparams.pop("normalize", False)
@@ -195,7 +200,6 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     policy = hyperparams.pop("policy", "MlpPolicy")
     algo_cls = algorithm_class(config["algo"])
     off_policy = issubclass(algo_cls, OffPolicyAlgorithm)
-    folder = run_dir / "checkpoints"
     n_envs = config["n_envs"]
 
     step, loaded, skipped = None, None, []
