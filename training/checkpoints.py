@@ -263,13 +263,12 @@ def remove_stale_temporaries(*folders) -> list[Path]:
 def process_start_time() -> float:
     """This process's start (seconds since the epoch; from /proc, else now): a session's wall
     clock includes the interpreter's start and the imports."""
-    try:
+    try:  # its age: the system's uptime less the process's start after boot (both to 1/100 s)
         ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
-        boot = next(float(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
-                    if line.startswith("btime"))
-        start = boot + ticks / os.sysconf("SC_CLK_TCK")
-        if 0 <= time.time() - start < 3600:
-            return start
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+        age = uptime - ticks / os.sysconf("SC_CLK_TCK")
+        if 0 <= age < 3600:
+            return time.time() - age
     except Exception:  # noqa: BLE001
         pass
     return time.time()
@@ -311,7 +310,7 @@ class RunRecord:
         self._stop = threading.Event()
         self._thread = None
 
-    def start(self):
+    def open(self):
         """Write the record now and then every ``heartbeat`` seconds (so that a killed session's
         time is counted to within a heartbeat)."""
         with self.lock:

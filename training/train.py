@@ -187,7 +187,7 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     if resume:
         ckpt.remove_stale_temporaries(run_dir, folder)
     record = ckpt.RunRecord(run_dir / "result.json")
-    record.start()  # before the heavy imports: their time is part of the session's
+    record.open()  # before the heavy imports: their time is part of the session's
 
     import torch
     from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
