@@ -243,3 +243,26 @@ def _one_thread(monkeypatch):
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def test_evaluate_takes_the_newest_loadable_checkpoint_with_its_normaliser(tmp_path, capsys):
+    """Without model.zip, training.evaluate's agent is the newest checkpoint that loads, its
+    observations normalised with that checkpoint's VecNormalize."""
+    from training.evaluate import agent_policy
+
+    _ppo_checkpoints(tmp_path / "checkpoints", [64, 128])
+    (tmp_path / "checkpoints" / "model_128_steps.zip").write_bytes(b"")
+    policy = agent_policy(tmp_path, dict(algo="ppo", hyperparams=dict(normalize=True)))
+    assert policy(np.zeros(3, dtype=np.float32), None).shape == (1,)
+    assert "skipping checkpoint model_128_steps.zip (step 128): empty file (0 bytes)" in capsys.readouterr().err
+
+
+def test_a_monitor_row_cut_by_a_kill_is_removed_before_the_resume_appends(tmp_path):
+    from training.checkpoints import repair_monitor_logs
+
+    whole, cut = tmp_path / "0.monitor.csv", tmp_path / "1.monitor.csv"
+    whole.write_text('#{"t_start": 1}\nr,l,t\n1.0,8,0.1\n')
+    cut.write_text('#{"t_start": 1}\nr,l,t\n1.0,8,0.1\n-0.5,8,0.')
+    assert repair_monitor_logs(tmp_path) == [cut]
+    assert cut.read_text() == whole.read_text()
+    assert repair_monitor_logs(tmp_path / "absent") == []

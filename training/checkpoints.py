@@ -260,6 +260,19 @@ def remove_stale_temporaries(*folders) -> list[Path]:
     return removed
 
 
+def repair_monitor_logs(folder) -> list[Path]:
+    """Cut a partial last line (a session killed while SB3's Monitor wrote a row) from the
+    monitor CSVs of ``folder``, so that the resumed run appends whole rows after whole rows."""
+    repaired = []
+    for path in sorted(Path(folder).glob("*.monitor.csv")) if Path(folder).is_dir() else []:
+        data = path.read_bytes()
+        if data and not data.endswith(b"\n"):
+            with open(path, "r+b") as stream:
+                stream.truncate(data.rfind(b"\n") + 1)
+            repaired.append(path)
+    return repaired
+
+
 def process_start_time() -> float:
     """This process's start (seconds since the epoch; from /proc, else now): a session's wall
     clock includes the interpreter's start and the imports."""

@@ -186,6 +186,7 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     folder = run_dir / "checkpoints"
     if resume:
         ckpt.remove_stale_temporaries(run_dir, folder)
+        ckpt.repair_monitor_logs(run_dir / "monitor")
     record = ckpt.RunRecord(run_dir / "result.json")
     record.open()  # before the heavy imports: their time is part of the session's
 
