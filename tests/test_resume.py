@@ -166,6 +166,47 @@ def test_training_survives_twenty_sigkills(tmp_path):
     assert not _temporaries(folder), "a resume removes the temporaries the killed sessions left"
 
 
+def test_sac_killed_resumes_with_every_transition(tmp_path):
+    """Off-policy: killed five times (twice in a checkpoint write), SAC ends at its budget and each
+    checkpoint's replay buffer holds as many transitions as its step (none lost, none twice)."""
+    import pickle
+
+    rng = random.Random(31)
+    config = tmp_path / "sac_tiny.yml"
+    config.write_text("default:\n  policy: MlpPolicy\n  normalize: true\n  buffer_size: 1000\n  learning_starts: 40\n"
+                      "  batch_size: 16\n  policy_kwargs: {net_arch: [8]}\n")
+    runs = tmp_path / "runs"
+    first = ["--env", ENV, "--algo", "sac", "--timesteps", "400", "--seed", "0", "--n-envs", "1", "--runs-dir",
+             str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "100", "--checkpoint-freq", "25",
+             "--config", str(config), "--env-kwargs", '{"max_episode_steps": 8}']
+    run_dir = None
+    for index, mode in enumerate(["progress", "write", "progress", "write", "progress"]):
+        session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path, index)
+        if run_dir is None:
+            assert _wait_for(lambda: list(runs.glob("*/sac/*/config.json")), session), session.err.read_text()
+            run_dir = next(runs.glob("*/sac/*/config.json")).parent
+        folder = run_dir / "checkpoints"
+        start_step = _newest_step(folder)
+        assert _wait_for(lambda: _newest_step(folder) > start_step, session), session.err.read_text()
+        if mode == "write":
+            seen = set(_temporaries(folder))
+            _wait_for(lambda: set(_temporaries(folder)) - seen, session, pause=0.0005)
+        else:
+            time.sleep(rng.uniform(0.0, 0.3))
+        assert session.running(), session.err.read_text()[-2000:]
+        session.kill()
+        for buffer in folder.glob("model_replay_buffer_*_steps.pkl"):
+            with open(buffer, "rb") as stream:
+                assert pickle.load(stream).size() == int(buffer.name.split("_")[3]), buffer.name
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 5)
+    assert final.wait(timeout=180) == 0, final.err.read_text()
+    with open(run_dir / "checkpoints" / "model_replay_buffer_400_steps.pkl", "rb") as stream:
+        assert pickle.load(stream).size() == 400
+    assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [100, 200, 300, 400]
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["finished"] and result["timesteps"] == 400 and len(result["resumes"]) == 5
+
+
 def _ppo_checkpoints(folder: Path, steps):
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
