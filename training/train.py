@@ -5,9 +5,18 @@
         [--env-threads N]
 
 The run folder runs/<env>/<algo>/seed<S>-<timestamp>/ holds config.json, model.zip,
-vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation), checkpoints/
-(model, normaliser and an off-policy replay buffer, so an interrupted run resumes without loss with --resume), tb/ (tensorboard)
-and result.json. The folder's path is printed as the last line.
+vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation, every
+``--eval-freq`` env steps), checkpoints/ (every ``--checkpoint-freq`` env steps: model,
+normaliser and an off-policy replay buffer), tb/ (tensorboard) and result.json. The folder's path
+is printed as the last line.
+
+A run may be killed at any moment (SIGKILL included) and continued with ``--resume RUN_DIR``
+(``training.checkpoints``): every file it writes (but SB3's monitor CSVs and tensorboard
+events, appended a row at a time) goes to a temporary name and is renamed; the resume takes the
+newest checkpoint that loads (printing each one skipped and why), keeps the evaluations up to
+its step and continues to the full ``--timesteps``. result.json is kept current while the run
+trains: ``wall_clock_s`` sums the run's sessions, ``resumes`` lists each resume's step and the
+files it skipped, ``finished`` is true once model.zip is written.
 
 Hyperparameters come from training/hyperparams/<algo>.yml (or ``--config``), rl_zoo3's format
 (``training.common.load_hyperparams``): the entry's ``n_timesteps`` is the default ``--timesteps``.
