@@ -114,13 +114,15 @@ def test_training_survives_twenty_sigkills(tmp_path):
             time.sleep(rng.uniform(0.2, 2.5))
         else:
             assert _wait_for(lambda: _newest_step(folder) > start_step, session), session.err.read_text()
+            seen = set(_temporaries(folder))
             if mode == "write":
-                seen = set(_temporaries(folder))
-                write_hits += _wait_for(lambda: set(_temporaries(folder)) - seen, session, pause=0.0005)
+                _wait_for(lambda: set(_temporaries(folder)) - seen, session, pause=0.0005)
             else:
                 time.sleep(rng.uniform(0.0, 0.4))
         assert session.running(), f"session {index} ended before its kill: {session.err.read_text()[-2000:]}"
         assert session.kill() == -signal.SIGKILL
+        if mode != "startup":  # the kill cut a checkpoint write short: its temporary is left behind
+            write_hits += bool(set(_temporaries(folder)) - seen)
         modes.append(mode)
         if index in damage:
             newest = max(folder.glob("model_*_steps.zip"), key=lambda p: int(p.name.split("_")[1]))
@@ -132,7 +134,7 @@ def test_training_survives_twenty_sigkills(tmp_path):
     assert final.wait(timeout=180) == 0, final.err.read_text()
     sessions.append(final)
     print(f"{len(plan)} kills ({', '.join(f'{m}: {modes.count(m)}' for m in set(modes))}, {write_hits} during a "
-          f"checkpoint write) in {time.perf_counter() - began:.1f} s")
+          f"checkpoint write, leaving its temporary) in {time.perf_counter() - began:.1f} s")
 
     assert len(modes) >= 20 and modes.count("write") >= 3 and write_hits >= 2
     # the damaged checkpoints were skipped on the next resume, with the file and the reason
