@@ -98,7 +98,7 @@ def load_evaluations(path: Path, up_to: int | None = None) -> tuple[dict, list[i
         print(f"ignoring {path}: cannot be read ({type(error).__name__}: {error})", flush=True)
         return evaluations, []
     keep = [i for i, step in enumerate(loaded["timesteps"]) if up_to is None or int(step) <= up_to]
-    dropped = [int(step) for i, step in enumerate(loaded["timesteps"]) if i not in set(keep)]
+    dropped = [int(step) for step in loaded["timesteps"] if up_to is not None and int(step) > up_to]
     return {key: [loaded[key][i] for i in keep] for key in evaluations}, dropped
 
 
@@ -206,7 +206,10 @@ def callbacks(run_dir: Path, checkpoint_freq: int, eval_env, eval_freq: int, eva
                 save_replay_buffer(self.model, buffer_path(folder, step))
             save_model(self.model, model_path(folder, step))  # last: the checkpoint is complete
             self.last = step
-            buffers = sorted(folder.glob("model_replay_buffer_*_steps.pkl"), key=steps_of)
+            # the newest buffers up to this step stay (newer ones, of checkpoints a resume skipped, are
+            # overwritten when the run gets there)
+            buffers = sorted((b for b in folder.glob("model_replay_buffer_*_steps.pkl") if steps_of(b) <= step),
+                             key=steps_of)
             for old in buffers[:-KEEP_BUFFERS]:
                 old.unlink(missing_ok=True)
             record.checkpointed(step)

@@ -234,6 +234,8 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
         write_json(run_dir / "config.json", config)
     done = int(model.num_timesteps)
     evaluations, dropped = ckpt.load_evaluations(run_dir / "evaluations.npz", up_to=done)
+    if dropped:  # evaluations of the steps to be trained again: the resumed run evaluates them anew
+        ckpt.save_evaluations(run_dir / "evaluations.npz", evaluations)
     if resume:
         record.begin(done, dict(step=step, skipped=skipped, dropped_evaluations=dropped,
                                 at=datetime.now().isoformat(timespec="seconds")))
