@@ -148,6 +148,11 @@ def test_training_survives_twenty_sigkills(tmp_path):
     from stable_baselines3 import PPO
 
     assert PPO.load(run_dir / "model.zip", device="cpu").num_timesteps == BUDGET
+    # checkpoints fall on rollout boundaries after the update: every counted step trained on (one
+    # epoch: one update a rollout)
+    for path in sorted(folder.glob("model_*_steps.zip")):
+        model = PPO.load(path, device="cpu")
+        assert model.num_timesteps % N_STEPS == 0 and model._n_updates == model.num_timesteps // N_STEPS, path.name
     evaluations = np.load(run_dir / "evaluations.npz")
     expected = list(range(EVAL_EVERY, BUDGET + 1, EVAL_EVERY))  # an uninterrupted run's schedule
     assert evaluations["timesteps"].tolist() == expected
