@@ -88,7 +88,7 @@ def test_bad_arguments_exit_2(args, word):
     assert word in err and "Traceback" not in err
 
 
-def test_sac_checkpoints_keep_the_latest_replay_buffer_and_resume_with_it(tmp_path):
+def test_sac_checkpoints_keep_the_latest_replay_buffers_and_resume_with_them(tmp_path):
     import pickle
 
     config = tmp_path / "sac_small.yml"
@@ -96,19 +96,20 @@ def test_sac_checkpoints_keep_the_latest_replay_buffer_and_resume_with_it(tmp_pa
                       "  batch_size: 16\n  policy_kwargs: {net_arch: [16, 16]}\n")
     code, out, err = run("training.train", "--env", ENV, "--algo", "sac", "--timesteps", "200", "--seed", "1",
                          "--n-envs", "1", "--runs-dir", str(tmp_path), "--no-progress", "--eval-episodes", "1",
-                         "--checkpoint-freq", "100", "--eval-freq", "1000", "--config", str(config))
+                         "--checkpoint-freq", "50", "--eval-freq", "1000", "--config", str(config))
     assert code == 0, err
     run_dir = Path(out.strip().splitlines()[-1])
-    buffers = list((run_dir / "checkpoints").glob("model_replay_buffer_*_steps.pkl"))
-    assert [b.name for b in buffers] == ["model_replay_buffer_200_steps.pkl"]  # older ones removed
+    buffers = sorted((run_dir / "checkpoints").glob("model_replay_buffer_*_steps.pkl"))
+    # older ones removed; two kept, so that a damaged newest checkpoint leaves one to resume from
+    assert [b.name for b in buffers] == ["model_replay_buffer_150_steps.pkl", "model_replay_buffer_200_steps.pkl"]
     (run_dir / "model.zip").unlink()
     code, out, err = run("training.train", "--resume", str(run_dir), "--timesteps", "300", "--no-progress")
     assert code == 0, err
     with open(run_dir / "checkpoints" / "model_replay_buffer_300_steps.pkl", "rb") as handle:
         buffer = pickle.load(handle)
-    # the transitions before the interruption were kept (SB3 saves a checkpoint before it stores that
-    # step's transition: 199 + 99); without the saved buffer the resumed run would hold 99
-    assert buffer.size() == 298
+    # the checkpoint step is the number of transitions in its buffer: the transitions before the
+    # interruption were kept (without the saved buffer the resumed run would hold 100)
+    assert buffer.size() == 300
 
 
 def test_rllib_runners_build_their_vector_envs_on_one_thread():

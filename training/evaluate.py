@@ -65,23 +65,29 @@ class _ObservationTracker:
 
 
 def agent_policy(run_dir: Path, config: dict):
-    """The trained agent of ``run_dir`` (its final model, else its newest checkpoint) as a policy
-    ``(observation, env) -> action`` (deterministic)."""
+    """The trained agent of ``run_dir`` (its final model, else its newest checkpoint that loads,
+    with that checkpoint's normaliser) as a policy ``(observation, env) -> action`` (deterministic)."""
+    algo_cls = algorithm_class(config["algo"])
     model_path = run_dir / "model.zip"
-    if not model_path.is_file():
-        checkpoints = sorted((run_dir / "checkpoints").glob("model_*_steps.zip"),
-                             key=lambda p: int(p.stem.split("_")[1]))
-        if not checkpoints:
-            raise UsageError(f"{run_dir} holds no model.zip and no checkpoint")
-        model_path = checkpoints[-1]
-    model = algorithm_class(config["algo"]).load(str(model_path), device="cpu")
     normaliser = None
-    stats = run_dir / "vecnormalize.pkl"
-    if stats.is_file():
-        import pickle
+    if model_path.is_file():
+        model = algo_cls.load(str(model_path), device="cpu")
+        stats = run_dir / "vecnormalize.pkl"
+        if stats.is_file():
+            import pickle
 
-        with open(stats, "rb") as handle:
-            normaliser = pickle.load(handle)  # VecNormalize without its venv: normalize_obs works alone
+            with open(stats, "rb") as handle:
+                normaliser = pickle.load(handle)  # VecNormalize without its venv: normalize_obs works alone
+    else:
+        from .checkpoints import checkpoint_loader, pick_checkpoint
+
+        normalize = bool(config.get("hyperparams", {}).get("normalize", False))
+        load = checkpoint_loader(run_dir / "checkpoints", algo_cls, normalize, off_policy=False,
+                                 n_envs=int(config.get("n_envs", 1)), device="cpu")
+        step, loaded, _ = pick_checkpoint(run_dir / "checkpoints", load, log=lambda line: print(line, file=sys.stderr))
+        if step is None:
+            raise UsageError(f"{run_dir} holds no model.zip and no checkpoint that loads")
+        model, normaliser = loaded
 
     def policy(observation, env):
         if normaliser is not None:

@@ -5,9 +5,18 @@
         [--env-threads N]
 
 The run folder runs/<env>/<algo>/seed<S>-<timestamp>/ holds config.json, model.zip,
-vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation), checkpoints/
-(model, normaliser and an off-policy replay buffer, so an interrupted run resumes without loss with --resume), tb/ (tensorboard)
-and result.json. The folder's path is printed as the last line.
+vecnormalize.pkl, monitor/*.monitor.csv, evaluations.npz (periodic evaluation, every
+``--eval-freq`` env steps), checkpoints/ (every ``--checkpoint-freq`` env steps: model,
+normaliser and an off-policy replay buffer), tb/ (tensorboard) and result.json. The folder's path
+is printed as the last line.
+
+A run may be killed at any moment (SIGKILL included) and continued with ``--resume RUN_DIR``
+(``training.checkpoints``): every file it writes (but SB3's monitor CSVs and tensorboard
+events, appended a row at a time) goes to a temporary name and is renamed; the resume takes the
+newest checkpoint that loads (printing each one skipped and why), keeps the evaluations up to
+its step and continues to the full ``--timesteps``. result.json is kept current while the run
+trains: ``wall_clock_s`` sums the run's sessions, ``resumes`` lists each resume's step and the
+files it skipped, ``finished`` is true once model.zip is written.
 
 Hyperparameters come from training/hyperparams/<algo>.yml (or ``--config``), rl_zoo3's format
 (``training.common.load_hyperparams``): the entry's ``n_timesteps`` is the default ``--timesteps``.
@@ -18,8 +27,6 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import re
-import time
 import warnings
 from datetime import datetime
 from pathlib import Path
@@ -169,8 +176,9 @@ def _normalise(train_env, eval_env, run_dir, normalize, resume_stats=None):
     if not normalize:
         return train_env, eval_env
     options = dict(gamma=0.99) if normalize is True else dict(normalize)
-    if resume_stats is not None:
-        train_env = VecNormalize.load(str(resume_stats), train_env)
+    if resume_stats is not None:  # a checkpoint's VecNormalize (unpickled, without its venv)
+        resume_stats.set_venv(train_env)
+        train_env = resume_stats
     else:
         train_env = VecNormalize(train_env, **options)
     eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in options.items()
@@ -178,103 +186,76 @@ def _normalise(train_env, eval_env, run_dir, normalize, resume_stats=None):
     return train_env, eval_env
 
 
-def _steps(path: Path) -> int:
-    """The env steps in a checkpoint file's name (model_<steps>_steps.zip, model_replay_buffer_<steps>_steps.pkl)."""
-    return int(re.search(r"_(\d+)_steps", path.name).group(1))
-
-
-def _latest_checkpoint(run_dir: Path):
-    best = None
-    for path in (run_dir / "checkpoints").glob("model_*_steps.zip"):
-        steps = _steps(path)
-        if best is None or steps > best[0]:
-            best = (steps, path)
-    return best
-
-
-def _checkpoint_callback():
-    """SB3's CheckpointCallback that also saves an off-policy model's replay buffer (so that a
-    resumed SAC / TD3 run continues with its transitions) and keeps only the latest buffer (one
-    is up to buffer_size transitions: tens of MB)."""
-    from stable_baselines3.common.callbacks import CheckpointCallback
-
-    class Checkpoints(CheckpointCallback):
-        def _on_step(self) -> bool:
-            result = super()._on_step()
-            if self.n_calls % self.save_freq == 0:  # a checkpoint was written at this call
-                buffers = sorted(Path(self.save_path).glob("model_replay_buffer_*_steps.pkl"), key=_steps)
-                for old in buffers[:-1]:
-                    old.unlink(missing_ok=True)
-            return result
-
-    return Checkpoints
-
-
 def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = True) -> Path:
-    import torch
-    from stable_baselines3.common.callbacks import CallbackList, EvalCallback
+    """Train (or, with ``resume``, continue from the newest checkpoint that loads) to
+    ``config["timesteps"]`` env steps. Every file is written atomically (``training.checkpoints``)."""
+    from . import checkpoints as ckpt
 
-    _Checkpoints = _checkpoint_callback()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    folder = run_dir / "checkpoints"
+    if resume:
+        ckpt.remove_stale_temporaries(run_dir, folder)
+        ckpt.repair_monitor_logs(run_dir / "monitor")
+    record = ckpt.RunRecord(run_dir / "result.json")
+    record.open()  # before the heavy imports: their time is part of the session's
+
+    import torch
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 
     torch.set_num_threads(int(config["threads"]))
-    run_dir.mkdir(parents=True, exist_ok=True)
     hyperparams = dict(config["hyperparams"])
     hyperparams.pop("n_timesteps", None)  # the budget is config["timesteps"]
     normalize = hyperparams.pop("normalize", False)
     noise = {key: hyperparams.pop(key) for key in ("noise_type", "noise_std", "action_noise_std") if key in hyperparams}
     policy = hyperparams.pop("policy", "MlpPolicy")
     algo_cls = algorithm_class(config["algo"])
+    off_policy = issubclass(algo_cls, OffPolicyAlgorithm)
+    n_envs = config["n_envs"]
 
-    checkpoint = _latest_checkpoint(run_dir) if resume else None
-    stats = None
-    if checkpoint is not None:
-        candidate = run_dir / "checkpoints" / f"model_vecnormalize_{checkpoint[0]}_steps.pkl"
-        stats = candidate if candidate.is_file() else None
-    train_env, eval_env = _make_envs(config, run_dir, seed_offset=checkpoint[0] if checkpoint else 0,
-                                     resume=checkpoint is not None)
-    train_env, eval_env = _normalise(train_env, eval_env, run_dir, normalize, stats)
+    step, loaded, skipped = None, None, []
+    if resume:
+        load = ckpt.checkpoint_loader(folder, algo_cls, bool(normalize), off_policy, n_envs, device="cpu",
+                                      tensorboard_log=str(run_dir / "tb"))
+        step, loaded, skipped = ckpt.pick_checkpoint(folder, load)
+        if step is None:
+            print(f"no loadable checkpoint in {folder}: training from the start", flush=True)
+    train_env, eval_env = _make_envs(config, run_dir, seed_offset=step or 0, resume=step is not None)
+    train_env, eval_env = _normalise(train_env, eval_env, run_dir, normalize, loaded[1] if loaded else None)
 
-    if checkpoint is not None:
-        model = algo_cls.load(str(checkpoint[1]), env=train_env, tensorboard_log=str(run_dir / "tb"))
-        done = model.num_timesteps
-        buffer = run_dir / "checkpoints" / f"model_replay_buffer_{checkpoint[0]}_steps.pkl"
-        if buffer.is_file():  # off-policy: continue with the transitions collected so far
-            model.load_replay_buffer(str(buffer))
+    if loaded is not None:
+        model = loaded[0]
+        model.set_env(train_env)
     else:
         exploration = action_noise(noise, train_env.action_space.shape[0])
         if exploration is not None:
             hyperparams["action_noise"] = exploration
         model = algo_cls(policy, train_env, seed=config["seed"], verbose=0, tensorboard_log=str(run_dir / "tb"),
                          **hyperparams)
-        done = 0
         write_json(run_dir / "config.json", config)
+    done = int(model.num_timesteps)
+    evaluations, dropped = ckpt.load_evaluations(run_dir / "evaluations.npz", up_to=done)
+    if dropped:  # evaluations of the steps to be trained again: the resumed run evaluates them anew
+        ckpt.save_evaluations(run_dir / "evaluations.npz", evaluations)
+    if resume:
+        record.begin(done, dict(step=step, skipped=skipped, dropped_evaluations=dropped,
+                                at=datetime.now().isoformat(timespec="seconds")))
+        print(f"resuming {run_dir} at step {step}" if step is not None else f"restarting {run_dir}", flush=True)
+    else:
+        record.begin(0, None)
 
-    n_envs = config["n_envs"]
     total = int(config["timesteps"])
     eval_freq = config.get("eval_freq") or max(total // 10, 1)
     checkpoint_freq = config.get("checkpoint_freq") or max(total // 10, 1)
-    callbacks = CallbackList([
-        _Checkpoints(save_freq=max(checkpoint_freq // n_envs, 1), save_path=str(run_dir / "checkpoints"),
-                     name_prefix="model", save_vecnormalize=True, save_replay_buffer=True),
-        EvalCallback(eval_env, n_eval_episodes=int(config.get("eval_episodes", 5)),
-                     eval_freq=max(eval_freq // n_envs, 1), log_path=str(run_dir), best_model_save_path=None,
-                     deterministic=True, verbose=0),
-    ])
-    start = time.perf_counter()
+    callbacks = ckpt.callbacks(run_dir, checkpoint_freq, eval_env, eval_freq, int(config.get("eval_episodes", 5)),
+                               evaluations, record, start_step=done)
     remaining = total - done
     if remaining > 0:
-        model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=checkpoint is None,
+        model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=step is None,
                     progress_bar=progress, tb_log_name="run")
-    wall = time.perf_counter() - start
-    model.save(str(run_dir / "model.zip"))
+    ckpt.save_model(model, run_dir / "model.zip")
     if normalize:
-        train_env.save(str(run_dir / "vecnormalize.pkl"))
-    previous = {}
-    if (run_dir / "result.json").is_file():
-        previous = json.loads((run_dir / "result.json").read_text())
-    write_json(run_dir / "result.json", dict(
-        timesteps=int(model.num_timesteps), wall_clock_s=wall + previous.get("wall_clock_s", 0.0),
-        resumed_from=checkpoint[0] if checkpoint else None))
+        ckpt.save_vecnormalize(train_env, run_dir / "vecnormalize.pkl")
+    record.finish(int(model.num_timesteps))
     train_env.close()
     eval_env.close()
     return run_dir

@@ -1,0 +1,316 @@
+"""A training run survives being killed at any moment: SIGKILLed again and again (at random
+moments, during start-up and in the middle of checkpoint writes) and resumed with --resume each
+time, it reaches its full budget with the evaluation history of an uninterrupted run; the
+checkpoint picker skips checkpoints that do not load and says why."""
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ENV = "tissue_env/Retraction-v0"  # the cheapest task (about 4 ms a step)
+BUDGET = 2048
+N_STEPS = 64  # PPO rollout: a checkpoint every rollout
+CHECKPOINT_EVERY = 64
+EVAL_EVERY = 128
+KILLS = 22
+HEARTBEAT = 0.2  # training.checkpoints.RunRecord's
+
+
+def _config(folder: Path) -> Path:
+    path = folder / "ppo_tiny.yml"
+    path.write_text(f"default:\n  policy: MlpPolicy\n  normalize: true\n  n_steps: {N_STEPS}\n  batch_size: 32\n"
+                    "  n_epochs: 1\n  policy_kwargs: {net_arch: [8]}\n")
+    return path
+
+
+def _newest_step(folder: Path) -> int:
+    steps = [int(p.name.split("_")[1]) for p in folder.glob("model_*_steps.zip")] if folder.is_dir() else []
+    return max(steps, default=0)
+
+
+def _temporaries(folder: Path):
+    try:
+        return [entry.name for entry in os.scandir(folder) if entry.name.startswith(".")]
+    except FileNotFoundError:
+        return []
+
+
+class Session:
+    """One ``python -m training.train`` process, its output in files, its time measured."""
+
+    def __init__(self, args, folder: Path, index: int):
+        self.out = folder / f"session{index}.out"
+        self.err = folder / f"session{index}.err"
+        with open(self.out, "w") as out, open(self.err, "w") as err:
+            self.start = time.perf_counter()
+            self.process = subprocess.Popen([sys.executable, "-m", "training.train", *args], stdout=out,
+                                            stderr=err, cwd=Path(__file__).resolve().parents[1])
+        self.seconds = None
+
+    def running(self):
+        return self.process.poll() is None
+
+    def kill(self):
+        self.process.send_signal(signal.SIGKILL)
+        return self.wait()
+
+    def wait(self, timeout=None):
+        code = self.process.wait(timeout)
+        self.seconds = time.perf_counter() - self.start
+        return code
+
+
+def _wait_for(condition, session, timeout=60.0, pause=0.002):
+    """Poll ``condition`` until true (True) or the session ends / time runs out (False)."""
+    end = time.perf_counter() + timeout
+    while time.perf_counter() < end:
+        if condition():
+            return True
+        if not session.running():
+            return False
+        time.sleep(pause)
+    return False
+
+
+def test_training_survives_twenty_sigkills(tmp_path):
+    """22 SIGKILLs (seeded): a third during start-up or the resume's loading, a third timed to hit
+    a checkpoint write (the test polls for its temporary file and kills then), a third at a random
+    moment after some progress; twice the newest checkpoint is damaged (cut to 0 bytes, truncated)
+    before a resume. The run ends at its budget, its model loads, evaluations.npz holds every
+    scheduled evaluation once and in order, and wall_clock_s sums the sessions."""
+    rng = random.Random(30)
+    runs = tmp_path / "runs"
+    first = ["--env", ENV, "--algo", "ppo", "--timesteps", str(BUDGET), "--seed", "0", "--n-envs", "1",
+             "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", str(EVAL_EVERY),
+             "--checkpoint-freq", str(CHECKPOINT_EVERY), "--config", str(_config(tmp_path)),
+             "--env-kwargs", '{"max_episode_steps": 8}']
+    plan = ["progress"] + [rng.choice(["startup", "write", "progress"]) for _ in range(KILLS - 1)]
+    damage = {8: "empty", 15: "truncated"}  # after these kills the newest checkpoint is damaged
+    for index in damage:
+        plan[index + 1] = "write"  # the resume that meets the damage gets past its loading
+    run_dir, folder = None, None
+    sessions, modes, write_hits, damaged = [], [], 0, {}
+    began = time.perf_counter()
+    for index, mode in enumerate(plan):
+        session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path,
+                          len(sessions))
+        sessions.append(session)
+        if run_dir is None:
+            assert _wait_for(lambda: list(runs.glob("*/ppo/*/config.json")), session), session.err.read_text()
+            run_dir = next(runs.glob("*/ppo/*/config.json")).parent
+            folder = run_dir / "checkpoints"
+        start_step = _newest_step(folder)
+        if BUDGET - start_step <= 6 * CHECKPOINT_EVERY and index - 1 not in damage:
+            mode = "startup"  # keep budget for the kills still to come
+        if mode == "startup":
+            time.sleep(rng.uniform(0.2, 2.5))
+        else:
+            assert _wait_for(lambda: _newest_step(folder) > start_step, session), session.err.read_text()
+            seen = set(_temporaries(folder))
+            if mode == "write":
+                _wait_for(lambda: set(_temporaries(folder)) - seen, session, pause=0.0005)
+            else:
+                time.sleep(rng.uniform(0.0, 0.4))
+        assert session.running(), f"session {index} ended before its kill: {session.err.read_text()[-2000:]}"
+        assert session.kill() == -signal.SIGKILL
+        if mode != "startup":  # the kill cut a checkpoint write short: its temporary is left behind
+            write_hits += bool(set(_temporaries(folder)) - seen)
+        modes.append(mode)
+        if index in damage:
+            newest = max(folder.glob("model_*_steps.zip"), key=lambda p: int(p.name.split("_")[1]))
+            size = newest.stat().st_size
+            with open(newest, "r+b") as stream:
+                stream.truncate(0 if damage[index] == "empty" else size // 2)
+            damaged[index] = newest.name
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, len(sessions))
+    assert final.wait(timeout=180) == 0, final.err.read_text()
+    sessions.append(final)
+    print(f"{len(plan)} kills ({', '.join(f'{m}: {modes.count(m)}' for m in set(modes))}, {write_hits} during a "
+          f"checkpoint write, leaving its temporary) in {time.perf_counter() - began:.1f} s")
+
+    assert len(modes) >= 20 and modes.count("write") >= 3 and write_hits >= 2
+    # the damaged checkpoints were skipped on the next resume, with the file and the reason
+    for index, name in damaged.items():
+        said = sessions[index + 1].out.read_text()
+        assert f"skipping checkpoint {name}" in said, said
+    assert "0 bytes" in sessions[min(damaged) + 1].out.read_text()
+
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["finished"] and result["timesteps"] == BUDGET
+    from stable_baselines3 import PPO
+
+    assert PPO.load(run_dir / "model.zip", device="cpu").num_timesteps == BUDGET
+    # checkpoints fall on rollout boundaries after the update: every counted step trained on (one
+    # epoch: one update a rollout)
+    for path in sorted(folder.glob("model_*_steps.zip")):
+        model = PPO.load(path, device="cpu")
+        assert model.num_timesteps % N_STEPS == 0 and model._n_updates == model.num_timesteps // N_STEPS, path.name
+    evaluations = np.load(run_dir / "evaluations.npz")
+    expected = list(range(EVAL_EVERY, BUDGET + 1, EVAL_EVERY))  # an uninterrupted run's schedule
+    assert evaluations["timesteps"].tolist() == expected
+    assert evaluations["results"].shape == evaluations["ep_lengths"].shape == (len(expected), 1)
+
+    # resume events: one a resume, the damaged files among the skipped
+    skipped = {entry["file"] for resume in result["resumes"] for entry in resume["skipped"]}
+    assert set(damaged.values()) <= skipped
+    assert len(result["resumes"]) >= len(modes) - modes.count("startup")
+    # wall clock: every session that got past its imports is counted (a killed one to within a
+    # heartbeat); sessions killed during their imports may be missing
+    trained = [s.seconds for s, mode in zip(sessions, modes + ["final"]) if mode != "startup"]
+    print(f"wall_clock_s {result['wall_clock_s']:.1f}; sessions measured {sum(s.seconds for s in sessions):.1f} s, "
+          f"those past start-up {sum(trained):.1f} s")
+    assert result["wall_clock_s"] > sessions[-1].seconds - 0.5
+    assert result["wall_clock_s"] >= sum(trained) - (HEARTBEAT + 0.3) * len(trained)
+    assert result["wall_clock_s"] <= sum(s.seconds for s in sessions) + 1.0
+    assert not _temporaries(folder), "a resume removes the temporaries the killed sessions left"
+
+
+def test_sac_killed_resumes_with_every_transition(tmp_path):
+    """Off-policy: killed five times (twice in a checkpoint write), SAC ends at its budget and each
+    checkpoint's replay buffer holds as many transitions as its step (none lost, none twice)."""
+    import pickle
+
+    rng = random.Random(31)
+    config = tmp_path / "sac_tiny.yml"
+    config.write_text("default:\n  policy: MlpPolicy\n  normalize: true\n  buffer_size: 1000\n  learning_starts: 40\n"
+                      "  batch_size: 16\n  policy_kwargs: {net_arch: [8]}\n")
+    runs = tmp_path / "runs"
+    first = ["--env", ENV, "--algo", "sac", "--timesteps", "400", "--seed", "0", "--n-envs", "1", "--runs-dir",
+             str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "100", "--checkpoint-freq", "25",
+             "--config", str(config), "--env-kwargs", '{"max_episode_steps": 8}']
+    run_dir = None
+    for index, mode in enumerate(["progress", "write", "progress", "write", "progress"]):
+        session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path, index)
+        if run_dir is None:
+            assert _wait_for(lambda: list(runs.glob("*/sac/*/config.json")), session), session.err.read_text()
+            run_dir = next(runs.glob("*/sac/*/config.json")).parent
+        folder = run_dir / "checkpoints"
+        start_step = _newest_step(folder)
+        assert _wait_for(lambda: _newest_step(folder) > start_step, session), session.err.read_text()
+        if mode == "write":
+            seen = set(_temporaries(folder))
+            _wait_for(lambda: set(_temporaries(folder)) - seen, session, pause=0.0005)
+        else:
+            time.sleep(rng.uniform(0.0, 0.3))
+        assert session.running(), session.err.read_text()[-2000:]
+        session.kill()
+        for buffer in folder.glob("model_replay_buffer_*_steps.pkl"):
+            with open(buffer, "rb") as stream:
+                assert pickle.load(stream).size() == int(buffer.name.split("_")[3]), buffer.name
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 5)
+    assert final.wait(timeout=180) == 0, final.err.read_text()
+    with open(run_dir / "checkpoints" / "model_replay_buffer_400_steps.pkl", "rb") as stream:
+        assert pickle.load(stream).size() == 400
+    assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [100, 200, 300, 400]
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["finished"] and result["timesteps"] == 400 and len(result["resumes"]) == 5
+
+
+def _ppo_checkpoints(folder: Path, steps):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from training import checkpoints as ckpt
+
+    env = VecNormalize(make_vec_env("Pendulum-v1", n_envs=1, seed=0))
+    model = PPO("MlpPolicy", env, n_steps=16, batch_size=16, policy_kwargs=dict(net_arch=[4]), device="cpu")
+    for step in steps:
+        model.num_timesteps = step
+        ckpt.save_vecnormalize(env, ckpt.vecnormalize_path(folder, step))
+        ckpt.save_model(model, ckpt.model_path(folder, step))
+    env.close()
+    return PPO
+
+
+def test_checkpoint_picker_takes_the_newest_that_loads(tmp_path):
+    """Newest first; a 0-byte zip, a truncated zip, a zip without its (or with an unpicklable)
+    VecNormalize are skipped, each with a line naming the file and why; none: (None, None, ...)."""
+    from training import checkpoints as ckpt
+
+    algo = _ppo_checkpoints(tmp_path, [100, 200, 300, 400, 500, 600])
+    (tmp_path / "model_600_steps.zip").write_bytes(b"")
+    data = (tmp_path / "model_500_steps.zip").read_bytes()
+    (tmp_path / "model_500_steps.zip").write_bytes(data[: len(data) // 2])
+    (tmp_path / "model_vecnormalize_400_steps.pkl").write_bytes(b"not a pickle")
+    (tmp_path / "model_vecnormalize_300_steps.pkl").unlink()
+    (tmp_path / ".model_700_steps.zip.abc.tmp.zip").write_bytes(b"half")  # a killed write's temporary
+    lines = []
+    load = ckpt.checkpoint_loader(tmp_path, algo, normalize=True, off_policy=False, n_envs=1, device="cpu")
+    step, (model, stats), skipped = ckpt.pick_checkpoint(tmp_path, load, log=lines.append)
+    assert step == 200 and model.num_timesteps == 200 and stats.obs_rms.mean.shape == (3,)
+    assert [entry["step"] for entry in skipped] == [600, 500, 400, 300]
+    assert lines[0] == "skipping checkpoint model_600_steps.zip (step 600): empty file (0 bytes)"
+    assert lines[1].startswith("skipping checkpoint model_500_steps.zip (step 500): ") and "zip" in lines[1]
+    assert lines[2].startswith("skipping checkpoint model_vecnormalize_400_steps.pkl (step 400): cannot be unpickled")
+    assert lines[3] == "skipping checkpoint model_vecnormalize_300_steps.pkl (step 300): missing"
+
+    for path in tmp_path.glob("model_*_steps.zip"):
+        path.write_bytes(b"")
+    assert ckpt.pick_checkpoint(tmp_path, load, log=lines.append)[:2] == (None, None)
+    assert ckpt.pick_checkpoint(tmp_path / "nothing", load, log=lines.append) == (None, None, [])
+    assert ckpt.remove_stale_temporaries(tmp_path) == [tmp_path / ".model_700_steps.zip.abc.tmp.zip"]
+
+
+def test_off_policy_checkpoint_needs_its_buffer_with_as_many_transitions(tmp_path):
+    """SAC: a checkpoint is usable only with a replay buffer of as many transitions as its step."""
+    from stable_baselines3 import SAC
+
+    from training import checkpoints as ckpt
+
+    model = SAC("MlpPolicy", "Pendulum-v1", buffer_size=100, learning_starts=1000, policy_kwargs=dict(net_arch=[4]),
+                device="cpu")
+    model.learn(30)
+    for step in (20, 30):
+        model.num_timesteps = step
+        ckpt.save_replay_buffer(model, ckpt.buffer_path(tmp_path, step))
+        ckpt.save_model(model, ckpt.model_path(tmp_path, step))
+    lines = []
+    load = ckpt.checkpoint_loader(tmp_path, SAC, normalize=False, off_policy=True, n_envs=1, device="cpu")
+    # the buffer holds 30 transitions: step 30's; step 20 (buffer of 30) is refused
+    assert ckpt.pick_checkpoint(tmp_path, load, log=lines.append)[0] == 30
+    ckpt.buffer_path(tmp_path, 30).unlink()
+    step, loaded, skipped = ckpt.pick_checkpoint(tmp_path, load, log=lines.append)
+    assert step is None and [entry["reason"] for entry in skipped] == [
+        "missing", "holds 30 transitions, the checkpoint step is 20"]
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(monkeypatch):
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_evaluate_takes_the_newest_loadable_checkpoint_with_its_normaliser(tmp_path, capsys):
+    """Without model.zip, training.evaluate's agent is the newest checkpoint that loads, its
+    observations normalised with that checkpoint's VecNormalize."""
+    from training.evaluate import agent_policy
+
+    _ppo_checkpoints(tmp_path / "checkpoints", [64, 128])
+    (tmp_path / "checkpoints" / "model_128_steps.zip").write_bytes(b"")
+    policy = agent_policy(tmp_path, dict(algo="ppo", hyperparams=dict(normalize=True)))
+    assert policy(np.zeros(3, dtype=np.float32), None).shape == (1,)
+    assert "skipping checkpoint model_128_steps.zip (step 128): empty file (0 bytes)" in capsys.readouterr().err
+
+
+def test_a_monitor_row_cut_by_a_kill_is_removed_before_the_resume_appends(tmp_path):
+    from training.checkpoints import repair_monitor_logs
+
+    whole, cut = tmp_path / "0.monitor.csv", tmp_path / "1.monitor.csv"
+    whole.write_text('#{"t_start": 1}\nr,l,t\n1.0,8,0.1\n')
+    cut.write_text('#{"t_start": 1}\nr,l,t\n1.0,8,0.1\n-0.5,8,0.')
+    assert repair_monitor_logs(tmp_path) == [cut]
+    assert cut.read_text() == whole.read_text()
+    assert repair_monitor_logs(tmp_path / "absent") == []
