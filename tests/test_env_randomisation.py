@@ -99,3 +99,34 @@ def test_invalid_randomisation_keyword_names_it(env_id, keyword, value):
         warnings.simplefilter("ignore")
         with pytest.raises(ValueError, match=keyword):
             gym.make(env_id, **{keyword: value})
+
+
+@pytest.mark.parametrize("env_id", sorted(tissue_env.ENV_IDS))
+def test_the_sampled_material_is_in_every_info(env_id):
+    """Domain randomisation reports what it drew: every info of an episode (reset and steps) has the
+    episode's ``young_modulus`` and ``poisson_ratio`` (Palpation also its ``inclusion_ratio``), the
+    fixed values without a range, and a vector env reports each copy's own draw."""
+    ranges = dict(young_modulus_range=(2e3, 8e3), poisson_ratio_range=(0.3, 0.45))
+    env = gym.make(env_id, **ranges)
+    drawn = set()
+    for seed in (0, 1):
+        _, info = env.reset(seed=seed)
+        young, poisson = info["young_modulus"], info["poisson_ratio"]
+        assert 2e3 <= young <= 8e3 and 0.3 <= poisson <= 0.45
+        assert young == env.unwrapped.episode_young_modulus
+        step_info = env.step(env.action_space.sample())[4]
+        assert (step_info["young_modulus"], step_info["poisson_ratio"]) == (young, poisson)
+        drawn.add(young)
+    assert len(drawn) == 2  # a new draw per reset
+    fixed = gym.make(env_id, young_modulus=4e3)
+    assert fixed.reset(seed=0)[1]["young_modulus"] == 4e3
+    if "Palpation" in env_id:
+        ratio = gym.make(env_id, inclusion_ratio_range=(3.0, 12.0)).reset(seed=0)[1]["inclusion_ratio"]
+        assert 3.0 <= ratio <= 12.0
+    vector = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", **ranges)
+    _, infos = vector.reset(seed=[0, 1])
+    singles = [gym.make(env_id, **ranges).reset(seed=seed)[1]["young_modulus"] for seed in (0, 1)]
+    np.testing.assert_array_equal(infos["young_modulus"], singles)
+    infos = vector.step(vector.action_space.sample())[4]
+    np.testing.assert_array_equal(infos["young_modulus"], singles)
+    vector.close()

@@ -189,7 +189,8 @@ class TissueEnv(gym.Env):
         observation_type: "state" (default), "deformation" (adds the displacement of the surface
             nodes) or "dict" (the "deformation" features as a Dict space).
         young_modulus_range, poisson_ratio_range: None or (low, high): domain randomisation, a new
-            value drawn at every reset (the model is rebuilt: a slower reset).
+            value drawn uniformly at every reset and reported in every ``info`` of the episode under
+            ``young_modulus`` / ``poisson_ratio`` (the fixed values without a range) (the model is rebuilt: a slower reset).
         volume_weight: weight of the |relative volume change| penalty.
         strain_threshold, strain_weight: penalty strain_weight * max(0, max spring strain - threshold)
             (a damage proxy).
@@ -650,6 +651,9 @@ class TissueEnv(gym.Env):
             unstable=unstable_reason is not None,
             unstable_reason=unstable_reason,
             is_success=bool(success),
+            # the episode's material, as drawn from the *_range keywords (or the fixed values)
+            young_modulus=float(self.episode_young_modulus),
+            poisson_ratio=float(self.episode_poisson_ratio),
         )
         for name in self.reward_names + ("instability",):
             info[f"reward_{name}"] = float(rewards.get(name, 0.0))

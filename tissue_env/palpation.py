@@ -216,7 +216,8 @@ class PalpationEnv(TissueEnv):
     Task keywords: ``inclusion_ratio``, ``probe_radius`` (m, default 0.009), ``probe_tip``
     ("sphere", default, or "flat"), ``probe_sampling`` ("projected", default, or "node"),
     ``inclusion_size`` (m, a number or (x, y, z), default (0.012, 0.01, 0.012): the inclusion box),
-    ``inclusion_ratio_range`` (None or (low, high): a ratio drawn per reset, the model is rebuilt),
+    ``inclusion_ratio_range`` (None or (low, high): a ratio drawn per reset, the model is rebuilt;
+    the episode's ratio is ``info["inclusion_ratio"]``),
     ``inclusion_region`` (None or ((x0, z0), (x1, z1)): fractions of the top face that hold the
     candidate inclusion centres; the candidates are the 1.2 cm cells of the top face whose centre
     lies in it, whatever the ``shape``: at the default size, centres at fractions 0.1, 0.3, 0.5, 0.7,
@@ -492,7 +493,8 @@ class PalpationEnv(TissueEnv):
     def _task_info(self, measures):
         return dict(depth=measures["depth"], horizontal_distance=measures["horizontal_distance"],
                     press_steps=measures["press_steps"], inclusion_centre=self.inclusion_centre.copy(),
-                    indentation_stiffness=measures["indentation_stiffness"], apparent_modulus=measures["apparent_modulus"])
+                    indentation_stiffness=measures["indentation_stiffness"], apparent_modulus=measures["apparent_modulus"],
+                    inclusion_ratio=float(self.episode_inclusion_ratio))
 
     def _is_success(self, measures):
         return measures["press_steps"] >= self.hold_steps
@@ -578,6 +580,7 @@ class PalpationVectorEnv(TissueVectorEnv):
             self.probe = contact.Probe(env.probe_radius, env.probe_tip, self.probe.projection.with_reference(self.start_heights))
         self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
         self.probe_start = np.zeros((count, 3))
+        self.inclusion_ratio_of = np.zeros(count)  # each copy's inclusion stiffness ratio this episode
         self.inclusion_centre = np.zeros((count, 3))
         self.press_steps = np.zeros(count, dtype=int)
         self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's probe holds
@@ -591,6 +594,7 @@ class PalpationVectorEnv(TissueVectorEnv):
             setattr(self, name, getattr(env, name))
 
     def _load_task(self, index, env):
+        self.inclusion_ratio_of[index] = env.episode_inclusion_ratio
         self.probe_start[index] = env.probe_start
         self.start_heights[index] = env.start_heights
         self.inclusion_centre[index] = env.inclusion_centre
@@ -673,7 +677,8 @@ class PalpationVectorEnv(TissueVectorEnv):
         return dict(depth=measures["depth"].copy(), horizontal_distance=measures["horizontal_distance"].copy(),
                     press_steps=measures["press_steps"].copy(), inclusion_centre=self.inclusion_centre.copy(),
                     indentation_stiffness=measures["indentation_stiffness"].copy(),
-                    apparent_modulus=measures["apparent_modulus"].copy())
+                    apparent_modulus=measures["apparent_modulus"].copy(),
+                    inclusion_ratio=self.inclusion_ratio_of.copy())
 
     def _batch_success(self, measures):
         return measures["press_steps"] >= self.hold_steps

@@ -163,6 +163,8 @@ class TissueVectorEnv(VectorEnv):
         self.workspace_low = np.zeros((count, 3))
         self.workspace_high = np.zeros((count, 3))
         self.rest_volume = np.ones(count)
+        self.episode_young_modulus = np.zeros(count)  # each copy's material this episode (Pa, -)
+        self.episode_poisson_ratio = np.zeros(count)
         self.elapsed = np.zeros(count, dtype=int)
         self._no_force = np.zeros_like(self.positions)  # the worlds' loads are their models' gravity
         self._autoreset = np.zeros(count, dtype=bool)
@@ -227,6 +229,8 @@ class TissueVectorEnv(VectorEnv):
         self.workspace_low[index] = env.workspace_low
         self.workspace_high[index] = env.workspace_high
         self.rest_volume[index] = env.rest_volume
+        self.episode_young_modulus[index] = env.episode_young_modulus
+        self.episode_poisson_ratio[index] = env.episode_poisson_ratio
         self.elapsed[index] = 0
         self._load_task(index, env)
 
@@ -502,6 +506,8 @@ class TissueVectorEnv(VectorEnv):
             unstable=np.array([reason is not None for reason in reasons]),
             unstable_reason=reasons.copy(),
             is_success=np.asarray(success, dtype=bool),
+            young_modulus=self.episode_young_modulus.copy(),
+            poisson_ratio=self.episode_poisson_ratio.copy(),
         )
         for name in self.reward_names:
             info[f"reward_{name}"] = np.asarray(rewards[name], dtype=float)
