@@ -15,17 +15,6 @@ def tip_of(env):
     return env.probe_start + env.tool_offset
 
 
-def static_solver(model):
-    """``solve_with_contact``'s solve on ``model`` (the env's episode model): ``solve_static`` to
-    1e-8, two load steps from the rest state, as ``sim_core.studies.solving.mss_solver`` builds it."""
-    from sim_core.static import solve_static
-
-    def solve(control, initial):
-        result = solve_static(model, control, initial=initial, load_steps=2 if initial is None else 1, tolerance=1e-8)
-        return result.positions, result.reaction, result.converged, None
-    return solve
-
-
 def test_scripted_sweep_succeeds_and_random_probing_rarely_does():
     env = gym.make(ENV_ID)
     scripted = [run_episode(env, scripted_policy, seed) for seed in range(20)]
@@ -237,7 +226,7 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
     """Pressed 5 mm over a corner cell and held, the probe's force and the tissue settle on the
     frictionless-contact equilibrium that the static active set (sim_core.studies.solving) finds for
     the same probe (measured: within 1e-6 N after 40 steps; the contact set held within one step)."""
-    from sim_core.studies.solving import solve_with_contact
+    from sim_core.studies.solving import model_solver, solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400).unwrapped
     env.terminate_on_success = False
@@ -249,7 +238,7 @@ def test_held_press_settles_on_the_static_contact_equilibrium():
         env.step(np.clip((target - tip_of(env)) / env.max_step, -1, 1).astype(np.float32))
         forces.append(env.measures["reaction_force"][1])
     assert abs(forces[-1] - forces[-2]) < 1e-6  # settled, no oscillation
-    solve = static_solver(env.model)
+    solve, _ = model_solver(env.model)
     candidates = np.zeros(env.mesh.n_nodes, bool)
     candidates[env.top_nodes] = True
     positions, reaction, converged, _, _, contact = solve_with_contact(

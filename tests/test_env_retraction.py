@@ -15,17 +15,6 @@ def floor_candidates(env):
     return candidates
 
 
-def static_solver(model):
-    """``solve_with_contact``'s solve on ``model`` (the env's episode model): ``solve_static`` to
-    1e-8, two load steps from the rest state, as ``sim_core.studies.solving.mss_solver`` builds it."""
-    from sim_core.static import solve_static
-
-    def solve(control, initial):
-        result = solve_static(model, control, initial=initial, load_steps=2 if initial is None else 1, tolerance=1e-8)
-        return result.positions, result.reaction, result.converged, None
-    return solve
-
-
 def test_flap_stays_on_the_floor_and_starts_covering_the_target():
     env = gym.make(ENV_ID)
     _, info = env.reset(seed=0)
@@ -75,7 +64,7 @@ def test_held_flap_settles_on_the_frictionless_static_equilibrium():
     equilibrium that solve_static's active set finds from the rest state (measured: within 4e-10 m;
     the post-step clamp it replaced settled up to 121% away in volume change)."""
     from sim_core.contact import Floor
-    from sim_core.studies.solving import solve_with_contact
+    from sim_core.studies.solving import model_solver, solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400, shape=(6, 1, 3)).unwrapped  # a coarse flap: a quick static solve
     env.terminate_on_success = False
@@ -84,7 +73,7 @@ def test_held_flap_settles_on_the_frictionless_static_equilibrium():
         env.step(np.array(action, np.float32))
     candidates = floor_candidates(env)
     assert 0 < np.count_nonzero(env.contact) < np.count_nonzero(candidates)
-    solve = static_solver(env.model)
+    solve, _ = model_solver(env.model)
     control = env.base_control.copy().impose(env.tool_nodes, env.tool_rest + env.tool_offset)
     positions, _, converged, _, _, _ = solve_with_contact(solve, control, None, Floor(), candidates,
                                                           rest=env.mesh.nodes)

@@ -60,6 +60,15 @@ class SceneSolution:
 def mss_solver(mesh, material, gravity, hourglass_control, volume_stiffness, check_stability):
     model = build_model(mesh, material, gravity=(0.0, -gravity, 0.0), hourglass_control=hourglass_control,
                         volume_stiffness=volume_stiffness)
+    return model_solver(model, check_stability)
+
+
+def model_solver(model, check_stability=False):
+    """(solve, timer): ``solve(control, initial)`` -> (positions, reaction, converged, lowest
+    eigenvalue or None), ``solve_static`` of ``model`` to 1e-8 (two load steps from rest); a
+    degenerate configuration is reported as not converged. ``timer["check"]``: seconds spent in the
+    stability checks."""
+    mesh = model.mesh
     timer = {"check": 0.0}
 
     def solve(control, initial):
