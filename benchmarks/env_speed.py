@@ -63,11 +63,12 @@ def measure(env_id, steps, seed=0, **kwargs):
     for _ in range(5):  # warm up (compiled kernels, caches)
         env.step(env.action_space.sample())
     split = dict(physics=0.0, observation=0.0, reward=0.0)
-    unwrapped._advance = timed(unwrapped._advance, split, "physics")
-    unwrapped._measure = timed(unwrapped._measure, split, "observation")
-    unwrapped._observation = timed(unwrapped._observation, split, "observation")
-    unwrapped._reward_terms = timed(unwrapped._reward_terms, split, "reward")
-    unwrapped._is_success = timed(unwrapped._is_success, split, "reward")
+    worlds = unwrapped.worlds  # the env's one world: its step's stages
+    worlds._advance = timed(worlds._advance, split, "physics")
+    worlds._measure = timed(worlds._measure, split, "observation")
+    worlds._observation = timed(worlds._observation, split, "observation")
+    worlds._reward_terms = timed(worlds._reward_terms, split, "reward")
+    worlds._is_success = timed(worlds._is_success, split, "reward")
     env.reset(seed=seed)
     step_time, start, cpu_start = 0.0, time.perf_counter(), time.process_time()
     for _ in range(steps):

@@ -43,11 +43,21 @@ SAMPLINGS = ("projected", "node")
 STAGES = ("first_step", "held")
 
 
+def move_over(env, x, z):
+    """Step the probe over (x, z) m above the surface (it touches nothing: the start equilibrium stays)."""
+    for _ in range(50):
+        move = (np.array([x, 0.0, z]) - env._tip() * [1, 0, 1]) / env.max_step
+        if np.abs(move).max() < 1e-9:
+            return
+        env.step(np.clip(move, -1, 1).astype(np.float32))
+    raise RuntimeError(f"the probe did not reach ({x}, {z}) m")
+
+
 def press(env, x, z, seed=0):
     """(first step >= map_depth deep, held two steps) apparent moduli (Pa) of a straight-down
     press at (x, z) m at full speed to 6 mm, from a reset with ``seed``."""
     env.reset(seed=seed)
-    env.tool_offset = env.tool_offset + np.array([x, 0.0, z]) - env._tip() * [1, 0, 1]
+    move_over(env, x, z)
     first = None
     for action in ([0, -1, 0], [0, -1, 0], [0, 0, 0], [0, 0, 0]):
         env.step(np.array(action, np.float32))
@@ -105,7 +115,7 @@ def depth_readings(depths=(0.004, 0.008), cells=(0, 4, 8)):
         moduli, stiffnesses = [], []
         for x, z in env.cell_centres[list(cells)]:
             env.reset(seed=0)
-            env.tool_offset = env.tool_offset + np.array([x, 0.0, z]) - env._tip() * [1, 0, 1]
+            move_over(env, x, z)
             goal = np.array([x, env.top_y - depth, z])
             for _ in range(8):
                 env.step(np.clip((goal - env._tip()) / env.max_step, -1, 1).astype(np.float32))

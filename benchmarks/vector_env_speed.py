@@ -62,7 +62,7 @@ def _timed_reset(reset):
     return wrapper
 
 
-TissueEnv.reset = _timed_reset(TissueEnv.reset)
+TissueEnv._reset_episode = _timed_reset(TissueEnv._reset_episode)  # the episode draw, every mode's
 
 
 def rate(env_id, mode, num_envs, steps, seed=0, **kwargs):

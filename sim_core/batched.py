@@ -52,8 +52,8 @@ performance page); the chunks depend on the copy count only, so any thread count
 trajectories. The
 start matrix stays close to the current one while the tissue moves a few millimetres: about 3
 iterations per copy. When it no longer fits (large deformation, a probe contact that changes the
-imposed dofs), the copy that needed the most iterations (more than ``refresh_iterations``) is
-re-linearised at its current state, one per step, and a copy that has not converged after
+imposed dofs), a copy that needed more than ``refresh_iterations`` iterations is re-linearised
+at its new state, and a copy that has not converged after
 ``first_pass`` iterations is re-linearised and solved again; a re-linearised copy leaves its group
 (a factor of its own).
 The step's force pass at a state is computed once (``BatchedImplicitEuler.linearise``): a vector
@@ -105,6 +105,32 @@ def lockstep_chunk(count: int) -> int:
     more copies give more chunks for more threads). It
     depends on the copy count only, so the floats do not depend on the thread count."""
     return max(1, min(LOCKSTEP_CHUNK, (count + 1) // 2))
+
+
+class _TypedItems(list):
+    """A numba typed List's items in a plain list: how a solver's typed lists pickle and copy."""
+
+
+def _plain(value, memo):
+    """``value`` with its numba typed Lists (also inside tuples) as ``_TypedItems``, each list once."""
+    if isinstance(value, TypedList):
+        if id(value) not in memo:
+            memo[id(value)] = _TypedItems(value)
+        return memo[id(value)]
+    if isinstance(value, tuple):
+        return tuple(_plain(item, memo) for item in value)
+    return value
+
+
+def _typed(value, memo):
+    """The inverse of ``_plain``."""
+    if isinstance(value, _TypedItems):
+        if id(value) not in memo:
+            memo[id(value)] = TypedList(value)
+        return memo[id(value)]
+    if isinstance(value, tuple):
+        return tuple(_typed(item, memo) for item in value)
+    return value
 
 
 def _copies_last(count, array, rows):
@@ -275,8 +301,8 @@ class BatchedImplicitEuler(WorldsSolver):
         stack: the ``ModelStack``.
         tolerance: relative residual ||r|| / ||b|| each copy's linear solve reaches.
         max_iterations: cap on each copy's solver iterations.
-        refresh_iterations: solver "reference": a step whose slowest copy needs more iterations
-            re-linearises that copy's preconditioner (0: never).
+        refresh_iterations: solver "reference": a copy whose step needs more iterations has its
+            preconditioner re-linearised (0: never).
         solver: "factorised", "reference" or "jacobi" (``SOLVERS``).
         amortise: solver "factorised": see ``self.amortise``.
         threads: solvers "factorised" and "reference": more than one runs the per-copy kernels on
@@ -363,6 +389,14 @@ class BatchedImplicitEuler(WorldsSolver):
             self._values = np.empty(reference.pattern.nnz)
             #: factorisations done so far (a diagnostic)
             self.factorisations = 0
+
+    def __getstate__(self):  # numba's typed Lists do not pickle: their items do
+        memo = {}
+        return {name: _plain(value, memo) for name, value in self.__dict__.items()}
+
+    def __setstate__(self, state):
+        memo = {}
+        self.__dict__.update({name: _typed(value, memo) for name, value in state.items()})
 
     # -- preconditioner ------------------------------------------------------------------------------
     def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
@@ -904,11 +938,12 @@ class BatchedImplicitEuler(WorldsSolver):
         update(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
                positions.reshape(count, dofs), velocities.reshape(count, dofs), new_positions.reshape(count, dofs),
                new_velocities.reshape(count, dofs))
-        if (self.solver == "reference" and self.refresh_iterations and not stalled.any()
-                and iterations.max() > self.refresh_iterations):
-            worst = int(np.argmax(iterations))  # one per step: a refresh costs about one batched step
-            if np.all(np.isfinite(new_positions[worst])):
-                self._refresh(worst, new_positions[worst], dt, fixed[worst])
+        if self.solver == "reference" and self.refresh_iterations:
+            # per copy, so that a copy's steps do not depend on the other copies
+            slow = active & ~stalled & (iterations > self.refresh_iterations)
+            for index in np.flatnonzero(slow):
+                if np.all(np.isfinite(new_positions[index])):
+                    self._refresh(index, new_positions[index], dt, fixed[index])
         return new_positions, new_velocities
 
     def _dof_mass(self):
@@ -941,12 +976,3 @@ class BatchedSymplecticEuler(WorldsSolver):
         new_velocities[keep] = velocities[keep]
         return new_positions, new_velocities
 
-
-def make_batched_integrator(name: str, stack: ModelStack, tolerance: float, solver: str = "factorised",
-                            amortise: int | None = None, threads: int | None = None):
-    if name == "implicit":
-        return BatchedImplicitEuler(stack, tolerance=tolerance, solver=solver, amortise=amortise, threads=threads)
-    if name == "explicit":
-        return BatchedSymplecticEuler(stack, threads=1 if threads is None else threads)
-    raise ValueError(f"the batched vector env steps integrator 'implicit' or 'explicit', got {name!r}; "
-                     "for 'static' use gym.make_vec(..., vectorization_mode='sync') or 'async'")

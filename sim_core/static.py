@@ -372,13 +372,19 @@ STATIC_CONTACT_PASSES = 25
 STATIC_SLIDE_TOLERANCE = 1e-7
 
 
+def same_contacts(previous_fixed, previous_target, fixed, target,
+                  tolerance: float = STATIC_SLIDE_TOLERANCE) -> np.ndarray:
+    """Per world, whether two controls (``fixed`` (..., n, 3) bool, ``target`` (..., n, 3) m, the
+    worlds first) impose the same components at positions within ``tolerance`` m: a contact's
+    active set has settled (no node joined or left, the held heights stopped moving). (...) bool."""
+    fixed = np.asarray(fixed, dtype=bool)
+    moved = np.where(fixed, np.abs(np.asarray(target) - np.asarray(previous_target)), 0.0)
+    return np.all(np.asarray(previous_fixed, dtype=bool) == fixed, axis=(-2, -1)) & np.all(moved <= tolerance, axis=(-2, -1))
+
+
 def same_contact(previous: Control, control: Control, tolerance: float = STATIC_SLIDE_TOLERANCE) -> bool:
-    """Whether two controls impose the same components at positions within ``tolerance`` m: a
-    contact's active set has settled (no node joined or left, the held heights stopped moving)."""
-    if not np.array_equal(previous.fixed, control.fixed):
-        return False
-    fixed = control.fixed
-    return bool(np.all(np.abs(control.target[fixed] - previous.target[fixed]) <= tolerance))
+    """``same_contacts`` of one world's controls."""
+    return bool(same_contacts(previous.fixed, previous.target, control.fixed, control.target, tolerance))
 
 
 #: QuasiStatic keeps a step's predictor tangent for the next steps while they converge in at most

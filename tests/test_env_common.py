@@ -177,7 +177,7 @@ def test_scripted_controller_succeeds_and_beats_random(env_id):
 def test_observation_arrays_sanitise_and_split():
     """``observation_arrays`` (single and vector envs): NaN -> 0, +-inf and out-of-range values ->
     +-OBS_LIMIT, float32; the dict form holds the same values, one contiguous array per feature."""
-    from tissue_env.base import OBS_LIMIT, observation_arrays
+    from tissue_env.worlds import OBS_LIMIT, observation_arrays
 
     parts = [np.array([[1.0, np.nan], [np.inf, -2.0]]), np.array([[-np.inf], [3.0 * OBS_LIMIT]])]
     flat = observation_arrays(parts, ["a", "b"], False)
@@ -191,11 +191,9 @@ def test_observation_arrays_sanitise_and_split():
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_an_episode_does_not_depend_on_the_episodes_before_it(env_id):
-    # The implicit integrator keeps the first step's factorisation across episodes (FactorStore);
+    # The implicit step keeps the start-of-episode factorisations across episodes (by content);
     # an episode must stay bitwise that of a fresh env, whatever the earlier episodes' first actions
-    # (another imposed set, other iteration counts). Before the store, Palpation's episode that
-    # starts with a probe contact (solved by "auto"'s Jacobi on a fresh env) took the factor an
-    # earlier episode made without contact, and differed.
+    # (another imposed set, other iteration counts).
     rng = np.random.default_rng(3)
     actions = rng.uniform(-1, 1, (30, 3)).astype(np.float32)
     env = gym.make(env_id)
@@ -210,4 +208,3 @@ def test_an_episode_does_not_depend_on_the_episodes_before_it(env_id):
         after = run(env_id, 5, actions, env=env)
         np.testing.assert_array_equal(fresh[0], after[0])
         np.testing.assert_array_equal(fresh[1], after[1])
-    assert env.unwrapped.integrator.factor_reuses >= 1  # the kept factorisation served the last episode

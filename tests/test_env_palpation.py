@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import tissue_env  # noqa: F401  (registers the ids)
+from sim_core import contact
 from tissue_env.episodes import random_policy, run_episode, scripted_policy
 
 ENV_ID = "tissue_env/Palpation-v0"
@@ -178,6 +179,19 @@ def test_shape_only_sets_the_resolution_of_the_inclusion(shape):
         assert np.array_equal(stiff, unwrapped.inclusion_elements[unwrapped.inclusion_index])
 
 
+def rest_contact(unwrapped, offset):
+    """(held top nodes, their imposed heights (n,) m) of the env's probe pressed at ``offset`` (m)
+    from its start on the rest mesh: the contact set and heights its control forms
+    (``sim_core.contact.update`` and ``targets``, from no contact and no force)."""
+    nodes = unwrapped.mesh.nodes
+    tip = unwrapped.probe_start + offset
+    candidates = np.zeros(unwrapped.mesh.n_nodes, bool)
+    candidates[unwrapped.top_nodes] = True
+    held = contact.update(unwrapped.probe, np.zeros(unwrapped.mesh.n_nodes, bool), nodes, np.zeros_like(nodes),
+                          candidates, tip)
+    return np.flatnonzero(held), contact.targets(unwrapped.probe, nodes, held, tip)
+
+
 @pytest.mark.parametrize("shape, count", [((5, 3, 5), 4), ((10, 6, 10), 9)])
 def test_flat_probe_radius_is_9_mm_whatever_the_shape(shape, count):
     """The flat probe pressing 2 mm at the slab centre holds the top nodes within 9 mm of its axis:
@@ -186,16 +200,13 @@ def test_flat_probe_radius_is_9_mm_whatever_the_shape(shape, count):
     faces meet the probe hold too."""
     unwrapped = gym.make(ENV_ID, shape=shape, probe_tip="flat", probe_sampling="node").unwrapped
     assert unwrapped.probe_radius == 0.009
-    unwrapped.state = None  # the rest mesh
-    unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - 0.002, 0.0])
-    # the contact set for a tool offset at the rest mesh has no public entry point outside a step
-    control = unwrapped._control()
-    contact = unwrapped.mesh.nodes[unwrapped.contact_nodes]
+    held, target = rest_contact(unwrapped, np.array([0.0, -unwrapped.clearance - 0.002, 0.0]))
+    contact = unwrapped.mesh.nodes[held]
     distance = np.hypot(contact[:, 0] - 0.03, contact[:, 2] - 0.03)
     assert len(contact) == count and np.all(distance <= 0.009) and np.all(contact[:, 1] == unwrapped.top_y)
     top = unwrapped.mesh.nodes[unwrapped.top_nodes]
     assert np.count_nonzero(np.hypot(top[:, 0] - 0.03, top[:, 2] - 0.03) <= 0.009) == count
-    assert np.allclose(control.target[unwrapped.contact_nodes, 1], unwrapped.top_y - 0.002)
+    assert np.allclose(target[held], unwrapped.top_y - 0.002)
 
 
 @pytest.mark.parametrize("shape, count", [((5, 3, 5), 4), ((10, 6, 10), 5), ((12, 6, 12), 9)])
@@ -206,20 +217,16 @@ def test_sphere_probe_holds_the_nodes_under_its_surface_at_its_height(shape, cou
     Sampled at the nodes (the default projects the probe: test_contact.py)."""
     unwrapped = gym.make(ENV_ID, shape=shape, probe_sampling="node").unwrapped
     assert unwrapped.probe_tip == "sphere"
-    unwrapped.state = None  # the rest mesh
     depth = 0.005 if shape != (5, 3, 5) else 0.0065
-    unwrapped.tool_offset = np.array([0.0, -unwrapped.clearance - depth, 0.0])
-    # the contact set for a tool offset at the rest mesh has no public entry point outside a step
-    control = unwrapped._control()
+    held, target = rest_contact(unwrapped, np.array([0.0, -unwrapped.clearance - depth, 0.0]))
     top = unwrapped.mesh.nodes[unwrapped.top_nodes]
     r = np.hypot(top[:, 0] - 0.03, top[:, 2] - 0.03)
     reached = 0.009 - np.sqrt(np.maximum(0.009**2 - r**2, 0.0)) <= depth
-    assert np.array_equal(np.sort(unwrapped.contact_nodes), np.sort(unwrapped.top_nodes[reached & (r <= 0.009)]))
-    assert len(unwrapped.contact_nodes) == count
-    nodes = unwrapped.mesh.nodes[unwrapped.contact_nodes]
+    assert np.array_equal(np.sort(held), np.sort(unwrapped.top_nodes[reached & (r <= 0.009)]))
+    assert len(held) == count
+    nodes = unwrapped.mesh.nodes[held]
     height = unwrapped.top_y - depth + 0.009 - np.sqrt(0.009**2 - np.hypot(nodes[:, 0] - 0.03, nodes[:, 2] - 0.03)**2)
-    np.testing.assert_allclose(control.target[unwrapped.contact_nodes, 1], height, atol=1e-12)
-    assert np.all(control.fixed[unwrapped.contact_nodes, 1]) and not control.fixed[unwrapped.contact_nodes][:, [0, 2]].any()
+    np.testing.assert_allclose(target[held], height, atol=1e-12)
 
 
 def test_held_press_settles_on_the_static_contact_equilibrium():
@@ -268,7 +275,11 @@ def held_reading(env, x, z, seed):
     """Apparent modulus (Pa) of a press at (x, z) m straight down at full speed to 6 mm, held 2
     steps (what the palpation map then holds), from a reset with ``seed``."""
     env.reset(seed=seed)
-    env.tool_offset = env.tool_offset + np.array([x, 0.0, z]) - tip_of(env) * [1, 0, 1]
+    for _ in range(20):  # over (x, z), above the surface (no contact: the start equilibrium stays)
+        move = (np.array([x, 0.0, z]) - tip_of(env) * [1, 0, 1]) / env.max_step
+        if np.abs(move).max() < 1e-9:
+            break
+        env.step(np.clip(move, -1, 1).astype(np.float32))
     for action in ([0, -1, 0], [0, -1, 0], [0, 0, 0], [0, 0, 0]):
         _, _, _, _, info = env.step(np.array(action, np.float32))
     return info["apparent_modulus"]

@@ -1,4 +1,5 @@
-"""One force pass per env step: ``ImplicitEuler.linearise`` is the measurement's pass and the next step's."""
+"""One force pass per env step: the implicit step's linearisation (``BatchedImplicitEuler.linearise``,
+``ImplicitEuler.linearise``) is the measurement's pass and the next step's."""
 
 import gymnasium as gym
 import numpy as np
@@ -6,6 +7,7 @@ import pytest
 
 import tissue_env  # noqa: F401  (registers the tasks)
 from sim_core.forces import ForceWorkspace, external_forces
+from sim_core.stack import StackedForceWorkspace
 
 
 @pytest.mark.parametrize("task", ["TumorPositioning", "Palpation", "Retraction"])
@@ -15,13 +17,13 @@ def test_one_force_pass_per_step_and_same_measures(task, monkeypatch):
     env.action_space.seed(3)
     unwrapped = env.unwrapped
     calls = []
-    original = ForceWorkspace.compute
+    original, stacked = ForceWorkspace.compute, StackedForceWorkspace.compute
 
     def counting(self, *args, **kwargs):
         calls.append(1)
-        return original(self, *args, **kwargs)
+        return stacked(self, *args, **kwargs)
 
-    monkeypatch.setattr(ForceWorkspace, "compute", counting)
+    monkeypatch.setattr(StackedForceWorkspace, "compute", counting)
     steps = 12
     for _ in range(steps):
         env.step(env.action_space.sample())

@@ -1,15 +1,19 @@
-"""The shared scene of every task: a block of soft tissue built with sim_core, a tool, observations,
-reward plumbing, divergence handling and rendering.
+"""The shared scene of every task: a block of soft tissue built with sim_core, a tool, the episode's
+draw, rendering, snapshots.
 
-A task subclasses ``TissueEnv`` and fills in a few hooks (which nodes are fixed, how the tool
-imposes positions, the task features, the reward terms, the reset distribution); see
+A task subclasses ``TissueEnv`` for its scene and reset distribution (which nodes are fixed, where
+the tool grasps, the goal or target an episode draws) and ``tissue_env.worlds.TaskWorlds`` for its
+step (control, measurements, observation, rewards), written once on arrays over worlds: the
+single env is the one-world case (``reset`` loads the episode into its one world, ``step`` is
+``TaskWorlds.step`` of it), the vector env (``tissue_env.vector``) the N-world case. See
 ``tumor_positioning.py`` for the smallest example. SI units throughout (m, kg, s, Pa, N).
 
 Physics per env step (its cost: ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
-Euler steps of ``dt`` s (``sim_core.integrators.ImplicitEuler``). It is stable far past the explicit
-limit (about 1 ms for 1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms
-for TumorPositioning and Palpation) per env step is enough, and with the springs' critical damping the block
-settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
+Euler steps of ``dt`` s (``sim_core.batched.BatchedImplicitEuler``, the discrete equation of
+``sim_core.integrators.ImplicitEuler``). It is stable far past the explicit limit (about 1 ms for
+1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms for
+TumorPositioning and Palpation) per env step is enough, and with the springs' critical damping the
+block settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
 ``solve_static`` in tests/test_env_tumor_positioning.py). Each task's ``default_shape`` is the
 most accurate shape that keeps a speed budget of 300 env steps/s (``benchmarks/env_accuracy.py``;
 the environment accuracy page of the documentation).
@@ -30,19 +34,17 @@ import numpy as np
 from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.forces import ForceWorkspace, external_forces
-from sim_core.integrators import ImplicitEuler, make_integrator
-from sim_core.preconditioners import PRECONDITIONERS, FactorStore
-from sim_core.model import State
-from sim_core.static import STATIC_CONTACT_PASSES, same_contact
+from sim_core.batched import SOLVERS
+from sim_core.model import Control, State
 
 from .rendering import Renderer
+from .worlds import OBS_LIMIT, TaskWorlds
 
-#: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
-#: by a healthy simulation, that keeps every observation inside the observation space.
-OBS_LIMIT = 100.0
 OBSERVATION_TYPES = ("state", "deformation", "dict")
 INTEGRATORS = ("implicit", "explicit", "static")
+#: The implicit step's linear solvers: "auto" (the task's, ``TaskWorlds.linear_solver``) or one of
+#: ``sim_core.batched.SOLVERS``.
+PRECONDITIONERS = ("auto",) + SOLVERS
 MODEL_CACHE_SIZE = 16
 
 
@@ -125,23 +127,6 @@ def check_shape(name, value, minimum):
     return shape
 
 
-# -- the base environment --------------------------------------------------------------------
-def observation_arrays(parts, names, as_dict: bool):
-    """The observation from its features ``parts`` (float64 arrays, the feature index last): one
-    float32 array (their concatenation) or a dict ``names`` -> array, with NaN set to 0 and every
-    value clipped to +-OBS_LIMIT in one pass over the concatenation (a pass per feature was a
-    noticeable share of a step)."""
-    flat = np.concatenate(parts, axis=-1)
-    np.nan_to_num(flat, copy=False, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
-    np.clip(flat, -OBS_LIMIT, OBS_LIMIT, out=flat)
-    flat = flat.astype(np.float32)
-    if not as_dict:
-        return flat
-    ends = np.cumsum([part.shape[-1] for part in parts])
-    return {name: np.ascontiguousarray(flat[..., end - part.shape[-1]:end])
-            for name, part, end in zip(names, parts, ends)}
-
-
 @dataclass(frozen=True, eq=False)
 class EpisodeState:
     """A snapshot of one environment's episode (``TissueEnv.get_state``): restored by
@@ -155,8 +140,32 @@ class EpisodeState:
 #: Attributes of a task environment that a snapshot shares instead of copying: caches of models and
 #: of their factorisations (a cached result is the one that would be computed), the renderer and
 #: the spaces. A task's own caches are added by its ``shared_attributes``.
-SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_start_cache", "_factor_stores", "_renderer", "mesh",
+SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_start_cache", "_renderer", "mesh",
                      "action_space", "observation_space", "spec")
+#: The one world of a single env (``TaskWorlds.step``'s ``active``).
+_ONE = np.ones(1, dtype=bool)
+
+
+class _Self:
+    """Stands for the snapshotted env in an ``EpisodeState`` (its worlds refer to it): restored, it
+    is the env restoring it."""
+
+    def __deepcopy__(self, memo):
+        return memo.get(id(self), self)
+
+
+_SELF = _Self()
+
+
+def _row(values, index=0):
+    """Entry ``index`` of the worlds' (N, ...) arrays ``values`` (a dict of them, or one array) as a
+    single env gives it: numpy scalars as Python numbers, arrays as copies."""
+    if isinstance(values, dict):
+        return {name: _row(value, index) for name, value in values.items()}
+    value = values[index]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value.copy() if isinstance(value, np.ndarray) else value
 
 
 class TissueEnv(gym.Env):
@@ -172,9 +181,8 @@ class TissueEnv(gym.Env):
         integrator: "implicit" (default, linearised implicit Euler), "static" (a static equilibrium
             per env step, ``sim_core.static.QuasiStatic``, with a contact's active set iterated
             to convergence within the step: observations without the dynamic lag, those of the
-            static scene at every tool position, at several times the cost of an implicit step; single
-            envs and ``vectorization_mode="sync"``/``"async"``) or "explicit" (symplectic Euler,
-            needs dt below about 1 ms; for experiments on stability).
+            static scene at every tool position, at several times the cost of an implicit step) or
+            "explicit" (symplectic Euler, needs dt below about 1 ms; for experiments on stability).
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
             substeps: physics steps per env step (default 1).
         max_step: tool displacement in m per env step for an action component of 1.
@@ -198,11 +206,12 @@ class TissueEnv(gym.Env):
         solver_tolerance: relative residual of the implicit integrator's linear solve (the task's
             ``default_solver_tolerance``: 1e-4, fewer iterations than 1e-6 with positions within
             0.01 mm of the 1e-6 run; TumorPositioning and Palpation 1e-2, see their docstrings).
-        preconditioner: the implicit integrator's ("auto" default, "jacobi" or "factorised";
-            ``sim_core.integrators.ImplicitEuler``): "auto" starts with Jacobi and switches to a
-            sparse LU of the system matrix, kept across steps, when Jacobi needs more than about
-            5 sqrt(free dofs / 400) iterations: more env steps/s than "jacobi", the more so the
-            finer the mesh and the longer dt (``benchmarks/env_speed.py``).
+        preconditioner: the implicit step's linear solver (``sim_core.batched.BatchedImplicitEuler``):
+            "auto" (default: the task's, ``linear_solver`` of its ``TaskWorlds``), "factorised"
+            (each world's sparse factor of its system matrix, kept across steps and refreshed when
+            its solves slow down), "reference" (the factor of the episode's start matrix) or
+            "jacobi" (the Jacobi diagonal; a vector env solves its copies in lockstep, where a
+            copy's floats depend on the copy count: not bitwise the single env's).
         render_mode: None, "rgb_array" or "human".
     """
 
@@ -274,9 +283,6 @@ class TissueEnv(gym.Env):
         self._cache_lock = threading.RLock()
         self._model_cache: OrderedDict = OrderedDict()
         self._start_cache: OrderedDict = OrderedDict()  # model -> start positions (as many as models)
-        # model -> FactorStore: the implicit integrator's factorisations at the model's start state
-        # (every episode's first step), per imposed set; as many as the model cache
-        self._factor_stores: OrderedDict = OrderedDict()
         self._setup_scene()
         # Build the default model now: it validates material and geometry together (Baudet's edge
         # stiffness must stay positive) and raises ValueError at construction, not at reset.
@@ -299,8 +305,12 @@ class TissueEnv(gym.Env):
             total = sum(self._feature_sizes.values())
             self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(total,), dtype=np.float32)
         self._renderer = None
-        self._measure_workspace = None
+        self._worlds = None  # this env's one world (``TaskWorlds``), built at its first reset
         self.state = None
+
+    #: The task's worlds (``tissue_env.worlds.TaskWorlds`` subclass): its env step on arrays over
+    #: worlds, the single env's (one world) and the vector env's (N).
+    worlds_class = TaskWorlds
 
     # -- hooks a task implements -------------------------------------------------------------
     def _setup_scene(self):
@@ -308,9 +318,6 @@ class TissueEnv(gym.Env):
         raise NotImplementedError
 
     def _task_feature_sizes(self) -> dict:
-        return {}
-
-    def _task_features(self, positions) -> dict:
         return {}
 
     def _default_task_key(self):
@@ -323,29 +330,20 @@ class TissueEnv(gym.Env):
     def _reset_task(self, options):
         """Draw the episode (goal, target, ...) from ``self.np_random``; set ``self.task_key``."""
 
-    def _control(self):
-        """The sim_core Control for the current tool position; also sets ``self.tool_mask``
-        ((N, 3) bool, the dofs the tool imposes)."""
+    def _start_control(self) -> Control:
+        """The sim_core Control at the episode's start, the tool at rest: what the start state is
+        the equilibrium of (``_initial_positions``). Sets ``self.start_tool_mask`` ((n, 3) bool,
+        the dofs the tool imposes then)."""
         control = self.base_control.copy()
-        positions = self.tool_rest + self.tool_offset
-        control.impose(self.tool_nodes, positions)
-        self.tool_mask = np.zeros((self.mesh.n_nodes, 3), bool)
-        self.tool_mask[self.tool_nodes] = True
+        control.impose(self.tool_nodes, self.tool_rest)
+        self.start_tool_mask = np.zeros((self.mesh.n_nodes, 3), bool)
+        self.start_tool_mask[self.tool_nodes] = True
         return control
-
-    def _after_substep(self, state):
-        """Contact projection and the like, applied to the state after each physics step."""
 
     def _initial_positions(self, model, control):
         """Start positions: the static equilibrium under gravity with the tool at rest."""
         result = solve_static(model, control, tolerance=1e-6)
         return result.positions if result.converged else model.rest_positions.copy()
-
-    def _reward_terms(self, measures) -> dict:
-        raise NotImplementedError
-
-    def _is_success(self, measures) -> bool:
-        raise NotImplementedError
 
     def scripted_action(self) -> np.ndarray:
         """A hand-written controller's action for the current state (a baseline)."""
@@ -379,7 +377,7 @@ class TissueEnv(gym.Env):
         with self._cache_lock:  # held while a missing start is solved: once per model
             cache = self._start_cache.get(model)
             if cache is None:
-                cache = self._start_cache[model] = self._initial_positions(model, self._control())
+                cache = self._start_cache[model] = self._initial_positions(model, self._start_control())
                 if len(self._start_cache) > MODEL_CACHE_SIZE:
                     self._start_cache.popitem(last=False)
             else:
@@ -387,8 +385,11 @@ class TissueEnv(gym.Env):
             return cache.copy()
 
     # -- Gymnasium API -----------------------------------------------------------------------------
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
+    def _reset_episode(self, *, seed=None, options=None):
+        """Draw the next episode (material, the task's goal ..., from ``self.np_random``) and its
+        start state: everything a reset does but the measurement (``reset``, and a vector env's
+        copies, which the vector env then loads into its worlds)."""
+        gym.Env.reset(self, seed=seed)
         self.state = None
         young_modulus, poisson_ratio = self.young_modulus, self.poisson_ratio
         if self.young_modulus_range is not None:
@@ -401,41 +402,32 @@ class TissueEnv(gym.Env):
         self._reset_task(options)
         self.model = self._model(young_modulus, poisson_ratio, self.task_key)
         self.rest_volume = float(self.model.rest_volume.sum())
-        options = (dict(tolerance=self.solver_tolerance, preconditioner=self.preconditioner)
-                   if self.integrator_name == "implicit" else {})
-        self.integrator = make_integrator(self.integrator_name, model=self.model, **options)
         positions = self._start_positions(self.model)
-        if self.integrator_name == "implicit":
-            # Every episode of a model starts from the same state: its first step's factorisation is
-            # kept (per imposed set) and the next episodes take it instead of factorising. The steps
-            # are those of a fresh integrator (ImplicitEuler.share_factors): an episode does not
-            # depend on the episodes before it.
-            self.integrator.share_factors(self._factor_store(self.model, positions))
+        self.start_control = self._start_control()
         self.state = State(positions, np.zeros_like(positions))
-        self._scratch = self.state.copy()
-        self.control = self._control()
         self._start_hook()
         self.elapsed_steps = 0
-        self.measures = self._measure(self.state)
-        self._record(self.measures)
-        info = self._info(self.measures, self._zero_rewards(), unstable_reason=None)
+
+    def reset(self, *, seed=None, options=None):
+        self._reset_episode(seed=seed, options=options)
+        if self._worlds is None:
+            self._worlds = self.worlds_class([self], threads=1)
+        worlds = self._worlds
+        worlds.load(0)
+        observations, infos = worlds.observe(_ONE)
+        worlds.write_back(0)
         if self.render_mode == "human":
             self.render()
-        return self._observation(self.measures), info
+        return _row(observations), _row(infos)
 
-    def _factor_store(self, model, positions):
-        with self._cache_lock:
-            store = self._factor_stores.get(model)
-            if store is None or not np.array_equal(store.positions, positions):
-                store = self._factor_stores[model] = FactorStore(model, positions)
-                if len(self._factor_stores) > MODEL_CACHE_SIZE:
-                    self._factor_stores.popitem(last=False)
-            else:
-                self._factor_stores.move_to_end(model)
-            return store
+    @property
+    def worlds(self) -> TaskWorlds | None:
+        """This env's one world (``tissue_env.worlds.TaskWorlds``: its solver, stacked model and
+        step stages), built at the first ``reset``; None before."""
+        return self._worlds
 
     def _start_hook(self):
-        """Called at the end of reset, after the state exists (task bookkeeping)."""
+        """Called at the end of an episode's draw, after the start state exists (task bookkeeping)."""
 
     def __getstate__(self):  # a lock does not pickle: a copy gets its own (and its own caches)
         state = self.__dict__.copy()
@@ -452,10 +444,11 @@ class TissueEnv(gym.Env):
     def _shared_memo(self) -> dict:
         """A ``copy.deepcopy`` memo that maps the objects a snapshot shares to themselves: the
         caches (SHARED_ATTRIBUTES, ``shared_attributes``), every cached model and its arrays (a
-        model never changes), and the factor stores (the factorisations at a model's start state)."""
+        model never changes), and the solver's factorisations kept by content."""
         shared = [getattr(self, name) for name in SHARED_ATTRIBUTES + self.shared_attributes if hasattr(self, name)]
         models = list(self._model_cache.values()) + [getattr(self, "model", None)]
-        shared += list(self._factor_stores.values())
+        if self._worlds is not None:
+            shared += self._worlds.shared_objects()
         for model in models:
             if model is not None:
                 shared.append(model)
@@ -469,14 +462,18 @@ class TissueEnv(gym.Env):
         (planning, tree search, replays). Caches and models are shared, not copied."""
         shared = SHARED_ATTRIBUTES + self.shared_attributes
         attributes = {name: value for name, value in self.__dict__.items() if name not in shared}
-        return EpisodeState(type(self), copy.deepcopy(attributes, self._shared_memo()))
+        memo = self._shared_memo()
+        memo[id(self)] = _SELF
+        return EpisodeState(type(self), copy.deepcopy(attributes, memo))
 
     def set_state(self, state: EpisodeState):
         """Restore a snapshot of ``get_state`` (it can be restored any number of times)."""
         if not isinstance(state, EpisodeState) or state.env_class is not type(self):
             raise ValueError(f"set_state takes a snapshot from get_state() of a {type(self).__name__}, got "
                              f"{type(state).__name__ if not isinstance(state, EpisodeState) else state.env_class.__name__}")
-        self.__dict__.update(copy.deepcopy(state.attributes, self._shared_memo()))
+        memo = self._shared_memo()
+        memo[id(_SELF)] = self
+        self.__dict__.update(copy.deepcopy(state.attributes, memo))
 
     def share_caches(self, other):
         """Use ``other``'s models, start states, first-step factorisations and task caches (an env
@@ -484,13 +481,12 @@ class TissueEnv(gym.Env):
         of their own extend it."""
         self._cache_lock = other._cache_lock
         self._model_cache, self._start_cache = other._model_cache, other._start_cache
-        self._factor_stores = other._factor_stores
         self.model = other.model
 
     def constrain_tool(self, offset):
         """Tool offsets (..., 3) in m, already clipped to the workspace box, projected on the
-        task's admissible set (default: the box itself). Vectorised: the vector envs call it on
-        their (N, 3) offsets (their copies share size and workspace)."""
+        task's admissible set (default: the box itself). Vectorised: the worlds call it on their
+        (N, 3) offsets (their copies share size and workspace)."""
         return offset
 
     def step(self, action):
@@ -500,175 +496,12 @@ class TissueEnv(gym.Env):
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action must be finite (no NaN or infinity), got {action.tolist()}")
         self._require_reset("step()")
-        action = np.clip(action, -1.0, 1.0)
-        self.tool_offset = self.constrain_tool(
-            np.clip(self.tool_offset + self.max_step * action, self.workspace_low, self.workspace_high))
-        self.control = self._control()
-        reason = self._advance(self.control)
-        self.elapsed_steps += 1
-        self.measures = self._measure(self.state)
-        self._record(self.measures)
-        if reason is None:
-            rewards = self._reward_terms(self.measures)
-            success = bool(self._is_success(self.measures))
-        else:
-            rewards = self._zero_rewards()
-            rewards["instability"] = -self.instability_penalty
-            success = False
-        reward = float(sum(rewards.values()))
-        terminated = reason is not None or (success and self.terminate_on_success)
-        info = self._info(self.measures, rewards, reason, success)
+        worlds = self._worlds
+        observations, rewards, terminated, infos = worlds.step(action[None], _ONE)
+        worlds.write_back(0)
         if self.render_mode == "human":
             self.render()
-        return self._observation(self.measures), reward, bool(terminated), False, info
-
-    def _advance(self, control):
-        """Run the substeps; on divergence keep the last healthy state and return the reason.
-
-        With ``integrator="static"`` a substep is a static equilibrium, and a contact's active set
-        (Palpation's probe, Retraction's floor) is iterated within it: after each solve the task
-        projects the nodes that went through the obstacle (``_after_substep``) and re-forms its
-        control at the new state (``_control``: nodes the tissue pulls away are released, held
-        heights follow the nodes' sliding), and the equilibrium is solved again until the imposed
-        set and heights settle (``sim_core.static.same_contact``; at most STATIC_CONTACT_PASSES
-        solves), so the state is the equilibrium of the contact problem at the tool's position.
-        The implicit integrator updates the set once per step: the dynamics carry it along."""
-        passes = STATIC_CONTACT_PASSES if self.integrator_name == "static" else 1
-        for _ in range(self.substeps):
-            for attempt in range(passes):
-                reason = self._substep(control)
-                if reason is not None:
-                    return reason
-                if attempt + 1 == passes:
-                    break
-                self.measures = self._measure(self.state)  # the forces that release contact nodes
-                previous, control = control, self._control()
-                self.control = control
-                if same_contact(previous, control):
-                    break
-        return None
-
-    def _substep(self, control):
-        """One integrator step from ``self.state``; returns the reason of a divergence (the state kept)."""
-        state, scratch = self.state, self._scratch
-        try:
-            with np.errstate(all="ignore"):
-                report = self.integrator.step(state, scratch, control, self.dt)
-            reason = report.unstable_reason
-        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as error:
-            reason = f"physics error: {error}"
-        if reason is None and not (np.all(np.isfinite(scratch.positions)) and np.all(np.isfinite(scratch.velocities))):
-            reason = "non-finite positions or velocities"
-        if reason is None:
-            self._after_substep(scratch)
-            # A zero-length spring (two nodes on top of each other, e.g. a diverging explicit run
-            # projected on the floor) has no direction: the state is no longer usable.
-            a, b = self.model.springs[:, 0], self.model.springs[:, 1]
-            length = np.linalg.norm(scratch.positions[b] - scratch.positions[a], axis=1)
-            if not np.all(length > 1e-6 * self.model.rest_length):
-                reason = "collapsed spring (zero length)"
-        if reason is not None:
-            self._scratch = state.copy()
-            return reason
-        self.state, self._scratch = scratch, state
-        return None
-
-    # -- measurements, observation, info -----------------------------------------------------------
-    def _measure(self, state) -> dict:
-        positions = state.positions
-        model = self.model
-        try:
-            with np.errstate(all="ignore"):
-                x = np.ascontiguousarray(positions, dtype=float)
-                velocities = np.ascontiguousarray(state.velocities, dtype=float)
-                if isinstance(self.integrator, ImplicitEuler):
-                    # the next step's force pass (``ImplicitEuler.linearise``), plus the damping
-                    workspace = self.integrator.linearise(model, x)
-                    forces = workspace.add_damping(velocities, workspace.forces + external_forces(model, self.control))
-                else:
-                    workspace = self._measure_workspace
-                    if workspace is None or workspace.model is not model:  # one per model
-                        workspace = self._measure_workspace = ForceWorkspace(model, implicit=False)
-                    forces = workspace.compute(x, velocities) + external_forces(model, self.control)
-            length = workspace.length  # the spring lengths of this fused pass
-        except ArithmeticError:  # a degenerate (last healthy) state: report no force rather than crash
-            forces = np.zeros_like(positions)
-            a, b = model.springs[:, 0], model.springs[:, 1]
-            length = np.linalg.norm(positions[b] - positions[a], axis=1)
-        reaction = np.where(self.tool_mask, -forces, 0.0).sum(axis=0)
-        strain = float(np.max(np.abs(length / model.rest_length - 1.0)))
-        volume = float(self.mesh.element_volumes(positions).sum())
-        measures = dict(
-            positions=positions, reaction_force=reaction, max_strain=strain, forces=forces,
-            relative_volume_change=(volume - self.rest_volume) / self.rest_volume,
-        )
-        measures.update(self._task_measures(positions))
-        return measures
-
-    def _task_measures(self, positions) -> dict:
-        return {}
-
-    def _record(self, measures):
-        """Episode bookkeeping once per reset and per step, after the measurements (e.g. how long
-        a condition has held); may add entries to ``measures``. ``_measure`` itself has no side
-        effects, so it can be called again (rendering, vector envs)."""
-
-    def _tool_position(self, positions):
-        """Tool position in m (default: mean of the grasped nodes)."""
-        return positions[self.tool_nodes].mean(axis=0)
-
-    def _features(self, measures) -> dict:
-        positions = measures["positions"]
-        tool = self._tool_position(positions)
-        features = dict(
-            tool_position=(tool - self.centre) / self.length_scale,
-            tool_displacement=self.tool_offset / self.length_scale,
-            reaction_force=measures["reaction_force"] / self.force_scale,
-            relative_volume_change=[100.0 * measures["relative_volume_change"]],
-            max_strain=[100.0 * measures["max_strain"]],
-        )
-        features.update(self._task_features(measures))
-        if self.observation_type != "state":
-            displacement = positions[self.surface_nodes] - self.mesh.nodes[self.surface_nodes]
-            features["surface_displacement"] = displacement.ravel() / self.length_scale
-        return features
-
-    def _observation(self, measures):
-        features = self._features(measures)
-        parts = [np.asarray(features[name], dtype=np.float64).ravel() for name in self._feature_sizes]
-        return observation_arrays(parts, list(self._feature_sizes), self.observation_type == "dict")
-
-    def _zero_rewards(self) -> dict:
-        return {name: 0.0 for name in self.reward_names + ("instability",)}
-
-    def _info(self, measures, rewards, unstable_reason, success=None) -> dict:
-        if success is None:
-            success = bool(self._is_success(measures)) if unstable_reason is None else False
-        info = dict(
-            relative_volume_change=float(measures["relative_volume_change"]),
-            max_strain=float(measures["max_strain"]),
-            reaction_force=np.array(measures["reaction_force"], dtype=float),
-            unstable=unstable_reason is not None,
-            unstable_reason=unstable_reason,
-            is_success=bool(success),
-            # the episode's material, as drawn from the *_range keywords (or the fixed values)
-            young_modulus=float(self.episode_young_modulus),
-            poisson_ratio=float(self.episode_poisson_ratio),
-        )
-        for name in self.reward_names + ("instability",):
-            info[f"reward_{name}"] = float(rewards.get(name, 0.0))
-        info.update(self._task_info(measures))
-        return info
-
-    def _task_info(self, measures) -> dict:
-        return {}
-
-    # -- shared reward terms -------------------------------------------------------------------
-    def _damage_terms(self, measures) -> dict:
-        return dict(
-            volume=-self.volume_weight * abs(measures["relative_volume_change"]),
-            strain=-self.strain_weight * max(0.0, measures["max_strain"] - self.strain_threshold),
-        )
+        return _row(observations), float(rewards[0]), bool(terminated[0]), False, _row(infos)
 
     # -- rendering -----------------------------------------------------------------------------------
     def _markers(self) -> dict:

@@ -10,6 +10,7 @@ from sim_core.model import Control
 
 from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
 from .vector import TissueVectorEnv
+from .worlds import TaskWorlds
 
 
 def update_palpation_map(palpation_map, centres, tips, depth, reading, map_depth, radius, rows):
@@ -57,6 +58,150 @@ def map_features(palpation_map, centres, tips, length_scale, squeeze=False):
     unprobed = np.where((~probed).any(axis=1)[:, None], offsets[index, np.argmin(distance, axis=1)], 0.0)
     features = dict(palpation_map=palpation_map / 1000.0, stiffest_offset=stiffest, unprobed_offset=unprobed)
     return {key: value[0] for key, value in features.items()} if squeeze else features
+
+
+class PalpationWorlds(TaskWorlds):
+    """Palpation's step on N worlds (``tissue_env.worlds``)."""
+
+    # The measurement's force pass is the next step's (the same observations, bitwise): one force
+    # pass per step instead of two (benchmarks/vector_env_speed.py, the performance page).
+    share_force_pass = True
+
+    def __init__(self, envs, threads=1):
+        super().__init__(envs, threads)
+        env, count = self.task, self.num_envs
+        self.top_y, self.probe, self._probe_candidates = env.top_y, env.probe, env._probe_candidates
+        #: (N, n) each copy's start heights (``PalpationEnv.start_heights``), m, updated in place at
+        #: its reset: the projected probe's reference
+        self.start_heights = np.repeat(env.mesh.nodes[None, :, 1], count, axis=0)
+        if self.probe.projection is not None:
+            self.probe = contact.Probe(env.probe_radius, env.probe_tip, self.probe.projection.with_reference(self.start_heights))
+        self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
+        self.probe_start = np.zeros((count, 3))
+        self.inclusion_ratio_of = np.zeros(count)  # each copy's inclusion stiffness ratio this episode
+        self.inclusion_centre = np.zeros((count, 3))
+        self.press_steps = np.zeros(count, dtype=int)
+        self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's probe holds
+        self._node_forces = None  # (N, n, 3) net forces of the last measurement
+        self._tool_mask = None  # (N, n, 3) the step's contact dofs (projected nodes join after the step)
+        self.cell_centres = env.cell_centres
+        self.palpation_map = np.zeros((count, len(self.cell_centres)))
+        self.distance = np.zeros(count)
+        for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
+                     "force_weight", "map_depth", "explore_bonus", "approach_weight"):
+            setattr(self, name, getattr(env, name))
+
+    def _load_task(self, index, env):
+        self.inclusion_ratio_of[index] = env.episode_inclusion_ratio
+        self.probe_start[index] = env.probe_start
+        self.start_heights[index] = env.start_heights
+        self.inclusion_centre[index] = env.inclusion_centre
+        self.press_steps[index] = env.press_steps
+        self.palpation_map[index] = env.palpation_map
+        self.distance[index] = 0.0  # (set by the reset's measurement)
+        self.contact[index] = env.contact
+
+    def _tips(self):
+        return self.probe_start + self.tool_offset
+
+    def _control(self, rows=None):
+        """The attached bottom face and the probe contact (``sim_core.contact``): the top nodes on
+        or under the probe's surface have their height imposed on it (frictionless: x and z stay
+        free), so the implicit step solves with the contact in place; a node the tissue pulls away
+        from the probe (net force on it downward, measured at the current state) is released."""
+        count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
+        forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
+        # once for the contact update and its targets, the copies on the kernels' threads when threaded
+        surface = self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads))
+        held = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips,
+                              surface=surface)
+        self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
+        fixed = np.repeat(self._base_fixed[None], count, axis=0)
+        target = np.repeat(self._base_target[None], count, axis=0)
+        fixed[..., 1] |= self.contact
+        target[..., 1] = np.where(self.contact,
+                                  contact.targets(self.probe, positions, self.contact, tips, surface=surface),
+                                  target[..., 1])
+        self._tool_mask = tool_mask = np.zeros_like(fixed)
+        tool_mask[..., 1] = self.contact
+        return fixed, target, tool_mask
+
+    def _after_substep(self, positions, velocities, rows):
+        # a top node that went into the probe is put back on its surface and joins the contact
+        tips = self._tips()
+        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None], tips,
+                                  surface=self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads)))
+        self.contact |= through
+        self._tool_mask[..., 1] |= through
+
+    def _tool_position(self, positions):
+        return self._tips()
+
+    def _task_measures(self, positions):
+        tip = self._tips()
+        depth = self.top_y - tip[:, 1]
+        horizontal = np.hypot(tip[:, 0] - self.inclusion_centre[:, 0], tip[:, 2] - self.inclusion_centre[:, 2])
+        pressing = (depth >= self.success_depth - 1e-9) & (horizontal <= self.success_radius)
+        return dict(depth=depth, horizontal_distance=horizontal, pressing=pressing)
+
+    def _measure(self, tool_mask):
+        measures = super()._measure(tool_mask)
+        self._node_forces = measures["forces"]
+        pushing, depth = -measures["reaction_force"][:, 1], measures["depth"]
+        touching = (depth > 1e-4) & self.contact.any(axis=1)
+        measures["indentation_stiffness"] = np.where(touching, pushing / np.where(touching, depth, 1.0), 0.0)
+        tips = self._tips()
+        env = self.task
+        indentation = env.start_surface(tips, self.start_heights) - tips[:, 1]
+        measures["apparent_modulus"] = apparent_modulus(np.where(self.contact.any(axis=1), pushing, 0.0), indentation,
+                                                        env.probe_radius, env.probe_tip)
+        return measures
+
+    def _record(self, measures, rows, fresh):
+        # consecutive steps of a success press, the palpation map, the approach to the inclusion
+        self.press_steps = np.where(rows, np.where(measures["pressing"], self.press_steps + 1, 0), self.press_steps)
+        measures["press_steps"] = self.press_steps.copy()
+        measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, self._tips(), measures["depth"],
+                                                    measures["apparent_modulus"], self.map_depth,
+                                                    self.success_radius, rows)
+        distance = measures["horizontal_distance"]
+        measures["approach"] = np.where(rows & ~fresh, self.distance - distance, 0.0)
+        self.distance = np.where(rows, distance, self.distance)
+
+    def _task_features(self, measures):
+        return dict(depth=measures["depth"][:, None] / self.length_scale,
+                    contact_nodes=self.contact.sum(axis=1)[:, None],
+                    indentation_stiffness=measures["indentation_stiffness"][:, None] / 100.0,
+                    hold_progress=np.minimum(measures["press_steps"], self.hold_steps)[:, None] / self.hold_steps,
+                    **map_features(self.palpation_map, self.cell_centres, self._tips(), self.length_scale))
+
+    def _task_info(self, measures):
+        return dict(depth=measures["depth"].copy(), horizontal_distance=measures["horizontal_distance"].copy(),
+                    press_steps=measures["press_steps"].copy(), inclusion_centre=self.inclusion_centre.copy(),
+                    indentation_stiffness=measures["indentation_stiffness"].copy(),
+                    apparent_modulus=measures["apparent_modulus"].copy(),
+                    inclusion_ratio=self.inclusion_ratio_of.copy())
+
+    def _is_success(self, measures):
+        return measures["press_steps"] >= self.hold_steps
+
+    def _reward_terms(self, measures):
+        force = np.linalg.norm(measures["reaction_force"], axis=1)
+        terms = dict(
+            success=np.where(self._is_success(measures), self.success_bonus, 0.0),
+            explore=np.where(measures["new_cell"], self.explore_bonus, 0.0),
+            approach=self.approach_weight * measures["approach"] / 0.01,
+            time=np.full(self.num_envs, -self.time_penalty),
+            force=-self.force_weight * np.maximum(0.0, force - self.force_limit) / self.force_limit,
+        )
+        terms.update(self._damage_terms(measures))
+        return terms
+
+    def _write_back_task(self, index, env):
+        env.contact = self.contact[index].copy()
+        env.press_steps = int(self.press_steps[index])
+        env.palpation_map = self.palpation_map[index].copy()
+        env.distance = float(self.distance[index])
 
 
 class PalpationEnv(TissueEnv):
@@ -234,6 +379,7 @@ class PalpationEnv(TissueEnv):
     - v0: the version of the first release (its changes before it: CHANGELOG.md).
     """
 
+    worlds_class = PalpationWorlds
     default_shape = (10, 5, 10)
     default_size = (0.06, 0.03, 0.06)
     default_dt = 0.04
@@ -384,10 +530,8 @@ class PalpationEnv(TissueEnv):
         x, z = draws[far[0] if len(far) else int(np.argmax(distance))]
         self._place_probe(np.array([x, self.top_y + self.clearance, z]))
         self.contact = np.zeros(self.mesh.n_nodes, bool)
-        self.measures = None
         self.press_steps = 0
         self.palpation_map = np.zeros(len(self.cell_centres))
-        self.distance = None
 
     def _start_hook(self):
         self._sweep = None
@@ -416,100 +560,15 @@ class PalpationEnv(TissueEnv):
     def _tip(self):
         return self.probe_start + self.tool_offset
 
-    def _control(self):
-        """The attached bottom face and the probe contact (``sim_core.contact``): the top nodes on
-        or under the probe's surface have their height imposed on it (frictionless: x and z stay
-        free), so the implicit step solves with the contact in place; a node the tissue pulls away
-        from the probe (net force on it downward, measured at the current state) is released."""
-        tip = self._tip()
-        current = self.mesh.nodes if self.state is None else self.state.positions
-        measures = getattr(self, "measures", None)
-        forces = measures["forces"] if measures is not None and "forces" in measures else np.zeros_like(current)
-        surface = self.probe.surface(current, tip)  # once for the contact update and its targets
-        self.contact = contact.update(self.probe, self.contact, current, forces, self._probe_candidates, tip,
-                                      surface=surface)
-        control = self.base_control.copy()
-        held = np.flatnonzero(self.contact)
-        if len(held):
-            target = current[held].copy()
-            target[:, 1] = contact.targets(self.probe, current, self.contact, tip, surface=surface)[held]
-            control.impose(held, target, components=(1,))
-        self.tool_mask = np.zeros((self.mesh.n_nodes, 3), bool)
-        self.tool_mask[self.contact, 1] = True
-        return control
-
-    def _after_substep(self, state):
-        # a top node that went into the probe is put back on its surface and joins the contact
-        through = contact.project(self.probe, state.positions, state.velocities, self._probe_candidates, self._tip())
-        if np.any(through):
-            self.contact |= through
-            self.tool_mask[through, 1] = True
+    def _start_control(self):
+        """The attached bottom face: the probe starts ``clearance`` above the surface, touching nothing."""
+        self.start_tool_mask = np.zeros((self.mesh.n_nodes, 3), bool)
+        return self.base_control.copy()
 
     @property
     def contact_nodes(self):
         """Indices of the top nodes the probe holds."""
         return np.flatnonzero(self.contact)
-
-    def _tool_position(self, positions):
-        return self._tip()
-
-    def _task_measures(self, positions):
-        tip = self._tip()
-        depth = self.top_y - tip[1]
-        horizontal = float(np.hypot(*(tip - self.inclusion_centre)[[0, 2]]))
-        pressing = depth >= self.success_depth - 1e-9 and horizontal <= self.success_radius
-        return dict(depth=depth, horizontal_distance=horizontal, pressing=pressing)
-
-    def _record(self, measures):
-        # consecutive steps of a success press (once per reset and per step)
-        self.press_steps = self.press_steps + 1 if measures["pressing"] else 0
-        measures["press_steps"] = self.press_steps
-        new = update_palpation_map(self.palpation_map[None], self.cell_centres, self._tip()[None],
-                                   np.array([measures["depth"]]), np.array([measures["apparent_modulus"]]),
-                                   self.map_depth, self.success_radius, np.array([True]))
-        measures["new_cell"] = bool(new[0])
-        distance = measures["horizontal_distance"]
-        measures["approach"] = 0.0 if self.distance is None else self.distance - distance
-        self.distance = distance
-
-    def _measure(self, state):
-        measures = super()._measure(state)
-        pushing = -measures["reaction_force"][1]  # downward force of the probe, N
-        depth = measures["depth"]
-        measures["indentation_stiffness"] = pushing / depth if depth > 1e-4 and len(self.contact_nodes) else 0.0
-        tip = self._tip()[None]
-        indentation = self.start_surface(tip, self.start_heights)[0] - tip[0, 1]
-        measures["apparent_modulus"] = float(apparent_modulus(pushing if len(self.contact_nodes) else 0.0, indentation,
-                                                              self.probe_radius, self.probe_tip))
-        return measures
-
-    def _task_features(self, measures):
-        return dict(depth=[measures["depth"] / self.length_scale], contact_nodes=[len(self.contact_nodes)],
-                    indentation_stiffness=[measures["indentation_stiffness"] / 100.0],
-                    hold_progress=[min(measures["press_steps"], self.hold_steps) / self.hold_steps],
-                    **map_features(self.palpation_map[None], self.cell_centres, self._tip()[None], self.length_scale,
-                                   squeeze=True))
-
-    def _task_info(self, measures):
-        return dict(depth=measures["depth"], horizontal_distance=measures["horizontal_distance"],
-                    press_steps=measures["press_steps"], inclusion_centre=self.inclusion_centre.copy(),
-                    indentation_stiffness=measures["indentation_stiffness"], apparent_modulus=measures["apparent_modulus"],
-                    inclusion_ratio=float(self.episode_inclusion_ratio))
-
-    def _is_success(self, measures):
-        return measures["press_steps"] >= self.hold_steps
-
-    def _reward_terms(self, measures):
-        force = float(np.linalg.norm(measures["reaction_force"]))
-        terms = dict(
-            success=self.success_bonus if self._is_success(measures) else 0.0,
-            explore=self.explore_bonus if measures["new_cell"] else 0.0,
-            approach=self.approach_weight * measures["approach"] / 0.01,
-            time=-self.time_penalty,
-            force=-self.force_weight * max(0.0, force - self.force_limit) / self.force_limit,
-        )
-        terms.update(self._damage_terms(measures))
-        return terms
 
     # -- scripted sweep ------------------------------------------------------------------------------
     def scripted_action(self, probe_depth=0.004, settle_steps=1):
@@ -565,143 +624,3 @@ class PalpationVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``PalpationEnv``)."""
 
     env_class = PalpationEnv
-    # The measurement's force pass is the next step's (the same observations, bitwise): one force
-    # pass per step instead of two (benchmarks/vector_env_speed.py, the performance page).
-    share_force_pass = True
-
-    def __init__(self, num_envs=1, **kwargs):
-        super().__init__(num_envs, **kwargs)
-        env, count = self.envs[0], self.num_envs
-        self.top_y, self.probe, self._probe_candidates = env.top_y, env.probe, env._probe_candidates
-        #: (N, n) each copy's start heights (``PalpationEnv.start_heights``), m, updated in place at
-        #: its reset: the projected probe's reference
-        self.start_heights = np.repeat(env.mesh.nodes[None, :, 1], count, axis=0)
-        if self.probe.projection is not None:
-            self.probe = contact.Probe(env.probe_radius, env.probe_tip, self.probe.projection.with_reference(self.start_heights))
-        self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
-        self.probe_start = np.zeros((count, 3))
-        self.inclusion_ratio_of = np.zeros(count)  # each copy's inclusion stiffness ratio this episode
-        self.inclusion_centre = np.zeros((count, 3))
-        self.press_steps = np.zeros(count, dtype=int)
-        self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's probe holds
-        self._node_forces = None  # (N, n, 3) net forces of the last measurement
-        self._tool_mask = None  # (N, n, 3) the step's contact dofs (projected nodes join after the step)
-        self.cell_centres = env.cell_centres
-        self.palpation_map = np.zeros((count, len(self.cell_centres)))
-        self.distance = np.zeros(count)
-        for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
-                     "force_weight", "length_scale", "map_depth", "explore_bonus", "approach_weight"):
-            setattr(self, name, getattr(env, name))
-
-    def _load_task(self, index, env):
-        self.inclusion_ratio_of[index] = env.episode_inclusion_ratio
-        self.probe_start[index] = env.probe_start
-        self.start_heights[index] = env.start_heights
-        self.inclusion_centre[index] = env.inclusion_centre
-        self.press_steps[index] = env.press_steps
-        self.palpation_map[index] = env.palpation_map
-        self.distance[index] = env.distance
-        self.contact[index] = env.contact
-        if self._node_forces is not None:  # the copy's measurement at its reset, as the single env's
-            self._node_forces[index] = env.measures["forces"]
-
-    def _tips(self):
-        return self.probe_start + self.tool_offset
-
-    def _batch_control(self):
-        # PalpationEnv._control for every copy
-        count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
-        forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
-        # once for the contact update and its targets, the copies on the kernels' threads when threaded
-        surface = self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads))
-        self.contact = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips,
-                                      surface=surface)
-        fixed = np.repeat(self._base_fixed[None], count, axis=0)
-        target = np.repeat(self._base_target[None], count, axis=0)
-        fixed[..., 1] |= self.contact
-        target[..., 1] = np.where(self.contact,
-                                  contact.targets(self.probe, positions, self.contact, tips, surface=surface),
-                                  target[..., 1])
-        self._tool_mask = tool_mask = np.zeros_like(fixed)
-        tool_mask[..., 1] = self.contact
-        return fixed, target, tool_mask
-
-    def _batch_after_substep(self, positions, velocities, rows):
-        tips = self._tips()
-        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None], tips,
-                                  surface=self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads)))
-        self.contact |= through
-        self._tool_mask[..., 1] |= through
-
-    def _batch_tool_position(self, positions):
-        return self._tips()
-
-    def _batch_task_measures(self, positions):
-        tip = self._tips()
-        depth = self.top_y - tip[:, 1]
-        horizontal = np.hypot(tip[:, 0] - self.inclusion_centre[:, 0], tip[:, 2] - self.inclusion_centre[:, 2])
-        pressing = (depth >= self.success_depth - 1e-9) & (horizontal <= self.success_radius)
-        return dict(depth=depth, horizontal_distance=horizontal, pressing=pressing)
-
-    def _measure(self, tool_mask):
-        measures = super()._measure(tool_mask)
-        self._node_forces = measures["forces"]
-        pushing, depth = -measures["reaction_force"][:, 1], measures["depth"]
-        touching = (depth > 1e-4) & self.contact.any(axis=1)
-        measures["indentation_stiffness"] = np.where(touching, pushing / np.where(touching, depth, 1.0), 0.0)
-        tips = self._tips()
-        env = self.envs[0]
-        indentation = env.start_surface(tips, self.start_heights) - tips[:, 1]
-        measures["apparent_modulus"] = apparent_modulus(np.where(self.contact.any(axis=1), pushing, 0.0), indentation,
-                                                        env.probe_radius, env.probe_tip)
-        return measures
-
-    def _batch_record(self, measures, rows):
-        self.press_steps = np.where(rows, np.where(measures["pressing"], self.press_steps + 1, 0), self.press_steps)
-        measures["press_steps"] = self.press_steps.copy()
-        measures["new_cell"] = update_palpation_map(self.palpation_map, self.cell_centres, self._tips(), measures["depth"],
-                                                    measures["apparent_modulus"], self.map_depth,
-                                                    self.success_radius, rows)
-        distance = measures["horizontal_distance"]
-        measures["approach"] = np.where(rows, self.distance - distance, 0.0)
-        self.distance = np.where(rows, distance, self.distance)
-
-    def _batch_task_features(self, measures):
-        return dict(depth=measures["depth"][:, None] / self.length_scale,
-                    contact_nodes=self.contact.sum(axis=1)[:, None],
-                    indentation_stiffness=measures["indentation_stiffness"][:, None] / 100.0,
-                    hold_progress=np.minimum(measures["press_steps"], self.hold_steps)[:, None] / self.hold_steps,
-                    **map_features(self.palpation_map, self.cell_centres, self._tips(), self.length_scale))
-
-    def _batch_task_info(self, measures):
-        return dict(depth=measures["depth"].copy(), horizontal_distance=measures["horizontal_distance"].copy(),
-                    press_steps=measures["press_steps"].copy(), inclusion_centre=self.inclusion_centre.copy(),
-                    indentation_stiffness=measures["indentation_stiffness"].copy(),
-                    apparent_modulus=measures["apparent_modulus"].copy(),
-                    inclusion_ratio=self.inclusion_ratio_of.copy())
-
-    def _batch_success(self, measures):
-        return measures["press_steps"] >= self.hold_steps
-
-    def _batch_reward_terms(self, measures):
-        force = np.linalg.norm(measures["reaction_force"], axis=1)
-        terms = dict(
-            success=np.where(self._batch_success(measures), self.success_bonus, 0.0),
-            explore=np.where(measures["new_cell"], self.explore_bonus, 0.0),
-            approach=self.approach_weight * measures["approach"] / 0.01,
-            time=np.full(self.num_envs, -self.time_penalty),
-            force=-self.force_weight * np.maximum(0.0, force - self.force_limit) / self.force_limit,
-        )
-        terms.update(self._damage_terms(measures))
-        return terms
-
-    def _write_back_task(self, index, env):
-        env.contact = self.contact[index].copy()
-        env.press_steps = int(self.press_steps[index])
-        env.palpation_map = self.palpation_map[index].copy()
-        env.distance = float(self.distance[index])
-
-    def _write_back_measures(self, index, measures):
-        measures["press_steps"] = int(self.press_steps[index])
-        measures["new_cell"] = False
-        measures["approach"] = 0.0

@@ -9,19 +9,112 @@ from sim_core.model import Control
 
 from .base import TissueEnv, check_range, nonnegative_scalar, positive_scalar
 from .vector import TissueVectorEnv
+from .worlds import TaskWorlds
 
 #: Local corners of the bottom (y = 0) and top (y = 1) faces of a VTK hexahedron, in cyclic order.
 _BOTTOM, _TOP = [0, 1, 5, 4], [3, 2, 6, 7]
 
 
-def covered(points, quads):
-    """(..., P) True where a 2D point (..., P, 2) lies inside at least one convex quad (..., Q, 4, 2)
-    of either orientation (leading dimensions: a batch of scenes)."""
-    edge = np.roll(quads, -1, axis=-2) - quads  # (..., Q, 4, 2)
-    relative = points[..., :, None, None, :] - quads[..., None, :, :, :]  # (..., P, Q, 4, 2)
-    cross = edge[..., None, :, :, 0] * relative[..., 1] - edge[..., None, :, :, 1] * relative[..., 0]
-    inside = np.all(cross >= 0, axis=-1) | np.all(cross <= 0, axis=-1)
-    return inside.any(axis=-1)
+class RetractionWorlds(TaskWorlds):
+    """Retraction's step on N worlds (``tissue_env.worlds``)."""
+
+    # The flap swings through large rotations: its matrix changes fast and factorises cheaply
+    # (a few hundred free dofs), so a copy's factor is refreshed once its extra iterations add up.
+    # The Jacobi lockstep was faster, but its trajectories strayed much further from the exact ones
+    # than the single env's (this chaotic flap, random actions), where the factors' stay close:
+    # the factors are kept. The measurement's force
+    # pass is the next step's (observations equal to 5e-17 with and without): one force pass per
+    # step instead of two (benchmarks/vector_env_speed.py, the performance page).
+    refactor_amortise = 6
+    share_force_pass = True
+
+    def __init__(self, envs, threads=1):
+        super().__init__(envs, threads)
+        env, count = self.task, self.num_envs
+        self.tool_nodes, self.tool_rest = env.tool_nodes, env.tool_rest
+        self._footprint = np.ascontiguousarray(env._footprint, dtype=np.int64)
+        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
+        tool_mask[self.tool_nodes] = True
+        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
+        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
+        self._base_target = env.base_control.target
+        self.target_x = np.zeros((count, 2))
+        self.target_points = np.zeros((count, 12, 2))  # the 4 x 3 grid of each copy's target
+        self._floor_candidates = env._floor_candidates
+        self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's floor holds
+        self._node_forces = None  # (N, n, 3) net forces of the last measurement
+        for name in ("force_limit", "tension_weight", "success_exposure", "success_bonus"):
+            setattr(self, name, getattr(env, name))
+
+    def _load_task(self, index, env):
+        self.target_x[index] = env.target_x
+        self.target_points[index] = env.target_points
+        self.contact[index] = env.contact
+
+    def _write_back_task(self, index, env):
+        env.contact = self.contact[index].copy()
+
+    def _control(self, rows=None):
+        """The tool, and the floor contact: the height of every node on the floor is imposed (y = 0,
+        frictionless: x and z stay free), so the implicit step solves with the contact in place; a
+        node that the tissue pulls up (net force on it upward, measured at the current state) is
+        released first, as in the static scene's active set (``sim_core.studies.solving``)."""
+        if self._node_forces is not None:
+            held = self.contact & (self._node_forces[..., 1] <= 0.0)
+            self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
+        target = np.repeat(self._base_target[None], self.num_envs, axis=0)
+        target[:, self.tool_nodes] = self.tool_rest[None] + self.tool_offset[:, None, :]
+        target[..., 1] = np.where(self.contact, 0.0, target[..., 1])
+        fixed = np.array(self._fixed)
+        fixed[..., 1] |= self.contact
+        return fixed, target, self._tool_mask
+
+    def _after_substep(self, positions, velocities, rows):
+        # a free node that went below the floor is put back on it and joins the contact set
+        below = (positions[..., 1] < 0.0) & rows[:, None] & self._floor_candidates[None]
+        positions[..., 1][below] = 0.0
+        velocities[..., 1][below] = np.maximum(velocities[..., 1][below], 0.0)
+        self.contact |= below
+
+    def _measure(self, tool_mask):
+        measures = super()._measure(tool_mask)
+        self._node_forces = measures["forces"]
+        return measures
+
+    def _task_measures(self, positions):
+        # the target points under a footprint quad of the flap (seen from above), in one compiled pass
+        hidden = np.empty(self.target_points.shape[:2], dtype=bool)
+        kernels.points_covered_by_quads(self.target_points, np.ascontiguousarray(positions, dtype=float),
+                                        self._footprint, hidden)
+        exposed = 1.0 - np.mean(hidden, axis=1)
+        footprint = np.stack([positions[..., 0].min(axis=1), positions[..., 0].max(axis=1)], axis=1)
+        return dict(exposed_fraction=exposed, footprint=footprint)
+
+    def _task_features(self, measures):
+        scale, centre_x = self.length_scale, self.centre[0]
+        return dict(
+            target_range=(self.target_x - centre_x) / scale, exposed_fraction=measures["exposed_fraction"][:, None],
+            tension=np.linalg.norm(measures["reaction_force"], axis=1)[:, None] / self.force_limit,
+            footprint_range=(measures["footprint"] - centre_x) / scale,
+        )
+
+    def _task_info(self, measures):
+        return dict(exposed_fraction=measures["exposed_fraction"].copy(),
+                    tension=np.linalg.norm(measures["reaction_force"], axis=1))
+
+    def _is_success(self, measures):
+        return ((measures["exposed_fraction"] >= self.success_exposure)
+                & (np.linalg.norm(measures["reaction_force"], axis=1) <= self.force_limit))
+
+    def _reward_terms(self, measures):
+        tension = np.linalg.norm(measures["reaction_force"], axis=1)
+        terms = dict(
+            exposure=measures["exposed_fraction"] - 1.0,
+            tension=-self.tension_weight * np.maximum(0.0, tension - self.force_limit) / self.force_limit,
+            success=np.where(self._is_success(measures), self.success_bonus, 0.0),
+        )
+        terms.update(self._damage_terms(measures))
+        return terms
 
 
 class RetractionEnv(TissueEnv):
@@ -126,6 +219,7 @@ class RetractionEnv(TissueEnv):
     #: (benchmarks/env_accuracy.py): static tool force / flap centre / volume change within
     #: 9.3 / 6.0 / 39% of the (24, 4, 12) model, against 12.5 / 7.1 / 59% at (10, 2, 5),
     #: 18 / 8 / 93% at (8, 2, 4) and 36 / 11 / 158% at (6, 1, 3).
+    worlds_class = RetractionWorlds
     default_shape = (12, 2, 6)
     default_size = (0.06, 0.008, 0.03)
     default_max_step = 0.005
@@ -166,34 +260,20 @@ class RetractionEnv(TissueEnv):
     def _initial_positions(self, model, control):
         return model.rest_positions.copy()  # flat on the floor; the contact holds it there
 
-    def _control(self):
-        """The tool, and the floor contact: the height of every node on the floor is imposed (y = 0,
-        frictionless: x and z stay free), so the implicit step solves with the contact in place; a
-        node that the tissue pulls up (net force on it upward, measured at the current state) is
-        released first, as in the static scene's active set (``sim_core.studies.solving``)."""
-        control = super()._control()
-        measures = getattr(self, "measures", None)
-        if self.state is not None and measures is not None and "forces" in measures:
-            self.contact &= measures["forces"][:, 1] <= 0.0
+    def _start_control(self):
+        """The tool at rest and the floor contact: the height of every node on the floor is imposed
+        (y = 0, frictionless: x and z stay free)."""
+        control = super()._start_control()
         nodes = np.flatnonzero(self.contact)
         if len(nodes):
             control.impose(nodes, np.zeros((len(nodes), 3)), components=(1,))
         return control
-
-    def _after_substep(self, state):
-        # a free node that went below the floor is put back on it and joins the contact set
-        below = (state.positions[:, 1] < 0.0) & self._floor_candidates
-        if np.any(below):
-            state.positions[below, 1] = 0.0
-            state.velocities[below, 1] = np.maximum(state.velocities[below, 1], 0.0)
-            self.contact |= below
 
     def _task_feature_sizes(self):
         return dict(target_range=2, exposed_fraction=1, tension=1, footprint_range=2)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
-        self.measures = None
         self.contact = self._floor_candidates & np.isclose(self.mesh.nodes[:, 1], 0.0)  # flat on the floor
         start = float(self.np_random.uniform(*self.target_start_range))
         self.target_x = np.array([start, min(start + self.target_length, self.size[0])])
@@ -201,36 +281,6 @@ class RetractionEnv(TissueEnv):
         x = np.linspace(self.target_x[0], self.target_x[1], 4)
         z = np.linspace(0.25 * width, 0.75 * width, 3)
         self.target_points = np.stack(np.meshgrid(x, z, indexing="ij"), axis=-1).reshape(-1, 2)
-
-    def _task_measures(self, positions):
-        quads = positions[self._footprint][..., [0, 2]]
-        exposed = 1.0 - float(np.mean(covered(self.target_points, quads)))
-        return dict(exposed_fraction=exposed, footprint=(positions[:, 0].min(), positions[:, 0].max()))
-
-    def _task_features(self, measures):
-        scale, centre_x = self.length_scale, self.centre[0]
-        return dict(
-            target_range=(self.target_x - centre_x) / scale, exposed_fraction=[measures["exposed_fraction"]],
-            tension=[np.linalg.norm(measures["reaction_force"]) / self.force_limit],
-            footprint_range=(np.asarray(measures["footprint"]) - centre_x) / scale,
-        )
-
-    def _task_info(self, measures):
-        return dict(exposed_fraction=measures["exposed_fraction"], tension=float(np.linalg.norm(measures["reaction_force"])))
-
-    def _is_success(self, measures):
-        return (measures["exposed_fraction"] >= self.success_exposure
-                and np.linalg.norm(measures["reaction_force"]) <= self.force_limit)
-
-    def _reward_terms(self, measures):
-        tension = float(np.linalg.norm(measures["reaction_force"]))
-        terms = dict(
-            exposure=measures["exposed_fraction"] - 1.0,
-            tension=-self.tension_weight * max(0.0, tension - self.force_limit) / self.force_limit,
-            success=self.success_bonus if self._is_success(measures) else 0.0,
-        )
-        terms.update(self._damage_terms(measures))
-        return terms
 
     def constrain_tool(self, offset):
         """Keep the grasped edge where the coarse flap deforms without inverting elements: it
@@ -274,100 +324,3 @@ class RetractionVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``RetractionEnv``)."""
 
     env_class = RetractionEnv
-    # The flap swings through large rotations: its matrix changes fast and factorises cheaply
-    # (a few hundred free dofs), so a copy's factor is refreshed once its extra iterations add up.
-    # The Jacobi lockstep was faster, but its trajectories strayed much further from the exact ones
-    # than the single env's (this chaotic flap, random actions), where the factors' stay close:
-    # the factors are kept. The measurement's force
-    # pass is the next step's (observations equal to 5e-17 with and without): one force pass per
-    # step instead of two (benchmarks/vector_env_speed.py, the performance page).
-    refactor_amortise = 6
-    share_force_pass = True
-
-    def __init__(self, num_envs=1, **kwargs):
-        super().__init__(num_envs, **kwargs)
-        env, count = self.envs[0], self.num_envs
-        self.tool_nodes, self.tool_rest = env.tool_nodes, env.tool_rest
-        self._footprint = np.ascontiguousarray(env._footprint, dtype=np.int64)
-        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
-        tool_mask[self.tool_nodes] = True
-        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
-        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
-        self._base_target = env.base_control.target
-        self.target_x = np.zeros((count, 2))
-        self.target_points = np.zeros((count, 12, 2))  # the 4 x 3 grid of each copy's target
-        self._floor_candidates = env._floor_candidates
-        self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's floor holds
-        self._node_forces = None  # (N, n, 3) net forces of the last measurement
-        for name in ("force_limit", "tension_weight", "success_exposure", "success_bonus", "length_scale", "centre"):
-            setattr(self, name, getattr(env, name))
-
-    def _load_task(self, index, env):
-        self.target_x[index] = env.target_x
-        self.target_points[index] = env.target_points
-        self.contact[index] = env.contact
-        if self._node_forces is not None:  # the copy's measurement at its reset, as the single env's
-            self._node_forces[index] = env.measures["forces"]
-
-    def _write_back_task(self, index, env):
-        env.contact = self.contact[index].copy()
-
-    def _batch_control(self):
-        # RetractionEnv._control for every copy: release the nodes the tissue pulls up, hold the others
-        if self._node_forces is not None:
-            self.contact &= self._node_forces[..., 1] <= 0.0
-        target = np.repeat(self._base_target[None], self.num_envs, axis=0)
-        target[:, self.tool_nodes] = self.tool_rest[None] + self.tool_offset[:, None, :]
-        target[..., 1] = np.where(self.contact, 0.0, target[..., 1])
-        fixed = np.array(self._fixed)
-        fixed[..., 1] |= self.contact
-        return fixed, target, self._tool_mask
-
-    def _batch_after_substep(self, positions, velocities, rows):
-        below = (positions[..., 1] < 0.0) & rows[:, None] & self._floor_candidates[None]
-        positions[..., 1][below] = 0.0
-        velocities[..., 1][below] = np.maximum(velocities[..., 1][below], 0.0)
-        self.contact |= below
-
-    def _measure(self, tool_mask):
-        measures = super()._measure(tool_mask)
-        self._node_forces = measures["forces"]
-        return measures
-
-    def _batch_tool_position(self, positions):
-        return positions[:, self.tool_nodes].mean(axis=1)
-
-    def _batch_task_measures(self, positions):
-        # covered(self.target_points, positions[:, self._footprint][..., [0, 2]]) in one compiled pass
-        hidden = np.empty(self.target_points.shape[:2], dtype=bool)
-        kernels.points_covered_by_quads(self.target_points, np.ascontiguousarray(positions, dtype=float),
-                                        self._footprint, hidden)
-        exposed = 1.0 - np.mean(hidden, axis=1)
-        footprint = np.stack([positions[..., 0].min(axis=1), positions[..., 0].max(axis=1)], axis=1)
-        return dict(exposed_fraction=exposed, footprint=footprint)
-
-    def _batch_task_features(self, measures):
-        scale, centre_x = self.length_scale, self.centre[0]
-        return dict(
-            target_range=(self.target_x - centre_x) / scale, exposed_fraction=measures["exposed_fraction"][:, None],
-            tension=np.linalg.norm(measures["reaction_force"], axis=1)[:, None] / self.force_limit,
-            footprint_range=(measures["footprint"] - centre_x) / scale,
-        )
-
-    def _batch_task_info(self, measures):
-        return dict(exposed_fraction=measures["exposed_fraction"].copy(),
-                    tension=np.linalg.norm(measures["reaction_force"], axis=1))
-
-    def _batch_success(self, measures):
-        return ((measures["exposed_fraction"] >= self.success_exposure)
-                & (np.linalg.norm(measures["reaction_force"], axis=1) <= self.force_limit))
-
-    def _batch_reward_terms(self, measures):
-        tension = np.linalg.norm(measures["reaction_force"], axis=1)
-        terms = dict(
-            exposure=measures["exposed_fraction"] - 1.0,
-            tension=-self.tension_weight * np.maximum(0.0, tension - self.force_limit) / self.force_limit,
-            success=np.where(self._batch_success(measures), self.success_bonus, 0.0),
-        )
-        terms.update(self._damage_terms(measures))
-        return terms

@@ -19,8 +19,7 @@ Semantics are stable-baselines3's: a copy that terminates or truncates is reset 
 returned observation is the new episode's first), where the gymnasium vector env resets it at the
 next step; infos are one dict per copy; ``seed(s)`` seeds copy i with s + i at the next reset, as
 ``make_vec_env`` seeds its envs. So the copies draw the episodes that ``make_vec_env``'s envs draw
-with the same seed, and step them with the same physics (up to the linear solvers' tolerance,
-tests/test_training.py).
+with the same seed, and step them with the same physics (tests/test_training.py).
 """
 
 from __future__ import annotations

@@ -11,6 +11,7 @@ from sim_core.model import Control
 
 from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
 from .vector import TissueVectorEnv
+from .worlds import TaskWorlds
 
 
 # Goal solves: keep the (cached) start tangent while it contracts the residual by 0.95 per step,
@@ -33,6 +34,76 @@ def trilinear_weights(local):
     """(8,) weights of the VTK corners of a hexahedron at local coordinates ``local`` in [0, 1]^3."""
     local = np.asarray(local, dtype=float)
     return np.prod(LOCAL_CORNERS * local + (1.0 - LOCAL_CORNERS) * (1.0 - local), axis=1)
+
+
+class TumorPositioningWorlds(TaskWorlds):
+    """TumorPositioning's step on N worlds (``tissue_env.worlds``)."""
+
+    # Solver "reference": the start-of-episode node-block factor, shared by the worlds that start
+    # alike as every world's preconditioner, costs no more iterations per world than per-world
+    # factors kept up to date (solver "factorised") and saves their factorisations: the tool moves
+    # the tissue only a few millimetres from the start. Solved in lockstep chunks, each pass over
+    # the shared factor and hourglass matrix serves all of a chunk's running worlds
+    # (``sim_core.batched._solve_shared``; benchmarks/vector_env_speed.py and the performance page).
+    # The measurement's force pass is the next step's (the reaction force only reads it).
+    linear_solver = "reference"
+    share_force_pass = True
+
+    def __init__(self, envs, threads=1):
+        super().__init__(envs, threads)
+        env, count = self.task, self.num_envs
+        self.tool_nodes = env.tool_nodes
+        self.tool_rest = env.tool_rest
+        # the imposed dofs (attached bottom, grasped patch) do not change during an episode
+        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
+        tool_mask[self.tool_nodes] = True
+        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
+        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
+        self._base_target = env.base_control.target
+        self.tumor_nodes = np.zeros((count, 8), dtype=int)
+        self.tumor_weights = np.zeros((count, 8))
+        self.tumor_start = np.zeros((count, 3))
+        self.goal = np.zeros((count, 3))
+        self.success_distance, self.success_bonus = env.success_distance, env.success_bonus
+
+    def _load_task(self, index, env):
+        self.tumor_nodes[index] = env.tumor_nodes
+        self.tumor_weights[index] = env.tumor_weights
+        self.tumor_start[index] = env.tumor_start
+        self.goal[index] = env.goal
+
+    def _control(self, rows=None):
+        target = np.repeat(self._base_target[None], self.num_envs, axis=0)
+        target[:, self.tool_nodes] = self.tool_rest[None] + self.tool_offset[:, None, :]
+        return self._fixed, target, self._tool_mask
+
+    def _task_measures(self, positions):
+        corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8, 3)
+        tumor = (self.tumor_weights[:, None, :] @ corners)[:, 0]
+        return dict(tumor=tumor, distance=np.linalg.norm(self.goal - tumor, axis=1))
+
+    def _task_features(self, measures):
+        tumor, scale = measures["tumor"], self.length_scale
+        return dict(
+            tumor_position=(tumor - self.centre) / scale, goal_position=(self.goal - self.centre) / scale,
+            goal_error=(self.goal - tumor) / scale, goal_distance=measures["distance"][:, None] / scale,
+            tumor_displacement=(tumor - self.tumor_start) / scale,
+        )
+
+    def _task_info(self, measures):
+        return dict(distance=measures["distance"].copy(), tumor_position=measures["tumor"].copy(),
+                    goal=self.goal.copy())
+
+    def _is_success(self, measures):
+        return measures["distance"] < self.success_distance
+
+    def _reward_terms(self, measures):
+        terms = dict(
+            distance=-measures["distance"] / self.length_scale,
+            success=np.where(self._is_success(measures), self.success_bonus, 0.0),
+        )
+        terms.update(self._damage_terms(measures))
+        return terms
 
 
 class TumorPositioningEnv(TissueEnv):
@@ -152,6 +223,7 @@ class TumorPositioningEnv(TissueEnv):
     - v0: the version of the first release (its changes before it: CHANGELOG.md).
     """
 
+    worlds_class = TumorPositioningWorlds
     default_shape = (7, 7, 7)
     default_size = (0.05, 0.05, 0.05)
     default_dt = 0.04
@@ -251,32 +323,6 @@ class TumorPositioningEnv(TissueEnv):
         self.goal_tool_displacement = displacement
         self.measures = None
 
-    def _task_measures(self, positions):
-        tumor = self.tumor_weights @ positions[self.tumor_nodes]
-        return dict(tumor=tumor, distance=float(np.linalg.norm(self.goal - tumor)))
-
-    def _task_features(self, measures):
-        tumor, scale = measures["tumor"], self.length_scale
-        return dict(
-            tumor_position=(tumor - self.centre) / scale, goal_position=(self.goal - self.centre) / scale,
-            goal_error=(self.goal - tumor) / scale, goal_distance=[measures["distance"] / scale],
-            tumor_displacement=(tumor - self.tumor_start) / scale,
-        )
-
-    def _task_info(self, measures):
-        return dict(distance=measures["distance"], tumor_position=measures["tumor"].copy(), goal=self.goal.copy())
-
-    def _is_success(self, measures):
-        return measures["distance"] < self.success_distance
-
-    def _reward_terms(self, measures):
-        terms = dict(
-            distance=-measures["distance"] / self.length_scale,
-            success=self.success_bonus if self._is_success(measures) else 0.0,
-        )
-        terms.update(self._damage_terms(measures))
-        return terms
-
     def scripted_action(self, gain=1.5):
         """Proportional control on the observed error: tool increment = gain * (goal - tumour).
 
@@ -298,72 +344,4 @@ class TumorPositioningVectorEnv(TissueVectorEnv):
     Same keywords, spaces, rewards and infos as the single env (see ``TumorPositioningEnv``)."""
 
     env_class = TumorPositioningEnv
-    # Solver "reference": the start-of-episode node-block factor, shared by the copies that start
-    # alike as every copy's preconditioner, costs no more iterations per copy than per-copy factors
-    # kept up to date (solver "factorised") and saves their factorisations: the tool moves the tissue
-    # only a few millimetres from the start. Solved in lockstep chunks, each pass over the shared
-    # factor and hourglass matrix serves all of a chunk's running copies (``sim_core.batched._solve_shared``;
-    # benchmarks/vector_env_speed.py and the performance page). The measurement's force pass is the
-    # next step's (the reaction force only reads it).
-    linear_solver = "reference"
-    share_force_pass = True
 
-    def __init__(self, num_envs=1, **kwargs):
-        super().__init__(num_envs, **kwargs)
-        env, count = self.envs[0], self.num_envs
-        self.tool_nodes = env.tool_nodes
-        self.tool_rest = env.tool_rest
-        # the imposed dofs (attached bottom, grasped patch) do not change during an episode
-        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
-        tool_mask[self.tool_nodes] = True
-        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
-        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
-        self._base_target = env.base_control.target
-        self.tumor_nodes = np.zeros((count, 8), dtype=int)
-        self.tumor_weights = np.zeros((count, 8))
-        self.tumor_start = np.zeros((count, 3))
-        self.goal = np.zeros((count, 3))
-        self.success_distance, self.success_bonus = env.success_distance, env.success_bonus
-        self.centre, self.length_scale = env.centre, env.length_scale
-
-    def _load_task(self, index, env):
-        self.tumor_nodes[index] = env.tumor_nodes
-        self.tumor_weights[index] = env.tumor_weights
-        self.tumor_start[index] = env.tumor_start
-        self.goal[index] = env.goal
-
-    def _batch_control(self):
-        target = np.repeat(self._base_target[None], self.num_envs, axis=0)
-        target[:, self.tool_nodes] = self.tool_rest[None] + self.tool_offset[:, None, :]
-        return self._fixed, target, self._tool_mask
-
-    def _batch_tool_position(self, positions):
-        return positions[:, self.tool_nodes].mean(axis=1)
-
-    def _batch_task_measures(self, positions):
-        corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8, 3)
-        tumor = (self.tumor_weights[:, None, :] @ corners)[:, 0]
-        return dict(tumor=tumor, distance=np.linalg.norm(self.goal - tumor, axis=1))
-
-    def _batch_task_features(self, measures):
-        tumor, scale = measures["tumor"], self.length_scale
-        return dict(
-            tumor_position=(tumor - self.centre) / scale, goal_position=(self.goal - self.centre) / scale,
-            goal_error=(self.goal - tumor) / scale, goal_distance=measures["distance"][:, None] / scale,
-            tumor_displacement=(tumor - self.tumor_start) / scale,
-        )
-
-    def _batch_task_info(self, measures):
-        return dict(distance=measures["distance"].copy(), tumor_position=measures["tumor"].copy(),
-                    goal=self.goal.copy())
-
-    def _batch_success(self, measures):
-        return measures["distance"] < self.success_distance
-
-    def _batch_reward_terms(self, measures):
-        terms = dict(
-            distance=-measures["distance"] / self.length_scale,
-            success=np.where(self._batch_success(measures), self.success_bonus, 0.0),
-        )
-        terms.update(self._damage_terms(measures))
-        return terms

@@ -1,0 +1,425 @@
+"""A task's N worlds: the one implementation of an env step, on arrays over worlds.
+
+A ``TaskWorlds`` holds N worlds of one task (a tissue block, a tool and the task's episode data
+per world) as one stacked sim_core model (``sim_core.stack.ModelStack``) stepped by one N-world
+solver (``sim_core.worlds.make_worlds_solver``). Its ``step`` is the whole env step of every world:
+the tool's move, the task's control, the physics with its divergence checks, the measurements, the
+task's bookkeeping, rewards, success, observations and infos, each written once, on arrays whose
+first axis is the world. The single environment (``TissueEnv``) is its one-world case and the
+vector environment (``TissueVectorEnv``) its N-world case: a copy of a vector env and a single env
+with the same seed and actions take the same steps (tests/test_env_vector.py).
+
+Each task writes its hooks on a subclass (``TumorPositioningWorlds``, ...): ``_load_task`` (the
+episode data a world's reset drew, from its task env), ``_control``, ``_after_substep``,
+``_tool_position``, ``_task_measures``, ``_record``, ``_task_features``, ``_reward_terms``,
+``_is_success``, ``_task_info`` and ``_write_back_task``. Episodes are drawn by the task envs
+themselves (``TissueEnv._reset_episode``: their own random generators), one env per world.
+SI units.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+
+from sim_core import kernels
+from sim_core.batched import BatchedImplicitEuler
+from sim_core.model import Control, State
+from sim_core.stack import ModelStack, StackedForceWorkspace
+from sim_core.static import STATIC_CONTACT_PASSES, same_contacts
+from sim_core.worlds import make_worlds_solver
+
+#: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
+#: by a healthy simulation, that keeps every observation inside the observation space.
+OBS_LIMIT = 100.0
+
+
+def observation_arrays(parts, names, as_dict: bool):
+    """The observation from its features ``parts`` (float64 arrays, the feature index last): one
+    float32 array (their concatenation) or a dict ``names`` -> array, with NaN set to 0 and every
+    value clipped to +-OBS_LIMIT in one pass over the concatenation (a pass per feature was a
+    noticeable share of a step)."""
+    flat = np.concatenate(parts, axis=-1)
+    np.nan_to_num(flat, copy=False, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
+    np.clip(flat, -OBS_LIMIT, OBS_LIMIT, out=flat)
+    flat = flat.astype(np.float32)
+    if not as_dict:
+        return flat
+    ends = np.cumsum([part.shape[-1] for part in parts])
+    return {name: np.ascontiguousarray(flat[..., end - part.shape[-1]:end])
+            for name, part, end in zip(names, parts, ends)}
+
+
+class TaskWorlds:
+    """N worlds of a task (see the module docstring).
+
+    Args:
+        envs: the N task envs whose episodes the worlds play (built with the same keywords:
+            they share the block, the tool and the task's constants).
+        threads: threads of the per-world kernels (numba's pool; 1: the serial kernels). The
+            worlds are independent: any count gives the same floats.
+    """
+
+    #: How the implicit step solves each world's linear system (``sim_core.batched``):
+    #: "factorised" (each world's sparse factor kept across steps), "reference" (the factor of the
+    #: start-of-episode system matrix, shared by the worlds that start alike) or "jacobi". A task
+    #: env's ``preconditioner="auto"`` takes this one.
+    linear_solver = "factorised"
+    #: The measurement's force pass is also the next implicit step's (``BatchedImplicitEuler.linearise``
+    #: at the new state, plus the springs' damping forces): one pass over the stacked model per step
+    #: instead of two; off for tasks whose contact decisions read the sign of nodal forces.
+    share_force_pass = False
+    #: solver "factorised": None, or the iterations beyond the fresh count after which a world's
+    #: factor is refreshed (``BatchedImplicitEuler``'s ``amortise``; for scenes whose matrix changes
+    #: fast and factorises cheaply, e.g. Retraction)
+    refactor_amortise = None
+
+    def __init__(self, envs, threads: int = 1):
+        self.envs = list(envs)
+        self.threads = int(threads)
+        self.num_envs = count = len(self.envs)
+        env = self.envs[0]
+        self.task = env
+        self.stack = ModelStack(env.model, count)
+        self._forces = StackedForceWorkspace(self.stack, implicit=False, threads=self.threads)  # measurements
+        solver = self.linear_solver if env.preconditioner == "auto" else env.preconditioner
+        self.integrator = make_worlds_solver(env.integrator_name, self.stack, env.solver_tolerance, solver,
+                                             self.refactor_amortise, self.threads)
+        self.static = env.integrator_name == "static"
+        self.mesh = env.mesh
+        self.n_nodes = env.mesh.n_nodes
+        self.rest_length = self.stack.model.rest_length.reshape(count, -1)
+        self.positions = np.tile(env.mesh.nodes, (count, 1, 1))
+        self.velocities = np.zeros_like(self.positions)
+        self._lengths = self.rest_length.copy()  # spring lengths (N, S) m of the current state
+        self.tool_offset = np.zeros((count, 3))
+        self.workspace_low = np.zeros((count, 3))
+        self.workspace_high = np.zeros((count, 3))
+        self.rest_volume = np.ones(count)
+        self.episode_young_modulus = np.zeros(count)  # each world's material this episode (Pa, -)
+        self.episode_poisson_ratio = np.zeros(count)
+        self.elapsed = np.zeros(count, dtype=int)
+        self._no_force = np.zeros_like(self.positions)  # the worlds' loads are their models' gravity
+        #: (N, n, 3) bool: the dofs each world's tool imposed at its last measurement
+        self.tool_mask = np.zeros(self.positions.shape, dtype=bool)
+        #: (N, n, 3) the imposed components (bool) and their targets (m) of each world's last step
+        self.fixed = np.zeros(self.positions.shape, dtype=bool)
+        self.target = self.positions.copy()
+        self.measures = None
+        self._feature_sizes = env._feature_sizes
+        self.reward_names = env.reward_names + ("instability",)
+        # constants shared by every world (the same keywords built them)
+        for name in ("max_step", "dt", "substeps", "instability_penalty", "volume_weight",
+                     "strain_weight", "strain_threshold", "length_scale", "force_scale", "centre"):
+            setattr(self, name, getattr(env, name))
+
+    @property
+    def terminate_on_success(self) -> bool:
+        """Whether a success ends the episode: the task env's (an attribute a study may switch off)."""
+        return self.task.terminate_on_success
+
+    # -- hooks a task implements -------------------------------------------------------------------
+    def _load_task(self, index: int, env):
+        """Copy the episode's task data (goal, tumour ...) of ``env`` after its reset into world ``index``."""
+
+    def _control(self, rows=None):
+        """(fixed (N, n, 3) bool, target (N, n, 3) m, tool_mask (N, n, 3) bool: the dofs the tool
+        imposes) for the current tool offsets and state. A contact's active set is updated for the
+        worlds ``rows`` (N,) bool only (None: all); the others keep theirs."""
+        raise NotImplementedError
+
+    def _after_substep(self, positions, velocities, rows):
+        """Contact projection and the like on the worlds ``rows`` (N,) bool of the new state (in place)."""
+
+    def _tool_position(self, positions):
+        """(N, 3) tool positions, m (default: the mean of the grasped nodes)."""
+        return positions[:, self.task.tool_nodes].mean(axis=1)
+
+    def _task_measures(self, positions) -> dict:
+        return {}
+
+    def _record(self, measures, rows, fresh):
+        """Episode bookkeeping of the worlds ``rows`` (N,) bool after a measurement (how long a
+        condition has held ...); ``fresh`` (N,) bool: the worlds whose episode starts at this
+        measurement (their reset). May add entries to ``measures``."""
+
+    def _task_features(self, measures) -> dict:
+        return {}
+
+    def _reward_terms(self, measures) -> dict:
+        raise NotImplementedError
+
+    def _is_success(self, measures) -> np.ndarray:
+        raise NotImplementedError
+
+    def _task_info(self, measures) -> dict:
+        return {}
+
+    def _write_back_task(self, index: int, env):
+        """Put world ``index``'s task state back into ``env`` (what its render and scripted
+        controller read)."""
+
+    # -- loading episodes ----------------------------------------------------------------------------
+    def load(self, index: int):
+        """World ``index`` plays the episode its task env has just drawn (``TissueEnv._reset_episode``)."""
+        env = self.envs[index]
+        self.stack.assign(index, env.model)
+        self.positions[index] = env.state.positions
+        self.velocities[index] = env.state.velocities
+        self._lengths[index] = self._spring_lengths(self.positions)[index]
+        self.integrator.prepare(index, env.model, env.state.positions, env.dt, env.start_control.fixed)
+        self.fixed, self.target = np.array(self.fixed), np.array(self.target)  # (a task's control may return views)
+        self.fixed[index], self.target[index] = env.start_control.fixed, env.start_control.target
+        self.tool_offset[index] = env.tool_offset
+        self.workspace_low[index] = env.workspace_low
+        self.workspace_high[index] = env.workspace_high
+        self.rest_volume[index] = env.rest_volume
+        self.episode_young_modulus[index] = env.episode_young_modulus
+        self.episode_poisson_ratio[index] = env.episode_poisson_ratio
+        self.elapsed[index] = 0
+        self._load_task(index, env)
+
+    def observe(self, rows):
+        """The observations and infos (what ``reset`` returns) of the worlds ``rows`` (N,) bool,
+        just loaded: their episodes start at this measurement. Returns (observations, infos) of
+        every world (only the rows' are those of a reset)."""
+        rows = np.asarray(rows, dtype=bool)
+        self.tool_mask = np.array(self.tool_mask)  # (a task's control may return a read-only view)
+        for index in np.flatnonzero(rows):
+            self.tool_mask[index] = self.envs[index].start_tool_mask
+        measures = self._measure(self.tool_mask)
+        self._record(measures, rows, rows)
+        success = self._is_success(measures)
+        rewards = OrderedDict((name, np.zeros(self.num_envs)) for name in self.reward_names)
+        reasons = np.full(self.num_envs, None, dtype=object)
+        return self._observation(measures), self._info(measures, rewards, reasons, success)
+
+    # -- the step ------------------------------------------------------------------------------------
+    def step(self, actions, active):
+        """One env step of the worlds ``active`` (N,) bool, the others left as they are.
+
+        Args:
+            actions: (N, 3) finite actions in [-1, 1] (clipped) of the active worlds.
+        Returns: (observations, rewards (N,), terminated (N,) bool, infos: dict of (N, ...) arrays).
+        """
+        count = self.num_envs
+        active = np.asarray(active, dtype=bool)
+        clipped = np.clip(np.where(active[:, None], actions, 0.0), -1.0, 1.0)
+        self.tool_offset = np.where(
+            active[:, None],
+            self.task.constrain_tool(np.clip(self.tool_offset + self.max_step * clipped, self.workspace_low,
+                                             self.workspace_high)),
+            self.tool_offset)
+        fixed, target, tool_mask = self._control()
+        reasons, tool_mask, self.fixed, self.target = self._advance(fixed, target, tool_mask, active)
+        self.tool_mask = tool_mask
+        self.elapsed[active] += 1
+        measures = self._measure(tool_mask)
+        self._record(measures, active, np.zeros(count, dtype=bool))
+        unstable = np.array([reason is not None for reason in reasons])
+        terms = self._reward_terms(measures)
+        rewards = OrderedDict()
+        for name in self.reward_names:
+            if name == "instability":
+                continue  # added last, alone on a diverging step
+            rewards[name] = np.where(unstable, 0.0, terms[name])
+        success = self._is_success(measures) & ~unstable
+        total = np.zeros(count)
+        for value in rewards.values():
+            total = total + value
+        instability = np.where(unstable, -self.instability_penalty, 0.0)
+        total = np.where(unstable, instability, total)  # a diverging step: only this term
+        rewards["instability"] = instability
+        terminated = unstable | (success & self.terminate_on_success)
+        return self._observation(measures), total, terminated, self._info(measures, rewards, reasons, success)
+
+    # -- physics -------------------------------------------------------------------------------------
+    def _advance(self, fixed, target, tool_mask, active):
+        """``substeps`` solver steps of the worlds in ``active``; a world that diverges keeps its
+        last healthy state. Returns ((N,) reasons, None where healthy; the step's tool mask, imposed
+        components and targets).
+
+        With ``integrator="static"`` a substep is a static equilibrium, and a contact's active set
+        (Palpation's probe, Retraction's floor) is iterated within it: after each solve the task
+        projects the nodes that went through the obstacle (``_after_substep``) and re-forms its
+        control at the new state (``_control``: nodes the tissue pulls away are released, held
+        heights follow the nodes' sliding), and the worlds whose imposed set or heights changed
+        (``sim_core.static.same_contacts``) are solved again, at most STATIC_CONTACT_PASSES times,
+        so the state is the equilibrium of the contact problem at the tool's position. The
+        implicit integrator updates the set once per step: the dynamics carry it along."""
+        count = self.num_envs
+        reasons = np.full(count, None, dtype=object)
+        running = active.copy()
+        passes = STATIC_CONTACT_PASSES if self.static else 1
+        for _ in range(self.substeps):
+            solving = running.copy()
+            for attempt in range(passes):
+                failed = self._substep(Control(fixed, target, self._no_force), solving, reasons)
+                running &= ~failed
+                solving &= ~failed
+                if attempt + 1 == passes or not solving.any():
+                    break
+                self._measure(tool_mask)  # the forces that release contact nodes
+                previous_fixed, previous_target = fixed, target
+                fixed, target, tool_mask = self._control(solving)
+                solving &= ~same_contacts(previous_fixed, previous_target, fixed, target)
+                if not solving.any():
+                    break
+        return reasons, tool_mask, fixed, target
+
+    def _substep(self, control, running, reasons):
+        """One solver step of the worlds ``running`` into ``self.positions``/``velocities``; the
+        ones that diverge keep their state and get their reason in ``reasons``. Returns (N,) bool,
+        the worlds that diverged."""
+        positions, velocities = self.positions, self.velocities
+        new = State(positions, velocities)
+        try:
+            with np.errstate(all="ignore"):
+                # each world's divergence checks (non-finite positions or velocities first) included
+                report = self.integrator.step(State(positions, velocities), new, control, self.dt, running)
+        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as error:
+            for index in np.flatnonzero(running):
+                reasons[index] = f"physics error: {error}"
+            return running.copy()
+        new_positions, new_velocities = new.positions, new.velocities
+        reasons[running] = report.unstable_reason[running]
+        healthy = running & np.array([reason is None for reason in reasons])
+        self._after_substep(new_positions, new_velocities, healthy)
+        with np.errstate(all="ignore"):
+            length = self._spring_lengths(new_positions)
+            collapsed = self._strain(length)[1]
+        length[~running] = self._lengths[~running]
+        for index in np.flatnonzero(healthy & collapsed):
+            reasons[index] = "collapsed spring (zero length)"
+        failed = running & np.array([reason is not None for reason in reasons])
+        keep = ~running | failed
+        new_positions[keep] = positions[keep]
+        new_velocities[keep] = velocities[keep]
+        length[failed] = self._lengths[failed]
+        self.positions, self.velocities, self._lengths = new_positions, new_velocities, length
+        return failed
+
+    def _spring_lengths(self, positions):
+        """(N, S) spring lengths, m, of the stacked positions (N, n, 3) (one compiled pass)."""
+        springs = self.stack.model.springs
+        length = np.empty(len(springs))
+        flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
+        if kernels.threaded(self.threads):  # the worlds on numba's threads
+            kernels.spring_lengths_copies(self.num_envs, flat, springs, length)
+        else:
+            kernels.spring_lengths(flat, springs, length)
+        return length.reshape(self.num_envs, -1)
+
+    def _strain(self, length):
+        """(max |L / L0 - 1| (N,), whether a spring collapsed, L <= 1e-6 L0 (N,) bool) of the spring
+        lengths (N, S) m, in one compiled pass."""
+        strain, collapsed = np.empty(self.num_envs), np.empty(self.num_envs, dtype=bool)
+        kernels.variant(kernels.strain_extremes, self.threads)(length, self.rest_length, strain, collapsed)
+        return strain, collapsed
+
+    # -- measurements, observation, info -------------------------------------------------------------
+    def _measure(self, tool_mask):
+        """The measurements of every world: positions (N, n, 3) m, the net nodal forces (N, n, 3) N,
+        the force the tool exerts (the reaction on its dofs ``tool_mask``) (N, 3) N, the largest
+        spring strain (N,) and the relative volume change (N,), and the task's."""
+        count = self.num_envs
+        positions, velocities = self.positions, self.velocities
+        model = self.stack.model
+        with np.errstate(all="ignore"):
+            flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
+            flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
+            if self.share_force_pass and isinstance(self.integrator, BatchedImplicitEuler):
+                forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
+                self.integrator.workspace.add_damping(flat_velocities, forces)
+            else:
+                forces = self._forces.compute(flat, flat_velocities)
+            forces = forces + model.gravity_force
+            forces = forces.reshape(count, -1, 3)
+            reaction = np.empty((count, 3))
+            kernels.masked_reaction(forces, tool_mask, reaction)
+            strain = self._strain(self._lengths)[0]
+            # exact trilinear volumes of the stacked model's elements (HexMesh.element_volumes)
+            elements = model.mesh.elements
+            arguments = (flat, elements, np.empty(len(elements)))
+            volume = (kernels.element_volumes_copies(count, *arguments) if kernels.threaded(self.threads)
+                      else kernels.element_volumes(*arguments)).reshape(count, -1).sum(axis=1)
+        measures = dict(positions=positions, reaction_force=reaction, max_strain=strain, forces=forces,
+                        relative_volume_change=(volume - self.rest_volume) / self.rest_volume)
+        measures.update(self._task_measures(positions))
+        return measures
+
+    def _features(self, measures):
+        env = self.task
+        positions = measures["positions"]
+        features = dict(
+            tool_position=(self._tool_position(positions) - self.centre) / self.length_scale,
+            tool_displacement=self.tool_offset / self.length_scale,
+            reaction_force=measures["reaction_force"] / self.force_scale,
+            relative_volume_change=100.0 * measures["relative_volume_change"][:, None],
+            max_strain=100.0 * measures["max_strain"][:, None],
+        )
+        features.update(self._task_features(measures))
+        if env.observation_type != "state":
+            surface = env.surface_nodes
+            displacement = positions[:, surface] - env.mesh.nodes[surface]
+            features["surface_displacement"] = displacement.reshape(self.num_envs, -1) / self.length_scale
+        return features
+
+    def _observation(self, measures):
+        features = self._features(measures)
+        parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
+        return observation_arrays(parts, list(self._feature_sizes), self.task.observation_type == "dict")
+
+    def _info(self, measures, rewards, reasons, success):
+        """Every world's info, as (N, ...) arrays."""
+        info = dict(
+            relative_volume_change=np.asarray(measures["relative_volume_change"], dtype=float),
+            max_strain=np.asarray(measures["max_strain"], dtype=float),
+            reaction_force=np.array(measures["reaction_force"], dtype=float),
+            unstable=np.array([reason is not None for reason in reasons]),
+            unstable_reason=reasons.copy(),
+            is_success=np.asarray(success, dtype=bool),
+            # the episode's material, as drawn from the *_range keywords (or the fixed values)
+            young_modulus=self.episode_young_modulus.copy(),
+            poisson_ratio=self.episode_poisson_ratio.copy(),
+        )
+        for name in self.reward_names:
+            info[f"reward_{name}"] = np.asarray(rewards[name], dtype=float)
+        info.update(self._task_info(measures))
+        self.measures = measures
+        return info
+
+    def _damage_terms(self, measures):
+        """The damage penalties of every world: the |relative volume change| and the spring strain
+        beyond ``strain_threshold``."""
+        return dict(
+            volume=-self.volume_weight * np.abs(measures["relative_volume_change"]),
+            strain=-self.strain_weight * np.maximum(0.0, measures["max_strain"] - self.strain_threshold),
+        )
+
+    # -- back into the task envs ---------------------------------------------------------------------
+    def write_back(self, index: int):
+        """Put world ``index``'s state, tool, last measurements and task state into its task env
+        (what its ``render``, ``scripted_action`` and ``get_state`` read)."""
+        env = self.envs[index]
+        env.state = State(self.positions[index].copy(), self.velocities[index].copy())
+        env.tool_offset = self.tool_offset[index].copy()
+        env.elapsed_steps = int(self.elapsed[index])
+        env.control = Control(self.fixed[index].copy(), self.target[index].copy(), np.zeros((self.n_nodes, 3)))
+        measures = self.measures
+        if measures is not None:
+            env.measures = {name: (value[index] if isinstance(value, np.ndarray) else value)
+                            for name, value in measures.items()}
+        self._write_back_task(index, env)
+
+    def shared_objects(self) -> list:
+        """Objects a snapshot of a task env shares instead of copying (the solver's caches of
+        factorisations by content: a cached one is the one that would be computed)."""
+        shared = [self.stack.reference]
+        for name in ("_kept_starts", "_kept_first"):
+            cache = getattr(self.integrator, name, None)
+            if cache is not None:
+                shared.append(cache)
+                shared.extend(cache.values())
+        return shared
