@@ -464,8 +464,7 @@ class BatchedImplicitEuler(WorldsSolver):
         self._factors[index] = factor
         self._factor_free[index] = free
         if factor is not None:
-            self._lu_int[index] = factor.ints
-            self._lu_float[index] = factor.floats
+            kernels.set_list_items(self._lu_int, self._lu_float, index, factor.ints, factor.floats)
 
     def _set_baseline(self, copies, iterations):
         """The copies ``copies`` (N,) bool got their factor (made, or taken from the cache) and their
@@ -591,14 +590,14 @@ class BatchedImplicitEuler(WorldsSolver):
                 wanted.append((index, factor, np.flatnonzero(held[row])))
             elif self._correction_of[index] is not self._no_correction:
                 self._correction_of[index] = self._no_correction
-                self._corrections[index], self._imposed[index] = self._no_correction
+                kernels.set_list_items(self._corrections, self._imposed, index, *self._no_correction)
         self._inverse_columns(wanted, dofs)
         self._form_corrections(wanted, dofs)
         for index, factor, imposed in wanted:
             entry = factor.correction(imposed, dofs) or self._no_correction
             if self._correction_of[index] is not entry:
                 self._correction_of[index] = entry
-                self._corrections[index], self._imposed[index] = entry
+                kernels.set_list_items(self._corrections, self._imposed, index, *entry)
 
     def _inverse_columns(self, wanted, dofs):
         """Solve the columns of the inverse that the corrections ``wanted`` ([(copy, factor, imposed

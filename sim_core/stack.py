@@ -150,20 +150,18 @@ class ModelStack:
 
 
 class StackedForceWorkspace(ForceWorkspace):
-    """``sim_core.forces.ForceWorkspace`` of a ``ModelStack``'s stacked model whose hourglass term is
-    one pass over ONE copy's hourglass matrix for all copies (``kernels.stacked_hourglass_subtract``,
-    the copies with equal matrices sharing a column of values): the stacked CSR matrix is N times a
-    copy's (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass
-    slower per copy than a single env's. Where the copies hold different matrices, the pass
-    reads each in node blocks once for all its copies instead (``kernels.stacked_hourglass_subtract_groups``;
-    the copies-last CSR pass gathered one value per copy and entry). Same forces up to rounding."""
+    """``sim_core.forces.ForceWorkspace`` of a ``ModelStack``'s stacked model whose hourglass term
+    reads each distinct copy's hourglass matrix once for all the copies that hold it, in node blocks
+    (``kernels.stacked_hourglass_subtract_groups``): the stacked CSR matrix is N times a copy's
+    (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass slower
+    per copy than a single env's. The same pass serves one world and N, whatever the other copies
+    hold, so a copy's forces are bitwise those of the same world alone."""
 
     def __init__(self, stack: ModelStack, implicit: bool = True, threads: int = 1):
         super().__init__(stack.model, implicit=implicit)
         self.stack = stack
         #: the hourglass pass runs on numba's threads when ``kernels.threaded(threads)``
         self.threads = int(threads)
-        self._displacement = np.empty((3 * stack.n_nodes, stack.count))
         self._blocks = None  # hourglass_blocks: (stack version, arrays)
         self._block_map = None
 
@@ -197,25 +195,18 @@ class StackedForceWorkspace(ForceWorkspace):
             values = stack.copies_last()
             threaded = kernels.threaded(self.threads)
             positions = np.ascontiguousarray(positions, dtype=float)
-            if values["hourglass"].shape[1] > 1:  # copies of different matrices: each read once, in node blocks
-                group = values["hourglass_group"]
-                order = np.argsort(group, kind="stable").astype(np.int64)
-                group_start = np.searchsorted(group[order], np.arange(values["hourglass"].shape[1] + 1))
-                indptr, indices, block_rows = self.hourglass_blocks()
-                args = (indptr, indices, block_rows, order, group_start.astype(np.int64), positions,
-                        self.rest_positions, forces)
-                if threaded:  # a block of rows per thread
-                    kernels.stacked_hourglass_subtract_groups(*args, numba.get_num_threads())
-                else:
-                    kernels.stacked_hourglass_subtract_groups_serial(*args)
-                return forces
-            hg_indptr, hg_indices, _ = stack.reference.hourglass_arrays
-            args = (hg_indptr, hg_indices, values["hourglass"], values["hourglass_group"], positions,
-                    self.rest_positions, forces, self._displacement)
+            # each distinct matrix read once for all its copies, in node blocks: the same floats per
+            # copy whatever the other copies hold (one world equals its copy in N worlds)
+            group = values["hourglass_group"]
+            order = np.argsort(group, kind="stable").astype(np.int64)
+            group_start = np.searchsorted(group[order], np.arange(values["hourglass"].shape[1] + 1))
+            indptr, indices, block_rows = self.hourglass_blocks()
+            args = (indptr, indices, block_rows, order, group_start.astype(np.int64), positions,
+                    self.rest_positions, forces)
             if threaded:  # a block of rows per thread
-                kernels.stacked_hourglass_subtract(*args, numba.get_num_threads())
+                kernels.stacked_hourglass_subtract_groups(*args, numba.get_num_threads())
             else:
-                kernels.stacked_hourglass_subtract_serial(*args)
+                kernels.stacked_hourglass_subtract_groups_serial(*args)
         return forces
 
 

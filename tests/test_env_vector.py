@@ -66,17 +66,15 @@ def test_make_vec_uses_the_vector_entry_point(env_id):
 @pytest.mark.parametrize("tolerance", [None, 1e-9], ids=["default settings", "tight solves"])
 def test_a_copy_equals_the_single_env_with_the_same_seed_and_actions(env_id, tolerance):
     """A vector copy and the single env take the same steps: every observation entry within 1e-6
-    (observation units), rewards within 1e-6, infos (SI units) within 1e-4 relative or 1e-7
-    absolute, the same episode ends, over 40 random
+    (observation units), rewards within 1e-6, infos (SI units) within 1e-6 relative, the same
+    episode ends, over 40 random
     steps of 4 copies whose short episodes cover truncation and the next-step autoreset; at the
-    default solver tolerance as at a tight one. (Measured: TumorPositioning and Retraction equal
-    bit for bit; Palpation's observations within 6e-8 and its infos within 2e-5 relative on
-    newton-scale forces of 1e-3 N: copies of different inclusions take the stacked force pass's
-    node-block hourglass product, a single env its CSR product, which round differently.)"""
+    default solver tolerance as at a tight one. (Measured: equal bit for bit on every task: a
+    world's floats do not depend on the other worlds.)"""
     kwargs = {} if tolerance is None else dict(solver_tolerance=tolerance)
     vector, sync = make_pair(env_id, 4, max_episode_steps=12, **kwargs)
-    done = run_side_by_side(vector, sync, steps=40, seed=5, obs_atol=1e-6, reward_atol=1e-6, info_atol=1e-7,
-                            obs_rtol=0.0, info_rtol=1e-4)
+    done = run_side_by_side(vector, sync, steps=40, seed=5, obs_atol=1e-6, reward_atol=1e-6, info_atol=1e-9,
+                            obs_rtol=0.0, info_rtol=1e-6)
     assert done >= 8  # every copy truncated (and was autoreset) at least twice
     vector.close()
     sync.close()

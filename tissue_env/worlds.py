@@ -51,6 +51,11 @@ def observation_arrays(parts, names, as_dict: bool):
             for name, part, end in zip(names, parts, ends)}
 
 
+def _writeable(array):
+    """``array``, or a copy of it where it is a read-only view (a task's control may return one)."""
+    return array if array.flags.writeable else array.copy()
+
+
 class TaskWorlds:
     """N worlds of a task (see the module docstring).
 
@@ -169,7 +174,7 @@ class TaskWorlds:
         self.velocities[index] = env.state.velocities
         self._lengths[index] = self._spring_lengths(self.positions)[index]
         self.integrator.prepare(index, env.model, env.state.positions, env.dt, env.start_control.fixed)
-        self.fixed, self.target = np.array(self.fixed), np.array(self.target)  # (a task's control may return views)
+        self.fixed, self.target = _writeable(self.fixed), _writeable(self.target)
         self.fixed[index], self.target[index] = env.start_control.fixed, env.start_control.target
         self.tool_offset[index] = env.tool_offset
         self.workspace_low[index] = env.workspace_low
@@ -185,7 +190,7 @@ class TaskWorlds:
         just loaded: their episodes start at this measurement. Returns (observations, infos) of
         every world (only the rows' are those of a reset)."""
         rows = np.asarray(rows, dtype=bool)
-        self.tool_mask = np.array(self.tool_mask)  # (a task's control may return a read-only view)
+        self.tool_mask = np.array(self.tool_mask)  # a copy: a task may hold the array its control returned
         for index in np.flatnonzero(rows):
             self.tool_mask[index] = self.envs[index].start_tool_mask
         measures = self._measure(self.tool_mask)

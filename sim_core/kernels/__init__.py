@@ -76,8 +76,8 @@ from .update import (  # noqa: F401
 )
 from .forces import (  # noqa: F401
     correction_pass, fixed_direction_corrections, model_forces, model_forces_copies, scatter_springs,
-    scatter_springs_copies, spring_pass, stacked_hourglass_subtract, stacked_hourglass_subtract_groups,
-    stacked_hourglass_subtract_groups_serial, stacked_hourglass_subtract_serial, subtract_pushes,
+    scatter_springs_copies, spring_pass, stacked_hourglass_subtract_groups,
+    stacked_hourglass_subtract_groups_serial, subtract_pushes,
     volume_forces_add, volume_forces_jacobian_add, volume_jacobian_terms, volume_pass,
 )
 from .operator import (  # noqa: F401
@@ -90,7 +90,7 @@ from .factor import (  # noqa: F401
     block_ldl_factor, block_ldl_solve, block_ldl_solve_one, block_lu_apply, block_lu_factor, block_lu_solve,
     capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply,
     factor_copies, factor_copies_serial, inverse_columns_copies, inverse_columns_copies_serial, lu_apply,
-    lu_columns,
+    lu_columns, set_list_items,
 )
 from .krylov import (  # noqa: F401
     batched_precondition, batched_solve, solve_springs,

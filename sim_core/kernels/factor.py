@@ -706,3 +706,12 @@ def capacitance_corrections_serial(columns, indptr, imposed, out, ok):
     """``capacitance_corrections`` in this thread only (one thread, a forked process)."""
     for t in range(indptr.shape[0] - 1):
         _capacitance_task(columns, indptr, imposed, out, ok, t)
+
+
+@njit(cache=True, nogil=True)
+def set_list_items(first, second, index, first_value, second_value):
+    """``first[index] = first_value`` and ``second[index] = second_value`` on two numba typed Lists,
+    compiled once and cached: a typed List's own ``__setitem__`` called from Python is compiled again
+    in every process (about 0.4 s at the first factorisation of an env's life)."""
+    first[index] = first_value
+    second[index] = second_value

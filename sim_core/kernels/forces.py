@@ -10,7 +10,6 @@ from numba import njit, prange
 
 from ..topology import EDGES
 from .fastmath import FAST
-from .operator import copies_row_product
 
 _EDGES = np.ascontiguousarray(EDGES)
 
@@ -532,51 +531,6 @@ def scatter_springs_copies(count, springs, unit, tension, damping, velocities, u
     for c in prange(count):
         a, b = c * per, (c + 1) * per
         scatter_springs(springs[a:b], unit[a:b], tension[a:b], damping[a:b], velocities, use_velocity, forces)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
-def _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, block, blocks, fill):
-    """Rows [block dofs / blocks, (block + 1) dofs / blocks) of ``stacked_hourglass_subtract``: the
-    copies' displacements there (``fill``), else their forces."""
-    n_copies = hg_group.shape[0]
-    dofs = hg_indptr.shape[0] - 1
-    first, last = block * dofs // blocks, (block + 1) * dofs // blocks
-    if fill:
-        for c in range(n_copies):
-            for i in range(first, last):
-                displacement[i, c] = x[c * dofs + i] - rest[c * dofs + i]
-        return
-    total = np.empty(n_copies)
-    for row in range(first, last):
-        copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, displacement, row, total)
-        for c in range(n_copies):
-            flat[c * dofs + row] -= total[c]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
-def stacked_hourglass_subtract_serial(hg_indptr, hg_indices, hg_data, hg_group, positions, rest_positions, forces,
-                                      displacement):
-    """forces (N n, 3) -= K_c (x_c - X_c) for every copy c of a stacked model (copies first: copy c's
-    nodes are the c-th n rows), K_c the hourglass matrix of ONE copy (CSR ``hg_indptr``,
-    ``hg_indices``) with the values ``hg_data[:, hg_group[c]]`` ((nnz, G): the G distinct matrices).
-    ``model_forces``' hourglass term of the stacked model, reading the single copy's matrix once for
-    all copies instead of a stacked matrix N times its size (out of cache at N = 16).
-    ``displacement`` (3 n, N) scratch."""
-    x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
-    _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, 0, 1, True)
-    _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, 0, 1, False)
-
-
-@njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
-def stacked_hourglass_subtract(hg_indptr, hg_indices, hg_data, hg_group, positions, rest_positions, forces,
-                               displacement, blocks):
-    """``stacked_hourglass_subtract_serial`` with its rows in ``blocks`` blocks (one per numba
-    thread) on numba's threads (a row's sum is the same for any split: the same floats)."""
-    x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
-    for block in prange(blocks):
-        _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, block, blocks, True)
-    for block in prange(blocks):
-        _hourglass_block(hg_indptr, hg_indices, hg_data, hg_group, x, rest, flat, displacement, block, blocks, False)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
