@@ -535,7 +535,9 @@ def scatter_springs_copies(count, springs, unit, tension, damping, velocities, u
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
 def _hourglass_group_rows(indptr, indices, block_rows, order, group_start, displacement, flat, block, blocks, total):
-    """Node rows [block n / blocks, (block + 1) n / blocks) of ``stacked_hourglass_subtract_groups``."""
+    """Node rows [block n / blocks, (block + 1) n / blocks) of ``stacked_hourglass_subtract_groups``;
+    ``displacement`` (3 n, N) and ``total`` (3, N) hold the copies last (in group order), so a
+    block's three rows of displacements are contiguous for all its copies."""
     n_nodes = indptr.shape[0] - 1
     dofs = 3 * n_nodes
     first, last = block * n_nodes // blocks, (block + 1) * n_nodes // blocks
@@ -544,9 +546,9 @@ def _hourglass_group_rows(indptr, indices, block_rows, order, group_start, displ
             start, end = group_start[g], group_start[g + 1]
             values = block_rows[g]
             for t in range(start, end):
-                total[t, 0] = 0.0
-                total[t, 1] = 0.0
-                total[t, 2] = 0.0
+                total[0, t] = 0.0
+                total[1, t] = 0.0
+                total[2, t] = 0.0
             for q in range(indptr[i], indptr[i + 1]):
                 j = 3 * indices[q]
                 b = 9 * q
@@ -554,15 +556,15 @@ def _hourglass_group_rows(indptr, indices, block_rows, order, group_start, displ
                 b10, b11, b12 = values[b + 3], values[b + 4], values[b + 5]
                 b20, b21, b22 = values[b + 6], values[b + 7], values[b + 8]
                 for t in range(start, end):
-                    d0, d1, d2 = displacement[t, j], displacement[t, j + 1], displacement[t, j + 2]
-                    total[t, 0] += b00 * d0 + b01 * d1 + b02 * d2
-                    total[t, 1] += b10 * d0 + b11 * d1 + b12 * d2
-                    total[t, 2] += b20 * d0 + b21 * d1 + b22 * d2
+                    d0, d1, d2 = displacement[j, t], displacement[j + 1, t], displacement[j + 2, t]
+                    total[0, t] += b00 * d0 + b01 * d1 + b02 * d2
+                    total[1, t] += b10 * d0 + b11 * d1 + b12 * d2
+                    total[2, t] += b20 * d0 + b21 * d1 + b22 * d2
             for t in range(start, end):
                 row = order[t] * dofs + 3 * i
-                flat[row] -= total[t, 0]
-                flat[row + 1] -= total[t, 1]
-                flat[row + 2] -= total[t, 2]
+                flat[row] -= total[0, t]
+                flat[row + 1] -= total[1, t]
+                flat[row + 2] -= total[2, t]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
@@ -577,13 +579,13 @@ def stacked_hourglass_subtract_groups_serial(indptr, indices, block_rows, order,
     n_copies = order.shape[0]
     dofs = 3 * (indptr.shape[0] - 1)
     x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
-    displacement = np.empty((n_copies, dofs))
+    displacement = np.empty((dofs, n_copies))
     for t in range(n_copies):
         c = order[t]
         for j in range(dofs):
-            displacement[t, j] = x[c * dofs + j] - rest[c * dofs + j]
+            displacement[j, t] = x[c * dofs + j] - rest[c * dofs + j]
     _hourglass_group_rows(indptr, indices, block_rows, order, group_start, displacement, flat, 0, 1,
-                          np.empty((n_copies, 3)))
+                          np.empty((3, n_copies)))
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
@@ -594,11 +596,11 @@ def stacked_hourglass_subtract_groups(indptr, indices, block_rows, order, group_
     n_copies = order.shape[0]
     dofs = 3 * (indptr.shape[0] - 1)
     x, rest, flat = positions.reshape(-1), rest_positions.reshape(-1), forces.reshape(-1)
-    displacement = np.empty((n_copies, dofs))  # the copies' displacements in group order
+    displacement = np.empty((dofs, n_copies))  # the copies' displacements in group order, copies last
     for t in prange(n_copies):
         c = order[t]
         for j in range(dofs):
-            displacement[t, j] = x[c * dofs + j] - rest[c * dofs + j]
+            displacement[j, t] = x[c * dofs + j] - rest[c * dofs + j]
     for block in prange(blocks):
         _hourglass_group_rows(indptr, indices, block_rows, order, group_start, displacement, flat, block, blocks,
-                              np.empty((n_copies, 3)))
+                              np.empty((3, n_copies)))
