@@ -341,9 +341,17 @@ class TissueEnv(gym.Env):
         return control
 
     def _initial_positions(self, model, control):
-        """Start positions: the static equilibrium under gravity with the tool at rest."""
+        """Start positions: the static equilibrium under gravity with the tool at rest. A material
+        that cannot carry its own weight in this shape has none: ValueError (an episode from the
+        rest shape would be meaningless)."""
         result = solve_static(model, control, tolerance=1e-6)
-        return result.positions if result.converged else model.rest_positions.copy()
+        if not result.converged:
+            raise ValueError(
+                f"the block has no start equilibrium under gravity ({result.message}) with "
+                f"young_modulus={self.episode_young_modulus:g} Pa, density={self.density:g} kg/m^3, "
+                f"gravity={self.gravity:g} m/s^2 and size {self.size.tolist()} m: the tissue cannot carry its "
+                "own weight; use a stiffer or lighter material, a smaller block or less gravity")
+        return result.positions
 
     def scripted_action(self) -> np.ndarray:
         """A hand-written controller's action for the current state (a baseline)."""

@@ -46,18 +46,18 @@ def apparent_modulus(force, indentation, radius, tip):
     return np.where(touching, modulus, 0.0)
 
 
-def map_features(palpation_map, centres, tips, length_scale, squeeze=False):
-    """Observation features of palpation maps (N, C) in Pa: the map (apparent modulus, kPa, 0 where
-    not probed yet), the horizontal offset (cm) from the tip to the stiffest probed cell and to the
-    nearest cell not probed yet (zeros when there is none)."""
+def map_features(palpation_map, centres, tips, length_scale, modulus):
+    """Observation features of palpation maps (N, C) in Pa: the map in units of ``modulus`` (N,) Pa
+    (the tissue's apparent modulus E / (1 - nu^2): the surrounding tissue reads about 1 at any
+    stiffness; 0 where not probed yet), the horizontal offset (cm) from the tip to the stiffest
+    probed cell and to the nearest cell not probed yet (zeros when there is none)."""
     offsets = (centres[None] - tips[:, None][..., [0, 2]]) / length_scale  # (N, C, 2)
     index = np.arange(len(palpation_map))
     probed = palpation_map > 0
     stiffest = np.where(probed.any(axis=1)[:, None], offsets[index, np.argmax(palpation_map, axis=1)], 0.0)
     distance = np.where(probed, np.inf, np.hypot(offsets[..., 0], offsets[..., 1]))
     unprobed = np.where((~probed).any(axis=1)[:, None], offsets[index, np.argmin(distance, axis=1)], 0.0)
-    features = dict(palpation_map=palpation_map / 1000.0, stiffest_offset=stiffest, unprobed_offset=unprobed)
-    return {key: value[0] for key, value in features.items()} if squeeze else features
+    return dict(palpation_map=palpation_map / modulus[:, None], stiffest_offset=stiffest, unprobed_offset=unprobed)
 
 
 class PalpationWorlds(TaskWorlds):
@@ -169,11 +169,14 @@ class PalpationWorlds(TaskWorlds):
         self.distance = np.where(rows, distance, self.distance)
 
     def _task_features(self, measures):
+        # moduli and stiffnesses relative to the episode's tissue: the same range at any stiffness
+        modulus = self.episode_young_modulus / (1.0 - self.episode_poisson_ratio ** 2)  # E*, Pa
         return dict(depth=measures["depth"][:, None] / self.length_scale,
                     contact_nodes=self.contact.sum(axis=1)[:, None],
-                    indentation_stiffness=measures["indentation_stiffness"][:, None] / 100.0,
+                    # F / d of a flat punch of the probe's radius on the tissue: 2 E* R
+                    indentation_stiffness=(measures["indentation_stiffness"] / (2.0 * modulus * self.task.probe_radius))[:, None],
                     hold_progress=np.minimum(measures["press_steps"], self.hold_steps)[:, None] / self.hold_steps,
-                    **map_features(self.palpation_map, self.cell_centres, self._tips(), self.length_scale))
+                    **map_features(self.palpation_map, self.cell_centres, self._tips(), self.length_scale, modulus))
 
     def _task_info(self, measures):
         return dict(depth=measures["depth"].copy(), horizontal_distance=measures["horizontal_distance"].copy(),
@@ -269,9 +272,9 @@ class PalpationEnv(TissueEnv):
     | 10    | maximum spring strain abs(L - L0) / L0             | %                     |
     | 11    | indentation depth below the undeformed surface     | cm (negative above)   |
     | 12    | number of top nodes in contact with the probe      | count                 |
-    | 13    | indentation stiffness, vertical force / depth      | N/m / 100 (0 if none) |
+    | 13    | indentation stiffness, vertical force / depth      | 2 E* R (0 if none)    |
     | 14    | steps the success press has been held / hold_steps | 1 (0 when not pressing) |
-    | 15 .. 15+C-1 | palpation map: apparent modulus of the latest press on each candidate cell | kPa (0 = not probed yet) |
+    | 15 .. 15+C-1 | palpation map: apparent modulus of the latest press on each candidate cell | E* (0 = not probed yet) |
     | 15+C, 16+C   | offset (x, z) from the tip to the stiffest probed cell | cm (0 if none) |
     | 17+C, 18+C   | offset (x, z) from the tip to the nearest cell not probed yet | cm (0 if none) |
 
@@ -290,6 +293,11 @@ class PalpationEnv(TissueEnv):
     1.24-1.29x; and a press held still replaces the first step of a press at full speed, which
     reads 0.96-3.87x the held reading at the same place (the map's grid over one node period: the
     damping of the tissue it sets moving, a contact still forming; 0.50-1.84x at (8, 4, 8)).
+    The observation gives the map, and the indentation stiffness, relative to the episode's
+    tissue (E* of its young_modulus and poisson_ratio; 2 E* R, R the probe radius): the
+    surrounding tissue reads about 0.8-1 at any stiffness and the inclusion its ratio, inside
+    the observation bounds from 1 kPa to 1 MPa (in kPa, an inclusion's first press read up to 102
+    at the defaults, beyond the bound of 100).
 
     How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
     tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within

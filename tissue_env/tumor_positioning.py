@@ -28,6 +28,8 @@ GOAL_SOLVER = dict(chord_contraction=0.95, acceleration=5, max_load_steps=8)
 #: 1-1000) stops after a few factorisations, not 20-27, with the same goals
 #: (``benchmarks/reset_speed.py``).
 GOAL_RETRY_SOLVER = dict(GOAL_SOLVER, max_load_steps=2, max_iterations=20)
+#: Random goal directions a reset tries before it says that no goal is reachable (``_start_hook``).
+GOAL_ATTEMPTS = 5
 
 
 def trilinear_weights(local):
@@ -293,7 +295,26 @@ class TumorPositioningEnv(TissueEnv):
         # Reachable goal: the tumour's equilibrium for a random admissible tool displacement.
         # A random direction and a length of 0.5-1 goal_displacement (along its largest axis); when
         # the tumour moves less than the minimum goal distance, the displacement is scaled up
-        # (the response is nearly linear) and solved again from the previous equilibrium.
+        # (the response is nearly linear) and solved again from the previous equilibrium. A draw
+        # whose goal stays within success_distance of the start (no solve converged) would be a
+        # success at reset: another direction is drawn, GOAL_ATTEMPTS in all, then ValueError.
+        for _ in range(GOAL_ATTEMPTS):
+            goal, displacement = self._draw_goal(start)
+            if np.linalg.norm(goal - self.tumor_start) >= self.success_distance:
+                break
+        else:
+            raise ValueError(
+                f"no reachable goal: {GOAL_ATTEMPTS} tool displacements found no static equilibrium that moves the "
+                f"tumour {self.success_distance:g} m (young_modulus={self.episode_young_modulus:g} Pa, "
+                f"poisson_ratio={self.episode_poisson_ratio:g}, density={self.density:g} kg/m^3); the material "
+                "cannot be positioned in this block: use a stiffer material or a smaller goal_displacement")
+        self.goal = goal
+        self.goal_tool_displacement = displacement
+        self.measures = None
+
+    def _draw_goal(self, start):
+        """(goal (3,) m, tool displacement (3,) m) of one random direction from ``start`` (n, 3) m:
+        the tumour at the last converged equilibrium (the start where none converged)."""
         direction = self.np_random.normal(size=3)
         direction /= max(np.abs(direction).max(), 1e-12)
         displacement = self.np_random.uniform(*self.goal_scale_range) * direction * self.goal_displacement
@@ -319,9 +340,7 @@ class TumorPositioningEnv(TissueEnv):
         if not result.converged:  # keep the last converged goal (or the start) rather than a bad one
             goal = self.tumor_weights @ positions[self.tumor_nodes]
             displacement = reached
-        self.goal = goal
-        self.goal_tool_displacement = displacement
-        self.measures = None
+        return goal, displacement
 
     def scripted_action(self, gain=1.5):
         """Proportional control on the observed error: tool increment = gain * (goal - tumour).

@@ -28,6 +28,7 @@ from sim_core.batched import BatchedImplicitEuler
 from sim_core.model import Control, State
 from sim_core.stack import ModelStack, StackedForceWorkspace
 from sim_core.static import STATIC_CONTACT_PASSES, same_contacts
+from sim_core.validity import ValidityRange, out_of_range
 from sim_core.worlds import make_worlds_solver
 
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
@@ -35,12 +36,15 @@ from sim_core.worlds import make_worlds_solver
 OBS_LIMIT = 100.0
 
 
-def observation_arrays(parts, names, as_dict: bool):
+def observation_arrays(parts, names, as_dict: bool, clipped=None):
     """The observation from its features ``parts`` (float64 arrays, the feature index last): one
     float32 array (their concatenation) or a dict ``names`` -> array, with NaN set to 0 and every
     value clipped to +-OBS_LIMIT in one pass over the concatenation (a pass per feature was a
-    noticeable share of a step)."""
+    noticeable share of a step). ``clipped``: None, or a bool array of the leading shape that
+    receives where an entry was NaN or beyond the bound (what the infos report: never silent)."""
     flat = np.concatenate(parts, axis=-1)
+    if clipped is not None:
+        clipped[...] = ~np.all(np.abs(flat) <= OBS_LIMIT, axis=-1)
     np.nan_to_num(flat, copy=False, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
     np.clip(flat, -OBS_LIMIT, OBS_LIMIT, out=flat)
     flat = flat.astype(np.float32)
@@ -79,6 +83,11 @@ class TaskWorlds:
     #: factor is refreshed (``BatchedImplicitEuler``'s ``amortise``; for scenes whose matrix changes
     #: fast and factorises cheaply, e.g. Retraction)
     refactor_amortise = None
+
+    #: The state range in which the model's accuracy is validated (``sim_core.validity``): a step
+    #: whose state leaves it has ``info["out_of_range"]`` True and the reason in
+    #: ``info["out_of_range_reason"]``.
+    validity = ValidityRange()
 
     def __init__(self, envs, threads: int = 1):
         self.envs = list(envs)
@@ -347,10 +356,13 @@ class TaskWorlds:
             # exact trilinear volumes of the stacked model's elements (HexMesh.element_volumes)
             elements = model.mesh.elements
             arguments = (flat, elements, np.empty(len(elements)))
-            volume = (kernels.element_volumes_copies(count, *arguments) if kernels.threaded(self.threads)
-                      else kernels.element_volumes(*arguments)).reshape(count, -1).sum(axis=1)
+            volumes = (kernels.element_volumes_copies(count, *arguments) if kernels.threaded(self.threads)
+                       else kernels.element_volumes(*arguments)).reshape(count, -1)
+            ratio = volumes / model.rest_volume.reshape(count, -1)
+            volume = volumes.sum(axis=1)
         measures = dict(positions=positions, reaction_force=reaction, max_strain=strain, forces=forces,
-                        relative_volume_change=(volume - self.rest_volume) / self.rest_volume)
+                        relative_volume_change=(volume - self.rest_volume) / self.rest_volume,
+                        volume_ratio_low=ratio.min(axis=1), volume_ratio_high=ratio.max(axis=1))
         measures.update(self._task_measures(positions))
         return measures
 
@@ -374,10 +386,13 @@ class TaskWorlds:
     def _observation(self, measures):
         features = self._features(measures)
         parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
-        return observation_arrays(parts, list(self._feature_sizes), self.task.observation_type == "dict")
+        self.clipped = np.zeros(self.num_envs, dtype=bool)
+        return observation_arrays(parts, list(self._feature_sizes), self.task.observation_type == "dict", self.clipped)
 
     def _info(self, measures, rewards, reasons, success):
-        """Every world's info, as (N, ...) arrays."""
+        """Every world's info, as (N, ...) arrays (after ``_observation``: its clipping is reported)."""
+        outside = out_of_range(measures["max_strain"], measures["volume_ratio_low"], measures["volume_ratio_high"],
+                               self.validity)
         info = dict(
             relative_volume_change=np.asarray(measures["relative_volume_change"], dtype=float),
             max_strain=np.asarray(measures["max_strain"], dtype=float),
@@ -388,6 +403,9 @@ class TaskWorlds:
             # the episode's material, as drawn from the *_range keywords (or the fixed values)
             young_modulus=self.episode_young_modulus.copy(),
             poisson_ratio=self.episode_poisson_ratio.copy(),
+            out_of_range=np.array([reason is not None for reason in outside]),
+            out_of_range_reason=outside,
+            observation_clipped=self.clipped.copy(),
         )
         for name in self.reward_names:
             info[f"reward_{name}"] = np.asarray(rewards[name], dtype=float)

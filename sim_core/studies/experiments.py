@@ -30,20 +30,11 @@ from ..material import Material
 from ..mesh import HexMesh
 from ..model import MSS_MODELS, Control, State, build_model, hourglass_projectors
 from ..static import solve_static, zero_energy_modes
+from ..validity import VALIDATED_SHEAR_DEG, VALIDATED_STRAIN  # noqa: F401  (public names here too)
 
 FEM_MODELS = ("fem-linear", "fem-neohookean")
 MODELS = MSS_MODELS + FEM_MODELS
 _SOLVER_OPTIONS = ("tolerance", "max_iterations", "load_steps", "max_load_steps")
-#: Largest |engineering strain| at which the mass-spring models are validated: the range that
-#: benchmarks/validation.py compares with neo-Hookean FEM in both tension and compression (figures
-#: 1-2) and that tests/test_validation.py exercises (1% and 5% tension, 20% compression).
-VALIDATED_STRAIN = 0.2
-#: Largest |shear angle| (degrees) at which the mass-spring models are validated: the angles at which
-#: tests/test_validation.py and benchmarks/validation.py (figure 3) hold the 2% position-error floor
-#: against FEM (2 to 10 degrees); beyond them the springs stiffen with the angle.
-VALIDATED_SHEAR_DEG = 10.0
-
-
 @dataclass
 class ExperimentResult:
     """What an experiment measured.
