@@ -101,7 +101,6 @@ class TaskWorlds:
         self.integrator = make_worlds_solver(env.integrator_name, self.stack, env.solver_tolerance, solver,
                                              self.refactor_amortise, self.threads)
         self.static = env.integrator_name == "static"
-        self.mesh = env.mesh
         self.n_nodes = env.mesh.n_nodes
         self.rest_length = self.stack.model.rest_length.reshape(count, -1)
         self.positions = np.tile(env.mesh.nodes, (count, 1, 1))
@@ -181,7 +180,8 @@ class TaskWorlds:
         self.stack.assign(index, env.model)
         self.positions[index] = env.state.positions
         self.velocities[index] = env.state.velocities
-        self._lengths[index] = self._spring_lengths(self.positions)[index]
+        kernels.spring_lengths(np.ascontiguousarray(env.state.positions, dtype=float), self.stack.reference.springs,
+                               self._lengths[index])  # this world's springs only (the same floats per spring)
         self.integrator.prepare(index, env.model, env.state.positions, env.dt, env.start_control.fixed)
         self.fixed, self.target = _writeable(self.fixed), _writeable(self.target)
         self.fixed[index], self.target[index] = env.start_control.fixed, env.start_control.target
@@ -207,6 +207,7 @@ class TaskWorlds:
         success = self._is_success(measures)
         rewards = OrderedDict((name, np.zeros(self.num_envs)) for name in self.reward_names)
         reasons = np.full(self.num_envs, None, dtype=object)
+        self.measures = measures
         return self._observation(measures), self._info(measures, rewards, reasons, success)
 
     # -- the step ------------------------------------------------------------------------------------
@@ -246,6 +247,7 @@ class TaskWorlds:
         total = np.where(unstable, instability, total)  # a diverging step: only this term
         rewards["instability"] = instability
         terminated = unstable | (success & self.terminate_on_success)
+        self.measures = measures
         return self._observation(measures), total, terminated, self._info(measures, rewards, reasons, success)
 
     # -- physics -------------------------------------------------------------------------------------
@@ -410,7 +412,6 @@ class TaskWorlds:
         for name in self.reward_names:
             info[f"reward_{name}"] = np.asarray(rewards[name], dtype=float)
         info.update(self._task_info(measures))
-        self.measures = measures
         return info
 
     def _damage_terms(self, measures):
