@@ -66,7 +66,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-from collections import OrderedDict
 
 import numpy as np
 import scipy.sparse as sp
@@ -74,6 +73,7 @@ import scipy.sparse.linalg as spla
 from numba.typed import List as TypedList
 
 from . import kernels
+from .caches import BudgetCache
 from .forces import stiffness_data
 from .integrators import SymplecticEuler
 from .model import Control, Model, State
@@ -334,9 +334,10 @@ class BatchedImplicitEuler(WorldsSolver):
         self.warm = np.zeros((count, dofs))
         self._preconditioners = [None] * count
         # the preconditioners (solver "reference") and first-step factors (solver "factorised") kept
-        # for episodes that start alike, by content (PRECONDITIONER_CACHE_SIZE each)
-        self._kept_starts: OrderedDict = OrderedDict()
-        self._kept_first: OrderedDict = OrderedDict()
+        # for episodes that start alike, by content (PRECONDITIONER_CACHE_SIZE each, within the
+        # "start_factors" byte budget: sim_core.caches)
+        self._kept_starts = BudgetCache("start_factors", PRECONDITIONER_CACHE_SIZE)
+        self._kept_first = BudgetCache("start_factors", PRECONDITIONER_CACHE_SIZE)
         self._groups = None
         self.workspace = StackedForceWorkspace(stack, implicit=True, threads=self.threads)
         self._elongation = np.empty((stack.n_springs, count))
@@ -423,7 +424,6 @@ class BatchedImplicitEuler(WorldsSolver):
                 self._set_factor(index, None, free)
                 self._pending[index] = (kind, free)
             else:  # the factor the copy's first step would make (if its imposed set is still ``fixed``)
-                self._kept_first.move_to_end(kind)
                 self._set_factor(index, entry, free)
                 self._pending[index] = None
             self._adopted[index] = entry is not None
@@ -431,11 +431,7 @@ class BatchedImplicitEuler(WorldsSolver):
             return
         entry = self._kept_starts.get(key)
         if entry is None:
-            entry = self._kept_starts[key] = _system_factor(model, positions, dt, fixed)
-            if len(self._kept_starts) > PRECONDITIONER_CACHE_SIZE:
-                self._kept_starts.popitem(last=False)
-        else:
-            self._kept_starts.move_to_end(key)
+            entry = self._kept_starts.put(key, _system_factor(model, positions, dt, fixed))
         self._use(index, entry)
 
     def _use(self, index, entry):
@@ -737,9 +733,7 @@ class BatchedImplicitEuler(WorldsSolver):
         for index, factor in zip(todo, self._factorise_copies(todo, system, covers)):
             pending = self._pending[index]
             if pending is not None and np.array_equal(pending[1], free_rows[index]) and factor.ints[0] > 0:
-                self._kept_first[pending[0]] = factor
-                if len(self._kept_first) > PRECONDITIONER_CACHE_SIZE:
-                    self._kept_first.popitem(last=False)
+                self._kept_first.put(pending[0], factor)
             self._pending[index] = None
             self._stale[index] = False
             fresh[index] = True

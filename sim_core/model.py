@@ -154,7 +154,7 @@ class Model:
 class DerivedCache:
     """A model's derived data by name (``Model.derived``): ``get(name, build)`` returns the entry,
     computing it with ``build()`` once. Thread-safe (a vector env resets its copies on threads);
-    ``forget(name)`` drops an entry."""
+    ``peek``/``put`` read and set an entry built elsewhere, ``forget(name)`` drops one."""
 
     def __init__(self):
         self._entries: dict = {}
@@ -168,6 +168,16 @@ class DerivedCache:
                 if entry is _MISSING:
                     entry = self._entries[name] = build()
         return entry
+
+    def peek(self, name):
+        """The entry ``name``, or None (nothing is built)."""
+        return self._entries.get(name)
+
+    def put(self, name, value):
+        """Set the entry ``name`` (computed by the caller, e.g. outside any lock); returns ``value``."""
+        with self._lock:
+            self._entries[name] = value
+        return value
 
     def forget(self, name):
         with self._lock:

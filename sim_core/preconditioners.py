@@ -61,8 +61,9 @@ class FreeStructure:
     imposed set: a contact makes many)."""
 
     def __init__(self, model: Model, free: np.ndarray):
+        # no reference to the model: this structure lives in the model's derived data, and a cycle
+        # would keep every evicted model (and its arrays) alive until a full garbage collection
         column, rows, transpose, self.hg_positions, _ = pattern_arrays(model)
-        self.model = model
         self.free = free
         mask = np.zeros(model.pattern.n_dofs, bool)
         mask[free] = True

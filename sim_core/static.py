@@ -12,7 +12,6 @@ constrained tangent) so that experiments can report them.
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +20,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels
+from .caches import BudgetCache
 from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
 from .preconditioners import free_structure, pattern_arrays
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt
@@ -74,15 +74,16 @@ class FactorCache:
     An entry is keyed by the model's identity, the free-dof pattern, the linearisation positions
     (bitwise) and the damping: it holds exactly the factor ``solve_static`` would compute there, so a
     hit changes no result, only skips the factorisation. Least recently used entries are dropped past
-    ``size`` (an entry holds its model).
+    ``size`` entries or past the "static_factors" byte budget (``sim_core.caches``; an entry holds
+    its model, which that budget does not count).
     Thread-safe (the vector envs reset their copies, which share one cache, on several threads): the
     factorisations run outside the lock, so two threads missing the same entry at once both compute
     it (the same floats).
     """
 
     def __init__(self, size: int = 8):
-        self.size = int(size)
-        self._entries: OrderedDict = OrderedDict()
+        self.size = integer_at_least("size", size, 1)
+        self._entries = BudgetCache("static_factors", self.size)
         self.hits = self.misses = 0
         self._lock = threading.Lock()
 
@@ -92,21 +93,22 @@ class FactorCache:
         with self._lock:
             entry = self._entries.get(key)
             if entry is not None:
-                self._entries.move_to_end(key)
                 self.hits += 1
                 return entry
             self.misses += 1
         value = _factorise(model, positions, free, damping)  # outside the lock: threads factorise at once
-        with self._lock:
-            self._entries[key] = value
-            self._entries.move_to_end(key)
-            while len(self._entries) > self.size:
-                self._entries.popitem(last=False)
-        return value
+        return self._entries.put(key, value)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the kept factors hold (``sim_core.caches.nbytes``)."""
+        return self._entries.nbytes
+
+    def __len__(self) -> int:
+        return len(self._entries)
 
     def clear(self):
-        with self._lock:
-            self._entries.clear()
+        self._entries.clear()
 
     def __getstate__(self):  # LU objects do not pickle: copies start empty
         return dict(size=self.size)

@@ -35,6 +35,7 @@ from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.batched import SOLVERS
+from sim_core.caches import BudgetCache
 from sim_core.model import Control, State
 
 from .rendering import Renderer
@@ -46,6 +47,8 @@ INTEGRATORS = ("implicit", "explicit", "static")
 #: ``sim_core.batched.SOLVERS``.
 PRECONDITIONERS = ("auto",) + SOLVERS
 MODEL_CACHE_SIZE = 16
+#: the model's derived-data entry holding an env's start positions (its equilibrium under gravity)
+_START = "env_start_positions"
 
 
 # -- argument checks (ValueError naming the keyword) -------------------------------------------
@@ -140,7 +143,7 @@ class EpisodeState:
 #: Attributes of a task environment that a snapshot shares instead of copying: caches of models and
 #: of their factorisations (a cached result is the one that would be computed), the renderer and
 #: the spaces. A task's own caches are added by its ``shared_attributes``.
-SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_start_cache", "_renderer", "mesh",
+SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_renderer", "mesh",
                      "action_space", "observation_space", "spec")
 #: The one world of a single env (``TaskWorlds.step``'s ``active``).
 _ONE = np.ones(1, dtype=bool)
@@ -281,8 +284,9 @@ class TissueEnv(gym.Env):
         # the caches below are shared by a vector env's copies (``share_caches``), which may reset on
         # several threads: one lock guards them
         self._cache_lock = threading.RLock()
-        self._model_cache: OrderedDict = OrderedDict()
-        self._start_cache: OrderedDict = OrderedDict()  # model -> start positions (as many as models)
+        # models by material (MODEL_CACHE_SIZE, within the "models" byte budget: sim_core.caches);
+        # each model keeps its start positions in its derived data, so they go with it
+        self._model_cache = BudgetCache("models", MODEL_CACHE_SIZE)
         self._setup_scene()
         # Build the default model now: it validates material and geometry together (Baudet's edge
         # stiffness must stay positive) and raises ValueError at construction, not at reset.
@@ -373,24 +377,16 @@ class TissueEnv(gym.Env):
                     self.mesh, self._material(young_modulus, poisson_ratio, task_key),
                     gravity=(0.0, -self.gravity, 0.0), hourglass_control=self.hourglass_control,
                     volume_stiffness=self.volume_stiffness)
-                self._model_cache[key] = model
-                if len(self._model_cache) > MODEL_CACHE_SIZE:
-                    self._model_cache.popitem(last=False)
-            else:
-                self._model_cache.move_to_end(key)
+                self._model_cache.put(key, model)
             return model
 
     def _start_positions(self, model):
         # The start depends only on the model (the tool starts at rest): computed once per model.
         with self._cache_lock:  # held while a missing start is solved: once per model
-            cache = self._start_cache.get(model)
-            if cache is None:
-                cache = self._start_cache[model] = self._initial_positions(model, self._start_control())
-                if len(self._start_cache) > MODEL_CACHE_SIZE:
-                    self._start_cache.popitem(last=False)
-            else:
-                self._start_cache.move_to_end(model)
-            return cache.copy()
+            start = model.derived.peek(_START)
+            if start is None:
+                start = model.derived.put(_START, self._initial_positions(model, self._start_control()))
+            return start.copy()
 
     # -- Gymnasium API -----------------------------------------------------------------------------
     def _reset_episode(self, *, seed=None, options=None):
@@ -488,7 +484,7 @@ class TissueEnv(gym.Env):
         built with the same keywords; the vector envs call it for their copies). Tasks with caches
         of their own extend it."""
         self._cache_lock = other._cache_lock
-        self._model_cache, self._start_cache = other._model_cache, other._start_cache
+        self._model_cache = other._model_cache
         self.model = other.model
 
     def constrain_tool(self, offset):
