@@ -19,7 +19,8 @@ from .elements import element_stiffness
 from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
-from .stress_correction import ELEMENT_SPRINGS, SPRING_CHOICES, StressCorrection, mean_gradients, spring_stiffness
+from .stress_correction import (SPRING_CHOICES, StressCorrection, element_spring_pairs, element_spring_stiffness,
+                                mean_gradients)
 
 #: Mass-spring model names accepted by ``build_model``.
 MSS_MODELS = ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic")
@@ -327,7 +328,7 @@ def build_model(
     damping_ratio: float = 1.0,
     gravity=(0.0, 0.0, 0.0),
     hourglass_control: float = 0.0,
-    springs: str = "isotropic",
+    springs: str = "faces",
 ) -> Model:
     """Build a mass-spring ``Model`` once from geometry and material.
 
@@ -353,8 +354,10 @@ def build_model(
             a constant matrix that leaves uniform strain, hence measured E, nu and G, untouched,
             and removes the zero-energy modes that buckle under compression [6]. Not objective:
             "baudet-hyperelastic" refuses it (its springs resist the hourglass modes).
-        springs: "baudet-hyperelastic" only: the springs' stiffness, "isotropic" (positive for every
-            box and nu, ``stress_correction.spring_stiffness``) or "baudet" (Baudet's formula).
+        springs: "baudet-hyperelastic" only: the element's springs, "faces" (12 edges and 12 face
+            diagonals matched to the hourglass modes' energy, ``stress_correction.element_spring_stiffness``),
+            "isotropic" (12 edges and 4 inner diagonals of a nu = 1/4 solid, positive for every box)
+            or "baudet" (Baudet's springs and formula, non-positive on elongated boxes) [11].
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
@@ -373,7 +376,7 @@ def build_model(
     hyperelastic = model == "baudet-hyperelastic"
     if springs not in SPRING_CHOICES:
         raise ValueError(f"springs must be one of {SPRING_CHOICES}, got {springs!r}")
-    if springs != "isotropic" and not hyperelastic:
+    if springs != "faces" and not hyperelastic:
         raise ValueError("springs only applies to model='baudet-hyperelastic' (the other models fix their springs)")
     if hyperelastic and hourglass_control > 0:
         raise ValueError("hourglass_control is a constant rest-frame stiffness (not objective) and does not apply to "
@@ -400,14 +403,15 @@ def build_model(
         edge_k = np.repeat((young_modulus * size / 4.0)[:, None], 3, axis=1)
         diagonal_k = young_modulus * size / 4.0
     elif hyperelastic:
-        edge_k, diagonal_k = spring_stiffness(axis_rest_length, young_modulus, poisson_ratio, springs)
-        if np.any(edge_k <= 0) or np.any(diagonal_k <= 0):
-            bad = int(np.argmax(np.any(edge_k <= 0, axis=1) | (diagonal_k <= 0)))
+        local_pairs = element_spring_pairs(springs)
+        values = element_spring_stiffness(axis_rest_length, young_modulus, poisson_ratio, springs)
+        if np.any(values <= 0):
+            bad = int(np.argmax(np.any(values <= 0, axis=1)))
             raise ValueError(
                 f"springs={springs!r} with poisson_ratio {poisson_ratio[bad]:g} and element {bad} of edge lengths "
-                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive spring stiffness (edges "
-                f"{np.round(edge_k[bad], 6).tolist()} N/m, diagonals {diagonal_k[bad]:.6g} N/m): the springs would "
-                "not resist the hourglass modes. Use springs='isotropic' (positive for every box and nu)")
+                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive spring stiffness "
+                f"{np.round(values[bad], 6).tolist()} N/m: the springs would not resist the hourglass modes. "
+                "Use springs='faces' or 'isotropic' (positive for every box and nu)")
     else:
         edge_k, diagonal_k = baudet_stiffness(axis_rest_length, young_modulus, poisson_ratio)
         if np.any(edge_k <= 0):
@@ -420,13 +424,15 @@ def build_model(
                 "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
                 "poisson_ratio > -0.25 and near-cubic elements (1:1:1.2 works for nu >= 0)"
             )
-    pairs = np.concatenate([elements[:, EDGES], elements[:, DIAGONALS]], axis=1)  # (M, 16, 2)
-    values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
+    if not hyperelastic:
+        local_pairs = np.concatenate([EDGES, DIAGONALS])
+        values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
+    pairs = elements[:, local_pairs]  # (M, 16 or 24, 2), the 12 edges first
     sorted_pairs = np.sort(pairs.reshape(-1, 2), axis=1)
     springs, inverse = np.unique(sorted_pairs, axis=0, return_inverse=True)
     inverse = inverse.ravel()
     stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(springs))
-    edge_spring = inverse.reshape(n_elements, 16)[:, :12].copy()
+    edge_spring = inverse.reshape(n_elements, len(local_pairs))[:, :12].copy()
     rest_length = np.linalg.norm(nodes[springs[:, 1]] - nodes[springs[:, 0]], axis=1)
 
     # Lumped masses [5]: rho V / 8 to each node of each element.
@@ -443,7 +449,7 @@ def build_model(
     stress_correction = None
     if corrections and hyperelastic:  # [11]
         gradient, volume = mean_gradients(nodes, elements)
-        vectors = nodes[elements[:, ELEMENT_SPRINGS[:, 1]]] - nodes[elements[:, ELEMENT_SPRINGS[:, 0]]]
+        vectors = nodes[elements[:, local_pairs[:, 1]]] - nodes[elements[:, local_pairs[:, 0]]]
         shear = young_modulus / (2.0 * (1.0 + poisson_ratio))
         lame = young_modulus * poisson_ratio / ((1.0 + poisson_ratio) * (1.0 - 2.0 * poisson_ratio))
         stress_correction = StressCorrection(

@@ -28,13 +28,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .topology import DIAGONALS, EDGES, GAUSS_GRADIENTS
+from .topology import DIAGONALS, EDGES, FACES, GAUSS_GRADIENTS
 
-#: the element's 16 springs in ``build_model``'s order: 12 edges (EDGES) then 4 inner diagonals
-ELEMENT_SPRINGS = np.concatenate([EDGES, DIAGONALS])
+#: the two diagonals of each face (FACES order): 12, grouped by the plane they lie in
+FACE_DIAGONALS = np.concatenate([FACES[:, [0, 2]], FACES[:, [1, 3]]])
+#: the plane of each face diagonal: the two axes (0 x, 1 y, 2 z) it spans
+FACE_DIAGONAL_AXES = np.array([[1, 2], [1, 2], [0, 2], [0, 2], [0, 1], [0, 1]] * 2)
 
-#: spring stiffness choices of ``build_model(model="baudet-hyperelastic", springs=...)``
-SPRING_CHOICES = ("isotropic", "baudet")
+#: spring sets of ``build_model(model="baudet-hyperelastic", springs=...)``: "faces" (12 edges and
+#: the 12 face diagonals), "isotropic" and "baudet" (12 edges and the 4 inner diagonals)
+SPRING_CHOICES = ("faces", "isotropic", "baudet")
+
+
+def element_spring_pairs(choice: str) -> np.ndarray:
+    """(S_e, 2) local corner pairs of an element's springs: the 12 edges (EDGES order) first."""
+    if choice not in SPRING_CHOICES:
+        raise ValueError(f"springs must be one of {SPRING_CHOICES}, got {choice!r}")
+    return np.concatenate([EDGES, FACE_DIAGONALS if choice == "faces" else DIAGONALS])
 
 
 @dataclass(frozen=True, eq=False)
@@ -44,9 +54,10 @@ class StressCorrection:
     Attributes:
         mean_gradient: (M, 8, 3) b_a in 1/m.
         volume: (M,) rest volumes V0 in m^3.
-        spring_vector: (M, 16, 3) rest vectors D_s of the element's springs (ELEMENT_SPRINGS), m.
-        spring_length: (M, 16) L_s = |D_s| in m.
-        spring_stiffness: (M, 16) the element's share k_s of each spring's stiffness, N/m.
+        spring_vector: (M, S_e, 3) rest vectors D_s of the element's springs
+            (``element_spring_pairs``), m.
+        spring_length: (M, S_e) L_s = |D_s| in m.
+        spring_stiffness: (M, S_e) the element's share k_s of each spring's stiffness, N/m.
         shear_modulus, lame: (M,) mu and lambda of the neo-Hookean law, Pa.
     """
 
@@ -75,8 +86,34 @@ def mean_gradients(nodes: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray,
     return integral / volume[:, None, None], volume
 
 
+def element_spring_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio, choice: str = "faces"):
+    """(M, S_e) per-element stiffness share (N/m) of each spring of ``element_spring_pairs(choice)``.
+
+    "faces": the springs resist exactly the element's hourglass modes, so each is matched to the
+    strain energy of the modes it sees (box of edges i, j, k, volume V): the edges along i take the
+    bending modes (u_i = c s_i s_j, a strain eps_ii = 2 c s_j / i linear across the element) with
+    Young's modulus, k_e,i = E V / (12 i^2); the face diagonals of the i-j faces take the modes
+    u_i = c s_j s_k and u_j = c s_i s_k (shears linear across the element) with the shear modulus,
+    k_f,ij = G V (i^2 + j^2) / (12 i^2 j^2). Positive for every box and every nu, and free of lambda:
+    nu -> 0.5 stiffens only the correction's volumetric response, never the hourglass modes.
+    Others: 12 edges then the 4 inner diagonals with ``spring_stiffness``'s (edge, diagonal) values.
+    """
+    if choice != "faces":
+        edge, diagonal = spring_stiffness(axis_lengths, young_modulus, poisson_ratio, choice)
+        return np.concatenate([edge[:, np.repeat(np.arange(3), 4)], np.repeat(diagonal[:, None], 4, axis=1)], axis=1)
+    nu = np.asarray(poisson_ratio, dtype=float)
+    young_modulus = np.asarray(young_modulus, dtype=float)
+    shear = young_modulus / (2.0 * (1.0 + nu))
+    volume = np.prod(axis_lengths, axis=1)
+    squares = axis_lengths**2
+    edge = young_modulus[:, None] * volume[:, None] / (12.0 * squares)
+    i, j = squares[:, FACE_DIAGONAL_AXES[:, 0]], squares[:, FACE_DIAGONAL_AXES[:, 1]]
+    face = shear[:, None] * volume[:, None] * (i + j) / (12.0 * i * j)
+    return np.concatenate([edge[:, np.repeat(np.arange(3), 4)], face], axis=1)
+
+
 def spring_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio, choice: str = "isotropic"):
-    """Per-element spring stiffnesses (edge (M, 3) of the x-, y-, z-edges, diagonal (M,)) in N/m.
+    """Per-element stiffnesses (edge (M, 3) of the x-, y-, z-edges, inner diagonal (M,)) in N/m.
 
     "isotropic": the springs of a nu = 1/4 (Cauchy) solid of shear modulus mu_S, with
     mu_S = min(mu, 3 K / 5) (K the bulk modulus): on a cube, edges k_e = mu_S l / 2 and diagonals
