@@ -242,3 +242,29 @@ def test_tool_experiments_run_and_are_stable():
     assert abs(mss.relative_volume_change - fem.relative_volume_change) < 0.01
     pulled = tool_patch(**block, displacement=(0.0, 0.04, 0.0), glued=True, model=MODEL)
     assert pulled.converged
+
+
+def test_steppers_without_its_stiffness_refuse_it_and_quasi_static_steps_it():
+    """ImplicitEuler (whose matrix-free system lacks the correction's stiffness) and ModelStack (which
+    does not stack it) raise ValueError naming the model; QuasiStatic steps it to an equilibrium
+    (relative residual < 1e-6); the compiled force pass the explicit steps use equals the numpy
+    reference to 1e-10 E h^2."""
+    from sim_core.forces import ForceWorkspace
+    from sim_core.integrators import ImplicitEuler
+    from sim_core.stack import ModelStack
+    from sim_core.static import QuasiStatic
+
+    mesh = HexMesh.block((3, 2, 2), 0.1)
+    model = build_model(mesh, Material(E, 0.45, 1000.0), model=MODEL, gravity=(0.0, -1.0, 0.0))
+    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
+    control = Control.free(mesh.n_nodes).impose(clamp, mesh.nodes[clamp])
+    state, out = model.new_state(), model.new_state()
+    with pytest.raises(ValueError, match=MODEL):
+        ImplicitEuler().simulate(model, state, out, 0.01, control)
+    with pytest.raises(ValueError, match=MODEL):
+        ModelStack(model, 2)
+    report = QuasiStatic().simulate(model, state, out, 0.01, control)
+    assert not report.unstable and report.residual < 1e-6
+    positions = out.positions + 0.001
+    assert np.allclose(ForceWorkspace(model, implicit=False).compute(positions, None),
+                       internal_forces_reference(model, positions), rtol=0, atol=1e-10 * E * 0.01)
