@@ -15,6 +15,7 @@ import scipy.sparse as sp
 from . import kernels
 from .mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS, hex_jacobians
 from .model import Model
+from . import stress_correction as _stress
 
 
 @dataclass
@@ -193,6 +194,7 @@ class ForceWorkspace:
             model.volume_stiffness, self.has_volume, hg_indptr, hg_indices, hg_data, self.rest_positions,
             False, self.length, self.unit, self.tension, self.push, self.forces, geometric, self.geometric,
             volume_jacobian and self.has_volume, self.volume_coefficient, self.volume_direction, self.volume_gradient)
+        add_stress_correction(model, positions, self.forces)
         if hourglass and self.has_hourglass:  # f -= K_hg (x - X)
             indptr, indices, values, _ = hourglass_blocks(model)
             kernels.bsr3_matvec_add(indptr, indices, values, (positions - self.rest_positions).reshape(-1), -1.0,
@@ -207,6 +209,17 @@ class ForceWorkspace:
         kernels.scatter_springs(self.model.springs, self.unit, self._zero_tension, self.model.damping, velocities, True,
                                 forces)
         return forces
+
+
+def add_stress_correction(model: Model, positions: np.ndarray, forces: np.ndarray) -> np.ndarray:
+    """forces (N, 3) N += the finite-strain stress correction of "baudet-hyperelastic" [11] at
+    ``positions`` (N, 3) m (compiled, ``kernels.stress_correction_add``); a no-op for other models."""
+    correction = model.stress_correction
+    if correction is not None:
+        kernels.stress_correction_add(positions, model.mesh.elements, correction.mean_gradient, correction.volume,
+                                      correction.shear_modulus, correction.lame, correction.spring_vector,
+                                      correction.spring_length, correction.spring_stiffness, forces)
+    return forces
 
 
 def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None,
@@ -232,6 +245,7 @@ def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray 
         kernels.fixed_direction_corrections(model.mesh.elements, push, model.rest_edge_direction, forces)
     if model.has_volume_forces:
         kernels.volume_pass(positions, model.mesh.elements, model.rest_volume, model.volume_stiffness, forces)
+    add_stress_correction(model, positions, forces)
     if hourglass and model.hourglass is not None:
         indptr, indices, data = model.hourglass_arrays
         kernels.csr_matvec_add(indptr, indices, data, (positions - model.rest_positions).ravel(), -1.0,
@@ -266,6 +280,9 @@ def internal_forces_reference(model: Model, positions: np.ndarray, velocities: n
     if model.has_volume_forces:
         volume_force = volume_terms(model, positions)[0]
         total += model.element_scatter @ volume_force.reshape(-1, 3)
+    if model.stress_correction is not None:
+        nodal = _stress.element_forces(model.stress_correction, model.mesh.elements, positions)
+        total += model.element_scatter @ nodal.reshape(-1, 3)
     if model.hourglass is not None:
         total -= (model.hourglass @ (positions - model.rest_positions).ravel()).reshape(-1, 3)
     return total
@@ -294,6 +311,12 @@ def element_block_data(model: Model, matrices: np.ndarray) -> np.ndarray:
     """Assemble (M, 24, 24) element matrices (node-major dofs) into the pattern."""
     blocks = matrices.reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
     return model.pattern.assemble(model.element_positions, blocks)
+
+
+def stress_tangent_blocks(model: Model, positions: np.ndarray) -> np.ndarray:
+    """(M, 24, 24) V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m: the stress correction's exact
+    stiffness [11] (symmetric: the correction is the gradient of an energy)."""
+    return _stress.tangent_blocks(model.stress_correction, model.mesh.elements, np.asarray(positions, dtype=float))
 
 
 def correction_coupling(model: Model, positions: np.ndarray) -> np.ndarray:
@@ -338,6 +361,8 @@ def stiffness_data(
         corrections: "full" (exact, non-symmetric), "geometric" (only the corrections' push along
             the current edges, symmetric) or "none".
         volume: include the volume forces' dominant rank-one term 2 kappa |dV| / V0^2 h grad(V)^T.
+            The stress correction of "baudet-hyperelastic" (its exact tangent, ``stress_tangent_blocks``)
+            is included unless ``corrections="none"``.
         clamp: drop negative geometric stiffness (compressed springs) so the matrix stays SPD,
             as Baraff and Witkin's implicit Euler needs for conjugate gradient.
     """
@@ -365,6 +390,9 @@ def stiffness_data(
         rank_one = -dphi[:, None, None] * direction.reshape(-1, 24, 1) * grad.reshape(-1, 1, 24)
         rank_one *= stiffness_scale
         element_matrices = rank_one if element_matrices is None else element_matrices + rank_one
+    if model.stress_correction is not None and corrections != "none" and stiffness_scale:
+        blocks = stiffness_scale * stress_tangent_blocks(model, positions)
+        element_matrices = blocks if element_matrices is None else element_matrices + blocks
     if element_matrices is not None:
         data += element_block_data(model, element_matrices)
     if model.hourglass is not None and stiffness_scale:

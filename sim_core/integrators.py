@@ -152,6 +152,13 @@ class ImplicitEuler(SymplecticEuler):
         system's there. The next ``simulate`` of ``model`` from the same positions reuses this pass
         instead of computing it again (an environment measures its state with it: one force pass
         per step instead of two). The arrays are the workspace's: read them before the next step."""
+        if model.stress_correction is not None:
+            # the matrix-free system (kernels.operator) holds the springs, volume and hourglass terms
+            # only: the correction would be explicit in it, which diverges at nu >= 0.45 and the
+            # environments' steps (20-40 ms)
+            raise ValueError(f"ImplicitEuler does not support model={model.name!r} yet: its implicit system lacks the "
+                             "stress correction's stiffness (docs/physics.md section 11); step it with "
+                             "sim_core.static.QuasiStatic or SymplecticEuler (dt below stable_time_step(model))")
         x0 = np.ascontiguousarray(positions, dtype=float)
         workspace = self._workspace(model, implicit=True)
         if not self._reuses(model, x0):

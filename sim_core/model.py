@@ -19,9 +19,11 @@ from .elements import element_stiffness
 from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
+from .stress_correction import (SPRING_CHOICES, StressCorrection, element_spring_pairs, element_spring_stiffness,
+                                mean_gradients)
 
 #: Mass-spring model names accepted by ``build_model``.
-MSS_MODELS = ("baudet", "baudet-original", "uniform-springs")
+MSS_MODELS = ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic")
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,7 +32,7 @@ class Model:
 
     Attributes (S springs, M elements, N nodes):
         mesh: the ``HexMesh``; ``rest_positions`` (N, 3) m.
-        name: physics variant ("baudet", "baudet-original", "uniform-springs").
+        name: physics variant ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic").
         mass: (N,) lumped node masses in kg [5].
         springs: (S, 2) node pairs, each shared spring merged once.
         rest_length: (S,) m.  stiffness: (S,) N/m (sum over the elements sharing it) [2].
@@ -46,6 +48,8 @@ class Model:
         young_modulus, poisson_ratio, density: (M,) per-element material.
         hourglass: (3N, 3N) constant CSR stiffness K_hg (N/m) of the hourglass control, or None;
             it adds f = -K_hg (x - X), which vanishes for every affine displacement [6].
+        stress_correction: the per-element arrays of the finite-strain stress correction
+            (``stress_correction.StressCorrection``) of "baudet-hyperelastic" [11], or None.
     """
 
     mesh: HexMesh
@@ -67,6 +71,7 @@ class Model:
     density: np.ndarray
     hourglass: sp.csr_matrix | None = None
     options: dict = field(default_factory=dict)
+    stress_correction: StressCorrection | None = None
 
     def __post_init__(self):
         n_nodes = self.mesh.n_nodes
@@ -333,6 +338,7 @@ def build_model(
     damping_ratio: float = 1.0,
     gravity=(0.0, 0.0, 0.0),
     hourglass_control: float = 0.0,
+    springs: str = "faces",
 ) -> Model:
     """Build a mass-spring ``Model`` once from geometry and material.
 
@@ -341,9 +347,13 @@ def build_model(
         material: ``Material`` (scalars or one value per element).
         model: "baudet" (stress-based corrections projected on the deformed edges, volume
             forces), "baudet-original" (the report's corrections as published: half size,
-            strain-based, along rest directions, no volume forces) or "uniform-springs" (every
-            spring k = E * element size / 4, no corrections: the naive baseline).
-        corrections: switch the correction forces off (False) for ablations.
+            strain-based, along rest directions, no volume forces), "uniform-springs" (every
+            spring k = E * element size / 4, no corrections: the naive baseline) or
+            "baudet-hyperelastic" (springs plus the finite-strain stress correction on each
+            element's mean deformation gradient: compressible neo-Hookean under every homogeneous
+            deformation, objective, no volume forces) [11].
+        corrections: switch the correction forces off (False) for ablations (for
+            "baudet-hyperelastic": the stress correction; the springs alone remain).
         volume_conservation: volume forces on/off; default on for "baudet" only.
         volume_stiffness: multiplier of kappa = K V0^(2/3), K = E / (3 (1 - 2 nu)) [4].
         nu_factor: "baudet-original" only: multiply the corrections by nu (report section 5.1).
@@ -352,7 +362,12 @@ def build_model(
         hourglass_control: alpha >= 0. Adds alpha times the linear FEM element stiffness projected
             on the element's hourglass space (the displacements orthogonal to every affine field),
             a constant matrix that leaves uniform strain, hence measured E, nu and G, untouched,
-            and removes the zero-energy modes that buckle under compression [6].
+            and removes the zero-energy modes that buckle under compression [6]. Not objective:
+            "baudet-hyperelastic" refuses it (its springs resist the hourglass modes).
+        springs: "baudet-hyperelastic" only: the element's springs, "faces" (12 edges and 12 face
+            diagonals matched to the hourglass modes' energy, ``stress_correction.element_spring_stiffness``),
+            "isotropic" (12 edges and 4 inner diagonals of a nu = 1/4 solid, positive for every box)
+            or "baudet" (Baudet's springs and formula, non-positive on elongated boxes) [11].
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
@@ -368,6 +383,17 @@ def build_model(
         raise ValueError(f"hourglass_control must be >= 0, got {hourglass_control}")
     if nu_factor and model != "baudet-original":
         raise ValueError("nu_factor only applies to model='baudet-original'")
+    hyperelastic = model == "baudet-hyperelastic"
+    if springs not in SPRING_CHOICES:
+        raise ValueError(f"springs must be one of {SPRING_CHOICES}, got {springs!r}")
+    if springs != "faces" and not hyperelastic:
+        raise ValueError("springs only applies to model='baudet-hyperelastic' (the other models fix their springs)")
+    if hyperelastic and hourglass_control > 0:
+        raise ValueError("hourglass_control is a constant rest-frame stiffness (not objective) and does not apply to "
+                         "model='baudet-hyperelastic', whose springs resist the hourglass modes; use hourglass_control=0")
+    if hyperelastic and volume_conservation:
+        raise ValueError("volume_conservation does not apply to model='baudet-hyperelastic': its neo-Hookean stress "
+                         "correction already holds the volume (ln J pressure); leave volume_conservation unset")
     if volume_conservation is None:
         volume_conservation = model == "baudet"
 
@@ -386,6 +412,16 @@ def build_model(
         size = axis_rest_length.mean(axis=1)
         edge_k = np.repeat((young_modulus * size / 4.0)[:, None], 3, axis=1)
         diagonal_k = young_modulus * size / 4.0
+    elif hyperelastic:
+        local_pairs = element_spring_pairs(springs)
+        values = element_spring_stiffness(axis_rest_length, young_modulus, poisson_ratio, springs)
+        if np.any(values <= 0):
+            bad = int(np.argmax(np.any(values <= 0, axis=1)))
+            raise ValueError(
+                f"springs={springs!r} with poisson_ratio {poisson_ratio[bad]:g} and element {bad} of edge lengths "
+                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive spring stiffness "
+                f"{np.round(values[bad], 6).tolist()} N/m: the springs would not resist the hourglass modes. "
+                "Use springs='faces' or 'isotropic' (positive for every box and nu)")
     else:
         edge_k, diagonal_k = baudet_stiffness(axis_rest_length, young_modulus, poisson_ratio)
         if np.any(edge_k <= 0):
@@ -398,13 +434,15 @@ def build_model(
                 "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
                 "poisson_ratio > -0.25 and near-cubic elements (1:1:1.2 works for nu >= 0)"
             )
-    pairs = np.concatenate([elements[:, EDGES], elements[:, DIAGONALS]], axis=1)  # (M, 16, 2)
-    values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
+    if not hyperelastic:
+        local_pairs = np.concatenate([EDGES, DIAGONALS])
+        values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
+    pairs = elements[:, local_pairs]  # (M, 16 or 24, 2), the 12 edges first
     sorted_pairs = np.sort(pairs.reshape(-1, 2), axis=1)
     springs, inverse = np.unique(sorted_pairs, axis=0, return_inverse=True)
     inverse = inverse.ravel()
     stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(springs))
-    edge_spring = inverse.reshape(n_elements, 16)[:, :12].copy()
+    edge_spring = inverse.reshape(n_elements, len(local_pairs))[:, :12].copy()
     rest_length = np.linalg.norm(nodes[springs[:, 1]] - nodes[springs[:, 0]], axis=1)
 
     # Lumped masses [5]: rho V / 8 to each node of each element.
@@ -418,7 +456,17 @@ def build_model(
     # Corrections [3].
     correction_mode = None
     w = np.zeros((n_elements, 3, 3))
-    if corrections and model != "uniform-springs":
+    stress_correction = None
+    if corrections and hyperelastic:  # [11]
+        gradient, volume = mean_gradients(nodes, elements)
+        vectors = nodes[elements[:, local_pairs[:, 1]]] - nodes[elements[:, local_pairs[:, 0]]]
+        shear = young_modulus / (2.0 * (1.0 + poisson_ratio))
+        lame = young_modulus * poisson_ratio / ((1.0 + poisson_ratio) * (1.0 - 2.0 * poisson_ratio))
+        stress_correction = StressCorrection(
+            mean_gradient=np.ascontiguousarray(gradient), volume=volume, spring_vector=np.ascontiguousarray(vectors),
+            spring_length=np.linalg.norm(vectors, axis=2), spring_stiffness=np.ascontiguousarray(values),
+            shear_modulus=np.asarray(shear, float), lame=np.asarray(lame, float))
+    elif corrections and model not in ("uniform-springs", "baudet-hyperelastic"):
         if model == "baudet":
             w = correction_matrix(axis_rest_length, young_modulus, poisson_ratio)
             correction_mode = "projected"
@@ -446,7 +494,9 @@ def build_model(
         young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
         options=dict(corrections=corrections, volume_conservation=bool(volume_conservation),
                      volume_stiffness=volume_stiffness, nu_factor=nu_factor,
-                     damping_ratio=damping_ratio, hourglass_control=hourglass_control),
+                     damping_ratio=damping_ratio, hourglass_control=hourglass_control,
+                     **(dict(springs=springs) if hyperelastic else {})),
+        stress_correction=stress_correction,
     )
 
 

@@ -46,6 +46,9 @@ class ModelStack:
     """
 
     def __init__(self, model: Model, count: int):
+        if model.stress_correction is not None:  # its per-element arrays are not stacked (VALUE_FIELDS)
+            raise ValueError(f"ModelStack does not support model={model.name!r} yet (its stress correction is not "
+                             "stacked); step its worlds one by one with sim_core.static.QuasiStatic")
         self.count = int(count)
         self.n_nodes = model.n_nodes
         self.n_springs = len(model.springs)

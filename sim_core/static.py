@@ -21,7 +21,8 @@ import scipy.sparse.linalg as spla
 
 from . import kernels
 from .caches import BudgetCache
-from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
+from .forces import (ForceWorkspace, element_block_data, external_forces, internal_forces, stiffness_data,
+                     stress_tangent_blocks)
 from .preconditioners import free_structure, pattern_arrays
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
@@ -514,6 +515,8 @@ def _tangent_data(model, positions):
     values = np.empty(model.pattern.nnz)
     kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
                                  pattern_arrays(model)[3], model.pattern.diagonal_positions, values)
+    if model.stress_correction is not None:  # its element blocks, outside the springs' compiled assembly
+        values += element_block_data(model, stress_tangent_blocks(model, positions))
     return values
 
 

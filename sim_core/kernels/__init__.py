@@ -9,7 +9,7 @@ the readable reference the tests compare these kernels with. SI units.
 The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``threads`` (the thread policy and
 ``variant``, the choice between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes,
 health, strain, reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the
-force passes), ``operator`` (the implicit step's matrix-free operator products and its assembled
+force passes), ``stress`` (the finite-strain stress correction), ``operator`` (the implicit step's matrix-free operator products and its assembled
 matrix), ``factor`` (block LU / LDL^T factors and their solves), ``krylov`` (the single-model and
 Jacobi-preconditioned batched solves), ``krylov_copies`` (the per-copy solves preconditioned by
 sparse factors), ``contact`` (the probe's projected surface), ``geometry`` (points covered by quads
@@ -79,6 +79,9 @@ from .forces import (  # noqa: F401
     scatter_springs_copies, spring_pass, stacked_hourglass_subtract_groups,
     stacked_hourglass_subtract_groups_serial, subtract_pushes,
     volume_forces_add, volume_forces_jacobian_add, volume_jacobian_terms, volume_pass,
+)
+from .stress import (  # noqa: F401
+    stress_correction_add,
 )
 from .operator import (  # noqa: F401
     apply_blocks, apply_copies, apply_copies_serial, apply_copy, apply_operator, apply_operator_blocks,
