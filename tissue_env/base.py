@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import copy
 import threading
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -117,6 +118,39 @@ def check_vector(name, value, unit="m"):
     if not np.all(np.isfinite(array)) or np.any(array <= 0):
         raise ValueError(f"{name} must be finite and > 0 {unit} along every axis, got {value!r}")
     return array
+
+
+#: The largest mesh (nodes) an environment accepts unless told otherwise (``max_nodes``): a reset
+#: solves the start equilibrium under gravity (and TumorPositioning its goal) by Newton steps on the
+#: 3 N-dof tangent, whose sparse factorisations cost about dofs^2, so past this size a reset takes
+#: more than about 30 s on 2 cores (benchmarks/large_mesh.py measures it per shape). The task
+#: defaults have at most 726 nodes.
+MAX_NODES = 4_000
+#: Past this many nodes (with ``max_nodes`` raised or None) the env warns that a reset takes long.
+SLOW_NODES = 2_500
+
+
+def check_work(shape, max_nodes):
+    """Refuse (ValueError) a mesh ``shape`` (elements per axis) with more nodes than ``max_nodes``
+    (None: no limit), naming the limit and the alternatives; warn past SLOW_NODES nodes, saying why
+    a reset will take long."""
+    nodes = int(np.prod(np.asarray(shape) + 1))
+    if max_nodes is not None:
+        max_nodes = positive_scalar("max_nodes", max_nodes, "nodes")
+        if nodes > max_nodes:
+            raise ValueError(
+                f"shape {tuple(shape)} has {nodes} nodes, more than max_nodes={max_nodes:g}: every reset would "
+                f"solve a {3 * nodes}-dof static equilibrium (sparse factorisations whose cost grows as about "
+                "dofs^2: minutes per reset on a laptop) and every step a system as large. Use a coarser shape "
+                "(sim_core.resolution.choose_resolution finds the coarsest that meets an accuracy), or pass "
+                "max_nodes=None to accept the cost; for a single large static scene use sim_core.solve_static, "
+                "whose linear_solver='iterative' (AMG) keeps memory linear in the mesh size")
+    if nodes > SLOW_NODES:
+        warnings.warn(
+            f"shape {tuple(shape)} has {nodes} nodes (more than {SLOW_NODES}): a reset solves a {3 * nodes}-dof "
+            "static equilibrium by Newton with sparse factorisations and may take from tens of seconds to "
+            "minutes; steps take tens to hundreds of ms", UserWarning, stacklevel=3)
+    return nodes
 
 
 def check_shape(name, value, minimum):
@@ -216,6 +250,8 @@ class TissueEnv(gym.Env):
             "jacobi" (the Jacobi diagonal; a vector env solves its copies in lockstep, where a
             copy's floats depend on the copy count: not bitwise the single env's).
         render_mode: None, "rgb_array" or "human".
+        max_nodes: the largest mesh (nodes) accepted, MAX_NODES by default (``check_work``: a larger
+            ``shape`` raises ValueError); None accepts any size, with a warning past SLOW_NODES.
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
@@ -239,11 +275,13 @@ class TissueEnv(gym.Env):
                  integrator="implicit", dt=None, substeps=1, max_step=None, hourglass_control=1.0,
                  volume_stiffness=100.0, gravity=9.81, observation_type="state", young_modulus_range=None,
                  poisson_ratio_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
-                 instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None):
+                 instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
+                 max_nodes=MAX_NODES):
         self.young_modulus = positive_scalar("young_modulus", young_modulus, "Pa")
         self.poisson_ratio = check_poisson_ratio("poisson_ratio", poisson_ratio)
         self.density = positive_scalar("density", density, "kg/m^3")
         self.shape = check_shape("shape", self.default_shape if shape is None else shape, self.min_shape)
+        check_work(self.shape, max_nodes)
         self.size = check_vector("size", self.default_size if size is None else size)
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
