@@ -53,6 +53,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/task_gallery.py
 	$(PY) benchmarks/lag_figure.py
 	$(PY) benchmarks/speed_accuracy.py
+	$(PY) benchmarks/memory_soak.py --randomise
+	$(PY) benchmarks/large_mesh.py
 
 # MuJoCo flex and PyBullet soft body next to ours (optional extra, not needed by anything else)
 bench-peers: $(STAMP)
