@@ -263,7 +263,8 @@ class TissueEnv(gym.Env):
     default_size = (0.06, 0.04, 0.06)
     default_max_step = 0.002
     min_shape = (2, 2, 2)
-    #: Observation units: lengths in cm, forces in units of 0.1 N, strains and volume change in %.
+    #: Observation units: lengths in cm, forces in units of 0.1 N x E / 5 kPa (``worlds.REFERENCE_YOUNG_MODULUS``:
+    #: the same strains read the same at any stiffness), strains and volume change in %.
     length_scale = 0.01
     force_scale = 0.1
     #: End the episode when the task succeeds.

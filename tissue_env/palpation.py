@@ -190,12 +190,13 @@ class PalpationWorlds(TaskWorlds):
 
     def _reward_terms(self, measures):
         force = np.linalg.norm(measures["reaction_force"], axis=1)
+        limit = self.force_limit * self.stiffness_ratio  # N, scaled with the tissue (REFERENCE_YOUNG_MODULUS)
         terms = dict(
             success=np.where(self._is_success(measures), self.success_bonus, 0.0),
             explore=np.where(measures["new_cell"], self.explore_bonus, 0.0),
             approach=self.approach_weight * measures["approach"] / 0.01,
             time=np.full(self.num_envs, -self.time_penalty),
-            force=-self.force_weight * np.maximum(0.0, force - self.force_limit) / self.force_limit,
+            force=-self.force_weight * np.maximum(0.0, force - limit) / limit,
         )
         terms.update(self._damage_terms(measures))
         return terms
@@ -267,7 +268,7 @@ class PalpationEnv(TissueEnv):
     |-------|----------------------------------------------------|-----------------------|
     | 0-2   | probe tip position                                 | cm from block centre  |
     | 3-5   | probe displacement from its (random) start         | cm                    |
-    | 6-8   | force the probe exerts on the tissue               | 0.1 N                 |
+    | 6-8   | force the probe exerts on the tissue               | 0.1 N x E / 5 kPa      |
     | 9     | relative volume change (V - V0) / V0               | %                     |
     | 10    | maximum spring strain abs(L - L0) / L0             | %                     |
     | 11    | indentation depth below the undeformed surface     | cm (negative above)   |
@@ -325,7 +326,8 @@ class PalpationEnv(TissueEnv):
       uses the inclusion's position, which the observation never contains. Pilot, PPO 30k steps,
       one seed, 20 evaluation episodes: 65% success with it, 50% without (random: 10%).
     - ``reward_time = -time_penalty`` (default 0.05) per step
-    - ``reward_force = -force_weight * max(0, |F| - force_limit) / force_limit`` (defaults 1, 2 N:
+    - ``reward_force = -force_weight * max(0, |F| - force_limit) / force_limit`` (defaults 1, 2 N
+      at E = 5 kPa, the limit scaled with the episode's E:
       the default mesh resolves the stiff inclusion, and the scripted sweep's success presses peak
       at 5.6 N; with the 1 N limit set on the (8, 4, 8) mesh, whose presses peaked at 1.35 N, PPO
       fell from 85% to 30-35% success at the benchmark's budget, see README)
@@ -377,7 +379,7 @@ class PalpationEnv(TissueEnv):
     0.9 in x and z),
     ``max_depth`` (m), ``success_depth`` (m), ``success_radius`` (m), ``hold_steps``,
     ``start_distance`` (m), ``success_bonus``,
-    ``time_penalty``, ``force_limit`` (N), ``force_weight``, ``map_depth`` (m), ``explore_bonus``,
+    ``time_penalty``, ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa), ``force_weight``, ``map_depth`` (m), ``explore_bonus``,
     ``approach_weight``; shared
     keywords in
     ``tissue_env.base.TissueEnv``.

@@ -94,7 +94,7 @@ class RetractionWorlds(TaskWorlds):
         scale, centre_x = self.length_scale, self.centre[0]
         return dict(
             target_range=(self.target_x - centre_x) / scale, exposed_fraction=measures["exposed_fraction"][:, None],
-            tension=np.linalg.norm(measures["reaction_force"], axis=1)[:, None] / self.force_limit,
+            tension=np.linalg.norm(measures["reaction_force"], axis=1)[:, None] / self._force_limits()[:, None],
             footprint_range=(measures["footprint"] - centre_x) / scale,
         )
 
@@ -102,15 +102,19 @@ class RetractionWorlds(TaskWorlds):
         return dict(exposed_fraction=measures["exposed_fraction"].copy(),
                     tension=np.linalg.norm(measures["reaction_force"], axis=1))
 
+    def _force_limits(self):
+        """(N,) each world's force limit, N: ``force_limit`` scaled by its tissue's stiffness ratio."""
+        return self.force_limit * self.stiffness_ratio
+
     def _is_success(self, measures):
         return ((measures["exposed_fraction"] >= self.success_exposure)
-                & (np.linalg.norm(measures["reaction_force"], axis=1) <= self.force_limit))
+                & (np.linalg.norm(measures["reaction_force"], axis=1) <= self._force_limits()))
 
     def _reward_terms(self, measures):
         tension = np.linalg.norm(measures["reaction_force"], axis=1)
         terms = dict(
             exposure=measures["exposed_fraction"] - 1.0,
-            tension=-self.tension_weight * np.maximum(0.0, tension - self.force_limit) / self.force_limit,
+            tension=-self.tension_weight * np.maximum(0.0, tension - self._force_limits()) / self._force_limits(),
             success=np.where(self._is_success(measures), self.success_bonus, 0.0),
         )
         terms.update(self._damage_terms(measures))
@@ -158,7 +162,7 @@ class RetractionEnv(TissueEnv):
     |-------|-----------------------------------------------------|-----------------------|
     | 0-2   | tool position (mean of the grasped nodes)           | cm from block centre  |
     | 3-5   | tool displacement from its start                    | cm                    |
-    | 6-8   | force the tool exerts on the tissue                 | 0.1 N                 |
+    | 6-8   | force the tool exerts on the tissue                 | 0.1 N x E / 5 kPa      |
     | 9     | relative volume change (V - V0) / V0                | %                     |
     | 10    | maximum spring strain abs(L - L0) / L0              | %                     |
     | 11-12 | target region x range (start, end)                  | cm from block centre  |
@@ -179,7 +183,8 @@ class RetractionEnv(TissueEnv):
       never positive, so ending the episode by succeeding is always worth more than lingering
       (with a positive exposure reward, PPO learned to hover at 80-90% exposure and never finish).
     - ``reward_tension = -tension_weight * max(0, |F| - force_limit) / force_limit`` (defaults 1,
-      0.5 N)
+      0.5 N at E = 5 kPa; the limit scales with the episode's E, so the same strains are allowed at
+      any stiffness)
     - ``reward_success = success_bonus`` (default 5) on success
     - ``reward_volume``, ``reward_strain`` as in every task, ``reward_instability`` on divergence.
 
@@ -206,7 +211,7 @@ class RetractionEnv(TissueEnv):
     vectorization_mode="vector_entry_point")`` steps the copies together in one batched physics
     step (``RetractionVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
 
-    Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N),
+    Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
     ``tension_weight``, ``success_exposure``, ``success_bonus``; shared keywords in
     ``tissue_env.base.TissueEnv``.
 

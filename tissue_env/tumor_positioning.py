@@ -157,7 +157,7 @@ class TumorPositioningEnv(TissueEnv):
     |-------|-----------------------------------------------|--------------------------|
     | 0-2   | tool position (mean of grasped nodes)         | cm from block centre     |
     | 3-5   | tool displacement from its start              | cm                       |
-    | 6-8   | force the tool exerts on the tissue           | 0.1 N                    |
+    | 6-8   | force the tool exerts on the tissue           | 0.1 N x E / 5 kPa         |
     | 9     | relative volume change (V - V0) / V0          | %                        |
     | 10    | maximum spring strain abs(L - L0) / L0        | %                        |
     | 11-13 | tumour position                               | cm from block centre     |

@@ -34,6 +34,10 @@ from sim_core.worlds import make_worlds_solver
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
 #: by a healthy simulation, that keeps every observation inside the observation space.
 OBS_LIMIT = 100.0
+#: The tissue stiffness (Pa) at which the tasks' force units and force limits are stated: an episode's
+#: forces are observed, and its force limits applied, in units scaled by E / REFERENCE_YOUNG_MODULUS,
+#: so the same strains read the same from a 1 kPa to a 1 MPa tissue (the default young_modulus).
+REFERENCE_YOUNG_MODULUS = 5.0e3
 
 
 def observation_arrays(parts, names, as_dict: bool, clipped=None):
@@ -112,6 +116,8 @@ class TaskWorlds:
         self.rest_volume = np.ones(count)
         self.episode_young_modulus = np.zeros(count)  # each world's material this episode (Pa, -)
         self.episode_poisson_ratio = np.zeros(count)
+        #: (N,) each world's E / REFERENCE_YOUNG_MODULUS: its force unit and force limits scale by it
+        self.stiffness_ratio = np.ones(count)
         self.elapsed = np.zeros(count, dtype=int)
         self._no_force = np.zeros_like(self.positions)  # the worlds' loads are their models' gravity
         #: (N, n, 3) bool: the dofs each world's tool imposed at its last measurement
@@ -191,6 +197,7 @@ class TaskWorlds:
         self.rest_volume[index] = env.rest_volume
         self.episode_young_modulus[index] = env.episode_young_modulus
         self.episode_poisson_ratio[index] = env.episode_poisson_ratio
+        self.stiffness_ratio[index] = env.episode_young_modulus / REFERENCE_YOUNG_MODULUS
         self.elapsed[index] = 0
         self._load_task(index, env)
 
@@ -374,7 +381,7 @@ class TaskWorlds:
         features = dict(
             tool_position=(self._tool_position(positions) - self.centre) / self.length_scale,
             tool_displacement=self.tool_offset / self.length_scale,
-            reaction_force=measures["reaction_force"] / self.force_scale,
+            reaction_force=measures["reaction_force"] / (self.force_scale * self.stiffness_ratio[:, None]),
             relative_volume_change=100.0 * measures["relative_volume_change"][:, None],
             max_strain=100.0 * measures["max_strain"][:, None],
         )

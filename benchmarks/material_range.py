@@ -1,0 +1,83 @@
+"""Every task across the stiffness range of real tissue: observations inside their bounds, rewards
+of the same size, the scripted controller still succeeding.
+
+Usage: python benchmarks/material_range.py [--moduli 1e3 1e4 1e5 1e6] [--steps 100] [--seeds 3]
+       [--output benchmarks/results/material_range.json]
+
+For each task and Young's modulus E (Pa): ``--steps`` random actions (action space seeded 0, episodes
+reset as they end) give the share of observation entries at their bound (|x| >= 0.999 OBS_LIMIT)
+and the largest |reward|; then the task's scripted controller runs one episode on each of
+``--seeds`` seeds (100, 101, ...) and its successes are counted. Written to ``--output`` (JSON,
+replaced atomically).
+"""
+
+import argparse
+import os
+import platform
+import sys
+import warnings
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import tissue_env  # noqa: E402,F401
+from tissue_env.worlds import OBS_LIMIT  # noqa: E402
+from training.common import write_json  # noqa: E402
+
+TASKS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
+
+
+def measure(env_id, young_modulus, steps, seeds):
+    env = gym.make(env_id, young_modulus=young_modulus)
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    at_bound = entries = 0
+    largest = 0.0
+    for _ in range(steps):
+        observation, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        at_bound += int(np.count_nonzero(np.abs(observation) >= 0.999 * OBS_LIMIT))
+        entries += observation.size
+        largest = max(largest, abs(float(reward)))
+        if terminated or truncated:
+            env.reset()
+    successes = 0
+    for seed in range(100, 100 + seeds):
+        env.reset(seed=seed)
+        terminated = truncated = False
+        while not (terminated or truncated):
+            _, _, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
+        successes += bool(info["is_success"])
+    env.close()
+    return dict(env_id=env_id, young_modulus=young_modulus, share_at_bound=at_bound / entries,
+                max_abs_reward=largest, scripted_successes=successes, seeds=seeds)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--moduli", type=float, nargs="*", default=[1e3, 1e4, 1e5, 1e6])
+    parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--env", nargs="*", default=list(TASKS))
+    parser.add_argument("--output", default="benchmarks/results/material_range.json")
+    args = parser.parse_args(argv)
+    rows = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for env_id in args.env:
+            for modulus in args.moduli:
+                rows.append(measure(env_id, modulus, args.steps, args.seeds))
+                r = rows[-1]
+                print(f"{env_id} E={modulus:g} Pa: {100 * r['share_at_bound']:.2f}% of entries at bound, "
+                      f"max |reward| {r['max_abs_reward']:.2f}, scripted {r['scripted_successes']}/{args.seeds}",
+                      flush=True)
+    write_json(args.output, dict(steps=args.steps, obs_limit=OBS_LIMIT, results=rows,
+                                 machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
+                                              python=platform.python_version())))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
