@@ -59,6 +59,10 @@ class StressCorrection:
         spring_length: (M, S_e) L_s = |D_s| in m.
         spring_stiffness: (M, S_e) the element's share k_s of each spring's stiffness, N/m.
         shear_modulus, lame: (M,) mu and lambda of the neo-Hookean law, Pa.
+        metric_root, metric_root_inverse: (M, 3, 3) R = (sum_a b_a b_a^T)^(1/2) and R^-1 (1/m, m),
+            derived from ``mean_gradient`` when not given: B B^T = I_3 (x) R^2 for the map B from the
+            element's nodal displacements to F, the metric in which the implicit step takes the
+            positive part of the correction's stiffness (``tangent_matrices``).
     """
 
     mean_gradient: np.ndarray
@@ -68,6 +72,16 @@ class StressCorrection:
     spring_stiffness: np.ndarray
     shear_modulus: np.ndarray
     lame: np.ndarray
+    metric_root: np.ndarray | None = None
+    metric_root_inverse: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.metric_root is None:
+            values, vectors = np.linalg.eigh(np.einsum("maj,mal->mjl", self.mean_gradient, self.mean_gradient))
+            root = np.einsum("mje,me,mle->mjl", vectors, np.sqrt(values), vectors)
+            inverse = np.einsum("mje,me,mle->mjl", vectors, 1.0 / np.sqrt(values), vectors)
+            object.__setattr__(self, "metric_root", np.ascontiguousarray(root))
+            object.__setattr__(self, "metric_root_inverse", np.ascontiguousarray(inverse))
 
 
 def mean_gradients(nodes: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -179,12 +193,34 @@ def element_forces(correction: StressCorrection, elements: np.ndarray, positions
     return -correction.volume[:, None, None] * np.einsum("mij,maj->mai", stress, correction.mean_gradient)
 
 
-def tangent_blocks(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """(M, 24, 24) K_e = -d f_e / d x_e = V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m (node-major dofs)."""
+def tangent_matrices(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray,
+                     clamp: bool = False) -> np.ndarray:
+    """(M, 9, 9) T = V0 (A_NH(F) - A_S(F)) in N m (row 3 i + J, column 3 k + L: dP_iJ / dF_kL times
+    V0), the correction's stiffness on its element's F: K_e = B^T T B. ``clamp``: the implicit
+    step's positive part (docs/physics.md section 11), that of the 24 x 24 block B^T T B: with
+    S = I_3 (x) R (``StressCorrection.metric_root``), B = S Q with orthonormal rows Q, so
+    (B^T T B)_+ = B^T S^-1 (S T S)_+ S^-1 B. The numpy reference of ``kernels.stress_correction_tangent_add``
+    (which skips the decomposition where a Cholesky factorisation shows S T S positive)."""
     from .hyperelastic import material_tangent
 
     f = deformation_gradients(correction, elements, positions)
     tangent = material_tangent(f, correction.shear_modulus, correction.lame) - spring_tangent(correction, f)
+    tangent = correction.volume[:, None, None] * tangent.reshape(-1, 9, 9)
+    if clamp:
+        eye = np.eye(3)
+        root = np.einsum("ik,mJL->miJkL", eye, correction.metric_root).reshape(-1, 9, 9)
+        root_inverse = np.einsum("ik,mJL->miJkL", eye, correction.metric_root_inverse).reshape(-1, 9, 9)
+        weighted = root @ tangent @ root
+        values, vectors = np.linalg.eigh(0.5 * (weighted + weighted.swapaxes(1, 2)))
+        positive = np.einsum("mre,me,mqe->mrq", vectors, np.maximum(values, 0.0), vectors)
+        tangent = root_inverse @ positive @ root_inverse
+    return tangent
+
+
+def tangent_blocks(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray,
+                   clamp: bool = False) -> np.ndarray:
+    """(M, 24, 24) K_e = -d f_e / d x_e = V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m (node-major dofs);
+    ``clamp``: its positive part (``tangent_matrices``)."""
+    tangent = tangent_matrices(correction, elements, positions, clamp).reshape(-1, 3, 3, 3, 3)
     b = correction.mean_gradient
-    blocks = np.einsum("maJ,miJkL,mbL->maibk", b, tangent, b, optimize=True)
-    return correction.volume[:, None, None] * blocks.reshape(-1, 24, 24)
+    return np.einsum("maJ,miJkL,mbL->maibk", b, tangent, b, optimize=True).reshape(-1, 24, 24)
