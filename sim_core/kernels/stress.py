@@ -79,53 +79,164 @@ def _scatter_stress(elements, mean_gradient, volume, m, p, forces):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
-def _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, m, t):
+def _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, m, t, w):
     """t (9, 9) = V0 (A_NH(F) - A_S(F)) of element ``m`` (row 3 i + J: dP_iJ; column 3 k + L: dF_kL),
     with f, c, det, log_j from ``_element_stress``:
     A_NH = mu d_ik d_JL + (mu - lam ln J) G_kJ G_iL + lam G_iJ G_kL (G = F^-T = c / det), and
-    A_S = (1/V0) sum_s k_s [(1 - L_s/l_s) d_ik + (L_s/l_s) n_i n_k] D_J D_L, n = F D_s / l_s."""
+    A_S = (1/V0) sum_s k_s [(1 - L_s/l_s) d_ik D_J D_L + (L_s / l_s^3) (F D_s)_i D_J (F D_s)_k D_L].
+    w (9, 9) scratch (its first row: the spring's u (x) D)."""
     v = volume[m]
-    g = c / det
-    coefficient = v * (mu[m] - lam[m] * log_j)
-    vmu, vlam = v * mu[m], v * lam[m]
+    inverse_det = 1.0 / det
+    coefficient = v * (mu[m] - lam[m] * log_j) * inverse_det * inverse_det
+    vlam = v * lam[m] * inverse_det * inverse_det
+    vmu = v * mu[m]
     for i in range(3):
         for jj in range(3):
             r = 3 * i + jj
             for k in range(3):
                 for ll in range(3):
-                    value = coefficient * g[k, jj] * g[i, ll] + vlam * g[i, jj] * g[k, ll]
-                    if i == k and jj == ll:
-                        value += vmu
-                    t[r, 3 * k + ll] = value
-    u = np.empty(3)
-    d = np.empty(3)
+                    t[r, 3 * k + ll] = coefficient * c[k, jj] * c[i, ll] + vlam * c[i, jj] * c[k, ll]
+            t[r, r] += vmu
+    g00 = g01 = g02 = g11 = g12 = g22 = 0.0  # sum_s k_s (1 - L_s / l_s) D D^T
+    row = w[0]
     for s in range(spring_vector.shape[1]):
-        for j in range(3):
-            d[j] = spring_vector[m, s, j]
-        for i in range(3):
-            u[i] = f[i, 0] * d[0] + f[i, 1] * d[1] + f[i, 2] * d[2]
-        length = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+        d0, d1, d2 = spring_vector[m, s, 0], spring_vector[m, s, 1], spring_vector[m, s, 2]
+        u0 = f[0, 0] * d0 + f[0, 1] * d1 + f[0, 2] * d2
+        u1 = f[1, 0] * d0 + f[1, 1] * d1 + f[1, 2] * d2
+        u2 = f[2, 0] * d0 + f[2, 1] * d1 + f[2, 2] * d2
+        squared = u0 * u0 + u1 * u1 + u2 * u2
+        length = np.sqrt(squared)
         ratio = spring_length[m, s] / length
-        across = spring_stiffness[m, s] * (1.0 - ratio)
-        along = spring_stiffness[m, s] * ratio / (length * length)
-        for i in range(3):
-            for k in range(3):
-                axial = along * u[i] * u[k]
-                if i == k:
-                    axial += across
-                for jj in range(3):
-                    for ll in range(3):
-                        t[3 * i + jj, 3 * k + ll] -= axial * d[jj] * d[ll]
+        k = spring_stiffness[m, s]
+        across = k * (1.0 - ratio)
+        g00 += across * d0 * d0
+        g01 += across * d0 * d1
+        g02 += across * d0 * d2
+        g11 += across * d1 * d1
+        g12 += across * d1 * d2
+        g22 += across * d2 * d2
+        along = k * ratio / squared
+        row[0], row[1], row[2] = u0 * d0, u0 * d1, u0 * d2
+        row[3], row[4], row[5] = u1 * d0, u1 * d1, u1 * d2
+        row[6], row[7], row[8] = u2 * d0, u2 * d1, u2 * d2
+        for r in range(9):
+            value = along * row[r]
+            for q in range(9):
+                t[r, q] -= value * row[q]
+    for i in range(3):
+        b = 3 * i
+        t[b, b] -= g00
+        t[b, b + 1] -= g01
+        t[b, b + 2] -= g02
+        t[b + 1, b] -= g01
+        t[b + 1, b + 1] -= g11
+        t[b + 1, b + 2] -= g12
+        t[b + 2, b] -= g02
+        t[b + 2, b + 1] -= g12
+        t[b + 2, b + 2] -= g22
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
-def _positive_part(t, root, root_inverse, m, w, lower):
-    """t (9, 9) := its positive part in the metric of the element's nodal displacements: with
-    S = I_3 (x) R, R = (sum_a b_a b_a^T)^(1/2) (``root[m]``; B = S Q with Q's rows orthonormal),
-    B^T t B = Q^T (S t S) Q, so the positive part of the 24 x 24 block B^T t B is
-    B^T S^-1 (S t S)_+ S^-1 B. S t S is tested by a Cholesky factorisation (of S t S plus 1e-12 of
-    its trace: the exact null space of the rotations passes) and decomposed (eigh) only when it
-    fails. Returns whether t changed. w, lower (9, 9) scratch."""
+def _symmetric_eigen3(a, values, vectors):
+    """Eigenvalues (3,) and eigenvectors (columns of (3, 3)) of the symmetric 3 x 3 ``a`` (overwritten),
+    cyclic Jacobi rotations to rounding."""
+    for i in range(3):
+        for j in range(3):
+            vectors[i, j] = 1.0 if i == j else 0.0
+    for sweep in range(12):
+        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+        scale = a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]
+        if off <= 1e-30 * scale or off == 0.0:
+            break
+        for p in range(2):
+            for q in range(p + 1, 3):
+                if a[p, q] == 0.0:
+                    continue
+                theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+                tangent = (1.0 if theta >= 0.0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                cosine = 1.0 / np.sqrt(tangent * tangent + 1.0)
+                sine = tangent * cosine
+                for k in range(3):  # a := J^T a J
+                    akp, akq = a[k, p], a[k, q]
+                    a[k, p] = cosine * akp - sine * akq
+                    a[k, q] = sine * akp + cosine * akq
+                for k in range(3):
+                    apk, aqk = a[p, k], a[q, k]
+                    a[p, k] = cosine * apk - sine * aqk
+                    a[q, k] = sine * apk + cosine * aqk
+                for k in range(3):
+                    vkp, vkq = vectors[k, p], vectors[k, q]
+                    vectors[k, p] = cosine * vkp - sine * vkq
+                    vectors[k, q] = sine * vkp + cosine * vkq
+    for i in range(3):
+        values[i] = a[i, i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _positive_definite(t, lower):
+    """Whether the symmetric (9, 9) t is positive semi-definite to rounding: the Cholesky
+    factorisation of t + 1e-12 tr(t) I (the exact null space of the rotations passes). lower scratch."""
+    trace = 0.0
+    for r in range(9):
+        trace += t[r, r]
+    shift = 1e-12 * abs(trace)
+    for j in range(9):
+        total = t[j, j] + shift
+        for q in range(j):
+            total -= lower[j, q] * lower[j, q]
+        if not total > 0.0:
+            return False
+        pivot = np.sqrt(total)
+        lower[j, j] = pivot
+        for i in range(j + 1, 9):
+            total = 0.5 * (t[i, j] + t[j, i])
+            for q in range(j):
+                total -= lower[i, q] * lower[j, q]
+            lower[i, j] = total / pivot
+    return True
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small, values, vectors):
+    """The implicit step's SPD treatment of element ``m``'s tangent t (9, 9) (docs/physics.md 11),
+    in place; returns 0 (t kept), 1 (geometric term clamped) or 2 (positive part taken).
+
+    1. Its geometric (initial-stress) term V0 d_ik dS_JL, dS = F^-1 (P_NH - P_S) the second
+       Piola-Kirchhoff stress the correction adds, loses its negative part, as the springs'
+       geometric term t/l does where a spring is compressed: t += V0 I (x) [dS]_-  (|negative
+       eigenvalues| of dS). What remains is the material term F F (C_NH - C_S), positive
+       semi-definite at rest for nu >= 0 and at moderate strain.
+    2. Where that is still not positive semi-definite (``_positive_definite``; a large strain),
+       t := its positive part in the metric of the element's nodal displacements: with
+       S = I_3 (x) R, R = (sum_a b_a b_a^T)^(1/2) (``root[m]``; B = S Q with Q's rows orthonormal),
+       B^T t B = Q^T (S t S) Q, so the positive part of the 24 x 24 block B^T t B is
+       B^T S^-1 (S t S)_+ S^-1 B.
+    w, lower (9, 9), small (3, 3), values (3,), vectors (3, 3) scratch."""
+    inverse_det = 1.0 / det
+    for jj in range(3):  # dS = F^-1 p = c^T p / det, symmetrised
+        for ll in range(3):
+            small[jj, ll] = (c[0, jj] * p[0, ll] + c[1, jj] * p[1, ll] + c[2, jj] * p[2, ll]) * inverse_det
+    for jj in range(3):
+        for ll in range(jj):
+            mean = 0.5 * (small[jj, ll] + small[ll, jj])
+            small[jj, ll] = mean
+            small[ll, jj] = mean
+    _symmetric_eigen3(small, values, vectors)
+    changed = 0
+    if values[0] < 0.0 or values[1] < 0.0 or values[2] < 0.0:
+        changed = 1
+        v = volume[m]
+        for jj in range(3):
+            for ll in range(3):
+                total = 0.0
+                for e in range(3):
+                    if values[e] < 0.0:
+                        total -= values[e] * vectors[jj, e] * vectors[ll, e]
+                total *= v
+                for i in range(3):
+                    t[3 * i + jj, 3 * i + ll] += total
+    if _positive_definite(t, lower):
+        return changed
     for i in range(3):
         for jj in range(3):
             for k in range(3):
@@ -135,39 +246,18 @@ def _positive_part(t, root, root_inverse, m, w, lower):
                         for b in range(3):
                             total += root[m, jj, a] * t[3 * i + a, 3 * k + b] * root[m, b, ll]
                     w[3 * i + jj, 3 * k + ll] = total
-    trace = 0.0
-    for r in range(9):
-        trace += w[r, r]
-    shift = 1e-12 * abs(trace)
-    positive = True
-    for j in range(9):  # Cholesky of w + shift I, lower triangle
-        total = w[j, j] + shift
-        for q in range(j):
-            total -= lower[j, q] * lower[j, q]
-        if not total > 0.0:
-            positive = False
-            break
-        pivot = np.sqrt(total)
-        lower[j, j] = pivot
-        for i in range(j + 1, 9):
-            total = w[i, j]
-            for q in range(j):
-                total -= lower[i, q] * lower[j, q]
-            lower[i, j] = total / pivot
-    if positive:
-        return False
     for r in range(9):  # symmetrise against rounding before the decomposition
         for q in range(r):
             mean = 0.5 * (w[r, q] + w[q, r])
             w[r, q] = mean
             w[q, r] = mean
-    values, vectors = np.linalg.eigh(w)
+    eigenvalues, eigenvectors = np.linalg.eigh(w)
     for r in range(9):
         for q in range(9):
             total = 0.0
             for e in range(9):
-                if values[e] > 0.0:
-                    total += values[e] * vectors[r, e] * vectors[q, e]
+                if eigenvalues[e] > 0.0:
+                    total += eigenvalues[e] * eigenvectors[r, e] * eigenvectors[q, e]
             w[r, q] = total
     for i in range(3):
         for jj in range(3):
@@ -178,7 +268,7 @@ def _positive_part(t, root, root_inverse, m, w, lower):
                         for b in range(3):
                             total += root_inverse[m, jj, a] * w[3 * i + a, 3 * k + b] * root_inverse[m, b, ll]
                     t[3 * i + jj, 3 * k + ll] = total
-    return True
+    return 2
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
@@ -203,24 +293,28 @@ def stress_correction_add(positions, elements, mean_gradient, volume, mu, lam, s
 def stress_correction_tangent_add(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
                                   spring_stiffness, root, root_inverse, clamp, forces, tangent):
     """``stress_correction_add`` that also writes each element's stiffness on F, tangent (M, 9, 9)
-    N/m * m^2 = V0 (A_NH - A_S) (``_element_tangent``), with ``clamp`` its positive part in the
-    element's displacement metric (``_positive_part``: root, root_inverse (M, 3, 3) the metric's
-    square root and its inverse, ``StressCorrection.metric_root``): the implicit step's SPD
-    treatment (docs/physics.md section 11). Returns the number of elements whose tangent was clamped."""
+    N/m * m^2 = V0 (A_NH - A_S) (``_element_tangent``), with ``clamp`` the implicit step's SPD
+    treatment (``_clamp_tangent``: the negative part of its geometric term dropped, and its positive
+    part in the element's displacement metric where that is not enough; root, root_inverse
+    (M, 3, 3) the metric's square root and its inverse, ``StressCorrection.metric_root``;
+    docs/physics.md section 11). Returns the number of elements whose positive part was taken."""
     f = np.empty((3, 3))
     c = np.empty((3, 3))
     p = np.empty((3, 3))
     w = np.empty((9, 9))
     lower = np.empty((9, 9))
+    small = np.empty((3, 3))
+    values = np.empty(3)
+    vectors = np.empty((3, 3))
     clamped = 0
     for m in range(elements.shape[0]):
         det, log_j = _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
                                      spring_stiffness, m, f, c, p)
         _scatter_stress(elements, mean_gradient, volume, m, p, forces)
         t = tangent[m]
-        _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, m, t)
+        _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, m, t, w)
         if clamp and det > 0.0:
-            if _positive_part(t, root, root_inverse, m, w, lower):
+            if _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small, values, vectors) == 2:
                 clamped += 1
     return clamped
 
