@@ -110,13 +110,10 @@ def retraction_scenes():
 
 
 def env_defaults():
-    """(hourglass_control, volume_stiffness) of the environments' constructors."""
-    import inspect
+    """(hourglass_control, volume_stiffness) of the environments' constructors (model "baudet")."""
+    from tissue_env.base import MODEL_DEFAULTS
 
-    from tissue_env.base import TissueEnv
-
-    parameters = inspect.signature(TissueEnv.__init__).parameters
-    return float(parameters["hourglass_control"].default), float(parameters["volume_stiffness"].default)
+    return MODEL_DEFAULTS["baudet"]
 
 
 def absolute_errors(case_errors, reference):

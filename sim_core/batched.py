@@ -489,7 +489,8 @@ class BatchedImplicitEuler(WorldsSolver):
                   copy(workspace.geometric), copy(model.mass), reference.mesh.elements, reference.edge_spring,
                   copy(model.correction_matrix), copy(model.axis_rest_length), copy(workspace.volume_coefficient),
                   copy(workspace.volume_direction), copy(workspace.volume_gradient), reference.hourglass_arrays[0],
-                  reference.hourglass_arrays[1], hg_data, copy(workspace.elongation), copy(workspace.delta))
+                  reference.hourglass_arrays[1], hg_data, copy(workspace.elongation), copy(workspace.delta),
+                  copy(workspace.stress_gradient), copy(workspace.stress_tangent))
         values = self._values
         kernels.operator_matrix_data(single, system, reference.spring_positions, reference.element_positions,
                                      self._hg_positions, reference.pattern.diagonal_positions, values)
@@ -678,7 +679,7 @@ class BatchedImplicitEuler(WorldsSolver):
                        model.mass, reference.mesh.elements, reference.edge_spring, model.correction_matrix,
                        model.axis_rest_length, workspace.volume_coefficient, workspace.volume_direction,
                        workspace.volume_gradient, hg_indptr, hg_indices, hg_rows[0], workspace.elongation,
-                       workspace.delta)
+                       workspace.delta, workspace.stress_gradient, workspace.stress_tangent)
             self._first = (stack.version, (stacked, hg_rows, values["hourglass_group"]))
         return self._first[1]
 
@@ -804,7 +805,9 @@ class BatchedImplicitEuler(WorldsSolver):
                 values["correction_matrix"], values["axis_rest_length"],
                 last(workspace.volume_coefficient, n_elements), last(workspace.volume_direction, n_elements),
                 last(workspace.volume_gradient, n_elements), hg_indptr, hg_indices, values["hourglass"],
-                self._elongation, self._delta, values["hourglass_group"])
+                self._elongation, self._delta, values["hourglass_group"],
+                last(workspace.stress_gradient, len(workspace.stress_gradient) // count),
+                last(workspace.stress_tangent, len(workspace.stress_tangent) // count))
 
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):

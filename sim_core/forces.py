@@ -173,16 +173,28 @@ class ForceWorkspace:
         self.hourglass_arrays = model.hourglass_arrays
         self.rest_positions = np.ascontiguousarray(model.rest_positions, dtype=float)
         self.work = np.empty((8, 3 * n_nodes))
+        # the stress correction's stiffness on each element's F (baudet-hyperelastic, implicit: (M, 9, 9)),
+        # filled by a ``compute`` with ``geometric``; empty for the other models
+        correction = model.stress_correction
+        stressed = correction is not None and implicit
+        self.stress_gradient = correction.mean_gradient if stressed else np.zeros((0, 8, 3))
+        self.stress_tangent = np.zeros((n_elements if stressed else 0, 9, 9))
+        #: elements whose correction stiffness the last ``compute`` clamped to its positive part
+        self.clamped_elements = 0
         hg_indptr, hg_indices, hg_data = self.hourglass_arrays
         self.operator_data = (model.springs, self.unit, model.stiffness, model.damping, self.geometric, model.mass,
                               model.mesh.elements, model.edge_spring, model.correction_matrix,
                               model.axis_rest_length, self.volume_coefficient, self.volume_direction,
-                              self.volume_gradient, hg_indptr, hg_indices, hg_data, self.elongation, self.delta)
+                              self.volume_gradient, hg_indptr, hg_indices, hg_data, self.elongation, self.delta,
+                              self.stress_gradient, self.stress_tangent)
 
     def compute(self, positions: np.ndarray, velocities: np.ndarray | None, hourglass: bool = True,
-                geometric: bool = False, volume_jacobian: bool = False) -> np.ndarray:
+                geometric: bool = False, volume_jacobian: bool = False, exact: bool = False) -> np.ndarray:
         """Internal forces (N, 3) into ``self.forces`` (and length, unit, tension, push as
-        ``spring_state``); ``geometric`` / ``volume_jacobian`` also fill the implicit step's data."""
+        ``spring_state``); ``geometric`` / ``volume_jacobian`` also fill the implicit step's data:
+        the springs' geometric stiffness clamped at zero and the stress correction's stiffness
+        (baudet-hyperelastic) clamped to its positive part, the SPD system of the implicit step
+        [11], or with ``exact`` both unclamped (Newton's tangent, ``static.tangent_stiffness``)."""
         model = self.model
         use_velocity = velocities is not None
         hg_indptr, hg_indices, hg_data = self.hourglass_arrays
@@ -194,13 +206,27 @@ class ForceWorkspace:
             model.volume_stiffness, self.has_volume, hg_indptr, hg_indices, hg_data, self.rest_positions,
             False, self.length, self.unit, self.tension, self.push, self.forces, geometric, self.geometric,
             volume_jacobian and self.has_volume, self.volume_coefficient, self.volume_direction, self.volume_gradient)
-        add_stress_correction(model, positions, self.forces)
+        if geometric and exact:
+            np.divide(self.tension, self.length, out=self.geometric)
+        self._add_stress(positions, geometric, exact)
         if hourglass and self.has_hourglass:  # f -= K_hg (x - X)
             indptr, indices, values, _ = hourglass_blocks(model)
             kernels.bsr3_matvec_add(indptr, indices, values, (positions - self.rest_positions).reshape(-1), -1.0,
                                     self.forces.reshape(-1))
         return self.forces
 
+    def _add_stress(self, positions, geometric, exact):
+        """The stress correction's forces into ``self.forces`` and, with ``geometric`` (an implicit
+        workspace), its stiffness into ``self.stress_tangent`` (clamped unless ``exact``)."""
+        if geometric and len(self.stress_tangent):
+            correction = self.model.stress_correction
+            self.clamped_elements = kernels.stress_correction_tangent_add(
+                positions, self.model.mesh.elements, correction.mean_gradient, correction.volume,
+                correction.shear_modulus, correction.lame, correction.spring_vector, correction.spring_length,
+                correction.spring_stiffness, correction.metric_root, correction.metric_root_inverse, not exact,
+                self.forces, self.stress_tangent)
+        else:
+            add_stress_correction(self.model, positions, self.forces)
 
     def add_damping(self, velocities: np.ndarray, forces: np.ndarray) -> np.ndarray:
         """forces (N, 3) N += the springs' damping forces at ``velocities`` (N, 3) m/s along the unit
@@ -313,10 +339,12 @@ def element_block_data(model: Model, matrices: np.ndarray) -> np.ndarray:
     return model.pattern.assemble(model.element_positions, blocks)
 
 
-def stress_tangent_blocks(model: Model, positions: np.ndarray) -> np.ndarray:
+def stress_tangent_blocks(model: Model, positions: np.ndarray, clamp: bool = False) -> np.ndarray:
     """(M, 24, 24) V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m: the stress correction's exact
-    stiffness [11] (symmetric: the correction is the gradient of an energy)."""
-    return _stress.tangent_blocks(model.stress_correction, model.mesh.elements, np.asarray(positions, dtype=float))
+    stiffness [11] (symmetric: the correction is the gradient of an energy); ``clamp``: each
+    block's positive part, the implicit step's treatment (``stress_correction.tangent_matrices``)."""
+    return _stress.tangent_blocks(model.stress_correction, model.mesh.elements, np.asarray(positions, dtype=float),
+                                  clamp)
 
 
 def correction_coupling(model: Model, positions: np.ndarray) -> np.ndarray:
@@ -363,8 +391,9 @@ def stiffness_data(
         volume: include the volume forces' dominant rank-one term 2 kappa |dV| / V0^2 h grad(V)^T.
             The stress correction of "baudet-hyperelastic" (its exact tangent, ``stress_tangent_blocks``)
             is included unless ``corrections="none"``.
-        clamp: drop negative geometric stiffness (compressed springs) so the matrix stays SPD,
-            as Baraff and Witkin's implicit Euler needs for conjugate gradient.
+        clamp: drop negative geometric stiffness (compressed springs) and take the positive part
+            of each element's stress-correction block (baudet-hyperelastic) so the matrix stays SPD,
+            as Baraff and Witkin's implicit Euler needs for conjugate gradient [11].
     """
     geometry = spring_geometry(model, positions)
     tension = model.stiffness * (geometry.length - model.rest_length)
@@ -391,7 +420,7 @@ def stiffness_data(
         rank_one *= stiffness_scale
         element_matrices = rank_one if element_matrices is None else element_matrices + rank_one
     if model.stress_correction is not None and corrections != "none" and stiffness_scale:
-        blocks = stiffness_scale * stress_tangent_blocks(model, positions)
+        blocks = stiffness_scale * stress_tangent_blocks(model, positions, clamp)
         element_matrices = blocks if element_matrices is None else element_matrices + blocks
     if element_matrices is not None:
         data += element_block_data(model, element_matrices)

@@ -76,8 +76,9 @@ class ImplicitEuler(SymplecticEuler):
 
         (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1.
 
-    K holds the springs (geometric term clamped at zero so the matrix is SPD) and the corrections'
-    push along the current edges. The corrections' strain coupling is not symmetric (docs/physics.md 3):
+    K holds the springs (geometric term clamped at zero so the matrix is SPD), the corrections'
+    push along the current edges and, for "baudet-hyperelastic", the stress correction's element
+    blocks, each clamped to its positive part (docs/physics.md section 11; symmetric, so CG). The corrections' strain coupling is not symmetric (docs/physics.md 3):
     ``corrections="explicit"`` leaves it in f only and solves with Jacobi-preconditioned conjugate
     gradient; ``corrections="implicit"`` adds it, and the volume forces' rank-one stiffness
     (matrix-free), to the system and solves with BiCGSTAB. Measured
@@ -152,13 +153,6 @@ class ImplicitEuler(SymplecticEuler):
         system's there. The next ``simulate`` of ``model`` from the same positions reuses this pass
         instead of computing it again (an environment measures its state with it: one force pass
         per step instead of two). The arrays are the workspace's: read them before the next step."""
-        if model.stress_correction is not None:
-            # the matrix-free system (kernels.operator) holds the springs, volume and hourglass terms
-            # only: the correction would be explicit in it, which diverges at nu >= 0.45 and the
-            # environments' steps (20-40 ms)
-            raise ValueError(f"ImplicitEuler does not support model={model.name!r} yet: its implicit system lacks the "
-                             "stress correction's stiffness (docs/physics.md section 11); step it with "
-                             "sim_core.static.QuasiStatic or SymplecticEuler (dt below stable_time_step(model))")
         x0 = np.ascontiguousarray(positions, dtype=float)
         workspace = self._workspace(model, implicit=True)
         if not self._reuses(model, x0):

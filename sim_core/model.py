@@ -20,7 +20,7 @@ from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
 from .stress_correction import (SPRING_CHOICES, StressCorrection, element_spring_pairs, element_spring_stiffness,
-                                mean_gradients)
+                                mean_gradients, merge_parallel_springs)
 
 #: Mass-spring model names accepted by ``build_model``.
 MSS_MODELS = ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic")
@@ -462,9 +462,10 @@ def build_model(
         vectors = nodes[elements[:, local_pairs[:, 1]]] - nodes[elements[:, local_pairs[:, 0]]]
         shear = young_modulus / (2.0 * (1.0 + poisson_ratio))
         lame = young_modulus * poisson_ratio / ((1.0 + poisson_ratio) * (1.0 - 2.0 * poisson_ratio))
+        vectors, merged = merge_parallel_springs(vectors, values)
         stress_correction = StressCorrection(
             mean_gradient=np.ascontiguousarray(gradient), volume=volume, spring_vector=np.ascontiguousarray(vectors),
-            spring_length=np.linalg.norm(vectors, axis=2), spring_stiffness=np.ascontiguousarray(values),
+            spring_length=np.linalg.norm(vectors, axis=2), spring_stiffness=np.ascontiguousarray(merged),
             shear_modulus=np.asarray(shear, float), lame=np.asarray(lame, float))
     elif corrections and model not in ("uniform-springs", "baudet-hyperelastic"):
         if model == "baudet":

@@ -6,6 +6,8 @@ force pass over the stacked model, world by world on numba's threads. SI units."
 
 from __future__ import annotations
 
+import dataclasses
+
 import numba
 import numpy as np
 import scipy.sparse as sp
@@ -15,12 +17,16 @@ from .forces import ForceWorkspace, hourglass_block_map
 from .mesh import HexMesh
 from .model import Model
 from .preconditioners import digest
+from .stress_correction import StressCorrection
 
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
 #: geometry); the topology arrays (springs, edge_spring) are offset instead.
 VALUE_FIELDS = ("mass", "rest_length", "stiffness", "damping", "axis_rest_length", "correction_matrix",
                 "rest_volume", "volume_stiffness", "young_modulus", "poisson_ratio", "density")
+#: The per-element arrays of "baudet-hyperelastic"'s stress correction (``StressCorrection``), stacked
+#: and assigned as the VALUE_FIELDS (each copy its own material: shear_modulus, lame, spring_stiffness).
+STRESS_FIELDS = tuple(field.name for field in dataclasses.fields(StressCorrection))
 
 class StackedModel(Model):
     """The model of a ``ModelStack``'s N worlds. Unlike any other ``Model`` its per-world values
@@ -28,7 +34,8 @@ class StackedModel(Model):
     the gravity forces, the masses per dof, the hourglass values) in place, then calls
     ``values_changed``, which drops the data derived from them (``Model.derived``) and advances
     ``ModelStack.version``, which the N-world solvers' own caches compare with theirs. Its topology
-    (mesh, springs, patterns) never changes."""
+    (mesh, springs, patterns) never changes. For "baudet-hyperelastic" its ``stress_correction`` holds
+    the copies' stress-correction arrays one after the other (``STRESS_FIELDS``), rewritten the same way."""
 
     def values_changed(self):
         """Drop the derived data that depends on the values (``assign`` calls it)."""
@@ -46,9 +53,6 @@ class ModelStack:
     """
 
     def __init__(self, model: Model, count: int):
-        if model.stress_correction is not None:  # its per-element arrays are not stacked (VALUE_FIELDS)
-            raise ValueError(f"ModelStack does not support model={model.name!r} yet (its stress correction is not "
-                             "stacked); step its worlds one by one with sim_core.static.QuasiStatic")
         self.count = int(count)
         self.n_nodes = model.n_nodes
         self.n_springs = len(model.springs)
@@ -69,10 +73,14 @@ class ModelStack:
             hourglass = sp.csr_matrix((np.tile(single.data, count), indices, indptr),
                                       shape=(rows * count, rows * count))
         values = {name: np.concatenate([getattr(model, name)] * count) for name in VALUE_FIELDS}
+        stress = None
+        if model.stress_correction is not None:
+            stress = StressCorrection(**{name: np.ascontiguousarray(np.concatenate(
+                [getattr(model.stress_correction, name)] * count)) for name in STRESS_FIELDS})
         self.model = StackedModel(
             mesh=HexMesh(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
-            options=dict(model.options), **values,
+            options=dict(model.options), stress_correction=stress, **values,
         )
         # slots of each copy in the per-dof arrays the Model derived at construction
         self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
@@ -87,6 +95,9 @@ class ModelStack:
         same = (model.n_nodes == self.n_nodes and len(model.springs) == self.n_springs
                 and model.mesh.n_elements == self.n_elements and model.correction_mode == self.reference.correction_mode
                 and (model.hourglass is None) == (self.reference.hourglass is None)
+                and (model.stress_correction is None) == (self.reference.stress_correction is None)
+                and (model.stress_correction is None or model.stress_correction.spring_vector.shape
+                     == self.reference.stress_correction.spring_vector.shape)
                 and np.array_equal(model.springs, self.reference.springs)
                 and np.array_equal(model.mesh.elements, self.reference.mesh.elements))
         if not same:
@@ -101,6 +112,10 @@ class ModelStack:
         for name in VALUE_FIELDS:
             single = getattr(model, name)
             getattr(stacked, name)[index * len(single):(index + 1) * len(single)] = single
+        if model.stress_correction is not None:
+            elements = slice(index * self.n_elements, (index + 1) * self.n_elements)
+            for name in STRESS_FIELDS:
+                getattr(stacked.stress_correction, name)[elements] = getattr(model.stress_correction, name)
         nodes = slice(index * self.n_nodes, (index + 1) * self.n_nodes)
         stacked.gravity_force[nodes] = model.gravity_force
         stacked.mass_data[self._mass_positions[index]] = np.repeat(model.mass, 3)
@@ -232,4 +247,15 @@ class StackedForceWorkspace(ForceWorkspace):
             model.rest_volume, model.volume_stiffness, self.has_volume, self.length, self.unit, self.tension,
             self.push, self.forces, geometric, self.geometric, volume_jacobian and self.has_volume,
             self.volume_coefficient, self.volume_direction, self.volume_gradient)
+        correction = model.stress_correction
+        if correction is not None:  # the stress correction, copy by copy (kernels.stress_correction_add's floats)
+            arguments = (self.stack.count, positions, reference.mesh.elements, correction.mean_gradient,
+                         correction.volume, correction.shear_modulus, correction.lame, correction.spring_vector,
+                         correction.spring_length, correction.spring_stiffness)
+            if geometric and len(self.stress_tangent):
+                self.clamped_elements = kernels.stress_correction_tangent_add_copies(
+                    *arguments, correction.metric_root, correction.metric_root_inverse, True, self.forces,
+                    self.stress_tangent)
+            else:
+                kernels.stress_correction_add_copies(*arguments, self.forces)
         return self.forces

@@ -21,8 +21,7 @@ import scipy.sparse.linalg as spla
 
 from . import kernels
 from .caches import BudgetCache
-from .forces import (ForceWorkspace, element_block_data, external_forces, internal_forces, stiffness_data,
-                     stress_tangent_blocks)
+from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
 from .preconditioners import free_structure, pattern_arrays
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt
 from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
@@ -516,15 +515,12 @@ def _tangent_data(model, positions):
         return stiffness_data(model, positions)
     workspace = ForceWorkspace(model, implicit=True)  # scratch of this call: callers may run on threads
     workspace.compute(np.ascontiguousarray(positions, dtype=float), None, geometric=True,
-                      volume_jacobian=model.has_volume_forces)
-    np.divide(workspace.tension, workspace.length, out=workspace.geometric)  # Newton's tangent: not clamped
+                      volume_jacobian=model.has_volume_forces, exact=True)  # Newton's tangent: not clamped
     scales = (0.0, 0.0, 1.0, 1.0 if model.correction_mode else 0.0, 1.0 if model.has_volume_forces else 0.0,
               1.0 if model.hourglass is not None else 0.0)
     values = np.empty(model.pattern.nnz)
     kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
                                  pattern_arrays(model)[3], model.pattern.diagonal_positions, values)
-    if model.stress_correction is not None:  # its element blocks, outside the springs' compiled assembly
-        values += element_block_data(model, stress_tangent_blocks(model, positions))
     return values
 
 

@@ -55,10 +55,14 @@ class StressCorrection:
         mean_gradient: (M, 8, 3) b_a in 1/m.
         volume: (M,) rest volumes V0 in m^3.
         spring_vector: (M, S_e, 3) rest vectors D_s of the element's springs
-            (``element_spring_pairs``), m.
+            (``element_spring_pairs``; parallel ones merged, ``merge_parallel_springs``), m.
         spring_length: (M, S_e) L_s = |D_s| in m.
         spring_stiffness: (M, S_e) the element's share k_s of each spring's stiffness, N/m.
         shear_modulus, lame: (M,) mu and lambda of the neo-Hookean law, Pa.
+        metric_root, metric_root_inverse: (M, 3, 3) R = (sum_a b_a b_a^T)^(1/2) and R^-1 (1/m, m),
+            derived from ``mean_gradient`` when not given: B B^T = I_3 (x) R^2 for the map B from the
+            element's nodal displacements to F, the metric in which the implicit step takes the
+            positive part of the correction's stiffness (``tangent_matrices``).
     """
 
     mean_gradient: np.ndarray
@@ -68,6 +72,55 @@ class StressCorrection:
     spring_stiffness: np.ndarray
     shear_modulus: np.ndarray
     lame: np.ndarray
+    metric_root: np.ndarray | None = None
+    metric_root_inverse: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.metric_root is None:
+            values, vectors = np.linalg.eigh(np.einsum("maj,mal->mjl", self.mean_gradient, self.mean_gradient))
+            root = np.einsum("mje,me,mle->mjl", vectors, np.sqrt(values), vectors)
+            inverse = np.einsum("mje,me,mle->mjl", vectors, 1.0 / np.sqrt(values), vectors)
+            object.__setattr__(self, "metric_root", np.ascontiguousarray(root))
+            object.__setattr__(self, "metric_root_inverse", np.ascontiguousarray(inverse))
+
+
+def merge_parallel_springs(vectors: np.ndarray, stiffness: np.ndarray, tolerance: float = 1e-10):
+    """(vectors (M, G, 3), stiffness (M, G)): the element's springs with equal rest vectors up to sign
+    merged into one of summed stiffness (P_S and A_S depend on a spring only through k_s, D_s and
+    |D_s|, and D_s and -D_s give the same terms), when every element has the same groups (a box
+    mesh: 24 springs -> 3 edge directions + 6 face-diagonal directions, 9); else the input. The
+    stress correction's pass then costs a third of its spring loop (``kernels.stress_correction_add``)."""
+    first = vectors[0]
+    scale = np.linalg.norm(first, axis=1)
+    groups, signs = [], []
+    assigned = np.full(len(first), -1)
+    for s in range(len(first)):
+        if assigned[s] >= 0:
+            continue
+        members = [s]
+        member_signs = [1.0]
+        for q in range(s + 1, len(first)):
+            if assigned[q] >= 0:
+                continue
+            for sign in (1.0, -1.0):
+                if np.linalg.norm(first[q] - sign * first[s]) <= tolerance * scale[s]:
+                    members.append(q)
+                    member_signs.append(sign)
+                    break
+        assigned[members] = len(groups)
+        groups.append(np.array(members))
+        signs.append(np.array(member_signs))
+    if len(groups) == len(first):
+        return vectors, stiffness
+    lengths = np.linalg.norm(vectors, axis=2)
+    for members, member_signs in zip(groups, signs):
+        reference = vectors[:, members[0]]
+        difference = vectors[:, members] - member_signs[None, :, None] * reference[:, None, :]
+        if np.any(np.linalg.norm(difference, axis=2) > tolerance * lengths[:, members]):
+            return vectors, stiffness
+    merged_vectors = np.stack([vectors[:, members[0]] for members in groups], axis=1)
+    merged_stiffness = np.stack([stiffness[:, members].sum(axis=1) for members in groups], axis=1)
+    return np.ascontiguousarray(merged_vectors), np.ascontiguousarray(merged_stiffness)
 
 
 def mean_gradients(nodes: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -179,12 +232,46 @@ def element_forces(correction: StressCorrection, elements: np.ndarray, positions
     return -correction.volume[:, None, None] * np.einsum("mij,maj->mai", stress, correction.mean_gradient)
 
 
-def tangent_blocks(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """(M, 24, 24) K_e = -d f_e / d x_e = V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m (node-major dofs)."""
-    from .hyperelastic import material_tangent
+def tangent_matrices(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray,
+                     clamp: bool = False) -> np.ndarray:
+    """(M, 9, 9) T = V0 (A_NH(F) - A_S(F)) in N m (row 3 i + J, column 3 k + L: dP_iJ / dF_kL times
+    V0), the correction's stiffness on its element's F: K_e = B^T T B. ``clamp``: the implicit
+    step's SPD treatment (docs/physics.md section 11, ``kernels.stress_correction_tangent_add``):
+    (1) its geometric term V0 d_ik dS_JL (dS = F^-1 (P_NH - P_S)) loses its negative part, as the
+    springs' geometric term does where they are compressed; (2) where the result is still not
+    positive semi-definite (beyond -1e-12 of its trace), its positive part as a 24 x 24 block: with
+    S = I_3 (x) R (``StressCorrection.metric_root``), B = S Q with orthonormal rows Q, so
+    (B^T T B)_+ = B^T S^-1 (S T S)_+ S^-1 B. The numpy reference of the compiled pass."""
+    from .hyperelastic import first_piola_stress, material_tangent
 
     f = deformation_gradients(correction, elements, positions)
     tangent = material_tangent(f, correction.shear_modulus, correction.lame) - spring_tangent(correction, f)
+    tangent = correction.volume[:, None, None] * tangent.reshape(-1, 9, 9)
+    if clamp:
+        stress = first_piola_stress(f, correction.shear_modulus, correction.lame) - spring_stress(correction, f)
+        second = np.linalg.solve(f, stress)  # F^-1 dP
+        values, vectors = np.linalg.eigh(0.5 * (second + second.swapaxes(1, 2)))
+        negative = np.einsum("mje,me,mle->mjl", vectors, np.maximum(-values, 0.0), vectors)
+        tangent = tangent + correction.volume[:, None, None] * np.einsum("ik,mJL->miJkL", np.eye(3), negative).reshape(
+            -1, 9, 9)
+        symmetric = 0.5 * (tangent + tangent.swapaxes(1, 2))
+        trace = np.abs(np.trace(tangent, axis1=1, axis2=2))
+        indefinite = np.linalg.eigvalsh(symmetric)[:, 0] < -1e-12 * trace
+        if np.any(indefinite):
+            eye = np.eye(3)
+            root = np.einsum("ik,mJL->miJkL", eye, correction.metric_root[indefinite]).reshape(-1, 9, 9)
+            root_inverse = np.einsum("ik,mJL->miJkL", eye, correction.metric_root_inverse[indefinite]).reshape(-1, 9, 9)
+            weighted = root @ tangent[indefinite] @ root
+            values, vectors = np.linalg.eigh(0.5 * (weighted + weighted.swapaxes(1, 2)))
+            positive = np.einsum("mre,me,mqe->mrq", vectors, np.maximum(values, 0.0), vectors)
+            tangent[indefinite] = root_inverse @ positive @ root_inverse
+    return tangent
+
+
+def tangent_blocks(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray,
+                   clamp: bool = False) -> np.ndarray:
+    """(M, 24, 24) K_e = -d f_e / d x_e = V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m (node-major dofs);
+    ``clamp``: its positive part (``tangent_matrices``)."""
+    tangent = tangent_matrices(correction, elements, positions, clamp).reshape(-1, 3, 3, 3, 3)
     b = correction.mean_gradient
-    blocks = np.einsum("maJ,miJkL,mbL->maibk", b, tangent, b, optimize=True)
-    return correction.volume[:, None, None] * blocks.reshape(-1, 24, 24)
+    return np.einsum("maJ,miJkL,mbL->maibk", b, tangent, b, optimize=True).reshape(-1, 24, 24)

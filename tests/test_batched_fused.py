@@ -159,7 +159,7 @@ def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
         def part(array, size):
             return array[c * size:(c + 1) * size]
         sizes = (None, springs, springs, springs, springs, nodes, None, None, elements, elements, elements,
-                 elements, elements, None, None, None, springs, springs)
+                 elements, elements, None, None, None, springs, springs, elements, elements)
         data = tuple(array if size is None else part(array, size) for array, size in zip(stacked, sizes))
         data = data[:15] + (hg_rows[hg_group[c]],) + data[16:]
         vector = rng.normal(size=3 * nodes)

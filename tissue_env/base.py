@@ -44,6 +44,14 @@ from .worlds import OBS_LIMIT, TaskWorlds
 
 OBSERVATION_TYPES = ("state", "deformation", "dict")
 INTEGRATORS = ("implicit", "explicit", "static")
+#: The tissue models a task can simulate (``sim_core.build_model``'s ``model``): Baudet's springs with
+#: small-strain corrections, volume forces and hourglass control, or the finite-strain neo-Hookean
+#: stress correction on Baudet-style springs (docs/physics.md section 11).
+MODELS = ("baudet", "baudet-hyperelastic")
+#: The defaults of ``hourglass_control`` and ``volume_stiffness`` per model: (alpha, kappa multiplier);
+#: None where the keyword does not apply ("baudet-hyperelastic": its springs resist the hourglass
+#: modes, its ln J pressure holds the volume).
+MODEL_DEFAULTS = {"baudet": (1.0, 100.0), "baudet-hyperelastic": (None, None)}
 #: The implicit step's linear solvers: "auto" (the task's, ``TaskWorlds.linear_solver``) or one of
 #: ``sim_core.batched.SOLVERS``.
 PRECONDITIONERS = ("auto",) + SOLVERS
@@ -164,6 +172,28 @@ def check_shape(name, value, minimum):
     return shape
 
 
+def check_model(model, hourglass_control, volume_stiffness):
+    """(model, hourglass_control, volume_stiffness) of a task's keywords, with the model's defaults
+    (``MODEL_DEFAULTS``) for None; ValueError for an unknown model or a keyword that does not apply
+    to it ("baudet-hyperelastic" takes no hourglass control and no volume forces: build_model
+    refuses them). For "baudet-hyperelastic" both are returned as 0."""
+    if not isinstance(model, str) or model not in MODELS:
+        raise ValueError(f"model must be one of {MODELS}, got {model!r}")
+    if model == "baudet-hyperelastic":
+        if hourglass_control is not None and nonnegative_scalar("hourglass_control", hourglass_control) != 0:
+            raise ValueError(f"hourglass_control does not apply to model='baudet-hyperelastic' (its springs resist the "
+                             f"hourglass modes, and hourglass control is not objective); leave it unset or 0, got "
+                             f"{hourglass_control!r}")
+        if volume_stiffness is not None:
+            raise ValueError(f"volume_stiffness does not apply to model='baudet-hyperelastic' (its neo-Hookean stress "
+                             f"correction holds the volume, no volume forces); leave it unset, got {volume_stiffness!r}")
+        return model, 0.0, 0.0
+    default_alpha, default_kappa = MODEL_DEFAULTS[model]
+    alpha = nonnegative_scalar("hourglass_control", default_alpha if hourglass_control is None else hourglass_control)
+    kappa = nonnegative_scalar("volume_stiffness", default_kappa if volume_stiffness is None else volume_stiffness)
+    return model, alpha, kappa
+
+
 @dataclass(frozen=True, eq=False)
 class EpisodeState:
     """A snapshot of one environment's episode (``TissueEnv.get_state``): restored by
@@ -223,9 +253,14 @@ class TissueEnv(gym.Env):
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
             substeps: physics steps per env step (default 1).
         max_step: tool displacement in m per env step for an action component of 1.
-        hourglass_control: sim_core's hourglass stabilisation alpha (default 1).
+        model: the tissue model, "baudet" (default) or "baudet-hyperelastic" (``MODELS``; sim_core's
+            ``build_model``: docs/physics.md section 11, compressible neo-Hookean at every strain,
+            objective, no hourglass control or volume forces).
+        hourglass_control: sim_core's hourglass stabilisation alpha (default 1 for "baudet"; does
+            not apply to "baudet-hyperelastic": None or 0 only).
         volume_stiffness: multiplier of sim_core's volume-force stiffness kappa = K V0^(2/3)
-            (default 100). The defaults are measured in benchmarks/env_accuracy.py: with
+            (default 100 for "baudet"; does not apply to "baudet-hyperelastic": None only).
+            The "baudet" defaults are measured in benchmarks/env_accuracy.py: with
             alpha = 1 and x100 every tested tool position of every task has a stable equilibrium
             (with 0.5 and x1, TumorPositioning and Palpation had saddles at their deepest
             positions) and the volume-change error against neo-Hookean FEM is about halved;
@@ -273,8 +308,8 @@ class TissueEnv(gym.Env):
     reward_names: tuple = ()
 
     def __init__(self, *, young_modulus=5.0e3, poisson_ratio=0.45, density=1060.0, shape=None, size=None,
-                 integrator="implicit", dt=None, substeps=1, max_step=None, hourglass_control=1.0,
-                 volume_stiffness=100.0, gravity=9.81, observation_type="state", young_modulus_range=None,
+                 integrator="implicit", dt=None, substeps=1, max_step=None, model="baudet",
+                 hourglass_control=None, volume_stiffness=None, gravity=9.81, observation_type="state", young_modulus_range=None,
                  poisson_ratio_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
                  instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
                  max_nodes=MAX_NODES):
@@ -292,8 +327,8 @@ class TissueEnv(gym.Env):
             raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
         self.substeps = int(substeps)
         self.max_step = positive_scalar("max_step", self.default_max_step if max_step is None else max_step, "m")
-        self.hourglass_control = nonnegative_scalar("hourglass_control", hourglass_control)
-        self.volume_stiffness = nonnegative_scalar("volume_stiffness", volume_stiffness)
+        self.model_name, self.hourglass_control, self.volume_stiffness = check_model(
+            model, hourglass_control, volume_stiffness)
         self.gravity = nonnegative_scalar("gravity", gravity)
         if observation_type not in OBSERVATION_TYPES:
             raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")
@@ -412,10 +447,11 @@ class TissueEnv(gym.Env):
         with self._cache_lock:
             model = self._model_cache.get(key)
             if model is None:
+                options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
+                           if self.model_name == "baudet" else {})
                 model = build_model(
-                    self.mesh, self._material(young_modulus, poisson_ratio, task_key),
-                    gravity=(0.0, -self.gravity, 0.0), hourglass_control=self.hourglass_control,
-                    volume_stiffness=self.volume_stiffness)
+                    self.mesh, self._material(young_modulus, poisson_ratio, task_key), model=self.model_name,
+                    gravity=(0.0, -self.gravity, 0.0), **options)
                 self._model_cache.put(key, model)
             return model
 

@@ -81,7 +81,8 @@ from .forces import (  # noqa: F401
     volume_forces_add, volume_forces_jacobian_add, volume_jacobian_terms, volume_pass,
 )
 from .stress import (  # noqa: F401
-    stress_correction_add,
+    stress_correction_add, stress_correction_add_copies, stress_correction_tangent_add,
+    stress_correction_tangent_add_copies,
 )
 from .operator import (  # noqa: F401
     apply_blocks, apply_copies, apply_copies_serial, apply_copy, apply_operator, apply_operator_blocks,

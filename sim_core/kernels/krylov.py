@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .fastmath import FAST, FAST_REDUCE
-from .operator import apply_packed, batched_apply_packed
+from .operator import apply_packed, batched_apply_packed, stress_diagonal_add
 from .factor import lu_columns
 
 
@@ -37,6 +37,8 @@ def solve_springs(data, scales, mask, rhs, guess, tolerance, max_iterations, sym
             value = along * unit[k, c] * unit[k, c] + across
             inverse_diagonal[3 * a + c] += value
             inverse_diagonal[3 * b + c] += value
+    if data[19].shape[0] != 0:  # the stress correction's element blocks (baudet-hyperelastic)
+        stress_diagonal_add(data[6], data[18], data[19], stiffness_scale, inverse_diagonal)
     for row in range(n):
         value = inverse_diagonal[row]
         if value > 0.0:
@@ -225,6 +227,14 @@ def batched_solve(data, scales, mask, rhs, guess, active, tolerance, max_iterati
                     value = along * unit[q, k, c] * unit[q, k, c] + across
                     inverse_diagonal[3 * a + k, c] += value
                     inverse_diagonal[3 * b + k, c] += value
+        if data[20].shape[0] != 0:  # the stress correction's element blocks, copy by copy
+            elements, stress_gradient, stress_tangent = data[6], data[19], data[20]
+            column = np.zeros(dofs)
+            for c in range(n_copies):
+                column[:] = 0.0
+                stress_diagonal_add(elements, stress_gradient[:, :, :, c], stress_tangent[:, :, :, c], stiffness_scale, column)
+                for i in range(dofs):
+                    inverse_diagonal[i, c] += column[i]
         for row in range(dofs):
             diagonal_hg = -1
             if hg_scale != 0.0:

@@ -51,12 +51,61 @@ def _coupling_matvec_add(elements, edge_unit, correction_matrix, axis_rest_lengt
                 out[3 * p + c] += scale * push * edge_unit[m, e, c]
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _stress_product(elements, stress_gradient, stress_tangent, scale, vector, out):
+    """out += scale * K_s vector, K_s the stress correction's stiffness (``baudet-hyperelastic``):
+    per element dF = sum_a v_a (x) b_a (9), dP = T dF with T (9, 9) its stiffness on F
+    (``kernels.stress_correction_tangent_add``: V0 (A_NH - A_S), the implicit step's positive part),
+    and out_a += dP b_a. stress_gradient (M, 8, 3) b_a, stress_tangent (M, 9, 9); flat dof vectors."""
+    df = np.empty(9)
+    dp = np.empty(9)
+    for m in range(elements.shape[0]):
+        for r in range(9):
+            df[r] = 0.0
+        for a in range(8):
+            node = elements[m, a]
+            v0, v1, v2 = vector[3 * node], vector[3 * node + 1], vector[3 * node + 2]
+            for j in range(3):
+                b = stress_gradient[m, a, j]
+                df[j] += v0 * b
+                df[3 + j] += v1 * b
+                df[6 + j] += v2 * b
+        for r in range(9):
+            total = 0.0
+            for q in range(9):
+                total += stress_tangent[m, r, q] * df[q]
+            dp[r] = scale * total
+        for a in range(8):
+            node = elements[m, a]
+            b0, b1, b2 = stress_gradient[m, a, 0], stress_gradient[m, a, 1], stress_gradient[m, a, 2]
+            out[3 * node] += dp[0] * b0 + dp[1] * b1 + dp[2] * b2
+            out[3 * node + 1] += dp[3] * b0 + dp[4] * b1 + dp[5] * b2
+            out[3 * node + 2] += dp[6] * b0 + dp[7] * b1 + dp[8] * b2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def stress_diagonal_add(elements, stress_gradient, stress_tangent, scale, diagonal):
+    """diagonal (3 n,) += scale * the diagonal of K_s (``_stress_product``): entry (a, i) of element
+    m is sum_JL b_aJ T[3 i + J, 3 i + L] b_aL (the Jacobi preconditioners)."""
+    for m in range(elements.shape[0]):
+        for a in range(8):
+            node = elements[m, a]
+            for i in range(3):
+                total = 0.0
+                for j in range(3):
+                    for ll in range(3):
+                        total += stress_gradient[m, a, j] * stress_tangent[m, 3 * i + j, 3 * i + ll] \
+                            * stress_gradient[m, a, ll]
+                diagonal[3 * node + i] += scale * total
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_scale, damping_scale, stiffness_scale,
                     elements, edge_spring, correction_matrix, axis_rest_length, coupling_scale,
                     volume_coefficient, volume_direction, volume_gradient, volume_scale,
-                    hg_indptr, hg_indices, hg_data, hg_scale, mask, vector, out, elongation, delta):
-    """out = mask * (mass_scale M + damping_scale D + stiffness_scale K_springs + hg_scale K_hourglass
+                    hg_indptr, hg_indices, hg_data, hg_scale, mask, vector, out, elongation, delta,
+                    stress_gradient, stress_tangent):
+    """out = mask * (mass_scale M + damping_scale D + stiffness_scale (K_springs + K_s) + hg_scale K_hourglass
     + coupling_scale K_c + volume_scale K_v) @ vector, matrix-free from per-spring data.
 
     A spring's block is c_along u u^T + c_across (I - u u^T) with c_along = stiffness_scale k +
@@ -64,7 +113,9 @@ def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_sca
     product needs the spring's elongation rate e = u . (v_b - v_a). The corrections' coupling K_c =
     -G W^ G^T (``_coupling_matvec_add``) reads the same elongation rates: each element sums them per
     axis into strain rates, turns them into pushes (W), and the pushes change the tension of its 12
-    edge springs (``delta``), applied along the springs in the same scatter. Flat dof vectors;
+    edge springs (``delta``), applied along the springs in the same scatter. K_s, the stress
+    correction's stiffness of "baudet-hyperelastic" (``_stress_product``), is there when
+    ``stress_tangent`` (M, 9, 9) has rows (empty (0, 9, 9) for the other models). Flat dof vectors;
     ``elongation`` and ``delta`` (S,) are scratch.
     """
     n_nodes = mass.shape[0]
@@ -111,6 +162,8 @@ def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_sca
                 out[3 * node] += rate * volume_direction[m, n, 0]
                 out[3 * node + 1] += rate * volume_direction[m, n, 1]
                 out[3 * node + 2] += rate * volume_direction[m, n, 2]
+    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:
+        _stress_product(elements, stress_gradient, stress_tangent, stiffness_scale, vector, out)
     for s in range(n_springs):
         a, b = springs[s, 0], springs[s, 1]
         u0, u1, u2 = unit[s, 0], unit[s, 1], unit[s, 2]
@@ -144,19 +197,23 @@ def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_sca
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def apply_packed(data, scales, mask, vector, out):
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
+     stress_gradient, stress_tangent) = data
     spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
                     elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
                     volume_coefficient, volume_direction, volume_gradient, scales[4],
-                    hg_indptr, hg_indices, hg_data, scales[5], mask, vector, out, elongation, delta)
+                    hg_indptr, hg_indices, hg_data, scales[5], mask, vector, out, elongation, delta,
+                    stress_gradient, stress_tangent)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_REDUCE)
 def apply_operator(data, scales, mask, vector, out):
     """``spring_operator`` with its arguments packed: data = (springs, unit, stiffness, damping,
     geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length, volume_coefficient,
-    volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta), scales =
-    (mass, damping, stiffness, coupling, volume, hourglass)."""
+    volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta, stress_gradient,
+    stress_tangent), scales = (mass, damping, stiffness, coupling, volume, hourglass); the stress
+    correction's stiffness K_s (stress_gradient (M, 8, 3), stress_tangent (M, 9, 9), or empty) goes
+    with the stiffness scale."""
     apply_packed(data, scales, mask, vector, out)
 
 
@@ -165,13 +222,14 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
     """``out`` (the model's ``BlockPattern`` data, zeroed here) = the matrix that ``apply_operator``
     applies with these ``scales`` (no mask): mass, spring blocks (clamped geometric term), the
     corrections' coupling -G W^ G^T along the current spring directions, the volume forces'
-    rank-one c h grad(V)^T and the hourglass matrix, the same terms as ``spring_operator`` so that
+    rank-one c h grad(V)^T, the stress correction's element blocks B^T T B and the hourglass matrix, the same terms as ``spring_operator`` so that
     the assembled matrix reproduces the matrix-free product to rounding (the factorised
     preconditioner of ``ImplicitEuler``). spring_positions (S, 4, 3, 3) (blocks aa, bb, ab, ba),
     element_positions (M, 8, 8, 3, 3), hg_positions (nnz_hg,), diagonal_positions (3N,): positions
     in ``out`` (``Model``'s derived arrays)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
+     stress_gradient, stress_tangent) = data
     mass_scale, damping_scale, stiffness_scale = scales[0], scales[1], scales[2]
     coupling_scale, volume_scale, hg_scale = scales[3], scales[4], scales[5]
     out[:] = 0.0
@@ -226,6 +284,23 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
                         for j in range(3):
                             out[element_positions[m, k, n, i, j]] += \
                                 coefficient * volume_direction[m, k, i] * volume_gradient[m, n, j]
+    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:  # B^T T B per element
+        h = np.empty((9, 8, 3))
+        for m in range(elements.shape[0]):
+            for r in range(9):
+                for n in range(8):
+                    for k in range(3):
+                        total = 0.0
+                        for ll in range(3):
+                            total += stress_tangent[m, r, 3 * k + ll] * stress_gradient[m, n, ll]
+                        h[r, n, k] = stiffness_scale * total
+            for a in range(8):
+                b0, b1, b2 = stress_gradient[m, a, 0], stress_gradient[m, a, 1], stress_gradient[m, a, 2]
+                for n in range(8):
+                    for i in range(3):
+                        for k in range(3):
+                            out[element_positions[m, a, n, i, k]] += (b0 * h[3 * i, n, k] + b1 * h[3 * i + 1, n, k]
+                                                                      + b2 * h[3 * i + 2, n, k])
     if hg_scale != 0.0:
         for k in range(hg_data.shape[0]):
             out[hg_positions[k]] += hg_scale * hg_data[k]
@@ -241,7 +316,8 @@ def operator_matrix_data_blocks(data, scales, spring_positions, element_position
     Q[n, g] = -sum_h W[g, h] sign 0.25 c u_edge(n, h) / L_h: 64 blocks of 27 products per
     element instead of 144 edge pairs of 36 scattered entries (4x fewer operations)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
+     stress_gradient, stress_tangent) = data
     coupling_scale = scales[3]
     no_coupling = (scales[0], scales[1], scales[2], 0.0, scales[4], scales[5])
     operator_matrix_data(data, no_coupling, spring_positions, element_positions, hg_positions, diagonal_positions,
@@ -301,13 +377,14 @@ def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, 
                             stiffness_scale, elements, edge_spring, correction_matrix, axis_rest_length,
                             coupling_scale, volume_coefficient, volume_direction, volume_gradient, volume_scale,
                             hg_indptr, hg_indices, hg_data, hg_group, hg_scale, mask, vector, out, elongation,
-                            delta):
+                            delta, stress_gradient, stress_tangent):
     """``spring_operator`` of N copies at once: out (3 n, N) = mask * A @ vector (3 n, N), with the
     single block's topology (springs, elements, edge_spring, hg_indptr, hg_indices) and per-copy values
     (unit (S, 3, N), stiffness, damping, geometric (S, N), mass (n, N), correction_matrix (M, 3, 3, N),
     axis_rest_length (M, 3, N), volume_coefficient (M, N), volume_direction, volume_gradient (M, 8, 3, N),
-    hg_data (nnz, G): the G distinct hourglass matrices' values, copy c using column hg_group[c]).
-    elongation, delta (S, N) are scratch."""
+    hg_data (nnz, G): the G distinct hourglass matrices' values, copy c using column hg_group[c],
+    stress_gradient (M, 8, 3, N), stress_tangent (M, 9, 9, N): the stress correction's stiffness, or
+    empty). elongation, delta (S, N) are scratch."""
     n_copies = vector.shape[1]
     for node in range(mass.shape[0]):
         for k in range(3):
@@ -357,6 +434,32 @@ def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, 
                     out[3 * node, c] += rate * volume_direction[m, n, 0, c]
                     out[3 * node + 1, c] += rate * volume_direction[m, n, 1, c]
                     out[3 * node + 2, c] += rate * volume_direction[m, n, 2, c]
+    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:  # ``_stress_product`` per copy
+        df = np.empty(9)
+        dp = np.empty(9)
+        for m in range(elements.shape[0]):
+            for c in range(n_copies):
+                for r in range(9):
+                    df[r] = 0.0
+                for a in range(8):
+                    node = elements[m, a]
+                    v0, v1, v2 = vector[3 * node, c], vector[3 * node + 1, c], vector[3 * node + 2, c]
+                    for j in range(3):
+                        b = stress_gradient[m, a, j, c]
+                        df[j] += v0 * b
+                        df[3 + j] += v1 * b
+                        df[6 + j] += v2 * b
+                for r in range(9):
+                    total = 0.0
+                    for q in range(9):
+                        total += stress_tangent[m, r, q, c] * df[q]
+                    dp[r] = stiffness_scale * total
+                for a in range(8):
+                    node = elements[m, a]
+                    b0, b1, b2 = stress_gradient[m, a, 0, c], stress_gradient[m, a, 1, c], stress_gradient[m, a, 2, c]
+                    out[3 * node, c] += dp[0] * b0 + dp[1] * b1 + dp[2] * b2
+                    out[3 * node + 1, c] += dp[3] * b0 + dp[4] * b1 + dp[5] * b2
+                    out[3 * node + 2, c] += dp[6] * b0 + dp[7] * b1 + dp[8] * b2
     for s in range(n_springs):
         a, b = springs[s, 0], springs[s, 1]
         for c in range(n_copies):
@@ -393,17 +496,18 @@ def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, 
 def batched_apply_packed(data, scales, mask, vector, out):
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
-     hg_group) = data
+     hg_group, stress_gradient, stress_tangent) = data
     batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
                             elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
                             volume_coefficient, volume_direction, volume_gradient, scales[4],
-                            hg_indptr, hg_indices, hg_data, hg_group, scales[5], mask, vector, out, elongation, delta)
+                            hg_indptr, hg_indices, hg_data, hg_group, scales[5], mask, vector, out, elongation, delta,
+                            stress_gradient, stress_tangent)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def batched_apply_operator(data, scales, mask, vector, out):
-    """``batched_spring_operator`` with its arguments packed as ``apply_operator``'s (copies last), plus
-    hg_group (N,) last."""
+    """``batched_spring_operator`` with its arguments packed as ``apply_operator``'s (copies last), but
+    hg_group (N,) after delta (then stress_gradient, stress_tangent)."""
     batched_apply_packed(data, scales, mask, vector, out)
 
 
@@ -436,11 +540,13 @@ def apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block
     per 9 values (faster than the scalar CSR loop, which dominated the operator product). The same
     sums, in the same column order per row (rounding aside)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta) = data
+     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
+     stress_gradient, stress_tangent) = data
     spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
                     elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
                     volume_coefficient, volume_direction, volume_gradient, scales[4],
-                    hg_indptr, hg_indices, hg_data, 0.0, ones, vector, out, elongation, delta)
+                    hg_indptr, hg_indices, hg_data, 0.0, ones, vector, out, elongation, delta,
+                    stress_gradient, stress_tangent)
     if scales[5] != 0.0:
         bsr3_matvec_add(hg_block_indptr, hg_block_indices, hg_block_data, vector, scales[5], out)
     for i in range(out.shape[0]):
@@ -461,14 +567,14 @@ def copy_data(stacked, hg_rows, hg_group, c):
     topology, and its group's hourglass values ``hg_rows[hg_group[c]]``."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
-     delta) = stacked
+     delta, stress_gradient, stress_tangent) = stacked
     n_springs, n_elements, n_nodes = springs.shape[0], elements.shape[0], mass.shape[0] // hg_group.shape[0]
     a, b = c * n_springs, (c + 1) * n_springs
     e0, e1 = c * n_elements, (c + 1) * n_elements
     return (springs, unit[a:b], stiffness[a:b], damping[a:b], geometric[a:b], mass[c * n_nodes:(c + 1) * n_nodes],
             elements, edge_spring, correction_matrix[e0:e1], axis_rest_length[e0:e1], volume_coefficient[e0:e1],
             volume_direction[e0:e1], volume_gradient[e0:e1], hg_indptr, hg_indices, hg_rows[hg_group[c]],
-            elongation[a:b], delta[a:b])
+            elongation[a:b], delta[a:b], stress_gradient[e0:e1], stress_tangent[e0:e1])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
