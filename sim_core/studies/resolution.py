@@ -144,9 +144,11 @@ def _settings(name, values, low):
     return values
 
 
-def evaluate(scenes, shape, references, tolerance, *, hourglass_control, volume_stiffness, resolution=None):
+def evaluate(scenes, shape, references, tolerance, *, hourglass_control, volume_stiffness, resolution=None,
+             model="baudet"):
     """Solve ``scenes`` (a Scene or a list) with one mass-spring setting on ``shape`` and compare
-    with ``references`` (their ``SceneSolution`` s): a ``Candidate``."""
+    with ``references`` (their ``SceneSolution`` s): a ``Candidate``. ``model``: "baudet" (with
+    ``hourglass_control`` and ``volume_stiffness``) or "baudet-hyperelastic" (which ignores them)."""
     scenes = [scenes] if isinstance(scenes, Scene) else list(scenes)
     tolerance = check_tolerances(tolerance, QUANTITIES) if not isinstance(tolerance, dict) else tolerance
     shape = tuple(int(s) for s in shape)
@@ -158,7 +160,7 @@ def evaluate(scenes, shape, references, tolerance, *, hourglass_control, volume_
     for scene, reference in zip(scenes, references):
         try:
             solution = solve_scene(scene, shape, hourglass_control=hourglass_control,
-                                   volume_stiffness=volume_stiffness)
+                                   volume_stiffness=volume_stiffness, model=model)
         except ValueError as error:  # e.g. elements too elongated for Baudet's stiffness
             return Candidate(errors=None, converged=False, stable=False, admissible=False, solve_time=0.0,
                              reason=f"model rejected: {str(error).splitlines()[0][:160]}", **common)

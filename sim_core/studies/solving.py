@@ -57,10 +57,15 @@ class SceneSolution:
     check_time: float = 0.0
 
 
-def mss_solver(mesh, material, gravity, hourglass_control, volume_stiffness, check_stability):
-    model = build_model(mesh, material, gravity=(0.0, -gravity, 0.0), hourglass_control=hourglass_control,
-                        volume_stiffness=volume_stiffness)
-    return model_solver(model, check_stability)
+def mss_solver(mesh, material, gravity, hourglass_control, volume_stiffness, check_stability, model="baudet"):
+    """``model_solver`` of a mass-spring ``model`` ("baudet" with the given hourglass control and
+    volume stiffness, or "baudet-hyperelastic", which has neither)."""
+    if model == "baudet-hyperelastic":
+        built = build_model(mesh, material, model=model, gravity=(0.0, -gravity, 0.0))
+    else:
+        built = build_model(mesh, material, gravity=(0.0, -gravity, 0.0), hourglass_control=hourglass_control,
+                            volume_stiffness=volume_stiffness)
+    return model_solver(built, check_stability)
 
 
 def model_solver(model, check_stability=False):
@@ -190,19 +195,18 @@ def solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, 
 
 def solve_scene(scene: Scene, shape, *, model="baudet", hourglass_control=0.0, volume_stiffness=1.0,
                 check_stability=True) -> SceneSolution:
-    """Solve every tested displacement of ``scene`` on a ``shape`` mesh with ``model`` "baudet"
-    (static mass-spring equilibrium) or "fem-neohookean" (the reference)."""
+    """Solve every tested displacement of ``scene`` on a ``shape`` mesh with ``model`` "baudet" or
+    "baudet-hyperelastic" (static mass-spring equilibrium; hourglass_control and volume_stiffness
+    are baudet's) or "fem-neohookean" (the reference)."""
     mesh, material, fixed, tool, target_nodes, weights = scene.discretise(shape)
     nodes = mesh.nodes
     if model == "fem-neohookean":
         solve, timer = _fem_solver(mesh, material, scene.gravity, check_stability)
-    elif model in ("baudet", "baudet-original", "uniform-springs"):
-        if model != "baudet":
-            raise ValueError("solve_scene: only 'baudet' and 'fem-neohookean' are supported, got {model!r}")
+    elif model in ("baudet", "baudet-hyperelastic"):
         solve, timer = mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness,
-                                   check_stability)
+                                  check_stability, model)
     else:
-        raise ValueError(f"model must be 'baudet' or 'fem-neohookean', got {model!r}")
+        raise ValueError(f"model must be 'baudet', 'baudet-hyperelastic' or 'fem-neohookean', got {model!r}")
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
     candidates = contact_candidates(scene, mesh.n_nodes, fixed, tool)
     obstacle = scene.obstacle(mesh, candidates)
