@@ -246,8 +246,90 @@ def validation_page():
                    for r in load_csv("validation_7_non_cubic.csv")]),
             "\n", figure("validation_7_non_cubic.png", "non-cubic elements"), "\n"]
 
+    out += large_deformation_sections(validate)
     out += env_accuracy_sections()
     return "".join(out)
+
+
+def stability(value):
+    """'stable' / 'saddle' from a lowest tangent eigenvalue cell ('-' when not computed)."""
+    if value in (None, ""):
+        return "-"
+    return "stable" if float(value) > 0 else ("saddle" if float(value) < 0 else "marginal")
+
+
+def large_deformation_sections(validate):
+    """Figures 8-14: baudet-hyperelastic beside baudet and the FEM laws at large deformation."""
+    out = ["## 8. Tension and compression to +-30%\n\n",
+           "4x4x4 block, lateral faces free; nominal stress = reaction / rest area.\n\n",
+           caption(validate, "validation_8_large_elongation.csv"), "\n"]
+    rows = [r for r in load_csv("validation_8_large_elongation.csv") if abs(float(r["strain"])) in (0.2, 0.3)]
+    out += [table(["nu", "strain", "model", "nominal stress (Pa)", "stress / neo-Hookean", "dV/V0 (%)", "equilibrium"],
+                  [[r["nu"], num(r["strain"]), r["model"], num(r["nominal_stress"], 4), num(r["stress_ratio_to_neohookean"], 4),
+                    pct(float(r["relative_volume_change"])), stability(r["lowest_eigenvalue"])] for r in rows]),
+            "\n", figure("validation_8_large_elongation.png", "large elongation"), "\n"]
+
+    out += ["## 9. Shear to 30 degrees\n\n", caption(validate, "validation_9_large_shear.csv"), "\n"]
+    rows = [r for r in load_csv("validation_9_large_shear.csv") if float(r["angle_deg"]) in (20.0, 30.0)]
+    out += [table(["nu", "angle (deg)", "model", "top force (N)", "force / neo-Hookean", "%e_dm vs fem-neohookean"],
+                  [[r["nu"], num(r["angle_deg"]), r["model"], num(r["shear_force"], 4),
+                    num(r["force_ratio_to_neohookean"], 4), num(r["e_dm_vs_neohookean"])] for r in rows]),
+            "\n", figure("validation_9_large_shear.png", "large shear"), "\n"]
+
+    out += ["## 10. Flexion to large deflection\n\n", caption(validate, "validation_10_large_flexion.csv"), "\n"]
+    rows = load_csv("validation_10_large_flexion.csv")
+    out += [table(["gravity (m/s^2)", "model", "tip drop / length", "%e_dm vs fem-neohookean", "converged", "equilibrium"],
+                  [[num(r["gravity"]), r["model"], num(r["tip_drop_over_length"]), num(r["e_dm_vs_neohookean"]),
+                    r["converged"], stability(r["lowest_eigenvalue"])] for r in rows if r["model"] != "fem-neohookean"]),
+            "\n", figure("validation_10_large_flexion.png", "large flexion"), "\n"]
+
+    out += ["## 11. Unconfined compression near incompressibility\n\n",
+            caption(validate, "validation_11_compression.csv"), "\n"]
+    rows = [r for r in load_csv("validation_11_compression.csv") if float(r["strain"]) in (-0.2, -0.3)]
+    out += [table(["nu", "strain", "model", "dV/V0 (%)", "dV/V0 - neo-Hookean's (pp)", "stress / neo-Hookean",
+                   "equilibrium"],
+                  [[r["nu"], num(r["strain"]), r["model"], pct(float(r["relative_volume_change"])),
+                    pct(float(r["volume_change_minus_neohookean"])), num(r["stress_ratio_to_neohookean"], 4),
+                    stability(r["lowest_eigenvalue"])] for r in rows]),
+            "\n", figure("validation_11_compression.png", "compression"), "\n"]
+
+    out += ["## 12. Zero-energy modes of each model\n\n",
+            "Non-rigid zero-energy modes of the constrained tangent at rest (nu = 0.3).\n\n",
+            caption(validate, "validation_12_mode_counts.csv"), "\n"]
+    rows = load_csv("validation_12_mode_counts.csv")
+    models = list(dict.fromkeys(r["model"] for r in rows))
+    setups = list(dict.fromkeys(r["setup"] for r in rows))
+    out += [table(["set-up"] + models,
+                  [[s] + [next(r["non_rigid"] for r in rows if r["setup"] == s and r["model"] == m) for m in models]
+                   for s in setups]), "\n", figure("validation_12_mode_counts.png", "mode counts"), "\n"]
+
+    out += ["## 13. Objectivity\n\n",
+            "Deviation of the rotated problem's equilibrium from the rotated answer, over the largest displacement.\n\n",
+            caption(validate, "validation_13_objectivity.csv"), "\n"]
+    rows = load_csv("validation_13_objectivity.csv")
+    angles = list(dict.fromkeys(r["angle_deg"] for r in rows))
+    models = list(dict.fromkeys(r["model"] for r in rows))
+    out += [table(["model"] + [f"{num(a)} deg (%)" for a in angles],
+                  [[m] + [pct(float(next(r["deviation_over_largest"] for r in rows if r["model"] == m
+                                         and r["angle_deg"] == a)), 2) for a in angles] for m in models]),
+            "\n", figure("validation_13_objectivity.png", "objectivity"), "\n"]
+
+    summary = load("validation_summary.json")["14_refinement"]
+    reference = summary["reference"]
+    out += ["## 14. Refinement of a cantilever at 30% deflection\n\n",
+            f"Reference: fem-neohookean on {reference['mesh']} (nu = {reference['nu']}, g = {num(reference['gravity'])} "
+            f"m/s^2, tip drop {num(reference['tip_drop'])} m).\n\n", caption(validate, "validation_14_refinement.csv"), "\n"]
+    rows = load_csv("validation_14_refinement.csv")
+    out += [table(["model", "mesh", "%e_dm", "%e_max", "tip drop (m)", "lowest eigenvalue (N/m)", "equilibrium"],
+                  [[r["model"], r["shape"], num(r["e_dm"]), num(r["e_max"]), num(r["tip_drop"]), num(r["lowest_eigenvalue"]),
+                    stability(r["lowest_eigenvalue"])] for r in rows]), "\n",
+            "The reference chain (each mesh against the finest):\n\n",
+            caption(validate, "validation_14_reference_chain.csv"), "\n",
+            table(["elements through the side", "%e_dm", "%e_max", "tip drop (m)"],
+                  [[r["elements_through_side"], num(r["e_dm"]), num(r["e_max"]), num(r["tip_drop"])]
+                   for r in load_csv("validation_14_reference_chain.csv")]),
+            "\n", figure("validation_14_refinement.png", "refinement"), "\n"]
+    return out
 
 
 def env_accuracy_sections():
@@ -360,6 +442,14 @@ def performance_page():
                 table(["configuration", "wall s per simulated s", "error (%)", "max error (%)"],
                       [[p["configuration"], num(p["wall_per_sim_s"]), num(p["error_pct"]), num(p["error_max_pct"])]
                        for p in scene["pareto"]]), "\n"]
+        if "cost_to_reach_error" in scene:
+            reach = scene["cost_to_reach_error"]
+            out += [f"Cheapest configuration of each method within {num(reach['error_pct'])}% error"
+                    f" (floor: {scene['floor']['statement']}: **{'holds' if scene['floor']['holds'] else 'does not hold'}**"
+                    + (f", cost ratio {num(scene['floor']['cost_ratio'])}" if scene['floor']['cost_ratio'] else "") + "):\n\n",
+                    table(["method", "configuration", "wall s per simulated s", "error (%)"],
+                          [[method, best["configuration"], num(best["wall_per_sim_s"]), num(best["error_pct"])] if best
+                           else [method, "never", "-", "-"] for method, best in reach["by_method"].items()]), "\n"]
     out += [figure("speed_accuracy.png", "speed against accuracy"), "\n"]
 
     peers = load("peers.json")

@@ -81,7 +81,7 @@ def test_tool_path_and_ramp():
 def test_tiny_run(tmp_path):
     configs = [sa.Config("baudet", "quasi-static", 2), sa.Config("baudet", "implicit", 2, "bicgstab", 0.05),
                sa.Config("fem-linear", "static-per-step", 2, "LU once"),
-               sa.Config("fem-neohookean", "static-per-step", 2, "Newton")]
+               sa.Config("fem-neohookean", "static-per-step", 2, "Newton"), sa.Config(sa.HYPER, "quasi-static", 2)]
     rows, summary = sa.benchmark(resolutions=(2,), reference_resolution=4, configs=configs, scenes=("indentation",),
                                  budget=20.0, verbose=False)
     assert len(rows) == len(configs)
@@ -90,6 +90,13 @@ def test_tiny_run(tmp_path):
         assert np.isfinite(row["error_pct"]) and np.isfinite(row["wall_per_sim_s"]) and row["wall_per_sim_s"] > 0
         assert 0 < row["error_pct"] <= row["error_max_pct"]
     assert any(row["on_pareto"] for row in rows)
+    # the floor bookkeeping: cheapest configuration per method within the error, and the verdict
+    floor = summary["scenes"]["indentation"]["floor"]
+    by_method = summary["scenes"]["indentation"]["cost_to_reach_error"]["by_method"]
+    assert set(by_method) == {row["method"] for row in rows} and isinstance(floor["holds"], bool)
+    for method, best in by_method.items():
+        good = [r for r in rows if r["method"] == method and r["error_pct"] <= sa.FLOOR_ERROR_PCT]
+        assert (best is None) == (not good)
     scene = summary["scenes"]["indentation"]
     chain = scene["reference_chain"]
     assert [c["resolution"] for c in chain] == [2, 4]
