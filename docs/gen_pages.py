@@ -464,6 +464,35 @@ def performance_page():
                     num(e.get("sim_s_per_wall_s")), num(e.get("top_sag_1s_m"))]
                    for name, e in peers["engines"].items()]), "\n"]
 
+    soak = load("memory_soak.json")
+    out += ["## Memory over long runs\n\n",
+            f"Resident memory of one env per task over {soak['steps']} random steps"
+            f"{' with the Young modulus drawn per episode (a new model every episode)' if soak['randomise'] else ''}, "
+            f"each task in its own process; after warm-up = after {pct(soak['warmup_share'], 2)}% of the steps. "
+            "The caches that keep models and factorisations have byte budgets (`sim_core.caches`: "
+            "`set_cache_budget`, `cache_usage`).\n\n",
+            caption(command_for("memory_soak.py"), "memory_soak.json"), "\n",
+            table(["env", "episodes", "RSS at start (MB)", "after warm-up (MB)", "max after warm-up (MB)",
+                   "final (MB)", "growth after warm-up (%)"],
+                  [[short_id(r["env_id"]), r["episodes"], num(r["rss_start_mb"]), num(r["rss_after_warmup_mb"]),
+                    num(r["rss_max_mb"]), num(r["rss_final_mb"]), pct(r["growth_after_warmup"])]
+                   for r in soak["results"]]), "\n"]
+    mesh = load("large_mesh.json")
+    out += ["## Work against mesh size\n\n",
+            f"The envs refuse a shape with more than {mesh['max_nodes']} nodes unless `max_nodes` is raised "
+            "(a reset is Newton on the whole mesh), and warn about a slow one. `solve_static` switches to "
+            "AMG-preconditioned Krylov solves past `sim_core.static.DIRECT_DOF_LIMIT` free dofs "
+            "(`linear_solver=\"auto\"`).\n\n",
+            caption(command_for("large_mesh.py"), "large_mesh.json"), "\n",
+            table(["TumorPositioning shape", "nodes", "construct (s)", "first reset (s)", "step (ms)"],
+                  [["x".join(map(str, r["shape"])), r["nodes"], num(r["construct_s"]), num(r["first_reset_s"]),
+                    num(r["step_median_ms"])] for r in mesh["env"]]), "\n",
+            table(["static scene shape", "free dofs", "direct (s)", "iterative (s)", "Newton iterations (direct / iterative)",
+                   "max difference / max displacement"],
+                  [["x".join(map(str, r["shape"])), r["free_dofs"], num(r.get("direct_s")), num(r.get("iterative_s")),
+                    f"{r.get('direct_newton_iterations', '-')} / {r.get('iterative_newton_iterations', '-')}",
+                    num(r.get("max_difference_over_max_displacement"))] for r in mesh["static"]]), "\n"]
+
     out += ["## Notes\n\n", '--8<-- "docs/performance_notes.md"\n']
     return "".join(out)
 

@@ -1,0 +1,58 @@
+"""The environments' scenes with each mass-spring model against neo-Hookean FEM: which physics should
+the environments use?
+
+Usage: python benchmarks/env_models.py [--models baudet baudet-hyperelastic]
+       [--output benchmarks/results/env_models.json]
+
+For each task the static scenes of ``benchmarks/env_accuracy.py`` (tool force, target displacement
+and volume change at every tested tool displacement, with gravity and contact) are solved on the
+env's default mesh with each model (``baudet`` in the envs' setting: hourglass control and volume
+stiffness from ``tissue_env.base.MODEL_DEFAULTS``) and compared with ``fem-neohookean`` on the finer
+mesh env_accuracy uses: the largest relative error of each quantity over the cases, whether every
+equilibrium is stable (no saddle), and the solve time. Written to ``--output`` (JSON, atomically).
+"""
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import env_accuracy as ea  # noqa: E402
+from sim_core.studies.resolution import evaluate, reference_solutions  # noqa: E402
+from training.common import write_json  # noqa: E402
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--models", nargs="*", default=["baudet", "baudet-hyperelastic"])
+    parser.add_argument("--task", nargs="*", default=list(ea.TASKS))
+    parser.add_argument("--output", default="benchmarks/results/env_models.json")
+    args = parser.parse_args(argv)
+    alpha, kappa = ea.env_defaults()
+    out = dict(reference="fem-neohookean", tasks={})
+    for name in args.task:
+        make, _, fem_resolution, _, _ = ea.TASKS[name]
+        scenes, shape = make(), ea.env_default_shape(name)
+        start = time.perf_counter()
+        fem = reference_solutions(scenes, reference_resolution=fem_resolution)
+        rows = {}
+        for model in args.models:
+            candidate = evaluate(scenes, shape, fem[0], ea.TOLERANCE, hourglass_control=alpha, volume_stiffness=kappa,
+                                 model=model)
+            rows[model] = dict(errors=candidate.errors, stable=bool(candidate.stable),
+                               converged=bool(candidate.converged), solve_time=candidate.solve_time,
+                               lowest_eigenvalue=candidate.lowest_eigenvalue)
+            print(f"{name} {model} {shape}: " + ", ".join(f"{q} {100 * v:.1f}%" for q, v in (candidate.errors or {}).items())
+                  + f", stable {candidate.stable}", flush=True)
+        out["tasks"][name] = dict(shape=list(shape), reference_shapes=[list(s) for s in fem[1]], models=rows,
+                                  wall_time=time.perf_counter() - start)
+    write_json(args.output, out, indent=1, default=float)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
