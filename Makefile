@@ -52,7 +52,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/palpation_map.py
 	$(PY) benchmarks/task_gallery.py
 	$(PY) benchmarks/lag_figure.py
-	$(PY) benchmarks/speed_accuracy.py
+	$(PY) benchmarks/speed_accuracy.py --budget 90
 	$(PY) benchmarks/memory_soak.py --randomise
 	$(PY) benchmarks/large_mesh.py
 
