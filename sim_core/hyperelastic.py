@@ -25,53 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse.linalg as spla
 
+from .laws import first_piola_stress, lame_parameters, material_tangent, strain_energy_density  # noqa: F401
 from .material import Material
 from .mesh import GAUSS_GRADIENTS, HexMesh
 from .model import Control
 from .sparse import BlockPattern
 from .static import ramp_load
-
-
-# -- constitutive law (pointwise, vectorised over any leading axes) ----------------------------
-def lame_parameters(young_modulus, poisson_ratio):
-    """(mu, lambda) in Pa from E (Pa) and nu (docs/physics.md notation)."""
-    young_modulus, nu = np.asarray(young_modulus, float), np.asarray(poisson_ratio, float)
-    return young_modulus / (2 * (1 + nu)), young_modulus * nu / ((1 + nu) * (1 - 2 * nu))
-
-
-def strain_energy_density(deformation_gradient, mu, lam):
-    """W(F) in J/m^3 (Pa) of the compressible neo-Hookean law; F (..., 3, 3), mu and lam broadcast
-    against F's leading axes. Returns +inf where det F <= 0."""
-    f = np.asarray(deformation_gradient, float)
-    det = np.linalg.det(f)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        log_j = np.log(det)
-    energy = 0.5 * mu * (np.einsum("...ab,...ab->...", f, f) - 3.0) - mu * log_j + 0.5 * lam * log_j**2
-    return np.where(det > 0, energy, np.inf)
-
-
-def first_piola_stress(deformation_gradient, mu, lam):
-    """P(F) = mu (F - F^-T) + lambda ln J F^-T in Pa; F (..., 3, 3)."""
-    f = np.asarray(deformation_gradient, float)
-    inverse_t = np.linalg.inv(f).swapaxes(-1, -2)
-    log_j = np.log(np.linalg.det(f))
-    mu, lam = np.asarray(mu)[..., None, None], np.asarray(lam)[..., None, None]
-    return mu * (f - inverse_t) + lam * log_j[..., None, None] * inverse_t
-
-
-def material_tangent(deformation_gradient, mu, lam):
-    """(..., 3, 3, 3, 3) A_aBcD = dP_aB / dF_cD in Pa (see the module docstring)."""
-    f = np.asarray(deformation_gradient, float)
-    inverse = np.linalg.inv(f)
-    log_j = np.log(np.linalg.det(f))
-    mu, lam = np.asarray(mu, float), np.asarray(lam, float)
-    mu, lam = np.broadcast_to(mu, log_j.shape), np.broadcast_to(lam, log_j.shape)
-    eye = np.eye(3)
-    identity_part = np.einsum("ac,BD->aBcD", eye, eye)
-    tangent = mu[..., None, None, None, None] * identity_part
-    tangent = tangent + (mu - lam * log_j)[..., None, None, None, None] * np.einsum("...Bc,...Da->...aBcD", inverse, inverse)
-    tangent = tangent + lam[..., None, None, None, None] * np.einsum("...Ba,...Dc->...aBcD", inverse, inverse)
-    return tangent
 
 
 # -- the finite-element model ------------------------------------------------------------------

@@ -16,6 +16,7 @@ import scipy.sparse as sp
 
 from ._validate import finite_array
 from .elements import element_stiffness
+from .laws import baudet_stiffness  # noqa: F401  (public here too)
 from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
@@ -262,31 +263,6 @@ def _edge_directions(positions, elements):
 
 
 # -- stiffness formulas (docs/physics.md sections 2 and 3) ----------------------------------
-def baudet_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio):
-    """Per-element spring stiffnesses (N/m) of Baudet's hexahedron [2].
-
-    Args:
-        axis_lengths: (M, 3) rest edge lengths x0, y0, z0 in m.
-        young_modulus, poisson_ratio: (M,) material.
-    Returns:
-        (edge (M, 3) stiffness of the x-, y-, z-edges, diagonal (M,) stiffness of the 4 diagonals).
-    """
-    x0, y0, z0 = axis_lengths.T
-    d2 = x0**2 + y0**2 + z0**2
-    nu = poisson_ratio
-    denominator = 24.0 * (1.0 + nu) * x0 * y0 * z0
-    diagonal = young_modulus * d2**2 / denominator
-    edge = np.empty_like(axis_lengths)
-    for axis in range(3):
-        i = axis_lengths[:, axis]
-        j = axis_lengths[:, (axis + 1) % 3]
-        k = axis_lengths[:, (axis + 2) % 3]
-        edge[:, axis] = young_modulus * (
-            6.0 * j**2 * k**2 * (1.0 + nu) + (nu * (j**2 + k**2) - i**2) * d2
-        ) / denominator
-    return edge, diagonal
-
-
 def correction_coefficients(axis_lengths: np.ndarray, poisson_ratio) -> np.ndarray:
     """(M, 3, 3) C[i, j] of docs/physics.md section 3 (zero on the diagonal); cube: -(4 nu - 1) / 2."""
     nu = poisson_ratio

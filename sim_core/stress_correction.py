@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .laws import baudet_stiffness, first_piola_stress, material_tangent
 from .topology import DIAGONALS, EDGES, FACES, GAUSS_GRADIENTS
 
 #: the two diagonals of each face (FACES order): 12, grouped by the plane they lie in
@@ -179,7 +180,6 @@ def spring_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio, cho
     "baudet": Baudet's formula (``model.baudet_stiffness``), non-positive on elongated boxes.
     """
     if choice == "baudet":
-        from .model import baudet_stiffness
 
         return baudet_stiffness(axis_lengths, young_modulus, poisson_ratio)
     if choice != "isotropic":
@@ -225,7 +225,6 @@ def deformation_gradients(correction: StressCorrection, elements: np.ndarray, po
 
 def element_forces(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray) -> np.ndarray:
     """(M, 8, 3) correction forces f_a = -V0 (P_NH(F) - P_S(F)) b_a on the element nodes, N."""
-    from .hyperelastic import first_piola_stress
 
     f = deformation_gradients(correction, elements, positions)
     stress = first_piola_stress(f, correction.shear_modulus, correction.lame) - spring_stress(correction, f)
@@ -242,7 +241,6 @@ def tangent_matrices(correction: StressCorrection, elements: np.ndarray, positio
     positive semi-definite (beyond -1e-12 of its trace), its positive part as a 24 x 24 block: with
     S = I_3 (x) R (``StressCorrection.metric_root``), B = S Q with orthonormal rows Q, so
     (B^T T B)_+ = B^T S^-1 (S T S)_+ S^-1 B. The numpy reference of the compiled pass."""
-    from .hyperelastic import first_piola_stress, material_tangent
 
     f = deformation_gradients(correction, elements, positions)
     tangent = material_tangent(f, correction.shear_modulus, correction.lame) - spring_tangent(correction, f)
