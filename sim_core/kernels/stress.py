@@ -197,6 +197,21 @@ def _positive_definite(t, lower):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _congruence(root, m, source, target):
+    """target (9, 9) = S source S with S = I_3 (x) root[m] (root[m] symmetric 3 x 3): the change of
+    metric of ``_clamp_tangent``, in both directions."""
+    for i in range(3):
+        for jj in range(3):
+            for k in range(3):
+                for ll in range(3):
+                    total = 0.0
+                    for a in range(3):
+                        for b in range(3):
+                            total += root[m, jj, a] * source[3 * i + a, 3 * k + b] * root[m, b, ll]
+                    target[3 * i + jj, 3 * k + ll] = total
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
 def _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small, values, vectors):
     """The implicit step's SPD treatment of element ``m``'s tangent t (9, 9) (docs/physics.md 11),
     in place; returns 0 (t kept), 1 (geometric term clamped) or 2 (positive part taken).
@@ -237,15 +252,7 @@ def _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small,
                     t[3 * i + jj, 3 * i + ll] += total
     if _positive_definite(t, lower):
         return changed
-    for i in range(3):
-        for jj in range(3):
-            for k in range(3):
-                for ll in range(3):
-                    total = 0.0
-                    for a in range(3):
-                        for b in range(3):
-                            total += root[m, jj, a] * t[3 * i + a, 3 * k + b] * root[m, b, ll]
-                    w[3 * i + jj, 3 * k + ll] = total
+    _congruence(root, m, t, w)  # w = S t S
     for r in range(9):  # symmetrise against rounding before the decomposition
         for q in range(r):
             mean = 0.5 * (w[r, q] + w[q, r])
@@ -259,15 +266,7 @@ def _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small,
                 if eigenvalues[e] > 0.0:
                     total += eigenvalues[e] * eigenvectors[r, e] * eigenvectors[q, e]
             w[r, q] = total
-    for i in range(3):
-        for jj in range(3):
-            for k in range(3):
-                for ll in range(3):
-                    total = 0.0
-                    for a in range(3):
-                        for b in range(3):
-                            total += root_inverse[m, jj, a] * w[3 * i + a, 3 * k + b] * root_inverse[m, b, ll]
-                    t[3 * i + jj, 3 * k + ll] = total
+    _congruence(root_inverse, m, w, t)  # t = S^-1 w_+ S^-1
     return 2
 
 
