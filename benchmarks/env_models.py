@@ -1,14 +1,15 @@
 """The environments' scenes with each mass-spring model against neo-Hookean FEM: which physics should
 the environments use?
 
-Usage: python benchmarks/env_models.py [--models baudet baudet-hyperelastic]
+Usage: python benchmarks/env_models.py [--models baudet baudet-hyperelastic] [--reference-scale 1]
        [--output benchmarks/results/env_models.json]
 
 For each task the static scenes of ``benchmarks/env_accuracy.py`` (tool force, target displacement
 and volume change at every tested tool displacement, with gravity and contact) are solved on the
 env's default mesh with each model (``baudet`` in the envs' setting: hourglass control and volume
 stiffness from ``tissue_env.base.MODEL_DEFAULTS``) and compared with ``fem-neohookean`` on the finer
-mesh env_accuracy uses: the largest relative error of each quantity over the cases, whether every
+mesh env_accuracy uses (``--reference-scale`` refines it: that reference is coarse for
+TumorPositioning, 8^3 against the env's 7^3, and is the env's own mesh for Palpation): the largest relative error of each quantity over the cases, whether every
 equilibrium is stable (no saddle), and the solve time. Written to ``--output`` (JSON, atomically).
 """
 
@@ -30,15 +31,24 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--models", nargs="*", default=["baudet", "baudet-hyperelastic"])
     parser.add_argument("--task", nargs="*", default=list(ea.TASKS))
-    parser.add_argument("--output", default="benchmarks/results/env_models.json")
+    parser.add_argument("--reference-scale", type=float, default=1.0,
+                        help="multiply env_accuracy's fem-neohookean resolution by this (a finer reference)")
+    parser.add_argument("--output", default=None,
+                        help="default benchmarks/results/env_models.json (env_models_reference_x<scale>.json "
+                             "with --reference-scale)")
     args = parser.parse_args(argv)
+    if args.reference_scale < 1.0:
+        parser.error("--reference-scale must be >= 1")
+    if args.output is None:
+        args.output = ("benchmarks/results/env_models.json" if args.reference_scale == 1.0
+                       else f"benchmarks/results/env_models_reference_x{args.reference_scale:g}.json")
     alpha, kappa = ea.env_defaults()
-    out = dict(reference="fem-neohookean", tasks={})
+    out = dict(reference="fem-neohookean", reference_scale=args.reference_scale, tasks={})
     for name in args.task:
         make, _, fem_resolution, _, _ = ea.TASKS[name]
         scenes, shape = make(), ea.env_default_shape(name)
         start = time.perf_counter()
-        fem = reference_solutions(scenes, reference_resolution=fem_resolution)
+        fem = reference_solutions(scenes, reference_resolution=int(round(args.reference_scale * fem_resolution)))
         rows = {}
         for model in args.models:
             candidate = evaluate(scenes, shape, fem[0], ea.TOLERANCE, hourglass_control=alpha, volume_stiffness=kappa,
