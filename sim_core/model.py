@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from ._validate import finite_array
 from .elements import element_stiffness
-from .laws import baudet_stiffness  # noqa: F401  (public here too)
+from .laws import baudet_stiffness, lame_parameters
 from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
@@ -436,8 +436,7 @@ def build_model(
     if corrections and hyperelastic:  # [11]
         gradient, volume = mean_gradients(nodes, elements)
         vectors = nodes[elements[:, local_pairs[:, 1]]] - nodes[elements[:, local_pairs[:, 0]]]
-        shear = young_modulus / (2.0 * (1.0 + poisson_ratio))
-        lame = young_modulus * poisson_ratio / ((1.0 + poisson_ratio) * (1.0 - 2.0 * poisson_ratio))
+        shear, lame = lame_parameters(young_modulus, poisson_ratio)
         vectors, merged = merge_parallel_springs(vectors, values)
         stress_correction = StressCorrection(
             mean_gradient=np.ascontiguousarray(gradient), volume=volume, spring_vector=np.ascontiguousarray(vectors),
