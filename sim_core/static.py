@@ -181,18 +181,26 @@ def _axis_name(vector) -> str:
     return "(" + ", ".join(f"{v:.3g}" for v in np.where(np.abs(vector) < 1e-9, 0.0, vector)) + ")"
 
 
+def rigid_fields(positions):
+    """(fields (6, N, 3), centre (3,) m, size m): a basis of the linearised rigid motions about
+    ``positions`` (N, 3) m, rotations about x, y, z through the centroid ``centre`` (scaled by
+    1 / ``size``, the rms distance from it), then translations along x, y, z."""
+    centre = positions.mean(axis=0)
+    relative = positions - centre
+    size = float(np.sqrt(np.mean(np.sum(relative**2, axis=1)))) or 1.0
+    fields = np.zeros((6,) + positions.shape)
+    for axis in range(3):
+        fields[axis] = np.cross(np.eye(3)[axis], relative) / size
+        fields[3 + axis][:, axis] = 1.0
+    return fields, centre, size
+
+
 def unconstrained_motions(positions, fixed) -> list[tuple[str, np.ndarray]]:
     """The rigid-body motions that no imposed component holds: [(name, (N, 3) field)], a basis of
     the linearised rigid motions about ``positions`` (N, 3) m that vanish on every component where
     ``fixed`` (N, 3) bool is True ("translation along y", "rotation about z (axis through ...)")."""
     positions = np.asarray(positions, dtype=float)
-    centre = positions.mean(axis=0)
-    relative = positions - centre
-    size = float(np.sqrt(np.mean(np.sum(relative**2, axis=1)))) or 1.0
-    fields = np.zeros((6,) + positions.shape)  # rotations about x, y, z (scaled by 1 / size), translations
-    for axis in range(3):
-        fields[axis] = np.cross(np.eye(3)[axis], relative) / size
-        fields[3 + axis][:, axis] = 1.0
+    fields, centre, size = rigid_fields(positions)
     basis = fields.reshape(6, -1).T
     held = basis[np.asarray(fixed, dtype=bool).ravel()]
     values, vectors = scipy.linalg.eigh(held.T @ held, basis.T @ basis)
@@ -581,14 +589,7 @@ class IterativeTangent:
         matrix = sp.csr_matrix(matrix)
         scale = abs(matrix).max()
         self.symmetric = bool(abs(matrix - matrix.T).max() <= 1e-10 * scale)
-        coordinates = np.asarray(positions, dtype=float)
-        centred = coordinates - coordinates.mean(axis=0)
-        modes = np.zeros((coordinates.size, 6))
-        for axis in range(3):
-            modes[axis::3, axis] = 1.0
-        for column, (a, b) in enumerate(((0, 1), (1, 2), (2, 0)), start=3):  # rotation in the (a, b) plane
-            modes[a::3, column] = -centred[:, b]
-            modes[b::3, column] = centred[:, a]
+        modes = rigid_fields(np.asarray(positions, dtype=float))[0].reshape(6, -1).T
         try:
             with np.errstate(all="ignore"):
                 self.hierarchy = pyamg.smoothed_aggregation_solver(
