@@ -51,7 +51,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from sim_core import HexMesh, Material, build_model  # noqa: E402
 from sim_core.experiments import (  # noqa: E402
-    elongation, flexion, hourglass_content, indentation, position_errors, settle, shear, tool_patch, tool_patch_nodes)
+    elongation, elongation_control, flexion, hourglass_content, indentation, position_errors, settle, shear, tool_patch,
+    tool_patch_nodes)
 from sim_core.fem import LinearFEM  # noqa: E402
 from sim_core.hyperelastic import NeoHookeanFEM  # noqa: E402
 from sim_core.model import MSS_MODELS as MSS_NAMES, Control, baudet_stiffness  # noqa: E402
@@ -847,19 +848,6 @@ def model_options(label):
 def volume_change(result):
     mesh = HexMesh.block(result.parameters["shape"], result.parameters["spacing"])
     return float(mesh.element_volumes(result.positions).sum() / mesh.element_volumes().sum() - 1.0)
-
-
-def elongation_control(mesh, strain):
-    """experiments.elongation's boundary conditions on ``mesh`` (face x = 0 held along x, two
-    anchors at mid-height, face x = Lx moved by strain Lx), for stability checks and mode counts."""
-    nx, ny, nz = mesh.shape
-    nodes = mesh.nodes
-    left = np.flatnonzero(np.isclose(nodes[:, 0], 0.0))
-    right = np.flatnonzero(np.isclose(nodes[:, 0], nodes[:, 0].max()))
-    control = Control.free(mesh.n_nodes).impose(left, nodes[left], components=0)
-    centre, top = mesh.node_index(0, ny // 2, nz // 2), mesh.node_index(0, ny // 2, nz)
-    control.impose([centre], nodes[centre], components=[1, 2]).impose([top], nodes[top], components=1)
-    return control.impose(right, nodes[right] + [strain * mesh.size[0], 0.0, 0.0], components=0)
 
 
 def mss_lowest(label, mesh, nu, control, positions, gravity=0.0):

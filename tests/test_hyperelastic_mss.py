@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model
-from sim_core.experiments import MODELS, elongation, flexion, indentation, position_errors, shear, tool_patch
+from sim_core.experiments import (MODELS, elongation, elongation_control, flexion, indentation, position_errors, shear,
+                                  tool_patch)
 from sim_core.forces import internal_forces, internal_forces_reference, stiffness_data
 from sim_core.hyperelastic import first_piola_stress, lame_parameters
 from sim_core.model import MSS_MODELS, Control
@@ -43,19 +44,6 @@ def neo_hookean_nodal_forces(mesh, deformation, nu):
     forces = np.zeros((mesh.n_nodes, 3))
     np.add.at(forces, mesh.elements, -volume[:, None, None] * gradient @ stress.T)
     return forces
-
-
-def elongation_control(mesh, strain):
-    """``experiments.elongation``'s boundary conditions (face x = 0 held along x, two anchors,
-    face x = Lx moved by strain Lx), for the stability checks that need the control itself."""
-    nx, ny, nz = mesh.shape
-    nodes = mesh.nodes
-    left = np.flatnonzero(np.isclose(nodes[:, 0], 0.0))
-    right = np.flatnonzero(np.isclose(nodes[:, 0], nodes[:, 0].max()))
-    control = Control.free(mesh.n_nodes).impose(left, nodes[left], components=0)
-    centre, top = mesh.node_index(0, ny // 2, nz // 2), mesh.node_index(0, ny // 2, nz)
-    control.impose([centre], nodes[centre], components=[1, 2]).impose([top], nodes[top], components=1)
-    return control.impose(right, nodes[right] + [strain * mesh.size[0], 0.0, 0.0], components=0)
 
 
 def relative_volume_change(result):

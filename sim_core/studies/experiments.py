@@ -169,6 +169,25 @@ def _strain_or_force(strain, force):
 
 
 # -- experiments ---------------------------------------------------------------------------------
+def elongation_control(mesh: HexMesh, strain=None) -> Control:
+    """``elongation``'s boundary conditions on a block ``mesh`` (even ny and nz): face x = 0 held
+    along x, its node (0, Ly/2, Lz/2) in y and z and its node (0, Ly/2, Lz) in y (no rigid motion),
+    and, with ``strain``, face x = Lx moved by strain Lx along x (m); for stability checks and mode
+    counts of the experiment's equilibrium too."""
+    nx, ny, nz = mesh.shape
+    nodes = mesh.nodes
+    left, right = _face(mesh, 0, False), _face(mesh, 0, True)
+    control = Control.free(mesh.n_nodes)
+    control.impose(left, nodes[left], components=0)
+    centre = mesh.node_index(0, ny // 2, nz // 2)
+    control.impose([centre], nodes[centre], components=[1, 2])
+    top = mesh.node_index(0, ny // 2, nz)
+    control.impose([top], nodes[top], components=1)
+    if strain is not None:
+        control.impose(right, nodes[right] + [strain * mesh.size[0], 0, 0], components=0)
+    return control
+
+
 def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, force=None,
                model="baudet", density=1000.0, **options) -> ExperimentResult:
     """Uniaxial pull along x: measured Young's modulus and Poisson's ratio.
@@ -194,16 +213,9 @@ def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, for
         raise ValueError(f"elongation needs even ny and nz (anchor nodes at mid-face), got shape {mesh.shape}")
     length = mesh.size
     nodes = mesh.nodes
-    left, right = _face(mesh, 0, False), _face(mesh, 0, True)
-    control = Control.free(mesh.n_nodes)
-    control.impose(left, nodes[left], components=0)
-    centre = mesh.node_index(0, ny // 2, nz // 2)
-    control.impose([centre], nodes[centre], components=[1, 2])
-    top = mesh.node_index(0, ny // 2, nz)
-    control.impose([top], nodes[top], components=1)
-    if strain is not None:
-        control.impose(right, nodes[right] + [strain * length[0], 0, 0], components=0)
-    else:
+    right = _face(mesh, 0, True)
+    control = elongation_control(mesh, strain)
+    if strain is None:
         control.force[right, 0] = force * _face_area_shares(mesh, right, 0)
     start = time.perf_counter()
     positions, reaction, converged, residual, modes = _solve(mesh, material, control, model, 0.0, options)
