@@ -190,7 +190,7 @@ class PalpationWorlds(TaskWorlds):
 
     def _reward_terms(self, measures):
         force = np.linalg.norm(measures["reaction_force"], axis=1)
-        limit = self.force_limit * self.stiffness_ratio  # N, scaled with the tissue (REFERENCE_YOUNG_MODULUS)
+        limit = self.scaled_force(self.force_limit)  # N, in the episode's tissue
         terms = dict(
             success=np.where(self._is_success(measures), self.success_bonus, 0.0),
             explore=np.where(measures["new_cell"], self.explore_bonus, 0.0),

@@ -103,8 +103,8 @@ class RetractionWorlds(TaskWorlds):
                     tension=np.linalg.norm(measures["reaction_force"], axis=1))
 
     def _force_limits(self):
-        """(N,) each world's force limit, N: ``force_limit`` scaled by its tissue's stiffness ratio."""
-        return self.force_limit * self.stiffness_ratio
+        """(N,) each world's force limit, N (``scaled_force`` of ``force_limit``)."""
+        return self.scaled_force(self.force_limit)
 
     def _is_success(self, measures):
         return ((measures["exposed_fraction"] >= self.success_exposure)

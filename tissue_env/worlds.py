@@ -381,7 +381,7 @@ class TaskWorlds:
         features = dict(
             tool_position=(self._tool_position(positions) - self.centre) / self.length_scale,
             tool_displacement=self.tool_offset / self.length_scale,
-            reaction_force=measures["reaction_force"] / (self.force_scale * self.stiffness_ratio[:, None]),
+            reaction_force=measures["reaction_force"] / self.scaled_force(self.force_scale)[:, None],
             relative_volume_change=100.0 * measures["relative_volume_change"][:, None],
             max_strain=100.0 * measures["max_strain"][:, None],
         )
@@ -391,6 +391,11 @@ class TaskWorlds:
             displacement = positions[:, surface] - env.mesh.nodes[surface]
             features["surface_displacement"] = displacement.reshape(self.num_envs, -1) / self.length_scale
         return features
+
+    def scaled_force(self, force):
+        """(N,) a force in N stated at the reference tissue (REFERENCE_YOUNG_MODULUS: the force unit,
+        a task's force limit) in each world's tissue: the same strains at any stiffness."""
+        return force * self.stiffness_ratio
 
     def _observation(self, measures):
         features = self._features(measures)
