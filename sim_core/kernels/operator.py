@@ -434,32 +434,10 @@ def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, 
                     out[3 * node, c] += rate * volume_direction[m, n, 0, c]
                     out[3 * node + 1, c] += rate * volume_direction[m, n, 1, c]
                     out[3 * node + 2, c] += rate * volume_direction[m, n, 2, c]
-    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:  # ``_stress_product`` per copy
-        df = np.empty(9)
-        dp = np.empty(9)
-        for m in range(elements.shape[0]):
-            for c in range(n_copies):
-                for r in range(9):
-                    df[r] = 0.0
-                for a in range(8):
-                    node = elements[m, a]
-                    v0, v1, v2 = vector[3 * node, c], vector[3 * node + 1, c], vector[3 * node + 2, c]
-                    for j in range(3):
-                        b = stress_gradient[m, a, j, c]
-                        df[j] += v0 * b
-                        df[3 + j] += v1 * b
-                        df[6 + j] += v2 * b
-                for r in range(9):
-                    total = 0.0
-                    for q in range(9):
-                        total += stress_tangent[m, r, q, c] * df[q]
-                    dp[r] = stiffness_scale * total
-                for a in range(8):
-                    node = elements[m, a]
-                    b0, b1, b2 = stress_gradient[m, a, 0, c], stress_gradient[m, a, 1, c], stress_gradient[m, a, 2, c]
-                    out[3 * node, c] += dp[0] * b0 + dp[1] * b1 + dp[2] * b2
-                    out[3 * node + 1, c] += dp[3] * b0 + dp[4] * b1 + dp[5] * b2
-                    out[3 * node + 2, c] += dp[6] * b0 + dp[7] * b1 + dp[8] * b2
+    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:
+        for c in range(n_copies):  # each copy's columns (copies last); its elements in order, as one model
+            _stress_product(elements, stress_gradient[:, :, :, c], stress_tangent[:, :, :, c], stiffness_scale,
+                            vector[:, c], out[:, c])
     for s in range(n_springs):
         a, b = springs[s, 0], springs[s, 1]
         for c in range(n_copies):
