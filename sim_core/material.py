@@ -61,6 +61,35 @@ class Material:
         """K = E / (3 (1 - 2 nu)) in Pa."""
         return self.young_modulus / (3.0 * (1.0 - 2.0 * self.poisson_ratio))
 
+    @classmethod
+    def from_labels(cls, labels, materials: dict) -> "Material":
+        """Per-element material of a labelled mesh: element e gets ``materials[labels[e]]``.
+
+        Args:
+            labels: (M,) integer label id per element (``HexMesh.element_labels``).
+            materials: {label id: ``Material``} with scalar parameters, one entry per label used.
+        Raises:
+            ValueError: labels not a 1D integer array, a label without a material, or an entry that
+                is not a ``Material`` with scalar parameters.
+        """
+        labels = np.asarray(labels)
+        if labels.ndim != 1 or len(labels) == 0 or not np.issubdtype(labels.dtype, np.integer):
+            raise ValueError(f"labels must be a non-empty (M,) integer array, got {labels.dtype} of shape {labels.shape}")
+        used = np.unique(labels)
+        missing = [int(v) for v in used if int(v) not in materials]
+        if missing:
+            raise ValueError(f"labels {missing} have no material; materials has labels {sorted(materials)}")
+        names = ("young_modulus", "poisson_ratio", "density")
+        table = {}
+        for label in used.tolist():
+            material = materials[label]
+            if not isinstance(material, cls) or any(np.ndim(getattr(material, n)) for n in names):
+                raise ValueError(f"materials[{label}] must be a Material with scalar parameters, got {material!r}")
+            table[label] = [getattr(material, n) for n in names]
+        index = np.searchsorted(used, labels)
+        values = np.array([table[label] for label in used.tolist()])[index]  # (M, 3)
+        return cls(*values.T)
+
     def per_element(self, n_elements: int) -> dict[str, np.ndarray]:
         """Arrays of length ``n_elements`` for E (Pa), nu and rho (kg/m^3).
 

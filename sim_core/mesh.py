@@ -45,6 +45,8 @@ class HexMesh:
         elements: (M, 8) node indices per hexahedron, VTK order.
         shape: (nx, ny, nz) when the mesh is a structured block, else None.
         spacing: (dx, dy, dz) in m when the mesh is a structured block, else None.
+        element_labels: None, or (M,) integer label id per element (a segmented volume's
+            tissue classes, ``from_mask``); ``Material.from_labels`` turns them into materials.
 
     Raises ``ValueError`` for wrong shapes, out-of-range indices, repeated nodes in an element, and
     degenerate or inverted elements (a corner Jacobian that is not positive).
@@ -54,6 +56,7 @@ class HexMesh:
     elements: np.ndarray
     shape: tuple[int, int, int] | None = None
     spacing: np.ndarray | None = field(default=None, repr=False)
+    element_labels: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
         nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
@@ -80,6 +83,14 @@ class HexMesh:
         object.__setattr__(self, "nodes", nodes)
         object.__setattr__(self, "elements", elements)
         check_elements(nodes, elements)
+        if self.element_labels is not None:
+            labels = np.asarray(self.element_labels)
+            if labels.shape != (len(elements),) or not np.issubdtype(labels.dtype, np.integer):
+                raise ValueError(f"element_labels must be an ({len(elements)},) integer array (one label id "
+                                 f"per element), got {labels.dtype} of shape {labels.shape}")
+            labels = labels.astype(np.int64)
+            labels.setflags(write=False)
+            object.__setattr__(self, "element_labels", labels)
 
     # -- construction ----------------------------------------------------------------------
     @classmethod
@@ -100,6 +111,73 @@ class HexMesh:
         corner = base[:, None, :] + LOCAL_CORNERS.astype(int)[None, :, :]
         elements = corner[..., 0] + (nx + 1) * (corner[..., 1] + (ny + 1) * corner[..., 2])
         return cls(nodes, elements, shape=(nx, ny, nz), spacing=spacing)
+
+    @classmethod
+    def from_mask(cls, mask, spacing, *, origin=(0.0, 0.0, 0.0), labels=None, components="refuse") -> "HexMesh":
+        """One hexahedron per occupied voxel of a segmented volume (a CT/MRI label map, a phantom).
+
+        Args:
+            mask: (nx, ny, nz) boolean or integer array; index [i, j, k] is the voxel
+                [x0 + i dx, x0 + (i + 1) dx] x [y0 + j dy, ...] x [z0 + k dz, ...] (y up). Non-zero
+                (True) voxels are tissue; an integer volume's values are label ids (0 = outside).
+            spacing: voxel size (dx, dy, dz) in m, or one number for cubic voxels; > 0.
+            origin: (x0, y0, z0) in m, the corner of voxel [0, 0, 0].
+            labels: None (mesh every non-zero voxel) or the label ids to mesh (e.g. ``(1, 2)``
+                leaves label 3 out); the others count as outside.
+            components: what to do when the occupied voxels are not one face-connected piece
+                (two voxels sharing only an edge or a corner do not hold together: a loose part
+                floats free): "refuse" (ValueError, the default) or "largest" (keep the largest
+                face-connected component, with a ``UserWarning`` saying how many voxels were
+                dropped).
+
+        Returns:
+            A ``HexMesh`` whose nodes are the used grid points, each once (neighbouring voxels share
+            them), numbered x fastest, then y, then z as in ``block``; elements in voxel order
+            (i fastest), VTK node order, every Jacobian positive. ``element_labels`` holds the
+            voxels' label ids (1 for a boolean mask). A full box at the origin is exactly
+            ``block(mask.shape, spacing)``, with ``shape`` and ``spacing`` set.
+
+        Raises:
+            ValueError: ``mask`` not 3D or not boolean/integer, no occupied voxel, a spacing that
+                is not > 0, a bad ``labels`` or ``components``, occupied voxels in several
+                face-connected components (with ``components="refuse"``), or a surface that is not
+                a manifold: two voxels that touch along an edge or at a corner only, where neither
+                shares a face with the other's neighbours (the hexahedra would hinge on one edge or
+                node; ``non_manifold_voxels`` locates them). Refine or smooth the segmentation,
+                or fill the gap in the mask, and try again.
+
+        Elements are the voxels themselves, never merged: merging uniform k^3 blocks into larger
+        hexahedra leaves hanging nodes where a large element meets small ones, a non-conforming
+        mesh that neither the mass-spring springs nor the FEM reference handle. Coarsen the whole
+        grid instead (``downsample``), to the element size a scene needs (``voxel_factor``).
+        """
+        volume = _label_volume(mask, labels)
+        spacing = _parse_spacing(spacing)
+        origin = finite_array("origin", np.broadcast_to(np.asarray(origin, dtype=float), (3,))).copy()
+        if components not in ("refuse", "largest"):
+            raise ValueError(f'components must be "refuse" or "largest", got {components!r}')
+        occupied = volume > 0
+        volume = np.where(_single_component(occupied, components), volume, 0)
+        occupied = volume > 0
+        critical = non_manifold_voxels(occupied)
+        if len(critical):
+            raise ValueError(
+                f"mask is not a manifold solid: {len(critical)} voxels touch others along an edge or at a "
+                f"corner only (first at voxel index {critical[0].tolist()}); fill the gap or refine the mask"
+            )
+        nx, ny, nz = volume.shape
+        voxel = np.flatnonzero(occupied.ravel(order="F"))
+        base = np.stack(np.unravel_index(voxel, (nx, ny, nz), order="F"), axis=1)
+        corner = base[:, None, :] + LOCAL_CORNERS.astype(int)[None, :, :]
+        grid_index = corner[..., 0] + (nx + 1) * (corner[..., 1] + (ny + 1) * corner[..., 2])
+        used, elements = np.unique(grid_index, return_inverse=True)
+        elements = elements.reshape(-1, 8)
+        grid = np.stack(np.unravel_index(used, (nx + 1, ny + 1, nz + 1), order="F"), axis=1)
+        nodes = origin + grid * spacing
+        element_labels = volume.ravel(order="F")[voxel].astype(np.int64)
+        full = len(voxel) == volume.size and not np.any(origin)
+        return cls(nodes, elements, shape=(nx, ny, nz) if full else None, spacing=spacing if full else None,
+                   element_labels=element_labels)
 
     # -- geometry --------------------------------------------------------------------------
     @property
@@ -236,6 +314,150 @@ class HexMesh:
         lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in points[used]]
         lines += ["f " + " ".join(str(i + 1) for i in quad) for quad in inverse.reshape(-1, 4)]
         Path(path).write_text("\n".join(lines) + "\n")
+
+
+# -- segmented volumes -------------------------------------------------------------------------
+def _label_volume(mask, labels) -> np.ndarray:
+    """``mask`` as an (nx, ny, nz) int64 label volume (0 outside), keeping only ``labels``."""
+    array = np.asarray(mask)
+    if array.ndim != 3:
+        raise ValueError(f"mask must be a 3D (nx, ny, nz) voxel array, got {array.ndim} dimensions "
+                         f"(shape {array.shape})")
+    if array.dtype == bool:
+        volume = array.astype(np.int64)
+    elif np.issubdtype(array.dtype, np.integer):
+        if array.size and array.min() < 0:
+            raise ValueError(f"mask label ids must be >= 0 (0 = outside), got {int(array.min())}")
+        volume = array.astype(np.int64)
+    else:
+        raise ValueError(f"mask must be a boolean or integer label array, got dtype {array.dtype}")
+    if labels is not None:
+        try:
+            wanted = np.unique(np.asarray(list(labels) if not np.isscalar(labels) else [labels], dtype=np.int64))
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"labels must be None or a sequence of integer label ids, got {labels!r}") from error
+        if len(wanted) == 0 or wanted.min() < 1:
+            raise ValueError(f"labels must be non-empty label ids >= 1 (0 is outside), got {labels!r}")
+        volume = np.where(np.isin(volume, wanted), volume, 0)
+    if not np.any(volume):
+        chosen = "" if labels is None else f" with labels {list(map(int, wanted))}"
+        raise ValueError(f"mask has no occupied voxel{chosen}: nothing to mesh")
+    return volume
+
+
+def _single_component(occupied: np.ndarray, components: str) -> np.ndarray:
+    """The occupied voxels when they form one face-connected component; else the largest
+    (``components="largest"``, with a warning) or a ``ValueError``."""
+    from scipy import ndimage
+
+    index, count = ndimage.label(occupied)  # the default structure: face neighbours only
+    if count == 1:
+        return occupied
+    sizes = np.bincount(index.ravel())[1:]
+    if components == "refuse":
+        raise ValueError(
+            f"mask has {count} face-connected components (voxels {sorted(sizes.tolist(), reverse=True)[:5]}"
+            f"{'...' if count > 5 else ''}); voxels touching only along an edge or at a corner do not hold "
+            'together. Pass components="largest" to keep the largest one, or join them in the mask'
+        )
+    import warnings
+
+    largest = int(np.argmax(sizes)) + 1
+    warnings.warn(f"from_mask: kept the largest of {count} face-connected components ({int(sizes.max())} voxels); "
+                  f"dropped {int(sizes.sum() - sizes.max())} voxels", UserWarning, stacklevel=3)
+    return index == largest
+
+
+def non_manifold_voxels(mask) -> np.ndarray:
+    """(K, 3) sorted voxel indices [i, j, k] where the solid's boundary is not a 2-manifold.
+
+    The boundary of a union of voxels is a closed manifold surface exactly when no 2x2 window of
+    voxels (in any axis plane) holds two diagonal occupied voxels with the other two empty, and no
+    2x2x2 window holds two opposite-corner voxels with the other six of the opposite kind (the
+    "well-composed" sets of Latecki, 1997, Graphical Models and Image Processing 59(3)). Those
+    windows join two voxels by an edge or a node alone (or leave two empty voxels that do); the
+    voxels returned are those windows' occupied ones.
+    """
+    occupied = np.pad(np.asarray(mask, dtype=bool), 1)
+    flagged = np.zeros(occupied.shape, dtype=bool)
+
+    def at(offset, size):  # the voxels at ``offset`` in every window of ``size`` voxels
+        return tuple(slice(o, n - s + 1 + o) for o, s, n in zip(offset, size, occupied.shape))
+
+    for normal in range(3):  # 2x2 windows in the plane across ``normal``: a diagonal pair alone
+        size = [1 if axis == normal else 2 for axis in range(3)]
+        square = [c for c in np.ndindex(2, 2, 2) if c[normal] == 0]
+        for pair in ((square[0], square[3]), (square[1], square[2])):
+            others = [c for c in square if c not in pair]
+            bad = occupied[at(pair[0], size)] & occupied[at(pair[1], size)]
+            bad &= ~occupied[at(others[0], size)] & ~occupied[at(others[1], size)]
+            for c in pair:
+                flagged[at(c, size)] |= bad
+    cube = list(np.ndindex(2, 2, 2))
+    for c in cube[:4]:  # the 4 body diagonals of a 2x2x2 window: an opposite pair alone, or a gap alone
+        pair = (c, tuple(1 - v for v in c))
+        others = [q for q in cube if q not in pair]
+        ends = occupied[at(pair[0], (2, 2, 2))], occupied[at(pair[1], (2, 2, 2))]
+        rest = [occupied[at(q, (2, 2, 2))] for q in others]
+        only_pair = ends[0] & ends[1] & ~np.logical_or.reduce(rest)
+        only_gap = ~ends[0] & ~ends[1] & np.logical_and.reduce(rest)
+        for q in cube:
+            flagged[at(q, (2, 2, 2))] |= only_pair if q in pair else only_gap
+    flagged &= occupied
+    return np.argwhere(flagged[1:-1, 1:-1, 1:-1])
+
+
+def downsample(mask, factor, *, vote="majority") -> np.ndarray:
+    """A coarser label volume: each block of ``factor``^3 voxels becomes one voxel.
+
+    Args:
+        mask: (nx, ny, nz) boolean or integer label volume (0 outside). Blocks at the far ends
+            that ``factor`` does not fill are padded with outside voxels.
+        factor: integer >= 1 (or (fx, fy, fz)); the new spacing is ``factor`` times the old.
+        vote: "majority" (a coarse voxel is tissue when more than half of its block is) or
+            "any" (when any voxel of its block is: never loses thin structures, grows the solid).
+    Returns:
+        (ceil(nx / fx), ceil(ny / fy), ceil(nz / fz)) array of ``mask``'s dtype; a tissue voxel
+        takes its block's most frequent non-zero label (the smallest one on a tie).
+
+    Use it to mesh a segmentation at the element size a scene needs rather than the scanner's:
+    ``voxel_factor`` gives ``factor`` from an element size such as ``max(scene.size) /
+    choose_resolution(scene).resolution`` (``sim_core.resolution``). The whole grid is coarsened
+    because a mesh whose uniform regions alone had larger elements would not be conforming.
+    """
+    from ._validate import integer_at_least
+
+    array = np.asarray(mask)
+    volume = _label_volume(array, None)
+    factors = np.broadcast_to(np.asarray(factor, dtype=object), (3,))
+    factors = [integer_at_least("factor", f, 1) for f in factors]
+    if vote not in ("majority", "any"):
+        raise ValueError(f'vote must be "majority" or "any", got {vote!r}')
+    coarse = [-(-n // f) for n, f in zip(volume.shape, factors)]
+    padded = np.zeros([c * f for c, f in zip(coarse, factors)], dtype=np.int64)
+    padded[: volume.shape[0], : volume.shape[1], : volume.shape[2]] = volume
+    blocks = padded.reshape(coarse[0], factors[0], coarse[1], factors[1], coarse[2], factors[2])
+    blocks = blocks.transpose(0, 2, 4, 1, 3, 5).reshape(*coarse, -1)
+    tissue = np.count_nonzero(blocks, axis=-1)
+    keep = tissue * 2 > blocks.shape[-1] if vote == "majority" else tissue > 0
+    out = np.zeros(coarse, dtype=np.int64)
+    best = np.zeros(coarse, dtype=np.int64)
+    for label in np.unique(volume[volume > 0]):  # a handful of tissue classes
+        count = np.count_nonzero(blocks == label, axis=-1)
+        better = count > best
+        out[better], best[better] = label, count[better]
+    out[~keep] = 0
+    return out.astype(bool) if array.dtype == bool else out.astype(array.dtype)
+
+
+def voxel_factor(spacing, element_size) -> int:
+    """The largest integer k >= 1 whose coarsened voxels (k x ``spacing``, m) are no larger than
+    ``element_size`` (m) along any axis: ``downsample``'s factor for a chosen element size."""
+    from ._validate import positive_scalar
+
+    spacing = _parse_spacing(spacing)
+    element_size = positive_scalar("element_size", element_size, "m")
+    return max(1, int(np.floor(element_size / float(spacing.max()) * (1 + 1e-12))))
 
 
 # -- element geometry (vectorised over elements) ---------------------------------------------
