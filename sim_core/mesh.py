@@ -163,7 +163,8 @@ class HexMesh:
         if len(critical):
             raise ValueError(
                 f"mask is not a manifold solid: {len(critical)} voxels touch others along an edge or at a "
-                f"corner only (first at voxel index {critical[0].tolist()}); fill the gap or refine the mask"
+                f"corner only (first at voxel index {critical[0].tolist()}); fill the gaps (fill_non_manifold(mask)) "
+                "or refine the mask"
             )
         nx, ny, nz = volume.shape
         voxel = np.flatnonzero(occupied.ravel(order="F"))
@@ -368,17 +369,9 @@ def _single_component(occupied: np.ndarray, components: str) -> np.ndarray:
     return index == largest
 
 
-def non_manifold_voxels(mask) -> np.ndarray:
-    """(K, 3) sorted voxel indices [i, j, k] where the solid's boundary is not a 2-manifold.
-
-    The boundary of a union of voxels is a closed manifold surface exactly when no 2x2 window of
-    voxels (in any axis plane) holds two diagonal occupied voxels with the other two empty, and no
-    2x2x2 window holds two opposite-corner voxels with the other six of the opposite kind (the
-    "well-composed" sets of Latecki, 1997, Graphical Models and Image Processing 59(3)). Those
-    windows join two voxels by an edge or a node alone (or leave two empty voxels that do); the
-    voxels returned are those windows' occupied ones.
-    """
-    occupied = np.pad(np.asarray(mask, dtype=bool), 1)
+def _critical_windows(occupied: np.ndarray) -> np.ndarray:
+    """Every voxel of every critical window of ``occupied`` (padded with one empty voxel per
+    side, so that windows on the border are seen): ``non_manifold_voxels``' definition."""
     flagged = np.zeros(occupied.shape, dtype=bool)
 
     def at(offset, size):  # the voxels at ``offset`` in every window of ``size`` voxels
@@ -391,20 +384,62 @@ def non_manifold_voxels(mask) -> np.ndarray:
             others = [c for c in square if c not in pair]
             bad = occupied[at(pair[0], size)] & occupied[at(pair[1], size)]
             bad &= ~occupied[at(others[0], size)] & ~occupied[at(others[1], size)]
-            for c in pair:
+            for c in square:
                 flagged[at(c, size)] |= bad
     cube = list(np.ndindex(2, 2, 2))
     for c in cube[:4]:  # the 4 body diagonals of a 2x2x2 window: an opposite pair alone, or a gap alone
         pair = (c, tuple(1 - v for v in c))
-        others = [q for q in cube if q not in pair]
         ends = occupied[at(pair[0], (2, 2, 2))], occupied[at(pair[1], (2, 2, 2))]
-        rest = [occupied[at(q, (2, 2, 2))] for q in others]
-        only_pair = ends[0] & ends[1] & ~np.logical_or.reduce(rest)
-        only_gap = ~ends[0] & ~ends[1] & np.logical_and.reduce(rest)
+        rest = [occupied[at(q, (2, 2, 2))] for q in cube if q not in pair]
+        bad = ends[0] & ends[1] & ~np.logical_or.reduce(rest)
+        bad |= ~ends[0] & ~ends[1] & np.logical_and.reduce(rest)
         for q in cube:
-            flagged[at(q, (2, 2, 2))] |= only_pair if q in pair else only_gap
-    flagged &= occupied
-    return np.argwhere(flagged[1:-1, 1:-1, 1:-1])
+            flagged[at(q, (2, 2, 2))] |= bad
+    return flagged
+
+
+def non_manifold_voxels(mask) -> np.ndarray:
+    """(K, 3) sorted voxel indices [i, j, k] where the solid's boundary is not a 2-manifold.
+
+    The boundary of a union of voxels is a closed manifold surface exactly when no 2x2 window of
+    voxels (in any axis plane) holds two diagonal occupied voxels with the other two empty, and no
+    2x2x2 window holds two opposite-corner voxels with the other six of the opposite kind (the
+    "well-composed" sets of Latecki, 1997, Graphical Models and Image Processing 59(3)). Those
+    windows join two voxels by an edge or a node alone (or leave two empty voxels that do); the
+    voxels returned are those windows' occupied ones.
+    """
+    occupied = np.pad(np.asarray(mask, dtype=bool), 1)
+    return np.argwhere((_critical_windows(occupied) & occupied)[1:-1, 1:-1, 1:-1])
+
+
+def fill_non_manifold(mask, *, max_rounds=64):
+    """``mask`` with the empty voxels of its critical windows (``non_manifold_voxels``) filled,
+    repeated until none is left: edge and corner contacts become face contacts, so that
+    ``HexMesh.from_mask`` accepts the result. A filled voxel takes the label of the nearest
+    occupied voxel. Adds tissue only where voxels touched diagonally (a voxel-wide seam).
+
+    Returns an array of ``mask``'s shape and dtype. Raises ``ValueError`` for a mask that
+    ``from_mask`` would refuse for its type or dimensions, or when ``max_rounds`` do not settle.
+    """
+    from scipy import ndimage
+
+    array = np.asarray(mask)
+    volume = _label_volume(array, None)
+    occupied = np.pad(volume > 0, 1)
+    for _ in range(int(max_rounds)):
+        fill = _critical_windows(occupied) & ~occupied
+        if not fill.any():
+            break
+        occupied |= fill
+    else:
+        raise ValueError(f"fill_non_manifold: critical windows remain after {max_rounds} rounds")
+    occupied = occupied[1:-1, 1:-1, 1:-1]
+    added = occupied & (volume == 0)
+    if added.any():
+        _, nearest = ndimage.distance_transform_edt(volume == 0, return_indices=True)
+        volume = volume.copy()
+        volume[added] = volume[tuple(index[added] for index in nearest)]
+    return volume.astype(bool) if array.dtype == bool else volume.astype(array.dtype)
 
 
 def downsample(mask, factor, *, vote="majority") -> np.ndarray:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.mesh import corner_jacobians, downsample, non_manifold_voxels, voxel_factor
+from sim_core.mesh import corner_jacobians, downsample, fill_non_manifold, non_manifold_voxels, voxel_factor
 
 
 def ball(n, radius):
@@ -217,3 +217,21 @@ def test_voxel_factor_fits_the_element_size():
     assert voxel_factor(0.002, 0.001) == 1
     with pytest.raises(ValueError, match="element_size"):
         voxel_factor(0.001, 0.0)
+
+
+def test_fill_non_manifold_turns_diagonal_contacts_into_face_contacts():
+    """The hinged ring and a random sparse volume: after filling, no critical window is left,
+    from_mask accepts the volume, only empty voxels were filled and they carry a neighbour's label."""
+    ring = np.zeros((3, 3, 1), dtype=int)
+    for i, j in [(0, 0), (1, 0), (2, 0), (2, 1), (0, 1), (0, 2), (1, 2)]:
+        ring[i, j, 0] = 2
+    filled = fill_non_manifold(ring)
+    assert filled.dtype == ring.dtype and filled[1, 1, 0] == 2 and filled[2, 2, 0] == 2
+    assert np.count_nonzero(filled) == 9
+    rng = np.random.default_rng(7)
+    sparse = (rng.random((8, 7, 6)) < 0.55).astype(np.int16) * rng.integers(1, 3, size=(8, 7, 6)).astype(np.int16)
+    filled = fill_non_manifold(sparse)
+    assert len(non_manifold_voxels(filled)) == 0
+    assert np.all(filled[sparse > 0] == sparse[sparse > 0])  # nothing occupied changed
+    assert set(np.unique(filled[(sparse == 0) & (filled > 0)])) <= {1, 2}
+    HexMesh.from_mask(filled, 0.01, components="largest")
