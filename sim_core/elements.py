@@ -95,7 +95,8 @@ def element_block_positions(pattern, elements: np.ndarray) -> np.ndarray:
     """(M, n, n, 3, 3) positions in ``pattern``'s (``sparse.BlockPattern``) data of every element's
     node-pair blocks."""
     n = elements.shape[1]
-    return pattern.block_positions(np.repeat(elements[:, :, None], n, axis=2), np.repeat(elements[:, None, :], n, axis=1))
+    return pattern.block_positions(np.repeat(elements[:, :, None], n, axis=2),
+                                   np.repeat(elements[:, None, :], n, axis=1))
 
 
 def element_blocks(matrices: np.ndarray, n: int) -> np.ndarray:

@@ -142,7 +142,8 @@ class ModelStack:
 
             def last(array):
                 array = np.asarray(array, dtype=float)
-                return np.ascontiguousarray(np.moveaxis(array.reshape((count, -1) + array.shape[1:]), 0, -1))
+                return np.ascontiguousarray(np.moveaxis(array.reshape((count, len(array) // count) + array.shape[1:]),
+                                                        0, -1))
 
             arrays = {name: last(getattr(model, name)) for name in
                       ("stiffness", "damping", "mass", "correction_matrix", "axis_rest_length")}
