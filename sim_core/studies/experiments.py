@@ -389,7 +389,9 @@ def settle(model, control: Control, positions, *, amplitude: float = 0.02, dt: f
     _, vectors = spla.eigsh(0.5 * (stiffness + stiffness.T), k=1, which="SA", tol=1e-6, maxiter=50 * len(free))
     mode = vectors[:, 0] / np.abs(vectors[:, 0]).max()
     start = np.array(positions, dtype=float)
-    start.ravel()[free] += amplitude * float(model.axis_rest_length.min()) * mode
+    # the smallest element edge: the mean edge lengths per axis of hexahedra, the springs of tetrahedra
+    edge = model.axis_rest_length.min() if model.axis_rest_length.size else model.rest_length.min()
+    start.ravel()[free] += amplitude * float(edge) * mode
     state, scratch = State(start, np.zeros_like(start)), State(start.copy(), np.zeros_like(start))
     integrator = ImplicitEuler()
     limit = rest_speed * float(np.sqrt(np.max(model.young_modulus / model.density)))
