@@ -562,6 +562,9 @@ def _build_tet_model(mesh: TetMesh, material: Material, *, model, corrections, v
 def hourglass_projectors(nodes: np.ndarray, elements: np.ndarray) -> np.ndarray:
     """(M, 8, 8) orthogonal projectors on each element's hourglass space: the nodal fields
     orthogonal to 1, X, Y, Z of its rest corners (4-dimensional for any valid hexahedron)."""
+    if elements.shape[1] != 8:
+        raise ValueError(f"hourglass projectors need (M, 8) hexahedra, got elements of shape {elements.shape}: "
+                         "a linear tetrahedron's displacements are all affine (it has no hourglass space)")
     corners = nodes[elements]  # (M, 8, 3)
     affine = np.concatenate([np.ones((len(elements), 8, 1)), corners - corners.mean(axis=1, keepdims=True)], axis=2)
     q, _ = np.linalg.qr(affine)  # (M, 8, 4) orthonormal basis of the affine fields

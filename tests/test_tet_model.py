@@ -13,13 +13,13 @@ from skfem.models.elasticity import linear_elasticity
 
 from sim_core import HexMesh, Material, State, TetMesh, build_model, solve_static
 from sim_core.fem import LinearFEM
-from sim_core.forces import internal_forces
+from sim_core.forces import internal_forces, stiffness_data
 from sim_core.hyperelastic import NeoHookeanFEM
 from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step
 from sim_core.model import Control
 from sim_core.batched import BatchedImplicitEuler
 from sim_core.stack import ModelStack
-from sim_core.static import tangent_stiffness
+from sim_core.static import tangent_stiffness, zero_energy_modes
 from sim_core.studies import experiments
 
 E, RHO = 1e4, 1000.0
@@ -303,3 +303,23 @@ def test_dynamics_settle_on_the_static_equilibrium(name):
         single.simulate(model, states[0], states[1], dt, control)
         states = states[::-1]
     assert np.abs(state.positions - states[0].positions[None]).max() < 1e-9 * sag
+
+
+@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("nu", [0.0, 0.3, 0.49])
+def test_springs_never_exceed_the_element_and_a_free_block_has_only_rigid_modes(name, nu):
+    """At rest the springs' stiffness is bounded by the element's (K - K_springs positive
+    semi-definite, to 1e-9 of the largest eigenvalue), so the implicit step's positive part leaves
+    the correction's stiffness as it is (to 1e-12); a free 2x2x2 block of tetrahedra has exactly its 6 rigid
+    zero-energy modes."""
+    mesh = TetMesh.block((2, 1, 1), 0.01)
+    material = Material(E, nu, RHO)
+    model = build_model(mesh, material, model=name)
+    full = stiffness_data(model, mesh.nodes)
+    assert np.abs(stiffness_data(model, mesh.nodes, clamp=True) - full).max() < 1e-12 * np.abs(full).max()
+    springs = model.pattern.matrix(stiffness_data(build_model(mesh, material, model=name, corrections=False),
+                                                  mesh.nodes)).toarray()
+    difference = np.linalg.eigvalsh(model.pattern.matrix(full).toarray() - springs)
+    assert difference.min() > -1e-9 * difference.max()
+    count, _, _ = zero_energy_modes(build_model(TetMesh.block((2, 2, 2), 0.01), material, model=name))
+    assert count == 6
