@@ -1,4 +1,5 @@
-"""sim_core: Baudet's parametrised hexahedral mass-spring system and its finite-element reference.
+"""sim_core: Baudet's parametrised mass-spring system (hexahedra, or tetrahedra with ``TetMesh``) and its
+finite-element references.
 
 Quick start::
 
@@ -15,6 +16,7 @@ from importlib import metadata as _metadata
 
 from .material import Material
 from .mesh import HexMesh
+from .tetmesh import TetMesh
 from .model import Control, Model, State, build_model
 from .static import StaticResult, solve_static, zero_energy_modes
 
@@ -28,5 +30,5 @@ except _metadata.PackageNotFoundError:  # a clone on sys.path, not installed
 
 __all__ = [
     "__version__", "Control", "HexMesh", "Material", "Model", "State", "StaticResult", "build_model",
-    "solve_static", "zero_energy_modes",
+    "solve_static", "TetMesh", "zero_energy_modes",
 ]

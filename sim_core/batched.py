@@ -233,9 +233,12 @@ def _edge_incidence(model: Model):
     """(node_edge, node_sign) (M, 8, 3) for ``kernels.operator_matrix_data_blocks``: the spring of each
     element's axis group g (edges 4 g .. 4 g + 3 of ``edge_spring``) through its local node k, and
     +1 where k is the spring's first node, -1 where it is its second; empty (0, 8, 3) arrays where
-    a node is not on exactly one edge of each group (then ``operator_matrix_data`` assembles)."""
+    a node is not on exactly one edge of each group (then ``operator_matrix_data`` assembles), and for
+    tetrahedra (no axis groups, no corrections' coupling)."""
     elements, springs, edge_spring = model.mesh.elements, model.springs, model.edge_spring
     count = len(elements)
+    if elements.shape[1] != 8:
+        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
     node_edge = np.full((count, 8, 3), -1, dtype=np.int64)
     node_sign = np.zeros((count, 8, 3))
     rows = np.arange(count)

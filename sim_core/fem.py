@@ -1,7 +1,8 @@
-"""Linear-elastic trilinear hexahedral finite elements on the same nodes: the accuracy reference.
+"""Linear-elastic finite elements on the same nodes: the accuracy reference ("fem-linear").
 
-Element matrices from ``sim_core.elements`` (full 2x2x2 Gauss integration, isotropic Hooke law per
-element, small-displacement theory). The global matrix reuses the mass-spring model's fixed
+Trilinear hexahedra (``HexMesh``) or linear tetrahedra (``TetMesh``); element matrices from
+``sim_core.elements`` (hexahedra: full 2x2x2 Gauss integration; tetrahedra: exact one-point),
+isotropic Hooke law per element, small-displacement theory. The global matrix reuses the mass-spring model's fixed
 sparsity pattern (``BlockPattern``).
 """
 
@@ -12,39 +13,40 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .elements import element_stiffness
+from .elements import element_block_positions, element_blocks, element_stiffness
 from .material import Material
 from .mesh import HexMesh
+from .tetmesh import TetMesh
 from .model import Control
 from .sparse import BlockPattern
 
 
 @dataclass
 class LinearFEM:
-    """Linear-elastic FEM model of a hex mesh (K assembled once, factorised per constraint set)."""
+    """Linear-elastic FEM model of a hexahedral or tetrahedral mesh (K assembled once, factorised per
+    constraint set)."""
 
-    mesh: HexMesh
+    mesh: HexMesh | TetMesh
     material: Material
 
     def __post_init__(self):
         props = self.material.per_element(self.mesh.n_elements)
         self.pattern = BlockPattern(self.mesh.n_nodes, self.mesh.elements)
         elements = self.mesh.elements
-        positions = self.pattern.block_positions(
-            np.repeat(elements[:, :, None], 8, axis=2), np.repeat(elements[:, None, :], 8, axis=1)
-        )
+        n = elements.shape[1]
+        positions = element_block_positions(self.pattern, elements)
         ke = element_stiffness(self.mesh.nodes, elements, props["young_modulus"], props["poisson_ratio"])
-        blocks = ke.reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
-        self.stiffness = self.pattern.matrix(self.pattern.assemble(positions, blocks))
+        self.stiffness = self.pattern.matrix(self.pattern.assemble(positions, element_blocks(ke, n)))
         volume = self.mesh.element_volumes()
-        self.mass = np.bincount(elements.ravel(), weights=np.repeat(props["density"] * volume / 8, 8),
+        self.mass = np.bincount(elements.ravel(), weights=np.repeat(props["density"] * volume / n, n),
                                 minlength=self.mesh.n_nodes)
 
     def solve(self, control: Control, gravity=(0.0, 0.0, 0.0)):
         """Static linear solution. Returns (positions (N, 3) m, reaction (N, 3) N).
 
-        Loads: the control's nodal forces plus gravity on the lumped masses (for trilinear
-        elements this equals the consistent body load of a uniform field).
+        Loads: the control's nodal forces plus gravity on the lumped masses rho V / n (for
+        trilinear hexahedra and linear tetrahedra this equals the consistent body load of a
+        uniform field).
         """
         nodes = self.mesh.nodes
         load = (control.force + self.mass[:, None] * np.asarray(gravity, dtype=float)[None, :]).ravel()

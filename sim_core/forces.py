@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import kernels
+from .elements import element_blocks
 from .mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS, hex_jacobians
 from .model import Model
 from . import stress_correction as _stress
@@ -177,7 +178,7 @@ class ForceWorkspace:
         # filled by a ``compute`` with ``geometric``; empty for the other models
         correction = model.stress_correction
         stressed = correction is not None and implicit
-        self.stress_gradient = correction.mean_gradient if stressed else np.zeros((0, 8, 3))
+        self.stress_gradient = correction.mean_gradient if stressed else np.zeros((0, model.mesh.elements.shape[1], 3))
         self.stress_tangent = np.zeros((n_elements if stressed else 0, 9, 9))
         #: elements whose correction stiffness the last ``compute`` clamped to its positive part
         self.clamped_elements = 0
@@ -223,8 +224,8 @@ class ForceWorkspace:
             self.clamped_elements = kernels.stress_correction_tangent_add(
                 positions, self.model.mesh.elements, correction.mean_gradient, correction.volume,
                 correction.shear_modulus, correction.lame, correction.spring_vector, correction.spring_length,
-                correction.spring_stiffness, correction.metric_root, correction.metric_root_inverse, not exact,
-                self.forces, self.stress_tangent)
+                correction.spring_stiffness, correction.linear, correction.metric_root, correction.metric_root_inverse,
+                not exact, self.forces, self.stress_tangent)
         else:
             add_stress_correction(self.model, positions, self.forces)
 
@@ -244,7 +245,7 @@ def add_stress_correction(model: Model, positions: np.ndarray, forces: np.ndarra
     if correction is not None:
         kernels.stress_correction_add(positions, model.mesh.elements, correction.mean_gradient, correction.volume,
                                       correction.shear_modulus, correction.lame, correction.spring_vector,
-                                      correction.spring_length, correction.spring_stiffness, forces)
+                                      correction.spring_length, correction.spring_stiffness, correction.linear, forces)
     return forces
 
 
@@ -334,13 +335,12 @@ def spring_block_data(model: Model, blocks: np.ndarray) -> np.ndarray:
 
 
 def element_block_data(model: Model, matrices: np.ndarray) -> np.ndarray:
-    """Assemble (M, 24, 24) element matrices (node-major dofs) into the pattern."""
-    blocks = matrices.reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
-    return model.pattern.assemble(model.element_positions, blocks)
+    """Assemble (M, 3n, 3n) element matrices (node-major dofs, n nodes per element) into the pattern."""
+    return model.pattern.assemble(model.element_positions, element_blocks(matrices, model.mesh.elements.shape[1]))
 
 
 def stress_tangent_blocks(model: Model, positions: np.ndarray, clamp: bool = False) -> np.ndarray:
-    """(M, 24, 24) V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m: the stress correction's exact
+    """(M, 3n, 3n) V0 b (x) (A(F) - A_S(F)) (x) b in N/m: the stress correction's exact
     stiffness [11] (symmetric: the correction is the gradient of an energy); ``clamp``: each
     block's positive part, the implicit step's treatment (``stress_correction.tangent_matrices``)."""
     return _stress.tangent_blocks(model.stress_correction, model.mesh.elements, np.asarray(positions, dtype=float),

@@ -1,7 +1,8 @@
 """Compressible neo-Hookean finite elements: the large-deformation reference ("fem-neohookean").
 
-Total-Lagrangian formulation on the same trilinear hexahedra as ``fem.LinearFEM`` (2x2x2 Gauss
-points, derivatives taken in the rest configuration), with the strain-energy density
+Total-Lagrangian formulation on the same elements as ``fem.LinearFEM`` (trilinear hexahedra at
+2x2x2 Gauss points, or linear tetrahedra at their one exact point; derivatives taken in the rest
+configuration), with the strain-energy density
 (Bonet & Wood, *Nonlinear Continuum Mechanics for Finite Element Analysis*, 2nd ed., eq. 6.28)
 
     W(F) = mu/2 (I1 - 3) - mu ln J + lambda/2 (ln J)^2,    I1 = tr(F^T F),  J = det F,
@@ -27,10 +28,12 @@ import scipy.sparse.linalg as spla
 
 from .laws import first_piola_stress, lame_parameters, material_tangent, strain_energy_density  # noqa: F401
 from .material import Material
-from .mesh import GAUSS_GRADIENTS, HexMesh
+from .elements import element_block_positions, element_blocks, quadrature
+from .mesh import HexMesh
 from .model import Control
 from .sparse import BlockPattern
 from .static import ramp_load
+from .tetmesh import TetMesh
 
 
 # -- the finite-element model ------------------------------------------------------------------
@@ -58,37 +61,30 @@ class NeoHookeanResult:
 
 
 class NeoHookeanFEM:
-    """Total-Lagrangian neo-Hookean FEM of a hex mesh (module docstring for the law).
+    """Total-Lagrangian neo-Hookean FEM of a hexahedral or tetrahedral mesh (module docstring for the law).
 
     Args:
-        mesh: ``HexMesh`` of trilinear hexahedra (rest positions in m).
+        mesh: ``HexMesh`` of trilinear hexahedra or ``TetMesh`` of linear tetrahedra (rest positions in m).
         material: ``Material`` (E in Pa, nu, rho in kg/m^3; scalars or one value per element).
 
-    Lumped masses are rho V / 8 per element node (docs/physics.md section 5), so gravity on them equals
-    the consistent body load of the trilinear elements.
+    Lumped masses are rho V / n per element node (n = 8 or 4; docs/physics.md section 5), so gravity
+    on them equals the consistent body load of the elements.
     """
 
-    def __init__(self, mesh: HexMesh, material: Material):
+    def __init__(self, mesh: HexMesh | TetMesh, material: Material):
         self.mesh = mesh
         self.material = material
         props = material.per_element(mesh.n_elements)
         self.mu, self.lam = lame_parameters(props["young_modulus"], props["poisson_ratio"])
         elements = mesh.elements
-        corners = mesh.nodes[elements]  # (M, 8, 3)
-        jacobian = np.einsum("mna,pnb->mpab", corners, GAUSS_GRADIENTS)  # dX/dxi
-        det = np.linalg.det(jacobian)
-        if np.any(det <= 0):
-            raise ValueError("inverted or degenerate element: non-positive Jacobian at a Gauss point")
-        #: (M, P, 8, 3) shape-function gradients dN/dX at the Gauss points, 1/m.
-        self.gradients = np.einsum("pnb,mpba->mpna", GAUSS_GRADIENTS, np.linalg.inv(jacobian))
-        #: (M, P) Gauss weights times rest Jacobian determinant: the rest volume per point, m^3.
-        self.weights = det / GAUSS_GRADIENTS.shape[0]
+        #: (M, P, n, 3) shape-function gradients dN/dX at the integration points, 1/m, and
+        #: (M, P) their weights times the rest Jacobian determinant: the rest volume per point, m^3.
+        self.gradients, self.weights = quadrature(mesh.nodes, elements)
         self.pattern = BlockPattern(mesh.n_nodes, elements)
-        self._element_positions = self.pattern.block_positions(
-            np.repeat(elements[:, :, None], 8, axis=2), np.repeat(elements[:, None, :], 8, axis=1)
-        )
+        self._element_positions = element_block_positions(self.pattern, elements)
         volume = self.weights.sum(axis=1)
-        self.mass = np.bincount(elements.ravel(), weights=np.repeat(props["density"] * volume / 8, 8),
+        n = elements.shape[1]
+        self.mass = np.bincount(elements.ravel(), weights=np.repeat(props["density"] * volume / n, n),
                                 minlength=mesh.n_nodes)
 
     # -- kinematics and element quantities -----------------------------------------------------
@@ -115,22 +111,23 @@ class NeoHookeanFEM:
         return forces
 
     def element_tangents(self, positions: np.ndarray) -> np.ndarray:
-        """(M, 24, 24) consistent tangents d(f_e)/d(x_e) in N/m (node-major dofs)."""
+        """(M, 3n, 3n) consistent tangents d(f_e)/d(x_e) in N/m (node-major dofs, n nodes per element)."""
         # K[m, (n a), (k c)] = sum_p w_mp sum_BD G[m,p,n,B] A[m,p,a,B,c,D] G[m,p,k,D], contracted
         # by two batched matmuls (BLAS: much faster than the equivalent einsum on large meshes).
         mu, lam = self._point_parameters()
         tangent = material_tangent(self.deformation_gradients(positions), mu, lam)  # (M, P, 3,3,3,3)
         tangent = tangent * self.weights[..., None, None, None, None]
         m, p = self.weights.shape
-        gradients = self.gradients  # (M, P, 8, 3): dN_n / dX_B
+        gradients = self.gradients  # (M, P, n, 3): dN_n / dX_B
+        n = gradients.shape[2]
         t = np.matmul(gradients, tangent.transpose(0, 1, 3, 2, 4, 5).reshape(m, p, 3, 27))  # (m, p, n, (a c D))
-        t = t.reshape(m, p, 8, 3, 3, 3).transpose(0, 2, 3, 4, 1, 5).reshape(m, 72, 3 * p)  # (n a c), (p D)
-        k = np.matmul(t, gradients.transpose(0, 1, 3, 2).reshape(m, 3 * p, 8))  # (m, (n a c), k)
-        return k.reshape(m, 8, 3, 3, 8).transpose(0, 1, 2, 4, 3).reshape(m, 24, 24)
+        t = t.reshape(m, p, n, 3, 3, 3).transpose(0, 2, 3, 4, 1, 5).reshape(m, 9 * n, 3 * p)  # (n a c), (p D)
+        k = np.matmul(t, gradients.transpose(0, 1, 3, 2).reshape(m, 3 * p, n))  # (m, (n a c), k)
+        return k.reshape(m, n, 3, 3, n).transpose(0, 1, 2, 4, 3).reshape(m, 3 * n, 3 * n)
 
     def tangent_stiffness(self, positions: np.ndarray):
         """(3N, 3N) CSR consistent tangent K = d(internal_forces)/dx in N/m (symmetric)."""
-        blocks = self.element_tangents(positions).reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
+        blocks = element_blocks(self.element_tangents(positions), self.mesh.elements.shape[1])
         return self.pattern.matrix(self.pattern.assemble(self._element_positions, blocks))
 
     def min_jacobian(self, positions: np.ndarray) -> float:
@@ -154,7 +151,7 @@ class NeoHookeanFEM:
         Args:
             control: ``fixed`` (N, 3) bool, ``target`` (N, 3) m imposed positions, ``force``
                 (N, 3) N nodal forces.
-            gravity: (3,) acceleration in m/s^2 acting on the lumped masses rho V / 8.
+            gravity: (3,) acceleration in m/s^2 acting on the lumped masses rho V / n.
             tolerance: relative force residual to reach (see ``NeoHookeanResult.residual``).
             max_iterations: Newton iterations per increment before it is halved.
             load_steps: initial number of increments.

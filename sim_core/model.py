@@ -1,4 +1,4 @@
-"""Build an immutable Baudet mass-spring model from a hexahedral mesh and a material.
+"""Build an immutable Baudet mass-spring model from a hexahedral or tetrahedral mesh and a material.
 
 Model / State / Control follow Warp's split: the ``Model`` never changes
 during a run, a ``State`` is what an integrator steps, a ``Control`` is what the user imposes.
@@ -15,16 +15,19 @@ import numpy as np
 import scipy.sparse as sp
 
 from ._validate import finite_array
-from .elements import element_stiffness
+from .elements import element_block_positions, element_blocks, element_stiffness
 from .laws import baudet_stiffness, lame_parameters
 from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
 from .stress_correction import (SPRING_CHOICES, StressCorrection, element_spring_pairs, element_spring_stiffness,
-                                mean_gradients, merge_parallel_springs)
+                                mean_gradients, merge_parallel_springs, tetrahedron_spring_stiffness)
+from .tetmesh import TET_EDGES, TetMesh
 
 #: Mass-spring model names accepted by ``build_model``.
 MSS_MODELS = ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic")
+#: The mass-spring models a ``TetMesh`` takes (docs/physics.md section 12).
+TET_MODELS = ("baudet", "baudet-hyperelastic")
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,15 +35,17 @@ class Model:
     """Everything that stays fixed during a simulation (build with ``build_model``).
 
     Attributes (S springs, M elements, N nodes):
-        mesh: the ``HexMesh``; ``rest_positions`` (N, 3) m.
+        mesh: the ``HexMesh`` or ``TetMesh``; ``rest_positions`` (N, 3) m.
         name: physics variant ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic").
         mass: (N,) lumped node masses in kg [5].
         springs: (S, 2) node pairs, each shared spring merged once.
         rest_length: (S,) m.  stiffness: (S,) N/m (sum over the elements sharing it) [2].
         damping: (S,) N s/m, ``damping_ratio * 2 sqrt(mu k)`` with mu the reduced mass
             m_a m_b / (m_a + m_b) of the spring's two nodes (critical damping of that pair) [5].
-        edge_spring: (M, 12) the spring of each element edge (EDGES order).
-        axis_rest_length: (M, 3) mean rest length of the element's x-, y-, z-edges, m.
+        edge_spring: (M, 12) the spring of each element edge (EDGES order); tetrahedra: (M, 6)
+            (``tetmesh.TET_EDGES`` order).
+        axis_rest_length: (M, 3) mean rest length of the element's x-, y-, z-edges, m (tetrahedra,
+            which have no axes: (M, 0)).
         correction_matrix: (M, 3, 3) W with T_j = sum_m W_jm eps_m, the push (N) applied along
             each of the element's four j-edges by the correction forces [3].
         correction_mode: "projected" (along current edges), "fixed" (rest directions), or None.
@@ -50,10 +55,11 @@ class Model:
         hourglass: (3N, 3N) constant CSR stiffness K_hg (N/m) of the hourglass control, or None;
             it adds f = -K_hg (x - X), which vanishes for every affine displacement [6].
         stress_correction: the per-element arrays of the finite-strain stress correction
-            (``stress_correction.StressCorrection``) of "baudet-hyperelastic" [11], or None.
+            (``stress_correction.StressCorrection``) of "baudet-hyperelastic" [11] and of both
+            tetrahedral models [12], or None.
     """
 
-    mesh: HexMesh
+    mesh: HexMesh | TetMesh
     name: str
     mass: np.ndarray
     springs: np.ndarray
@@ -94,9 +100,7 @@ class Model:
             [pattern.block_positions(a, a), pattern.block_positions(b, b),
              pattern.block_positions(a, b), pattern.block_positions(b, a)], axis=1
         )
-        element_positions = pattern.block_positions(
-            np.repeat(elements[:, :, None], 8, axis=2), np.repeat(elements[:, None, :], 8, axis=1)
-        )
+        element_positions = element_block_positions(pattern, elements)
         mass_data = pattern.assemble(
             pattern.diagonal_positions, np.repeat(self.mass, 3)
         )
@@ -258,7 +262,8 @@ class Control:
 
 
 def _edge_directions(positions, elements):
-    vectors = positions[elements[:, EDGES[:, 1]]] - positions[elements[:, EDGES[:, 0]]]
+    edges = TET_EDGES if elements.shape[1] == 4 else EDGES
+    vectors = positions[elements[:, edges[:, 1]]] - positions[elements[:, edges[:, 0]]]
     return vectors / np.linalg.norm(vectors, axis=2, keepdims=True)
 
 
@@ -303,7 +308,7 @@ def correction_matrix(axis_lengths, young_modulus, poisson_ratio, *, stress_base
 
 # -- builder -------------------------------------------------------------------------------------
 def build_model(
-    mesh: HexMesh,
+    mesh: HexMesh | TetMesh,
     material: Material,
     *,
     model: str = "baudet",
@@ -319,7 +324,13 @@ def build_model(
     """Build a mass-spring ``Model`` once from geometry and material.
 
     Args:
-        mesh: hexahedral mesh (rest positions in m).
+        mesh: hexahedral (``HexMesh``) or tetrahedral (``TetMesh``) mesh, rest positions in m. A
+            ``TetMesh`` takes ``TET_MODELS`` [12]: "baudet" (each tetrahedron's 6 edge springs and
+            a stress correction on its exact deformation gradient to the small-strain Hooke
+            stress: linear elasticity at small strain, exact for every element shape and nu) and
+            "baudet-hyperelastic" (the same to the neo-Hookean stress, at every strain); neither
+            takes volume forces, hourglass control (a linear tetrahedron has no hourglass modes)
+            or ``springs``.
         material: ``Material`` (scalars or one value per element).
         model: "baudet" (stress-based corrections projected on the deformed edges, volume
             forces), "baudet-original" (the report's corrections as published: half size,
@@ -347,6 +358,13 @@ def build_model(
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
+    if isinstance(mesh, TetMesh):
+        return _build_tet_model(mesh, material, model=model, corrections=corrections,
+                                volume_conservation=volume_conservation, volume_stiffness=volume_stiffness,
+                                nu_factor=nu_factor, damping_ratio=damping_ratio, gravity=gravity,
+                                hourglass_control=hourglass_control, springs=springs)
+    if not isinstance(mesh, HexMesh):
+        raise ValueError(f"mesh must be a HexMesh or a TetMesh, got {type(mesh).__name__}")
     damping_ratio = float(finite_array("damping_ratio", damping_ratio))
     if damping_ratio < 0:
         raise ValueError(f"damping_ratio must be >= 0, got {damping_ratio}")
@@ -421,13 +439,8 @@ def build_model(
     edge_spring = inverse.reshape(n_elements, len(local_pairs))[:, :12].copy()
     rest_length = np.linalg.norm(nodes[springs[:, 1]] - nodes[springs[:, 0]], axis=1)
 
-    # Lumped masses [5]: rho V / 8 to each node of each element.
     rest_volume = mesh.element_volumes()
-    mass = np.bincount(
-        elements.ravel(), weights=np.repeat(density * rest_volume / 8.0, 8), minlength=mesh.n_nodes
-    )
-    reduced_mass = mass[springs[:, 0]] * mass[springs[:, 1]] / (mass[springs[:, 0]] + mass[springs[:, 1]])
-    damping = damping_ratio * 2.0 * np.sqrt(reduced_mass * np.abs(stiffness))
+    mass, damping = _masses_and_damping(mesh, density, rest_volume, springs, stiffness, damping_ratio)
 
     # Corrections [3].
     correction_mode = None
@@ -476,9 +489,82 @@ def build_model(
     )
 
 
+def _masses_and_damping(mesh, density, rest_volume, springs, stiffness, damping_ratio):
+    """Lumped masses (N,) kg, rho V / n to each of an element's n nodes, and spring damping (S,)
+    N s/m, ``damping_ratio`` times the critical 2 sqrt(mu k) of each spring's two nodes [5]."""
+    n = mesh.elements.shape[1]
+    mass = np.bincount(
+        mesh.elements.ravel(), weights=np.repeat(density * rest_volume / n, n), minlength=mesh.n_nodes
+    )
+    reduced_mass = mass[springs[:, 0]] * mass[springs[:, 1]] / (mass[springs[:, 0]] + mass[springs[:, 1]])
+    damping = damping_ratio * 2.0 * np.sqrt(reduced_mass * np.abs(stiffness))
+    return mass, damping
+
+
+def _build_tet_model(mesh: TetMesh, material: Material, *, model, corrections, volume_conservation, volume_stiffness,
+                     nu_factor, damping_ratio, gravity, hourglass_control, springs) -> Model:
+    """``build_model`` of a ``TetMesh`` (docs/physics.md section 12): per tetrahedron its 6 edge springs
+    (``stress_correction.tetrahedron_spring_stiffness``) merged across elements, and the stress
+    correction f_a = -V0 (P(F) - P_S(F)) b_a on its exact (constant) deformation gradient, P the
+    small-strain Hooke stress ("baudet") or the neo-Hookean one ("baudet-hyperelastic")."""
+    if model not in TET_MODELS:
+        raise ValueError(f"model={model!r} needs hexahedra (its springs and corrections are written for a hexahedron's "
+                         f"axes); a TetMesh takes model in {TET_MODELS}")
+    refused = [(hourglass_control != 0, f"hourglass_control={hourglass_control!r} (a linear tetrahedron has no "
+                                        "hourglass modes: leave it 0)"),
+               (bool(volume_conservation), "volume_conservation=True (the stress correction carries the whole "
+                                           "volumetric stiffness: leave it unset)"),
+               (volume_stiffness != 1.0, f"volume_stiffness={volume_stiffness!r} (no volume forces on tetrahedra)"),
+               (bool(nu_factor), "nu_factor=True (a 'baudet-original' option)"),
+               (springs != "faces", f"springs={springs!r} (a tetrahedron's springs are its 6 edges)")]
+    for bad, what in refused:
+        if bad:
+            raise ValueError(f"{what} does not apply to a TetMesh (model={model!r})")
+    damping_ratio = float(finite_array("damping_ratio", damping_ratio))
+    if damping_ratio < 0:
+        raise ValueError(f"damping_ratio must be >= 0, got {damping_ratio}")
+    gravity = finite_array("gravity", gravity, shape=(3,))
+    elements, nodes, n_elements = mesh.elements, mesh.nodes, mesh.n_elements
+    props = material.per_element(n_elements)
+    young_modulus, poisson_ratio, density = props["young_modulus"], props["poisson_ratio"], props["density"]
+
+    values = tetrahedron_spring_stiffness(nodes, elements, young_modulus, poisson_ratio)  # (M, 6)
+    pairs = np.sort(elements[:, TET_EDGES].reshape(-1, 2), axis=1)
+    spring_pairs, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(spring_pairs))
+    rest_length = np.linalg.norm(nodes[spring_pairs[:, 1]] - nodes[spring_pairs[:, 0]], axis=1)
+    rest_volume = mesh.element_volumes()
+    mass, damping = _masses_and_damping(mesh, density, rest_volume, spring_pairs, stiffness, damping_ratio)
+
+    stress_correction = None
+    if corrections:
+        gradient, volume = mean_gradients(nodes, elements)
+        vectors = nodes[elements[:, TET_EDGES[:, 1]]] - nodes[elements[:, TET_EDGES[:, 0]]]
+        shear, lame = lame_parameters(young_modulus, poisson_ratio)
+        stress_correction = StressCorrection(
+            mean_gradient=np.ascontiguousarray(gradient), volume=volume, spring_vector=np.ascontiguousarray(vectors),
+            spring_length=np.linalg.norm(vectors, axis=2), spring_stiffness=np.ascontiguousarray(values),
+            shear_modulus=np.asarray(shear, float), lame=np.asarray(lame, float),
+            law="neo-hookean" if model == "baudet-hyperelastic" else "linear")
+    return Model(
+        mesh=mesh, name=model, hourglass=None, mass=mass, springs=spring_pairs, rest_length=rest_length,
+        stiffness=stiffness, damping=damping, edge_spring=inverse.reshape(n_elements, 6).copy(),
+        axis_rest_length=np.zeros((n_elements, 0)), correction_matrix=np.zeros((n_elements, 3, 3)),
+        correction_mode=None, rest_volume=rest_volume, volume_stiffness=np.zeros(n_elements), gravity=gravity,
+        young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
+        options=dict(corrections=corrections, volume_conservation=False, volume_stiffness=1.0, nu_factor=False,
+                     damping_ratio=damping_ratio, hourglass_control=0.0),
+        stress_correction=stress_correction,
+    )
+
+
 def hourglass_projectors(nodes: np.ndarray, elements: np.ndarray) -> np.ndarray:
     """(M, 8, 8) orthogonal projectors on each element's hourglass space: the nodal fields
     orthogonal to 1, X, Y, Z of its rest corners (4-dimensional for any valid hexahedron)."""
+    if elements.shape[1] != 8:
+        raise ValueError(f"hourglass projectors need (M, 8) hexahedra, got elements of shape {elements.shape}: "
+                         "a linear tetrahedron's displacements are all affine (it has no hourglass space)")
     corners = nodes[elements]  # (M, 8, 3)
     affine = np.concatenate([np.ones((len(elements), 8, 1)), corners - corners.mean(axis=1, keepdims=True)], axis=2)
     q, _ = np.linalg.qr(affine)  # (M, 8, 4) orthonormal basis of the affine fields
@@ -492,9 +578,5 @@ def hourglass_matrix(mesh: HexMesh, young_modulus, poisson_ratio, alpha: float) 
     stiffness = element_stiffness(mesh.nodes, mesh.elements, young_modulus, poisson_ratio)
     matrices = alpha * full @ stiffness @ full
     pattern = BlockPattern(mesh.n_nodes, mesh.elements)
-    elements = mesh.elements
-    positions = pattern.block_positions(
-        np.repeat(elements[:, :, None], 8, axis=2), np.repeat(elements[:, None, :], 8, axis=1)
-    )
-    blocks = matrices.reshape(-1, 8, 3, 8, 3).transpose(0, 1, 3, 2, 4)
-    return pattern.matrix(pattern.assemble(positions, blocks))
+    positions = element_block_positions(pattern, mesh.elements)
+    return pattern.matrix(pattern.assemble(positions, element_blocks(matrices, 8)))

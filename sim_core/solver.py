@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
-from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN
+from .elements import corner_frames
 from .model import Control, Model, State
 
 
@@ -160,6 +160,7 @@ class DivergenceMonitors:
         #: the copies on numba's threads when ``kernels.threaded(threads)``
         self.threads = int(threads)
         self.elements = np.ascontiguousarray(elements, dtype=np.int64)
+        self.frames = corner_frames(self.elements)  # the inversion check's corner frames
         self.max_speed = np.zeros(count)
         #: an oscillation counts above this RMS node speed, m/s (oscillation_floor x the wave speed)
         self.floor_speed = np.zeros(count)
@@ -208,8 +209,8 @@ class DivergenceMonitors:
         speed = np.zeros(self.count)
         kernel = kernels.variant(kernels.health_copies, self.threads)
         kernel(positions, velocities, rows, self.low, self.high, self.max_speed, self.floor_speed,
-               self.oscillation_steps, self.previous, self.has_previous, self.growing, due, CORNER_NEIGHBOURS,
-               CORNER_SIGN, self.elements, status, speed)
+               self.oscillation_steps, self.previous, self.has_previous, self.growing, due, *self.frames,
+               self.elements, status, speed)
         reasons = np.full(self.count, None, dtype=object)
         for index in np.flatnonzero(status):
             kind = status[index]

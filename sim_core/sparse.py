@@ -28,14 +28,16 @@ class BlockPattern:
 
     Args:
         n_nodes: number of nodes N.
-        elements: (M, 8) node indices; every pair of nodes within an element is coupled.
+        elements: (M, n) node indices (n = 8 hexahedra, 4 tetrahedra); every pair of nodes within an
+            element is coupled.
     """
 
     def __init__(self, n_nodes: int, elements: np.ndarray):
         self.n_nodes = n_nodes
         self.n_dofs = 3 * n_nodes
+        n = elements.shape[1]
         pairs = np.stack(
-            [np.repeat(elements, 8, axis=1).ravel(), np.tile(elements, (1, 8)).ravel()], axis=1
+            [np.repeat(elements, n, axis=1).ravel(), np.tile(elements, (1, n)).ravel()], axis=1
         )
         pairs = np.unique(pairs, axis=0)
         rows = (3 * pairs[:, 0, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)

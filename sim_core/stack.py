@@ -6,7 +6,6 @@ force pass over the stacked model, world by world on numba's threads. SI units."
 
 from __future__ import annotations
 
-import dataclasses
 
 import numba
 import numpy as np
@@ -14,10 +13,9 @@ import scipy.sparse as sp
 
 from . import kernels
 from .forces import ForceWorkspace, hourglass_block_map
-from .mesh import HexMesh
 from .model import Model
 from .preconditioners import digest
-from .stress_correction import StressCorrection
+from .stress_correction import ARRAY_FIELDS, StressCorrection
 
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
@@ -26,7 +24,7 @@ VALUE_FIELDS = ("mass", "rest_length", "stiffness", "damping", "axis_rest_length
                 "rest_volume", "volume_stiffness", "young_modulus", "poisson_ratio", "density")
 #: The per-element arrays of "baudet-hyperelastic"'s stress correction (``StressCorrection``), stacked
 #: and assigned as the VALUE_FIELDS (each copy its own material: shear_modulus, lame, spring_stiffness).
-STRESS_FIELDS = tuple(field.name for field in dataclasses.fields(StressCorrection))
+STRESS_FIELDS = ARRAY_FIELDS
 
 class StackedModel(Model):
     """The model of a ``ModelStack``'s N worlds. Unlike any other ``Model`` its per-world values
@@ -60,9 +58,9 @@ class ModelStack:
         self.reference = model
         nodes = np.tile(model.mesh.nodes, (count, 1))
         offsets = np.arange(count)[:, None, None]
-        elements = (model.mesh.elements[None] + self.n_nodes * offsets).reshape(-1, 8)
+        elements = (model.mesh.elements[None] + self.n_nodes * offsets).reshape(-1, model.mesh.elements.shape[1])
         springs = (model.springs[None] + self.n_nodes * offsets).reshape(-1, 2)
-        edge_spring = (model.edge_spring[None] + self.n_springs * offsets).reshape(-1, 12)
+        edge_spring = (model.edge_spring[None] + self.n_springs * offsets).reshape(-1, model.edge_spring.shape[1])
         hourglass = None
         if model.hourglass is not None:
             single = model.hourglass
@@ -76,9 +74,10 @@ class ModelStack:
         stress = None
         if model.stress_correction is not None:
             stress = StressCorrection(**{name: np.ascontiguousarray(np.concatenate(
-                [getattr(model.stress_correction, name)] * count)) for name in STRESS_FIELDS})
+                [getattr(model.stress_correction, name)] * count)) for name in STRESS_FIELDS},
+                law=model.stress_correction.law)
         self.model = StackedModel(
-            mesh=HexMesh(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
+            mesh=type(model.mesh)(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
             options=dict(model.options), stress_correction=stress, **values,
         )
@@ -96,8 +95,9 @@ class ModelStack:
                 and model.mesh.n_elements == self.n_elements and model.correction_mode == self.reference.correction_mode
                 and (model.hourglass is None) == (self.reference.hourglass is None)
                 and (model.stress_correction is None) == (self.reference.stress_correction is None)
-                and (model.stress_correction is None or model.stress_correction.spring_vector.shape
-                     == self.reference.stress_correction.spring_vector.shape)
+                and (model.stress_correction is None or (model.stress_correction.spring_vector.shape
+                     == self.reference.stress_correction.spring_vector.shape
+                     and model.stress_correction.law == self.reference.stress_correction.law))
                 and np.array_equal(model.springs, self.reference.springs)
                 and np.array_equal(model.mesh.elements, self.reference.mesh.elements))
         if not same:
@@ -142,7 +142,8 @@ class ModelStack:
 
             def last(array):
                 array = np.asarray(array, dtype=float)
-                return np.ascontiguousarray(np.moveaxis(array.reshape((count, -1) + array.shape[1:]), 0, -1))
+                return np.ascontiguousarray(np.moveaxis(array.reshape((count, len(array) // count) + array.shape[1:]),
+                                                        0, -1))
 
             arrays = {name: last(getattr(model, name)) for name in
                       ("stiffness", "damping", "mass", "correction_matrix", "axis_rest_length")}
@@ -251,7 +252,7 @@ class StackedForceWorkspace(ForceWorkspace):
         if correction is not None:  # the stress correction, copy by copy (kernels.stress_correction_add's floats)
             arguments = (self.stack.count, positions, reference.mesh.elements, correction.mean_gradient,
                          correction.volume, correction.shear_modulus, correction.lame, correction.spring_vector,
-                         correction.spring_length, correction.spring_stiffness)
+                         correction.spring_length, correction.spring_stiffness, correction.linear)
             if geometric and len(self.stress_tangent):
                 self.clamped_elements = kernels.stress_correction_tangent_add_copies(
                     *arguments, correction.metric_root, correction.metric_root_inverse, True, self.forces,

@@ -28,13 +28,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .laws import baudet_stiffness, first_piola_stress, material_tangent
+from .elements import nodes_per_element, quadrature
+from .laws import baudet_stiffness, first_piola_stress, lame_parameters, material_tangent
+from .tetmesh import signed_volumes
 from .topology import DIAGONALS, EDGES, FACES, GAUSS_GRADIENTS
 
 #: the two diagonals of each face (FACES order): 12, grouped by the plane they lie in
 FACE_DIAGONALS = np.concatenate([FACES[:, [0, 2]], FACES[:, [1, 3]]])
 #: the plane of each face diagonal: the two axes (0 x, 1 y, 2 z) it spans
 FACE_DIAGONAL_AXES = np.array([[1, 2], [1, 2], [0, 2], [0, 2], [0, 1], [0, 1]] * 2)
+
+#: the stress laws of ``StressCorrection.law``
+LAWS = ("neo-hookean", "linear")
 
 #: spring sets of ``build_model(model="baudet-hyperelastic", springs=...)``: "faces" (12 edges and
 #: the 12 face diagonals), "isotropic" and "baudet" (12 edges and the 4 inner diagonals)
@@ -53,7 +58,7 @@ class StressCorrection:
     """Per-element arrays of the stress correction (M elements).
 
     Attributes:
-        mean_gradient: (M, 8, 3) b_a in 1/m.
+        mean_gradient: (M, n, 3) b_a in 1/m (n = 8 hexahedra, 4 tetrahedra).
         volume: (M,) rest volumes V0 in m^3.
         spring_vector: (M, S_e, 3) rest vectors D_s of the element's springs
             (``element_spring_pairs``; parallel ones merged, ``merge_parallel_springs``), m.
@@ -64,6 +69,9 @@ class StressCorrection:
             derived from ``mean_gradient`` when not given: B B^T = I_3 (x) R^2 for the map B from the
             element's nodal displacements to F, the metric in which the implicit step takes the
             positive part of the correction's stiffness (``tangent_matrices``).
+        law: the stress P(F) the correction completes the springs' to, one of ``LAWS``:
+            "neo-hookean" (``laws.first_piola_stress``, "baudet-hyperelastic") or "linear" (the
+            small-strain Hooke stress of eps = sym(F) - I, ``linear_stress``: "baudet" on tetrahedra).
     """
 
     mean_gradient: np.ndarray
@@ -75,14 +83,63 @@ class StressCorrection:
     lame: np.ndarray
     metric_root: np.ndarray | None = None
     metric_root_inverse: np.ndarray | None = None
+    law: str = "neo-hookean"
 
     def __post_init__(self):
+        if self.law not in LAWS:
+            raise ValueError(f"law must be one of {LAWS}, got {self.law!r}")
         if self.metric_root is None:
             values, vectors = np.linalg.eigh(np.einsum("maj,mal->mjl", self.mean_gradient, self.mean_gradient))
             root = np.einsum("mje,me,mle->mjl", vectors, np.sqrt(values), vectors)
             inverse = np.einsum("mje,me,mle->mjl", vectors, 1.0 / np.sqrt(values), vectors)
             object.__setattr__(self, "metric_root", np.ascontiguousarray(root))
             object.__setattr__(self, "metric_root_inverse", np.ascontiguousarray(inverse))
+
+    @property
+    def linear(self) -> bool:
+        """Whether the law is the small-strain one (the compiled kernels' ``linear`` flag)."""
+        return self.law == "linear"
+
+    def arrays(self) -> dict:
+        """The per-element arrays by field name (every field but ``law``), e.g. to stack copies."""
+        return {name: getattr(self, name) for name in ARRAY_FIELDS}
+
+
+#: the per-element array fields of ``StressCorrection`` (all but ``law``)
+ARRAY_FIELDS = ("mean_gradient", "volume", "spring_vector", "spring_length", "spring_stiffness", "shear_modulus",
+                "lame", "metric_root", "metric_root_inverse")
+
+
+def linear_stress(deformation_gradient, mu, lam):
+    """P_lin(F) = lam tr(eps) I + 2 mu eps in Pa, eps = sym(F) - I: the small-strain Hooke stress
+    (the tensor form of ``elements.elasticity_matrices``' law), F (..., 3, 3)."""
+    f = np.asarray(deformation_gradient, float)
+    strain = 0.5 * (f + f.swapaxes(-1, -2)) - np.eye(3)
+    mu, lam = np.asarray(mu)[..., None, None], np.asarray(lam)[..., None, None]
+    return lam * np.trace(strain, axis1=-2, axis2=-1)[..., None, None] * np.eye(3) + 2.0 * mu * strain
+
+
+def linear_tangent(mu, lam):
+    """(..., 3, 3, 3, 3) A_iJkL = dP_lin / dF = lam d_iJ d_kL + mu (d_ik d_JL + d_iL d_kJ), Pa."""
+    eye = np.eye(3)
+    mu, lam = np.asarray(mu, float)[..., None, None, None, None], np.asarray(lam, float)[..., None, None, None, None]
+    return (lam * np.einsum("ij,kl->ijkl", eye, eye)
+            + mu * (np.einsum("ik,jl->ijkl", eye, eye) + np.einsum("il,jk->ijkl", eye, eye)))
+
+
+def law_stress(correction: "StressCorrection", deformation_gradient):
+    """(M, 3, 3) the correction's law's first Piola stress at F (M, 3, 3), Pa."""
+    if correction.linear:
+        return linear_stress(deformation_gradient, correction.shear_modulus, correction.lame)
+    return first_piola_stress(deformation_gradient, correction.shear_modulus, correction.lame)
+
+
+def law_tangent(correction: "StressCorrection", deformation_gradient):
+    """(M, 3, 3, 3, 3) dP / dF of the correction's law at F (M, 3, 3), Pa."""
+    if correction.linear:
+        return np.broadcast_to(linear_tangent(correction.shear_modulus, correction.lame),
+                               deformation_gradient.shape[:1] + (3, 3, 3, 3))
+    return material_tangent(deformation_gradient, correction.shear_modulus, correction.lame)
 
 
 def merge_parallel_springs(vectors: np.ndarray, stiffness: np.ndarray, tolerance: float = 1e-10):
@@ -125,10 +182,14 @@ def merge_parallel_springs(vectors: np.ndarray, stiffness: np.ndarray, tolerance
 
 
 def mean_gradients(nodes: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(b (M, 8, 3) in 1/m, V0 (M,) in m^3) of trilinear hexahedra: b_a = (1/V0) int grad N_a dV.
+    """(b (M, n, 3) in 1/m, V0 (M,) in m^3): b_a = (1/V0) int grad N_a dV of trilinear hexahedra
+    (n = 8) or linear tetrahedra (n = 4, whose gradients are constant: b_a = grad N_a exactly).
 
-    2x2x2 Gauss quadrature is exact here: det J grad_X N_a = cof(J) grad_xi N_a is a polynomial of
-    degree at most 3 in each local coordinate."""
+    Hexahedra: 2x2x2 Gauss quadrature is exact here, det J grad_X N_a = cof(J) grad_xi N_a being a
+    polynomial of degree at most 3 in each local coordinate."""
+    if nodes_per_element(elements) == 4:
+        gradients, weights = quadrature(nodes, elements)
+        return np.ascontiguousarray(gradients[:, 0]), weights[:, 0]
     corners = nodes[elements]  # (M, 8, 3)
     jacobian = np.einsum("mna,pnb->mpab", corners, GAUSS_GRADIENTS)  # dX/dxi (M, P, 3, 3)
     det = np.linalg.det(jacobian)
@@ -138,6 +199,53 @@ def mean_gradients(nodes: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray,
     integral = weight * np.einsum("mpab,pnb->mna", cofactor, GAUSS_GRADIENTS)
     volume = weight * det.sum(axis=1)
     return integral / volume[:, None, None], volume
+
+
+def tetrahedron_spring_stiffness(nodes: np.ndarray, elements: np.ndarray, young_modulus, poisson_ratio) -> np.ndarray:
+    """(M, 6) per-element stiffness (N/m) of each tetrahedron's 6 edge springs (``tetmesh.TET_EDGES``
+    order): the largest multiple of a least-squares fit of the springs' small-strain stiffness to
+    the isotropic shear stiffness that the element's Hooke tensor C still bounds from above
+    (docs/physics.md section 12).
+
+    Under a small strain eps the element's springs (rest vectors D_s, lengths L_s, unit n_s) store
+    V0/2 eps : C_S : eps with C_S = sum_s kappa_s N_s (x) N_s, N_s = n_s n_s^T, kappa_s = k_s L_s^2 / V0.
+    In the orthonormal (Mandel) basis of symmetric tensors, N_s is a unit 6-vector v_s and C_S =
+    sum_s kappa_s v_s v_s^T. (1) w = argmin ||sum_s w_s v_s v_s^T - I_6||_F: H w = 1 with H_st =
+    (v_s . v_t)^2 = (n_s . n_t)^4 (the springs' best approximation of a multiple of the identity,
+    i.e. of an isotropic shear stiffness), negative entries set to 0. (2) kappa = alpha w with
+    alpha = 1 / lambda_max(C^-1/2 C_S(w) C^-1/2), C^-1/2 = P_dev / sqrt(2 mu) + P_vol / sqrt(3 K):
+    the largest alpha with C - C_S positive semi-definite, so the stress correction's small-strain
+    stiffness V0 (C - C_S) only adds stiffness (no clamping at rest). Positive or zero for every
+    tetrahedron and nu in (-1, 0.5); bounded by the shear modulus as nu -> 0.5 (the volumetric
+    stiffness is the correction's alone)."""
+    from .tetmesh import TET_EDGES
+
+    nu = np.asarray(poisson_ratio, dtype=float)
+    young_modulus = np.asarray(young_modulus, dtype=float)
+    shear, _ = lame_parameters(young_modulus, nu)
+    bulk = young_modulus / (3.0 * (1.0 - 2.0 * nu))
+    vectors = nodes[elements[:, TET_EDGES[:, 1]]] - nodes[elements[:, TET_EDGES[:, 0]]]  # (M, 6, 3)
+    length = np.linalg.norm(vectors, axis=2)
+    unit = vectors / length[..., None]
+    volume = signed_volumes(nodes, elements)
+    cosine = np.einsum("msi,mti->mst", unit, unit)
+    weights = np.maximum(np.linalg.solve(cosine**4, np.ones(cosine.shape[:2])[..., None])[..., 0], 0.0)  # (M, 6)
+    mandel = _mandel(np.einsum("msi,msj->msij", unit, unit))  # (M, 6, 6): v_s as rows
+    springs = np.einsum("ms,msa,msb->mab", weights, mandel, mandel)
+    volumetric = np.outer(_mandel(np.eye(3)), _mandel(np.eye(3))) / 3.0
+    inverse_root = ((np.eye(6) - volumetric)[None] / np.sqrt(2.0 * shear)[:, None, None]
+                    + volumetric[None] / np.sqrt(3.0 * bulk)[:, None, None])
+    largest = np.linalg.eigvalsh(inverse_root @ springs @ inverse_root)[:, -1]
+    kappa = weights / largest[:, None]
+    return kappa * volume[:, None] / length**2
+
+
+def _mandel(tensors: np.ndarray) -> np.ndarray:
+    """(..., 6) Mandel vectors (xx, yy, zz, sqrt2 yz, sqrt2 zx, sqrt2 xy) of symmetric (..., 3, 3)
+    tensors: A : B = mandel(A) . mandel(B)."""
+    root = np.sqrt(2.0)
+    return np.stack([tensors[..., 0, 0], tensors[..., 1, 1], tensors[..., 2, 2], root * tensors[..., 1, 2],
+                     root * tensors[..., 0, 2], root * tensors[..., 0, 1]], axis=-1)
 
 
 def element_spring_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio, choice: str = "faces"):
@@ -224,10 +332,11 @@ def deformation_gradients(correction: StressCorrection, elements: np.ndarray, po
 
 
 def element_forces(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """(M, 8, 3) correction forces f_a = -V0 (P_NH(F) - P_S(F)) b_a on the element nodes, N."""
+    """(M, n, 3) correction forces f_a = -V0 (P(F) - P_S(F)) b_a on the element nodes, N (P the law's
+    stress, ``law_stress``)."""
 
     f = deformation_gradients(correction, elements, positions)
-    stress = first_piola_stress(f, correction.shear_modulus, correction.lame) - spring_stress(correction, f)
+    stress = law_stress(correction, f) - spring_stress(correction, f)
     return -correction.volume[:, None, None] * np.einsum("mij,maj->mai", stress, correction.mean_gradient)
 
 
@@ -243,10 +352,10 @@ def tangent_matrices(correction: StressCorrection, elements: np.ndarray, positio
     (B^T T B)_+ = B^T S^-1 (S T S)_+ S^-1 B. The numpy reference of the compiled pass."""
 
     f = deformation_gradients(correction, elements, positions)
-    tangent = material_tangent(f, correction.shear_modulus, correction.lame) - spring_tangent(correction, f)
+    tangent = law_tangent(correction, f) - spring_tangent(correction, f)
     tangent = correction.volume[:, None, None] * tangent.reshape(-1, 9, 9)
-    if clamp:
-        stress = first_piola_stress(f, correction.shear_modulus, correction.lame) - spring_stress(correction, f)
+    if clamp and not correction.linear:  # the small-strain law has no geometric term
+        stress = law_stress(correction, f) - spring_stress(correction, f)
         second = np.linalg.solve(f, stress)  # F^-1 dP
         values, vectors = np.linalg.eigh(0.5 * (second + second.swapaxes(1, 2)))
         negative = np.einsum("mje,me,mle->mjl", vectors, np.maximum(-values, 0.0), vectors)
@@ -268,8 +377,9 @@ def tangent_matrices(correction: StressCorrection, elements: np.ndarray, positio
 
 def tangent_blocks(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray,
                    clamp: bool = False) -> np.ndarray:
-    """(M, 24, 24) K_e = -d f_e / d x_e = V0 b (x) (A_NH(F) - A_S(F)) (x) b in N/m (node-major dofs);
-    ``clamp``: its positive part (``tangent_matrices``)."""
+    """(M, 3n, 3n) K_e = -d f_e / d x_e = V0 b (x) (A(F) - A_S(F)) (x) b in N/m (node-major dofs, n
+    nodes per element); ``clamp``: its positive part (``tangent_matrices``)."""
     tangent = tangent_matrices(correction, elements, positions, clamp).reshape(-1, 3, 3, 3, 3)
     b = correction.mean_gradient
-    return np.einsum("maJ,miJkL,mbL->maibk", b, tangent, b, optimize=True).reshape(-1, 24, 24)
+    n = 3 * b.shape[1]
+    return np.einsum("maJ,miJkL,mbL->maibk", b, tangent, b, optimize=True).reshape(-1, n, n)

@@ -103,9 +103,11 @@ def health(positions, velocities, low, high):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def any_inverted(positions, elements, neighbours, signs):
-    """True when a corner Jacobian (signed corner frame volume) of any element is <= 0."""
+    """True when a corner Jacobian (signed corner frame volume) of any element is <= 0: the frames of
+    corner ``neighbours`` (C, 3) with orientation ``signs`` (C,) (``elements.corner_frames``: the 8 of
+    a hexahedron, the one of a tetrahedron)."""
     for m in range(elements.shape[0]):
-        for corner in range(8):
+        for corner in range(neighbours.shape[0]):
             o = elements[m, corner]
             a, b, c = elements[m, neighbours[corner, 0]], elements[m, neighbours[corner, 1]], elements[m, neighbours[corner, 2]]
             ax, ay, az = positions[a, 0] - positions[o, 0], positions[a, 1] - positions[o, 1], positions[a, 2] - positions[o, 2]

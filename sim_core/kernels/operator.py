@@ -56,13 +56,15 @@ def _stress_product(elements, stress_gradient, stress_tangent, scale, vector, ou
     """out += scale * K_s vector, K_s the stress correction's stiffness (``baudet-hyperelastic``):
     per element dF = sum_a v_a (x) b_a (9), dP = T dF with T (9, 9) its stiffness on F
     (``kernels.stress_correction_tangent_add``: V0 (A_NH - A_S), the implicit step's positive part),
-    and out_a += dP b_a. stress_gradient (M, 8, 3) b_a, stress_tangent (M, 9, 9); flat dof vectors."""
+    and out_a += dP b_a. stress_gradient (M, n, 3) b_a (n nodes per element), stress_tangent (M, 9, 9);
+    flat dof vectors."""
     df = np.empty(9)
     dp = np.empty(9)
+    n_nodes = stress_gradient.shape[1]
     for m in range(elements.shape[0]):
         for r in range(9):
             df[r] = 0.0
-        for a in range(8):
+        for a in range(n_nodes):
             node = elements[m, a]
             v0, v1, v2 = vector[3 * node], vector[3 * node + 1], vector[3 * node + 2]
             for j in range(3):
@@ -75,7 +77,7 @@ def _stress_product(elements, stress_gradient, stress_tangent, scale, vector, ou
             for q in range(9):
                 total += stress_tangent[m, r, q] * df[q]
             dp[r] = scale * total
-        for a in range(8):
+        for a in range(n_nodes):
             node = elements[m, a]
             b0, b1, b2 = stress_gradient[m, a, 0], stress_gradient[m, a, 1], stress_gradient[m, a, 2]
             out[3 * node] += dp[0] * b0 + dp[1] * b1 + dp[2] * b2
@@ -88,7 +90,7 @@ def stress_diagonal_add(elements, stress_gradient, stress_tangent, scale, diagon
     """diagonal (3 n,) += scale * the diagonal of K_s (``_stress_product``): entry (a, i) of element
     m is sum_JL b_aJ T[3 i + J, 3 i + L] b_aL (the Jacobi preconditioners)."""
     for m in range(elements.shape[0]):
-        for a in range(8):
+        for a in range(stress_gradient.shape[1]):
             node = elements[m, a]
             for i in range(3):
                 total = 0.0
@@ -225,7 +227,7 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
     rank-one c h grad(V)^T, the stress correction's element blocks B^T T B and the hourglass matrix, the same terms as ``spring_operator`` so that
     the assembled matrix reproduces the matrix-free product to rounding (the factorised
     preconditioner of ``ImplicitEuler``). spring_positions (S, 4, 3, 3) (blocks aa, bb, ab, ba),
-    element_positions (M, 8, 8, 3, 3), hg_positions (nnz_hg,), diagonal_positions (3N,): positions
+    element_positions (M, n, n, 3, 3), hg_positions (nnz_hg,), diagonal_positions (3N,): positions
     in ``out`` (``Model``'s derived arrays)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
@@ -285,18 +287,19 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
                             out[element_positions[m, k, n, i, j]] += \
                                 coefficient * volume_direction[m, k, i] * volume_gradient[m, n, j]
     if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:  # B^T T B per element
-        h = np.empty((9, 8, 3))
+        n_nodes = stress_gradient.shape[1]
+        h = np.empty((9, n_nodes, 3))
         for m in range(elements.shape[0]):
             for r in range(9):
-                for n in range(8):
+                for n in range(n_nodes):
                     for k in range(3):
                         total = 0.0
                         for ll in range(3):
                             total += stress_tangent[m, r, 3 * k + ll] * stress_gradient[m, n, ll]
                         h[r, n, k] = stiffness_scale * total
-            for a in range(8):
+            for a in range(n_nodes):
                 b0, b1, b2 = stress_gradient[m, a, 0], stress_gradient[m, a, 1], stress_gradient[m, a, 2]
-                for n in range(8):
+                for n in range(n_nodes):
                     for i in range(3):
                         for k in range(3):
                             out[element_positions[m, a, n, i, k]] += (b0 * h[3 * i, n, k] + b1 * h[3 * i + 1, n, k]

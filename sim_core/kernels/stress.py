@@ -20,13 +20,14 @@ from .fastmath import FAST
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
 def _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                    spring_stiffness, m, f, c, p):
-    """Element ``m``: f (3, 3) = F, c (3, 3) = cof F = det F F^-T, p (3, 3) = P_NH(F) - P_S(F) in Pa.
-    Returns (det F, ln det F)."""
+                    spring_stiffness, linear, m, f, c, p):
+    """Element ``m`` (of mean_gradient.shape[1] nodes): f (3, 3) = F, c (3, 3) = cof F = det F F^-T,
+    p (3, 3) = P_NH(F) - P_S(F) in Pa, or with ``linear`` P_lin(F) - P_S(F), P_lin the small-strain
+    Hooke stress lam tr(eps) I + 2 mu eps of eps = sym(F) - I. Returns (det F, ln det F; 0 if linear)."""
     for i in range(3):
         for j in range(3):
             f[i, j] = 0.0
-    for a in range(8):
+    for a in range(mean_gradient.shape[1]):
         node = elements[m, a]
         for i in range(3):
             x = positions[node, i]
@@ -42,11 +43,19 @@ def _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_
     c[2, 1] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
     c[2, 2] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
     det = f[0, 0] * c[0, 0] + f[0, 1] * c[0, 1] + f[0, 2] * c[0, 2]
-    log_j = np.log(det)
-    inverse_scale = (lam[m] * log_j - mu[m]) / det  # P = mu F + (lam ln J - mu) F^-T
-    for i in range(3):
-        for j in range(3):
-            p[i, j] = mu[m] * f[i, j] + inverse_scale * c[i, j]
+    if linear:
+        log_j = 0.0
+        volumetric = lam[m] * (f[0, 0] + f[1, 1] + f[2, 2] - 3.0)
+        for i in range(3):
+            for j in range(3):
+                p[i, j] = mu[m] * (f[i, j] + f[j, i])
+            p[i, i] += volumetric - 2.0 * mu[m]
+    else:
+        log_j = np.log(det)
+        inverse_scale = (lam[m] * log_j - mu[m]) / det  # P = mu F + (lam ln J - mu) F^-T
+        for i in range(3):
+            for j in range(3):
+                p[i, j] = mu[m] * f[i, j] + inverse_scale * c[i, j]
     inverse_volume = 1.0 / volume[m]
     for s in range(spring_vector.shape[1]):  # minus the springs' own stress under F
         d0, d1, d2 = spring_vector[m, s, 0], spring_vector[m, s, 1], spring_vector[m, s, 2]
@@ -71,7 +80,7 @@ def _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_
 def _scatter_stress(elements, mean_gradient, volume, m, p, forces):
     """forces (N, 3) -= V0 p b_a on the nodes of element ``m``."""
     v = volume[m]
-    for a in range(8):
+    for a in range(mean_gradient.shape[1]):
         node = elements[m, a]
         b0, b1, b2 = mean_gradient[m, a, 0], mean_gradient[m, a, 1], mean_gradient[m, a, 2]
         for i in range(3):
@@ -79,24 +88,37 @@ def _scatter_stress(elements, mean_gradient, volume, m, p, forces):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
-def _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, m, t, w):
+def _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, m,
+                     t, w):
     """t (9, 9) = V0 (A_NH(F) - A_S(F)) of element ``m`` (row 3 i + J: dP_iJ; column 3 k + L: dF_kL),
     with f, c, det, log_j from ``_element_stress``:
-    A_NH = mu d_ik d_JL + (mu - lam ln J) G_kJ G_iL + lam G_iJ G_kL (G = F^-T = c / det), and
+    A_NH = mu d_ik d_JL + (mu - lam ln J) G_kJ G_iL + lam G_iJ G_kL (G = F^-T = c / det), or with
+    ``linear`` the constant A_lin = lam d_iJ d_kL + mu (d_ik d_JL + d_iL d_kJ), and
     A_S = (1/V0) sum_s k_s [(1 - L_s/l_s) d_ik D_J D_L + (L_s / l_s^3) (F D_s)_i D_J (F D_s)_k D_L].
     w (9, 9) scratch (its first row: the spring's u (x) D)."""
     v = volume[m]
-    inverse_det = 1.0 / det
-    coefficient = v * (mu[m] - lam[m] * log_j) * inverse_det * inverse_det
-    vlam = v * lam[m] * inverse_det * inverse_det
     vmu = v * mu[m]
-    for i in range(3):
-        for jj in range(3):
-            r = 3 * i + jj
+    if linear:
+        for r in range(9):
+            for q in range(9):
+                t[r, q] = 0.0
+        for i in range(3):
             for k in range(3):
-                for ll in range(3):
-                    t[r, 3 * k + ll] = coefficient * c[k, jj] * c[i, ll] + vlam * c[i, jj] * c[k, ll]
-            t[r, r] += vmu
+                t[4 * i, 4 * k] = v * lam[m]  # d_iJ d_kL: rows and columns of the diagonal of F
+                t[3 * i + k, 3 * k + i] += vmu  # d_iL d_kJ
+            for jj in range(3):
+                t[3 * i + jj, 3 * i + jj] += vmu  # d_ik d_JL
+    else:
+        inverse_det = 1.0 / det
+        coefficient = v * (mu[m] - lam[m] * log_j) * inverse_det * inverse_det
+        vlam = v * lam[m] * inverse_det * inverse_det
+        for i in range(3):
+            for jj in range(3):
+                r = 3 * i + jj
+                for k in range(3):
+                    for ll in range(3):
+                        t[r, 3 * k + ll] = coefficient * c[k, jj] * c[i, ll] + vlam * c[i, jj] * c[k, ll]
+                t[r, r] += vmu
     g00 = g01 = g02 = g11 = g12 = g22 = 0.0  # sum_s k_s (1 - L_s / l_s) D D^T
     row = w[0]
     for s in range(spring_vector.shape[1]):
@@ -212,7 +234,7 @@ def _congruence(root, m, source, target):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
-def _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small, values, vectors):
+def _clamp_tangent(t, c, det, p, volume, root, root_inverse, linear, m, w, lower, small, values, vectors):
     """The implicit step's SPD treatment of element ``m``'s tangent t (9, 9) (docs/physics.md 11),
     in place; returns 0 (t kept), 1 (geometric term clamped) or 2 (positive part taken).
 
@@ -222,11 +244,38 @@ def _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small,
        eigenvalues| of dS). What remains is the material term F F (C_NH - C_S), positive
        semi-definite at rest for nu >= 0 and at moderate strain.
     2. Where that is still not positive semi-definite (``_positive_definite``; a large strain),
-       t := its positive part in the metric of the element's nodal displacements: with
+       t := its positive part in the metric of the element's nodal displacements (with ``linear``,
+       the small-strain law, whose correction has no geometric term, this step only): with
        S = I_3 (x) R, R = (sum_a b_a b_a^T)^(1/2) (``root[m]``; B = S Q with Q's rows orthonormal),
        B^T t B = Q^T (S t S) Q, so the positive part of the 24 x 24 block B^T t B is
        B^T S^-1 (S t S)_+ S^-1 B.
     w, lower (9, 9), small (3, 3), values (3,), vectors (3, 3) scratch."""
+    changed = 0
+    if not linear:
+        changed = _clamp_geometric(t, c, det, p, volume, m, small, values, vectors)
+    if _positive_definite(t, lower):
+        return changed
+    _congruence(root, m, t, w)  # w = S t S
+    for r in range(9):  # symmetrise against rounding before the decomposition
+        for q in range(r):
+            mean = 0.5 * (w[r, q] + w[q, r])
+            w[r, q] = mean
+            w[q, r] = mean
+    eigenvalues, eigenvectors = np.linalg.eigh(w)
+    for r in range(9):
+        for q in range(9):
+            total = 0.0
+            for e in range(9):
+                if eigenvalues[e] > 0.0:
+                    total += eigenvalues[e] * eigenvectors[r, e] * eigenvectors[q, e]
+            w[r, q] = total
+    _congruence(root_inverse, m, w, t)  # t = S^-1 w_+ S^-1
+    return 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _clamp_geometric(t, c, det, p, volume, m, small, values, vectors):
+    """Step 1 of ``_clamp_tangent``: t += V0 I (x) [dS]_-; returns 1 where it changed t, else 0."""
     inverse_det = 1.0 / det
     for jj in range(3):  # dS = F^-1 p = c^T p / det, symmetrised
         for ll in range(3):
@@ -250,33 +299,18 @@ def _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small,
                 total *= v
                 for i in range(3):
                     t[3 * i + jj, 3 * i + ll] += total
-    if _positive_definite(t, lower):
-        return changed
-    _congruence(root, m, t, w)  # w = S t S
-    for r in range(9):  # symmetrise against rounding before the decomposition
-        for q in range(r):
-            mean = 0.5 * (w[r, q] + w[q, r])
-            w[r, q] = mean
-            w[q, r] = mean
-    eigenvalues, eigenvectors = np.linalg.eigh(w)
-    for r in range(9):
-        for q in range(9):
-            total = 0.0
-            for e in range(9):
-                if eigenvalues[e] > 0.0:
-                    total += eigenvalues[e] * eigenvectors[r, e] * eigenvectors[q, e]
-            w[r, q] = total
-    _congruence(root_inverse, m, w, t)  # t = S^-1 w_+ S^-1
-    return 2
+    return changed
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def stress_correction_add(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                          spring_stiffness, forces):
+                          spring_stiffness, linear, forces):
     """forces (N, 3) N += every element's stress correction.
 
-    mean_gradient (M, 8, 3) 1/m, volume (M,) m^3, mu and lam (M,) Pa, spring_vector (M, S_e, 3) m,
-    spring_length and spring_stiffness (M, S_e) m and N/m (``stress_correction.StressCorrection``).
+    mean_gradient (M, n, 3) 1/m (n nodes per element: 8 hexahedra, 4 tetrahedra), volume (M,) m^3,
+    mu and lam (M,) Pa, spring_vector (M, S_e, 3) m, spring_length and spring_stiffness (M, S_e) m
+    and N/m, ``linear`` the law (False: neo-Hookean, True: small-strain Hooke;
+    ``stress_correction.StressCorrection``).
     An inverted element (det F <= 0) gives NaN forces, which the solvers' inversion checks reject.
     """
     f = np.empty((3, 3))
@@ -284,13 +318,13 @@ def stress_correction_add(positions, elements, mean_gradient, volume, mu, lam, s
     p = np.empty((3, 3))
     for m in range(elements.shape[0]):
         _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                        spring_stiffness, m, f, c, p)
+                        spring_stiffness, linear, m, f, c, p)
         _scatter_stress(elements, mean_gradient, volume, m, p, forces)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def stress_correction_tangent_add(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                                  spring_stiffness, root, root_inverse, clamp, forces, tangent):
+                                  spring_stiffness, linear, root, root_inverse, clamp, forces, tangent):
     """``stress_correction_add`` that also writes each element's stiffness on F, tangent (M, 9, 9)
     N/m * m^2 = V0 (A_NH - A_S) (``_element_tangent``), with ``clamp`` the implicit step's SPD
     treatment (``_clamp_tangent``: the negative part of its geometric term dropped, and its positive
@@ -308,19 +342,21 @@ def stress_correction_tangent_add(positions, elements, mean_gradient, volume, mu
     clamped = 0
     for m in range(elements.shape[0]):
         det, log_j = _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                                     spring_stiffness, m, f, c, p)
+                                     spring_stiffness, linear, m, f, c, p)
         _scatter_stress(elements, mean_gradient, volume, m, p, forces)
         t = tangent[m]
-        _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, m, t, w)
+        _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, m,
+                         t, w)
         if clamp and det > 0.0:
-            if _clamp_tangent(t, c, det, p, volume, root, root_inverse, m, w, lower, small, values, vectors) == 2:
+            if _clamp_tangent(t, c, det, p, volume, root, root_inverse, linear, m, w, lower, small, values,
+                              vectors) == 2:
                 clamped += 1
     return clamped
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
 def stress_correction_add_copies(count, positions, elements, mean_gradient, volume, mu, lam, spring_vector,
-                                 spring_length, spring_stiffness, forces):
+                                 spring_length, spring_stiffness, linear, forces):
     """``stress_correction_add`` of a stacked model of ``count`` copies (copies first), one copy per numba
     thread at a time: ``elements`` is ONE copy's (local node indices), every other array the stacked
     model's. The copies are disjoint, so each writes only its own nodes, in the stacked pass's
@@ -331,12 +367,13 @@ def stress_correction_add_copies(count, positions, elements, mean_gradient, volu
         e0, e1 = c * n_elements, (c + 1) * n_elements
         stress_correction_add(positions[c * n:(c + 1) * n], elements, mean_gradient[e0:e1], volume[e0:e1], mu[e0:e1],
                               lam[e0:e1], spring_vector[e0:e1], spring_length[e0:e1], spring_stiffness[e0:e1],
-                              forces[c * n:(c + 1) * n])
+                              linear, forces[c * n:(c + 1) * n])
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
 def stress_correction_tangent_add_copies(count, positions, elements, mean_gradient, volume, mu, lam, spring_vector,
-                                         spring_length, spring_stiffness, root, root_inverse, clamp, forces, tangent):
+                                         spring_length, spring_stiffness, linear, root, root_inverse, clamp, forces,
+                                         tangent):
     """``stress_correction_tangent_add`` per copy on numba's threads (``stress_correction_add_copies``'
     layout; the same floats as the stacked pass)."""
     n = positions.shape[0] // count
@@ -346,6 +383,6 @@ def stress_correction_tangent_add_copies(count, positions, elements, mean_gradie
         e0, e1 = c * n_elements, (c + 1) * n_elements
         clamped[c] = stress_correction_tangent_add(
             positions[c * n:(c + 1) * n], elements, mean_gradient[e0:e1], volume[e0:e1], mu[e0:e1], lam[e0:e1],
-            spring_vector[e0:e1], spring_length[e0:e1], spring_stiffness[e0:e1], root[e0:e1], root_inverse[e0:e1],
-            clamp, forces[c * n:(c + 1) * n], tangent[e0:e1])
+            spring_vector[e0:e1], spring_length[e0:e1], spring_stiffness[e0:e1], linear, root[e0:e1],
+            root_inverse[e0:e1], clamp, forces[c * n:(c + 1) * n], tangent[e0:e1])
     return clamped.sum()

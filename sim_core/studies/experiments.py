@@ -2,8 +2,11 @@
 
 Each experiment builds the block, imposes its boundary conditions, solves for static equilibrium
 with the physics named by ``model`` and measures moduli the way a materials lab would. Mass-spring
-models: "baudet", "baudet-original", "uniform-springs"; finite elements: "fem-linear" and
-"fem-neohookean" (``hyperelastic.NeoHookeanFEM``, the large-deformation reference).
+models: "baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic"; finite elements:
+"fem-linear" and "fem-neohookean" (``hyperelastic.NeoHookeanFEM``, the large-deformation reference).
+``element`` ("hex", default, or "tet") chooses the block's elements: its cubes as hexahedra, or
+each cube split into 6 tetrahedra on the same nodes (``TetMesh.block``; the tetrahedral models are
+``model.TET_MODELS`` and both FEM references).
 Tool experiments (``indentation``, ``tool_patch``): a patch of top-face nodes of a block with its
 bottom fixed is pressed, lifted or dragged; they report the volume change, the hourglass content of
 the displacement (``hourglass_content``), the stability of the equilibrium and, for a saddle, where
@@ -29,12 +32,15 @@ from ..integrators import ImplicitEuler
 from ..material import Material
 from ..mesh import HexMesh
 from ..model import MSS_MODELS, Control, State, build_model, hourglass_projectors
+from ..tetmesh import TetMesh
 from ..static import solve_static, zero_energy_modes
 from ..validity import VALIDATED_SHEAR_DEG, VALIDATED_STRAIN  # noqa: F401  (public names here too)
 
 FEM_MODELS = ("fem-linear", "fem-neohookean")
 MODELS = MSS_MODELS + FEM_MODELS
 _SOLVER_OPTIONS = ("tolerance", "max_iterations", "load_steps", "max_load_steps")
+#: the block's element kinds of ``elongation``, ``shear`` and ``flexion``
+ELEMENTS = ("hex", "tet")
 @dataclass
 class ExperimentResult:
     """What an experiment measured.
@@ -96,10 +102,13 @@ def position_errors(result, reference, rest_positions=None) -> tuple[float, floa
 
 
 # -- plumbing ----------------------------------------------------------------------------------
-def _setup(shape, spacing, young_modulus, poisson_ratio, density, model):
+def _setup(shape, spacing, young_modulus, poisson_ratio, density, model, element="hex"):
     if model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {model!r}")
-    mesh = HexMesh.block(shape, spacing)
+    if element not in ELEMENTS:
+        raise ValueError(f"element must be one of {ELEMENTS} (the block's cubes as hexahedra, or each split into "
+                         f"6 tetrahedra on the same nodes), got {element!r}")
+    mesh = HexMesh.block(shape, spacing) if element == "hex" else TetMesh.block(shape, spacing)
     material = Material(young_modulus, poisson_ratio, density)
     return mesh, material
 
@@ -133,7 +142,15 @@ def _face(mesh, axis, at_end):
 
 
 def _face_area_shares(mesh, nodes, axis):
-    """Fraction of the face area attributed to each node of a block face (quads split 1/4 each)."""
+    """Fraction of the face area attributed to each node of a block face (quads split 1/4 each,
+    triangles of a tetrahedral block 1/3 each: the consistent load of a uniform traction)."""
+    if isinstance(mesh, TetMesh):
+        triangles = mesh.surface_faces()
+        on_face = np.all(np.isin(triangles, nodes), axis=1)
+        corners = mesh.nodes[triangles[on_face]]
+        area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+        share = np.bincount(triangles[on_face].ravel(), weights=np.repeat(area / 3.0, 3), minlength=mesh.n_nodes)
+        return share[nodes] / share[nodes].sum()
     nx_ny_nz = np.array(mesh.shape)
     other = [a for a in range(3) if a != axis]
     counts = np.ones(len(nodes))
@@ -169,7 +186,7 @@ def _strain_or_force(strain, force):
 
 
 # -- experiments ---------------------------------------------------------------------------------
-def elongation_control(mesh: HexMesh, strain=None) -> Control:
+def elongation_control(mesh: HexMesh | TetMesh, strain=None) -> Control:
     """``elongation``'s boundary conditions on a block ``mesh`` (even ny and nz): face x = 0 held
     along x, its node (0, Ly/2, Lz/2) in y and z and its node (0, Ly/2, Lz) in y (no rigid motion),
     and, with ``strain``, face x = Lx moved by strain Lx along x (m); for stability checks and mode
@@ -189,7 +206,7 @@ def elongation_control(mesh: HexMesh, strain=None) -> Control:
 
 
 def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, force=None,
-               model="baudet", density=1000.0, **options) -> ExperimentResult:
+               model="baudet", density=1000.0, element="hex", **options) -> ExperimentResult:
     """Uniaxial pull along x: measured Young's modulus and Poisson's ratio.
 
     Args:
@@ -200,6 +217,8 @@ def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, for
         strain: imposed engineering strain of face x = Lx (displacement control), or
         force: total force in N spread over face x = Lx by area (force control).
         model: physics name (see module docstring).
+        element: "hex" (the block's cubes) or "tet" (each cube split into 6 tetrahedra on the same
+            nodes, ``TetMesh.block``).
         **options: model options (``volume_conservation``, ``corrections``, ``nu_factor``, ...),
             solver options (``tolerance``, ``load_steps``, ...) and ``count_modes``.
 
@@ -207,7 +226,7 @@ def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, for
     ``VALIDATED_STRAIN`` in magnitude gives its result with a UserWarning: it is an extrapolation.
     """
     strain, force = _strain_or_force(strain, force)
-    mesh, material = _setup(shape, spacing, young_modulus, poisson_ratio, density, model)
+    mesh, material = _setup(shape, spacing, young_modulus, poisson_ratio, density, model, element)
     nx, ny, nz = mesh.shape
     if ny % 2 or nz % 2:
         raise ValueError(f"elongation needs even ny and nz (anchor nodes at mid-face), got shape {mesh.shape}")
@@ -243,13 +262,15 @@ def elongation(shape, spacing, young_modulus, poisson_ratio, *, strain=None, for
         young_modulus=float(pull / area / measured_strain), poisson_ratio=float(np.mean(lateral)),
         strain=float(measured_strain), reaction=float(pull), zero_energy_modes=modes, wall_time=wall,
         parameters=dict(shape=list(mesh.shape), spacing=mesh.spacing.tolist(), imposed_young_modulus=young_modulus,
-                        imposed_poisson_ratio=poisson_ratio, imposed_strain=strain, imposed_force=force),
+                        imposed_poisson_ratio=poisson_ratio, imposed_strain=strain, imposed_force=force,
+                        element=element),
     )
 
 
 def shear(shape, spacing, young_modulus, poisson_ratio, *, angle_deg, model="baudet",
-          density=1000.0, **options) -> ExperimentResult:
-    """Simple shear: face y = 0 fixed, face y = Ly moved by tan(angle) Ly along x.
+          density=1000.0, element="hex", **options) -> ExperimentResult:
+    """Simple shear: face y = 0 fixed, face y = Ly moved by tan(angle) Ly along x; ``element`` as in
+    ``elongation``.
 
     Returns the measured shear modulus G = (x reaction on the top / (Lx Lz)) / tan(angle), Pa.
     A mass-spring model sheared beyond ``VALIDATED_SHEAR_DEG`` gives its result with a UserWarning.
@@ -257,7 +278,7 @@ def shear(shape, spacing, young_modulus, poisson_ratio, *, angle_deg, model="bau
     angle = float(finite_array("angle_deg", angle_deg))
     if not 0 < abs(angle) < 80:
         raise ValueError(f"angle_deg must be non-zero and within (-80, 80) degrees, got {angle}")
-    mesh, material = _setup(shape, spacing, young_modulus, poisson_ratio, density, model)
+    mesh, material = _setup(shape, spacing, young_modulus, poisson_ratio, density, model, element)
     length, nodes = mesh.size, mesh.nodes
     bottom, top = _face(mesh, 1, False), _face(mesh, 1, True)
     shift = math.tan(math.radians(angle))
@@ -277,20 +298,21 @@ def shear(shape, spacing, young_modulus, poisson_ratio, *, angle_deg, model="bau
         shear_modulus=float(pull / (length[0] * length[2]) / shift), reaction=float(pull),
         zero_energy_modes=modes, wall_time=wall,
         parameters=dict(shape=list(mesh.shape), spacing=mesh.spacing.tolist(), imposed_young_modulus=young_modulus,
-                        imposed_poisson_ratio=poisson_ratio, angle_deg=angle),
+                        imposed_poisson_ratio=poisson_ratio, angle_deg=angle, element=element),
     )
 
 
 def flexion(shape, spacing, young_modulus, poisson_ratio, *, density, gravity=9.81, model="baudet",
-            **options) -> ExperimentResult:
-    """Cantilever under gravity: face x = 0 fixed, gravity (0, -gravity, 0).
+            element="hex", **options) -> ExperimentResult:
+    """Cantilever under gravity: face x = 0 fixed, gravity (0, -gravity, 0); ``element`` as in
+    ``elongation``.
 
     Returns ``tip_deflection``: mean y displacement of face x = Lx in m (negative downward).
     """
     gravity = float(finite_array("gravity", gravity))
     if gravity < 0:
         raise ValueError(f"gravity must be >= 0 m/s^2 (it acts along -y), got {gravity}")
-    mesh, material = _setup(shape, spacing, young_modulus, poisson_ratio, density, model)
+    mesh, material = _setup(shape, spacing, young_modulus, poisson_ratio, density, model, element)
     nodes = mesh.nodes
     clamp, tip = _face(mesh, 0, False), _face(mesh, 0, True)
     control = Control.free(mesh.n_nodes)
@@ -303,7 +325,7 @@ def flexion(shape, spacing, young_modulus, poisson_ratio, *, density, gravity=9.
         tip_deflection=float((positions[tip, 1] - nodes[tip, 1]).mean()), reaction=float(reaction[clamp, 1].sum()),
         zero_energy_modes=modes, wall_time=wall,
         parameters=dict(shape=list(mesh.shape), spacing=mesh.spacing.tolist(), imposed_young_modulus=young_modulus,
-                        imposed_poisson_ratio=poisson_ratio, density=density, gravity=gravity),
+                        imposed_poisson_ratio=poisson_ratio, density=density, gravity=gravity, element=element),
     )
 
 
@@ -367,7 +389,9 @@ def settle(model, control: Control, positions, *, amplitude: float = 0.02, dt: f
     _, vectors = spla.eigsh(0.5 * (stiffness + stiffness.T), k=1, which="SA", tol=1e-6, maxiter=50 * len(free))
     mode = vectors[:, 0] / np.abs(vectors[:, 0]).max()
     start = np.array(positions, dtype=float)
-    start.ravel()[free] += amplitude * float(model.axis_rest_length.min()) * mode
+    # the smallest element edge: the mean edge lengths per axis of hexahedra, the springs of tetrahedra
+    edge = model.axis_rest_length.min() if model.axis_rest_length.size else model.rest_length.min()
+    start.ravel()[free] += amplitude * float(edge) * mode
     state, scratch = State(start, np.zeros_like(start)), State(start.copy(), np.zeros_like(start))
     integrator = ImplicitEuler()
     limit = rest_speed * float(np.sqrt(np.max(model.young_modulus / model.density)))

@@ -1,0 +1,236 @@
+"""Tetrahedral meshes: linear (4-node) tetrahedra, and the structured block split into them.
+
+Node order of a tetrahedron is positive: det[x1 - x0, x2 - x0, x3 - x0] > 0 (VTK's and Gmsh's
+convention for a valid tetrahedron). ``TetMesh.block`` splits the cubes of ``HexMesh.block`` into six
+tetrahedra each on the same nodes (the Kuhn, or Freudenthal, triangulation: every tetrahedron runs
+along the cube's main diagonal from local (0, 0, 0) to (1, 1, 1)), so a tetrahedral and a
+hexahedral model of one block can be compared node by node. Lengths are in metres.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._validate import finite_array
+from .mesh import LOCAL_CORNERS, HexMesh, _parse_shape, _parse_spacing
+
+#: The 6 edges of a tetrahedron (local node pairs).
+TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+#: The 4 faces of a positively oriented tetrahedron, each outward (counter-clockwise seen from
+#: outside); face f is the one opposite node 3 - f.
+TET_FACES = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+#: The corner frame used for the inversion check: node 0's three neighbours, sign +1 (a tetrahedron
+#: has a single signed volume).
+TET_CORNER_NEIGHBOURS = np.array([[1, 2, 3]])
+TET_CORNER_SIGN = np.array([1.0])
+
+
+def _kuhn_tetrahedra() -> np.ndarray:
+    """(6, 4) VTK corner indices (``mesh.LOCAL_CORNERS``) of the Kuhn split of the unit cube,
+    positively oriented: for each permutation (p, q, r) of the axes, the path (0,0,0) -> +e_p ->
+    +e_q -> +e_r = (1,1,1). Every cube of a block is split alike, so the split of a shared face is
+    the same seen from both cubes (its diagonal through the corner of smallest coordinate sum and
+    the one of largest): the tetrahedra conform across cubes."""
+    index = {tuple(corner.astype(int)): n for n, corner in enumerate(LOCAL_CORNERS)}
+    tets = []
+    for order in itertools.permutations(range(3)):
+        point = np.zeros(3, dtype=int)
+        path = [index[tuple(point)]]
+        for axis in order:
+            point[axis] = 1
+            path.append(index[tuple(point)])
+        corners = LOCAL_CORNERS[path]
+        if np.linalg.det(corners[1:] - corners[0]) < 0:
+            path[1], path[2] = path[2], path[1]
+        tets.append(path)
+    return np.array(tets)
+
+
+#: The Kuhn split of a hexahedron's 8 VTK corners into 6 positively oriented tetrahedra.
+KUHN_TETRAHEDRA = _kuhn_tetrahedra()
+
+
+def signed_volumes(positions: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """(M,) signed volumes det[x1 - x0, x2 - x0, x3 - x0] / 6 of tetrahedra, m^3."""
+    corners = positions[elements]
+    return np.linalg.det(corners[:, 1:] - corners[:, :1]) / 6.0
+
+
+def check_tetrahedra(positions: np.ndarray, elements: np.ndarray, name: str = "tetrahedron") -> None:
+    """Raise ``ValueError`` when a tetrahedron is degenerate (zero volume to rounding) or inverted
+    (negative orientation)."""
+    volume = signed_volumes(positions, elements)
+    corners = positions[elements]
+    edges = corners[:, TET_EDGES[:, 1]] - corners[:, TET_EDGES[:, 0]]
+    scale = np.linalg.norm(edges, axis=2).max(axis=1) ** 3  # volume of the longest edge's cube
+    relative = volume / np.where(scale > 0, scale, 1.0)
+    tolerance = 1e-10
+    if np.any(relative <= tolerance):
+        bad = int(np.argmax(relative <= tolerance))
+        kind = "inverted" if relative[bad] < -tolerance else "degenerate"
+        raise ValueError(
+            f"{kind} {name} {bad} (nodes {elements[bad].tolist()}): signed volume {volume[bad]:.6g} m^3 must be > 0; "
+            "the node order must be positive, det[x1 - x0, x2 - x0, x3 - x0] > 0 (swap two nodes to flip it)")
+
+
+@dataclass(frozen=True)
+class TetMesh:
+    """An unstructured mesh of linear (4-node) tetrahedra.
+
+    Args:
+        nodes: (N, 3) rest positions in m.
+        elements: (M, 4) node indices per tetrahedron, positively oriented
+            (det[x1 - x0, x2 - x0, x3 - x0] > 0).
+        shape: (nx, ny, nz) cubes when the mesh is a structured block split into tetrahedra, else None.
+        spacing: (dx, dy, dz) in m when the mesh is a structured block, else None.
+
+    Raises ``ValueError`` for wrong shapes, out-of-range indices, repeated nodes in an element, and
+    degenerate or inverted tetrahedra.
+    """
+
+    nodes: np.ndarray
+    elements: np.ndarray
+    shape: tuple[int, int, int] | None = None
+    spacing: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
+        try:
+            elements = np.asarray(self.elements)
+        except (TypeError, ValueError) as error:
+            raise ValueError("elements must be an (M, 4) integer array of tetrahedra") from error
+        if elements.ndim != 2 or elements.shape[1] != 4 or len(elements) == 0:
+            raise ValueError(f"elements must have shape (M, 4) (4-node tetrahedra) with M >= 1, got {elements.shape}")
+        if not np.issubdtype(elements.dtype, np.integer):
+            if not np.issubdtype(elements.dtype, np.number) or not np.all(np.equal(np.mod(elements, 1), 0)):
+                raise ValueError("elements must hold integer node indices")
+        elements = elements.astype(np.int64)
+        if elements.min() < 0 or elements.max() >= len(nodes):
+            raise ValueError(
+                f"element node indices must lie in [0, {len(nodes) - 1}], got [{elements.min()}, {elements.max()}]")
+        repeated = np.any(np.diff(np.sort(elements, axis=1), axis=1) == 0, axis=1)
+        if np.any(repeated):
+            bad = int(np.argmax(repeated))
+            raise ValueError(f"degenerate tetrahedron {bad}: a node appears twice in {elements[bad].tolist()}")
+        nodes.setflags(write=False)
+        elements.setflags(write=False)
+        object.__setattr__(self, "nodes", nodes)
+        object.__setattr__(self, "elements", elements)
+        check_tetrahedra(nodes, elements)
+
+    # -- construction ----------------------------------------------------------------------
+    @classmethod
+    def block(cls, shape, spacing=0.1) -> "TetMesh":
+        """Structured block of ``shape = (nx, ny, nz)`` cubes of ``spacing`` m, each split into 6
+        tetrahedra (``KUHN_TETRAHEDRA``) on the nodes of ``HexMesh.block(shape, spacing)``: node
+        (i, j, k) at (i dx, j dy, k dz) has index i + (nx + 1) (j + (ny + 1) k). Cube c's
+        tetrahedra are elements 6 c .. 6 c + 5."""
+        return cls.from_hex(HexMesh.block(_parse_shape(shape), _parse_spacing(spacing)))
+
+    @classmethod
+    def from_hex(cls, mesh: HexMesh) -> "TetMesh":
+        """The hexahedra of ``mesh`` each split into 6 tetrahedra on the same nodes (Kuhn split in
+        each hexahedron's local axes). Conforming when neighbouring hexahedra share local axis
+        directions (a structured block); keeps ``shape`` and ``spacing``."""
+        if not isinstance(mesh, HexMesh):
+            raise ValueError(f"from_hex needs a HexMesh, got {type(mesh).__name__}")
+        elements = mesh.elements[:, KUHN_TETRAHEDRA].reshape(-1, 4)
+        return cls(mesh.nodes.copy(), elements, shape=mesh.shape,
+                   spacing=None if mesh.spacing is None else np.array(mesh.spacing))
+
+    # -- geometry --------------------------------------------------------------------------
+    @property
+    def n_nodes(self) -> int:
+        return len(self.nodes)
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.elements)
+
+    @property
+    def size(self) -> np.ndarray:
+        """Extent of the bounding box in m."""
+        return self.nodes.max(axis=0) - self.nodes.min(axis=0)
+
+    def element_volumes(self, positions=None) -> np.ndarray:
+        """(M,) signed volumes in m^3 (exact for linear tetrahedra; negative where inverted)."""
+        positions = self.nodes if positions is None else np.asarray(positions, dtype=float)
+        if positions.shape != self.nodes.shape:
+            raise ValueError(f"positions must have shape {self.nodes.shape}, got {positions.shape}")
+        return signed_volumes(positions, self.elements)
+
+    def surface_faces(self) -> np.ndarray:
+        """(F, 3) node indices of the boundary triangles (faces used by one tetrahedron), outward
+        oriented: (x1 - x0) x (x2 - x0) points out of the mesh."""
+        faces = self.elements[:, TET_FACES].reshape(-1, 3)
+        key = np.sort(faces, axis=1)
+        _, index, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+        return faces[np.sort(index[counts == 1])]
+
+    def surface_nodes(self) -> np.ndarray:
+        """Sorted indices of the nodes on the boundary surface."""
+        return np.unique(self.surface_faces())
+
+    def node_index(self, i, j, k):
+        """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
+        if self.shape is None:
+            raise ValueError("node_index needs a structured block mesh (TetMesh.block)")
+        nx, ny, _ = self.shape
+        return np.asarray(i) + (nx + 1) * (np.asarray(j) + (ny + 1) * np.asarray(k))
+
+    # -- files -----------------------------------------------------------------------------
+    def write(self, path, point_data: dict | None = None, positions=None) -> None:
+        """Write the mesh (optionally deformed ``positions`` and ``point_data``) with meshio; the
+        format follows the extension (.vtu, .msh: Gmsh 4.1 binary, as ``HexMesh.write``)."""
+        import meshio
+
+        points = self.nodes if positions is None else finite_array("positions", positions, (self.n_nodes, 3))
+        mesh = meshio.Mesh(points, [("tetra", self.elements)], point_data=point_data or {})
+        path = Path(path)
+        if path.suffix == ".msh":
+            meshio.write(path, mesh, file_format="gmsh", binary=True)
+        else:
+            meshio.write(path, mesh)
+
+    @classmethod
+    def read(cls, path) -> "TetMesh":
+        """Read the tetrahedra of a mesh file with meshio (.vtu, .msh, .vtk, ...).
+
+        Raises ``FileNotFoundError`` when ``path`` does not exist and ``ValueError``, naming the
+        file, when meshio cannot read it (unsupported extension, empty, corrupt or another format),
+        when it holds no tetrahedra (the cell types found are listed) or when its tetrahedra do not
+        form a valid mesh (``TetMesh``'s checks: e.g. an inverted tetrahedron)."""
+        import contextlib
+        import io
+
+        import meshio
+
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(2, "mesh file not found", str(path))
+        if not path.is_file() or path.stat().st_size == 0:
+            raise ValueError(f"{path} is not a mesh file (a directory or empty); TetMesh.read needs .vtu, .msh, ...")
+        log = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(log), contextlib.redirect_stdout(log):
+                mesh = meshio.read(path)
+        except (Exception, SystemExit) as error:  # meshio's vtu/vtk readers exit on a bad file
+            detail = " ".join((log.getvalue() + " " + (str(error) if not isinstance(error, SystemExit) else "")).split())
+            raise ValueError(f"{path} is not a readable mesh file (unsupported extension, corrupt, truncated or "
+                             f"another format): {type(error).__name__}{': ' + detail if detail else ''}") from error
+        blocks = [np.asarray(cells.data) for cells in mesh.cells if cells.type == "tetra"]
+        if not blocks:
+            found = ", ".join(f"{len(cells.data)} {cells.type}" for cells in mesh.cells) or "no cells at all"
+            raise ValueError(f"{path} contains no tetrahedra (found {found}); TetMesh needs 4-node tetrahedral "
+                             "cells (meshio type 'tetra')")
+        points = np.asarray(mesh.points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"{path}: points must be 3D, (N, 3) coordinates in m; got an array of shape {points.shape}")
+        try:
+            return cls(points, np.concatenate(blocks))
+        except ValueError as error:
+            raise ValueError(f"{path}: its tetrahedra do not form a valid mesh: {error}") from error
