@@ -7,9 +7,10 @@ Writes
   docs/generated/validation.md   from benchmarks/results/validation_summary.json, validation_*.csv,
                                  env_accuracy.json and dynamic_convergence*.json
   docs/generated/performance.md  from step_speed.json, env_speed*.json, reset_speed.json,
-                                 vector_env_speed*.json, stability*.csv, speed_accuracy.json, peers.json
-  docs/generated/training.md     from training.json, training_batched.json, training_speed.json,
-                                 rllib_throughput*.json
+                                 vector_env_speed*.json, visual_speed.json, stability*.csv,
+                                 speed_accuracy.json, peers.json
+  docs/generated/training.md     from training.json, training_batched.json, training_pixels.json,
+                                 training_speed.json, rllib_throughput*.json
 
 Every number on these pages is read from a results file; every table is captioned with the command
 that regenerates its file (taken from the Makefile, or from the file's own metadata). The output is
@@ -376,7 +377,8 @@ def env_accuracy_sections():
 # -- performance page ----------------------------------------------------------------------------
 def performance_page():
     out = [HEADER.format(source="benchmarks/results/step_speed.json, env_speed*.json, reset_speed.json, "
-                                "vector_env_speed*.json, stability*.csv, speed_accuracy.json and peers.json"),
+                                "vector_env_speed*.json, visual_speed.json, stability*.csv, speed_accuracy.json "
+                                "and peers.json"),
            "# Performance\n\n",
            "Speeds measured on the project's 2-core machine, shared with other jobs: treat them as orders "
            "of magnitude and compare rows of the same table. Timing is never asserted in the tests.\n\n"]
@@ -418,6 +420,7 @@ def performance_page():
                        + [num(r["modes"][mode]["wall_steps_per_s"]) for mode in modes] + [num(r["wall_ratio"])]
                        for r in data["results"]]), "\n"]
     out += [figure("vector_env_speed.png", "vector env speed"), "\n"]
+    out += visual_speed_section()
 
     out += ["## Explicit stability limit\n\n",
             "The computed limit (`stable_time_step`) against the largest step measured stable: a ratio above 1 "
@@ -497,10 +500,53 @@ def performance_page():
     return "".join(out)
 
 
+def visual_speed_section():
+    """The camera observations' env steps/s against the state observation's (visual_speed.json)."""
+    data = load("visual_speed.json")
+    names = list(data["results"][0]["steps_per_s"])
+    sizes = data["sizes"]
+    return ["## Camera observations\n\n",
+            f"Observation types \"rgb\" and \"depth\" (`tissue_env.camera`, the task's default camera) against "
+            f"\"state\", side by side in one process. Unit: {data['unit']}. The floor: every visual observation at "
+            f">= {num(data['floor'])}x the state observation's steps/s. Frame: one world's projection, shading "
+            "and z-buffer (rgb and depth together), median microseconds.\n\n",
+            caption(data["command"], "visual_speed.json"), "\n",
+            table(["env"] + [f"{name} steps/s" for name in names] + [f"{name} / state" for name in names[1:]]
+                  + [f"frame us ({size} px)" for size in sizes] + ["floor holds"],
+                  [[short_id(r["env_id"])] + [num(r["steps_per_s"][name]) for name in names]
+                   + [num(r["ratio_to_state"][name]) for name in names[1:]]
+                   + [num(r["frame_us"][str(size)]) for size in sizes] + [str(r["floor_holds"])]
+                   for r in data["results"]]), "\n"]
+
+
+def pixels_section():
+    """Agents trained from camera images alone (training_pixels.json)."""
+    data = load("training_pixels.json")
+    out = ["## From pixels\n\n",
+           "PPO with SB3's CnnPolicy on the camera image alone (`observation_type=\"rgb\"`, 64 x 64 px; "
+           "hyperparameters `training/hyperparams/ppo_pixels.yml`), against random actions and the scripted "
+           "controller on the same episode seeds. *Regenerate `benchmarks/results/training_pixels.json`, one "
+           "command per row (each runs the training and evaluation commands below it):*\n\n"]
+    out += ["```\n" + "\n".join(line for entry in data.values()
+                                 for line in (entry["command"], "  " + entry["train_command"],
+                                              "  " + entry["evaluate_command"])) + "\n```\n\n"]
+    out += [table(["env", "algo", "observation", "timesteps", "seeds", "agent success per seed (%)",
+                   "agent return per seed", "random success (%) / return", "scripted success (%) / return",
+                   "beats random", "train wall s per seed"],
+                  [[short_id(e["env"]), e["algo"], f"{e['env_kwargs']['observation_type']} "
+                    f"{e['env_kwargs']['image_size']} px", e["timesteps"], " ".join(map(str, e["seeds"])),
+                    ", ".join(pct(s) for s in e["agent_success"]), ", ".join(num(r) for r in e["agent_return"]),
+                    f"{pct(e['random']['success_rate'])} / {num(e['random']['mean_return'])}",
+                    f"{pct(e['scripted']['success_rate'])} / {num(e['scripted']['mean_return'])}",
+                    ", ".join(str(b) for b in e["beats_random"]), ", ".join(num(w) for w in e["train_wall_clock_s"])]
+                   for e in data.values()]), "\n"]
+    return out
+
+
 # -- training page -------------------------------------------------------------------------------
 def training_page():
-    out = [HEADER.format(source="benchmarks/results/training.json, training_batched.json, training_speed.json "
-                                "and rllib_throughput*.json"),
+    out = [HEADER.format(source="benchmarks/results/training.json, training_batched.json, training_pixels.json, "
+                                "training_speed.json and rllib_throughput*.json"),
            "# Training\n\n",
            "stable-baselines3 agents on every task, against a random policy and the task's scripted "
            "controller (`env.unwrapped.scripted_action()`), each evaluated over the episodes given. "
@@ -522,6 +568,7 @@ def training_page():
         out += ["```\n" + "\n".join(commands) + "\n```\n\n"]
         out += [table(["env", "algo", "vec env", "timesteps", "seeds", "agent success per seed (%)", "mean (%)",
                        "random (%)", "scripted (%)", "train wall s (per seed)"], rows), "\n"]
+    out += pixels_section()
     figures = sorted(p.name for p in (DOCS / "figures").glob("learning_*.png"))
     out += ["## Learning curves\n\n"] + [figure(name, name[len("learning_"):-len(".png")].replace("_", " ")) + "\n"
                                           for name in figures]

@@ -39,10 +39,16 @@ from sim_core.batched import SOLVERS
 from sim_core.caches import BudgetCache
 from sim_core.model import Control, State
 
+from .camera import VISUAL_TYPES, Camera, CameraView
 from .rendering import Renderer
 from .worlds import OBS_LIMIT, TaskWorlds
 
-OBSERVATION_TYPES = ("state", "deformation", "dict")
+OBSERVATION_TYPES = ("state", "deformation", "dict") + VISUAL_TYPES
+#: The image sizes (pixels per side) a visual observation accepts: the range its speed is measured in
+#: (benchmarks/visual_speed.py), from what SB3's NatureCNN needs (36) with a margin.
+IMAGE_SIZE_RANGE = (64, 128)
+#: Default image size of the visual observations and of ``render_mode="depth_array"``, pixels.
+DEFAULT_IMAGE_SIZE = 64
 INTEGRATORS = ("implicit", "explicit", "static")
 #: The tissue models a task can simulate (``sim_core.build_model``'s ``model``): Baudet's springs with
 #: small-strain corrections, volume forces and hourglass control, or the finite-strain neo-Hookean
@@ -207,7 +213,7 @@ class EpisodeState:
 #: Attributes of a task environment that a snapshot shares instead of copying: caches of models and
 #: of their factorisations (a cached result is the one that would be computed), the renderer and
 #: the spaces. A task's own caches are added by its ``shared_attributes``.
-SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_renderer", "mesh",
+SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_renderer", "_camera_view", "mesh",
                      "action_space", "observation_space", "spec")
 #: The one world of a single env (``TaskWorlds.step``'s ``active``).
 _ONE = np.ones(1, dtype=bool)
@@ -284,12 +290,31 @@ class TissueEnv(gym.Env):
             its solves slow down), "reference" (the factor of the episode's start matrix) or
             "jacobi" (the Jacobi diagonal; a vector env solves its copies in lockstep, where a
             copy's floats depend on the copy count: not bitwise the single env's).
-        render_mode: None, "rgb_array" or "human".
+        render_mode: None, "rgb_array" (the debug frames of ``tissue_env.rendering``, with the hidden
+            tumour or inclusion marked), "human", or "depth_array" (the camera's depth image, (H, W)
+            float32 m, as ``observation_type="depth"`` sees it).
         max_nodes: the largest mesh (nodes) accepted, MAX_NODES by default (``check_work``: a larger
             ``shape`` raises ValueError); None accepts any size, with a warning past SLOW_NODES.
+
+    Visual observations (``tissue_env.camera``: a z-buffer rasteriser of the deformed surface; they
+    never show hidden ground truth such as the tumour or the inclusion, only the tissue, the tool
+    and the task's visible scene):
+        observation_type "rgb": ``Box(0, 255, (H, W, 3), uint8)``, channel last (SB3's CnnPolicy
+            transposes it); "depth": ``Box(near, far, (H, W, 1), float32)``, metric depth along the
+            optical axis in m, ``far`` where nothing is seen; "rgbd": ``(H, W, 4)`` float32, the
+            colour in [0, 1] then the depth in m (for SB3's CnnPolicy pass
+            ``policy_kwargs=dict(normalize_images=False)``); "point_cloud": ``(point_count, 3)``
+            float32 world positions in m of material points fixed on the surface (``(point_count, 6)``
+            with the unit outward normals when ``point_normals``), bounded to 1 m around the block's
+            centre (``info["observation_clipped"]`` says when a point was clipped).
+        image_size: pixels per side, an integer in IMAGE_SIZE_RANGE (default 64; None: the
+            camera's own size when ``camera`` is given, else 64).
+        camera: None (the task's ``default_camera``), a ``tissue_env.camera.Camera`` or a dict of
+            its keywords (position, target, up in m, fov_deg, width, height, near, far).
+        point_count: K points of the "point_cloud" observation (default 512); point_normals: bool.
     """
 
-    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "human", "depth_array"], "render_fps": 10}
 
     #: Defaults a task may override.
     default_shape = (6, 4, 6)
@@ -312,7 +337,7 @@ class TissueEnv(gym.Env):
                  hourglass_control=None, volume_stiffness=None, gravity=9.81, observation_type="state", young_modulus_range=None,
                  poisson_ratio_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
                  instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
-                 max_nodes=MAX_NODES):
+                 max_nodes=MAX_NODES, image_size=None, camera=None, point_count=512, point_normals=False):
         self.young_modulus = positive_scalar("young_modulus", young_modulus, "Pa")
         self.poisson_ratio = check_poisson_ratio("poisson_ratio", poisson_ratio)
         self.density = positive_scalar("density", density, "kg/m^3")
@@ -369,13 +394,16 @@ class TissueEnv(gym.Env):
         except ValueError as error:
             raise ValueError(f"shape/size/poisson_ratio give an invalid model: {error}") from error
 
+        self._camera_view = self._camera_setup(image_size, camera, point_count, point_normals)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._feature_sizes = OrderedDict(
             tool_position=3, tool_displacement=3, reaction_force=3, relative_volume_change=1, max_strain=1)
         self._feature_sizes.update(self._task_feature_sizes())
         if observation_type != "state":
             self._feature_sizes["surface_displacement"] = 3 * len(self.surface_nodes)
-        if observation_type == "dict":
+        if observation_type in VISUAL_TYPES:
+            self.observation_space = self._visual_space()
+        elif observation_type == "dict":
             self.observation_space = spaces.Dict({
                 name: spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(n,), dtype=np.float32)
                 for name, n in self._feature_sizes.items()})
@@ -389,6 +417,66 @@ class TissueEnv(gym.Env):
     #: The task's worlds (``tissue_env.worlds.TaskWorlds`` subclass): its env step on arrays over
     #: worlds, the single env's (one world) and the vector env's (N).
     worlds_class = TaskWorlds
+
+    # -- visual observations (tissue_env.camera) -----------------------------------------------------
+    #: The default camera: the point it looks at (fractions of the block along x, y, z), its
+    #: direction from that point (normalised), its distance in units of the block's largest side,
+    #: and its vertical field of view (degrees).
+    camera_target = (0.5, 0.5, 0.5)
+    camera_direction = (0.45, 1.0, 1.1)
+    camera_distance = 2.4
+    camera_fov = 45.0
+
+    def default_camera(self, width=DEFAULT_IMAGE_SIZE, height=DEFAULT_IMAGE_SIZE) -> Camera:
+        """The task's camera (m): at ``camera_distance`` block sizes from ``camera_target`` along
+        ``camera_direction``, looking at it, y up; near 1 cm, far beyond the whole scene."""
+        direction = np.asarray(self.camera_direction, dtype=float)
+        extent = float(np.max(self.size))
+        distance = self.camera_distance * extent
+        target = np.asarray(self.camera_target, dtype=float) * self.size
+        position = target + distance * direction / np.linalg.norm(direction)
+        return Camera(position=position, target=target, up=(0.0, 1.0, 0.0), fov_deg=self.camera_fov,
+                      width=width, height=height, near=0.01, far=distance + 4.0 * extent)
+
+    def _camera_setup(self, image_size, camera, point_count, point_normals) -> CameraView:
+        """The env's ``CameraView`` from its visual keywords (see the class docstring), checked."""
+        if image_size is not None:
+            low, high = IMAGE_SIZE_RANGE
+            if isinstance(image_size, bool) or not float(image_size).is_integer() or not low <= image_size <= high:
+                raise ValueError(f"image_size must be an integer from {low} to {high} (pixels per side), "
+                                 f"got {image_size!r}")
+            image_size = int(image_size)
+        if camera is None:
+            size = DEFAULT_IMAGE_SIZE if image_size is None else image_size
+            camera = self.default_camera(size, size)
+        else:
+            if isinstance(camera, dict):
+                camera = Camera(**camera)
+            elif not isinstance(camera, Camera):
+                raise ValueError(f"camera must be None, a tissue_env.camera.Camera or a dict of its keywords, "
+                                 f"got {type(camera).__name__}")
+            if image_size is not None:
+                camera = camera.with_size(image_size, image_size)
+        low, high = IMAGE_SIZE_RANGE
+        if not (low <= camera.width <= high and low <= camera.height <= high):
+            raise ValueError(f"the camera's image must be {low} to {high} pixels per side, got "
+                             f"{camera.width} x {camera.height}")
+        if isinstance(point_count, bool) or not float(point_count).is_integer() or not 1 <= point_count <= 100_000:
+            raise ValueError(f"point_count must be an integer from 1 to 100000, got {point_count!r}")
+        if not isinstance(point_normals, (bool, np.bool_)):
+            raise ValueError(f"point_normals must be True or False, got {point_normals!r}")
+        reach = OBS_LIMIT * self.length_scale  # the state observation's range of positions
+        return CameraView(camera, self._surface_faces, self.mesh.nodes, self.tool_nodes, int(point_count),
+                          bool(point_normals), bounds=(self.centre - reach, self.centre + reach))
+
+    @property
+    def camera(self) -> Camera:
+        """The camera of the visual observations and of ``render_mode="depth_array"``."""
+        return self._camera_view.camera
+
+    def _visual_space(self):
+        """The observation space of a visual ``observation_type`` (``tissue_env.camera.CameraView.space``)."""
+        return self._camera_view.space(self.observation_type)
 
     # -- hooks a task implements -------------------------------------------------------------
     def _setup_scene(self):
@@ -592,6 +680,8 @@ class TissueEnv(gym.Env):
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
         self._require_reset("render()")
+        if self.render_mode == "depth_array":
+            return self._worlds.camera_images()[1][0].astype(np.float32)
         if self._renderer is None:
             self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
                                       human=self.render_mode == "human", fps=self.metadata["render_fps"])

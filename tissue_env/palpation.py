@@ -9,6 +9,7 @@ from sim_core import contact, kernels
 from sim_core.model import Control
 
 from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
+from .camera import ALBEDO, probe_mesh
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
 
@@ -136,6 +137,12 @@ class PalpationWorlds(TaskWorlds):
 
     def _tool_position(self, positions):
         return self._tips()
+
+    def _scene_extras(self):
+        """The probe (its end and a shaft) at each world's tip; never the inclusion."""
+        template, triangles = probe_mesh(self.task.probe_radius, self.task.probe_tip)
+        albedo = np.broadcast_to(ALBEDO["probe"], (len(triangles), 3))
+        return self._tips()[:, None, :] + template[None], triangles, albedo
 
     def _task_measures(self, positions):
         tip = self._tips()
@@ -402,6 +409,10 @@ class PalpationEnv(TissueEnv):
     reward_names = ("success", "explore", "approach", "time", "force", "volume", "strain")
     #: Start height of the probe tip above the undeformed surface, m.
     clearance = 0.002
+    #: The default camera (``TissueEnv.default_camera``): above the slab and in front, the probe's side.
+    camera_target = (0.5, 0.9, 0.5)
+    camera_direction = (0.3, 1.0, 0.9)
+    camera_distance = 2.0
 
     def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=0.009,
                  probe_tip="sphere", probe_sampling="projected", inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,

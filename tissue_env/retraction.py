@@ -8,6 +8,7 @@ from sim_core import kernels
 from sim_core.model import Control
 
 from .base import TissueEnv, check_range, nonnegative_scalar, positive_scalar
+from .camera import ALBEDO, Camera, floor_tiles
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
 
@@ -53,6 +54,20 @@ class RetractionWorlds(TaskWorlds):
 
     def _write_back_task(self, index, env):
         env.contact = self.contact[index].copy()
+
+    #: the floor a camera sees, m beyond the flap on every side
+    floor_margin = 0.02
+
+    def _scene_extras(self):
+        """The floor (y = 0) in tiles whose middle one is each world's target rectangle, in its own
+        colour: the task's instruction (the state observation has its x range), not hidden."""
+        length, width = self.task.size[0], self.task.size[2]
+        margin = self.floor_margin
+        x = np.column_stack([np.full(self.num_envs, -margin), self.target_x, np.full(self.num_envs, length + margin)])
+        vertices, triangles = floor_tiles(x, [-margin, 0.25 * width, 0.75 * width, width + margin])
+        albedo = np.tile(ALBEDO["floor"], (len(triangles), 1))
+        albedo[8:10] = ALBEDO["target"]  # tile (1, 1): floor_tiles' triangles 2 (1 * 3 + 1) and the next
+        return vertices, triangles, albedo
 
     def _control(self, rows=None):
         """The tool, and the floor contact: the height of every node on the floor is imposed (y = 0,
@@ -261,6 +276,13 @@ class RetractionEnv(TissueEnv):
         self.workspace_high = np.array([0.01, 0.06, 0.01])
         elements = self.mesh.elements
         self._footprint = np.concatenate([elements[:, _BOTTOM], elements[:, _TOP]])  # (2M, 4) quads
+
+    def default_camera(self, width=64, height=64):
+        """In front of the flap (+z) and above it, looking at its middle, high enough to see the
+        free edge lifted to the top of the workspace and the target strip on the floor (m)."""
+        length, width_z = self.size[0], self.size[2]
+        return Camera(position=(0.5 * length, 0.075, width_z + 0.07), target=(0.5 * length, 0.02, 0.5 * width_z),
+                      up=(0.0, 1.0, 0.0), fov_deg=48.0, width=width, height=height, near=0.01, far=0.4)
 
     def _initial_positions(self, model, control):
         return model.rest_positions.copy()  # flat on the floor; the contact holds it there

@@ -231,6 +231,8 @@ class TumorPositioningEnv(TissueEnv):
     default_dt = 0.04
     default_solver_tolerance = 1e-2
     reward_names = ("distance", "success", "volume", "strain")
+    #: The default camera (``TissueEnv.default_camera``): above the grasped top, in front.
+    camera_target = (0.5, 0.6, 0.5)
 
     def __init__(self, *, tool_size=0.025, workspace=0.02, goal_displacement=0.012, goal_scale_range=(0.5, 1.0),
                  tumor_region=((0.25, 0.25, 0.25), (0.75, 0.75, 0.75)),

@@ -92,7 +92,8 @@ class TissueVectorEnv(VectorEnv):
 
     #: The task class; set by each task's vector env.
     env_class = None
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.NEXT_STEP}
+    metadata = {"render_modes": ["rgb_array", "depth_array"], "render_fps": 10,
+                "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None, threads: int | None = None,
                  **kwargs):
@@ -230,6 +231,8 @@ class TissueVectorEnv(VectorEnv):
             return None
         if not self._started:
             raise RuntimeError("call reset() before render()")
+        if self.render_mode == "depth_array":  # every copy's camera depth (H, W) float32 m
+            return tuple(self.worlds.camera_images()[1].astype(np.float32))
         frames = []
         for index, env in enumerate(self.envs):
             self.worlds.write_back(index)

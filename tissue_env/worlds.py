@@ -31,6 +31,8 @@ from sim_core.static import STATIC_CONTACT_PASSES, same_contacts
 from sim_core.validity import ValidityRange, out_of_range
 from sim_core.worlds import make_worlds_solver
 
+from .camera import VISUAL_TYPES
+
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
 #: by a healthy simulation, that keeps every observation inside the observation space.
 OBS_LIMIT = 100.0
@@ -398,10 +400,29 @@ class TaskWorlds:
         return force * self.stiffness_ratio
 
     def _observation(self, measures):
+        if self.task.observation_type in VISUAL_TYPES:
+            return self._visual_observation(measures)
         features = self._features(measures)
         parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
         self.clipped = np.zeros(self.num_envs, dtype=bool)
         return observation_arrays(parts, list(self._feature_sizes), self.task.observation_type == "dict", self.clipped)
+
+    # -- visual observations (tissue_env.camera) -----------------------------------------------------
+    def _scene_extras(self):
+        """The rigid geometry the camera sees besides the tissue: None, or (vertices (N, V, 3) m,
+        triangles (T, 3), albedo (T, 3) in [0, 1]) of every world (Retraction's floor and target
+        strip, Palpation's probe). Never hidden ground truth (the tumour, the inclusion)."""
+        return None
+
+    def camera_images(self):
+        """(rgb (N, H, W, 3) uint8, depth (N, H, W) float64 m) of every world through the task's camera."""
+        return self.task._camera_view.images(self.positions, self._scene_extras())
+
+    def _visual_observation(self, measures):
+        """The visual observations (N, ...) of ``observation_type`` (``tissue_env.camera.CameraView.observe``)."""
+        observation, self.clipped = self.task._camera_view.observe(
+            self.task.observation_type, measures["positions"], self._scene_extras())
+        return observation
 
     def _info(self, measures, rewards, reasons, success):
         """Every world's info, as (N, ...) arrays (after ``_observation``: its clipping is reported)."""
