@@ -550,7 +550,10 @@ def training_page():
            "# Training\n\n",
            "stable-baselines3 agents on every task, against a random policy and the task's scripted "
            "controller (`env.unwrapped.scripted_action()`), each evaluated over the episodes given. "
-           "Train one yourself with `python -m training.train` (see [getting started](../getting-started.md)).\n\n"]
+           "Train one yourself with `python -m training.train` (see [getting started](../getting-started.md)). "
+           "The env keywords column gives the environment keywords of a row's runs (`--variant` of "
+           "`training.benchmark`: `observation_type=goal` is SAC with stable-baselines3's `HerReplayBuffer` "
+           "on the goal observation, `difficulty=hard` the task's hard setting).\n\n"]
     for name, title in (("training.json", "One env per agent"), ("training_batched.json", "Batched vector env")):
         data = load(name)
         out += [f"## {title}\n\n"]
@@ -558,7 +561,8 @@ def training_page():
         commands = []
         for entry in data.values():
             success = entry["agent_success"]
-            rows.append([short_id(entry["env"]), entry["algo"], entry["vec_env"], entry["timesteps"],
+            setting = ", ".join(f"{key}={value}" for key, value in (entry.get("env_kwargs") or {}).items())
+            rows.append([short_id(entry["env"]), entry["algo"], setting or "default", entry["vec_env"], entry["timesteps"],
                          " ".join(str(seed) for seed in entry["seeds"]),
                          ", ".join(pct(s, 3) for s in success), pct(sum(success) / len(success)),
                          pct(entry["random"]["success_rate"]), pct(entry["scripted"]["success_rate"]),
@@ -566,9 +570,30 @@ def training_page():
             commands.append(entry["command"])
         out += [f"*Regenerate `benchmarks/results/{name}`, one command per row:*\n\n"]
         out += ["```\n" + "\n".join(commands) + "\n```\n\n"]
-        out += [table(["env", "algo", "vec env", "timesteps", "seeds", "agent success per seed (%)", "mean (%)",
+        out += [table(["env", "algo", "env keywords", "vec env", "timesteps", "seeds", "agent success per seed (%)", "mean (%)",
                        "random (%)", "scripted (%)", "train wall s (per seed)"], rows), "\n"]
     out += pixels_section()
+    if (RESULTS / "difficulty.json").is_file():
+        difficulty = load("difficulty.json")
+        out += ["## Difficulty levels\n\n",
+                "Each task's `difficulty` keyword (`\"easy\"`, `\"default\"`, `\"hard\"`) sets the keywords of its "
+                "`DIFFICULTY` table (see the task pages). Per level, the scripted controller and random actions on the "
+                "same seeds: success (the last step's `is_success`, which at a level without termination at a success "
+                "is a success held to the episode's end), episodes that reached a success at some step, the mean steps "
+                "to the first success of those, the mean return and the largest spring strain met.\n\n",
+                caption(difficulty["command"], "difficulty.json"), "\n"]
+        rows = []
+        for row in difficulty["results"]:
+            keywords = ", ".join(f"{key}={value}" for key, value in row["keywords"].items())
+            for policy in ("scripted", "random"):
+                result = row[policy]
+                rows.append([short_id(row["env_id"]), row["difficulty"], keywords if policy == "scripted" else "",
+                             policy, row["seeds"], pct(result["success_rate"]), pct(result["reached_rate"]),
+                             num(result["mean_steps_to_success"]), num(result["mean_return"]),
+                             num(result.get("mean_start_distance_m") and 1000 * result["mean_start_distance_m"]),
+                             num(result["max_strain"])])
+        out += [table(["env", "difficulty", "keywords", "policy", "episodes", "success (%)", "reached (%)",
+                       "steps to success", "return", "start distance (mm)", "max strain"], rows), "\n"]
     figures = sorted(p.name for p in (DOCS / "figures").glob("learning_*.png"))
     out += ["## Learning curves\n\n"] + [figure(name, name[len("learning_"):-len(".png")].replace("_", " ")) + "\n"
                                           for name in figures]

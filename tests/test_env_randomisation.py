@@ -130,3 +130,71 @@ def test_the_sampled_material_is_in_every_info(env_id):
     infos = vector.step(vector.action_space.sample())[4]
     np.testing.assert_array_equal(infos["young_modulus"], singles)
     vector.close()
+
+
+def _draws(env, seeds, key):
+    return [np.array(env.reset(seed=seed)[1][key], dtype=float) for seed in seeds]
+
+
+@pytest.mark.parametrize("env_id", sorted(tissue_env.ENV_IDS))
+def test_density_range_draws_the_mass_of_each_episode(env_id):
+    """density_range: a density per episode, inside the range, different across episodes, the same
+    for the same seed, reported as info["density"] at reset and at every step, and the episode's
+    model carries it: its lumped masses sum to density x the block's volume."""
+    env = gym.make(env_id, density_range=(900.0, 1200.0))
+    densities = _draws(env, (0, 1, 2), "density")
+    assert all(900.0 <= d <= 1200.0 for d in densities) and len({float(d) for d in densities}) == 3
+    assert float(_draws(env, (1,), "density")[0]) == float(densities[1])
+    info = env.step(np.zeros(3, np.float32))[4]
+    model = env.unwrapped.model
+    assert info["density"] == float(densities[1])
+    assert model.mass.sum() == pytest.approx(info["density"] * model.rest_volume.sum(), rel=1e-12)
+    assert gym.make(env_id, density=1000.0).reset(seed=0)[1]["density"] == 1000.0
+
+
+def test_palpation_inclusion_size_range_sets_the_stiff_volume():
+    """inclusion_size_range: each axis drawn per episode inside its range, info["inclusion_size"];
+    the elements stiffened hold exactly the drawn box (shares x volumes = its volume, for a box
+    inside the slab), a different one per episode."""
+    low, high = (0.008, 0.006, 0.008), (0.016, 0.01, 0.016)
+    env = gym.make(PALPATION, inclusion_size_range=(low, high), young_modulus=4e3, inclusion_ratio=10.0)
+    sizes = []
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        size = np.asarray(info["inclusion_size"])
+        assert np.all(size >= low) and np.all(size <= high)
+        share = (env.unwrapped.model.young_modulus / 4e3 - 1.0) / 9.0
+        assert share @ env.unwrapped.mesh.element_volumes() == pytest.approx(np.prod(size), rel=1e-9)
+        sizes.append(tuple(size))
+    assert len(set(sizes)) == 3
+    assert np.allclose(gym.make(PALPATION).reset(seed=0)[1]["inclusion_size"], (0.012, 0.01, 0.012))
+
+
+@pytest.mark.parametrize("value", [((0.01, 0.01, 0.01), (0.005, 0.02, 0.02)), (0.01,), ((0.0, 0.01, 0.01), 0.02)])
+def test_invalid_inclusion_size_range_names_it(value):
+    with pytest.raises(ValueError, match="inclusion_size_range"):
+        gym.make(PALPATION, inclusion_size_range=value)
+
+
+@pytest.mark.parametrize("env_id", sorted(tissue_env.ENV_IDS))
+def test_a_vector_copy_equals_the_single_env_under_randomisation(env_id):
+    """With every material range on (and Palpation's inclusion ranges), a vector env's copies draw
+    the single envs' episodes of the same seeds and take their steps (to 1e-6)."""
+    ranges = dict(young_modulus_range=(3e3, 8e3), poisson_ratio_range=(0.4, 0.45), density_range=(950.0, 1150.0))
+    if "Palpation" in env_id:
+        ranges.update(inclusion_ratio_range=(4.0, 12.0), inclusion_size_range=(0.008, 0.014))
+    vector = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", **ranges)
+    singles = [gym.make(env_id, **ranges) for _ in range(2)]
+    observations, infos = vector.reset(seed=[10, 11])
+    expected = [single.reset(seed=seed) for single, seed in zip(singles, (10, 11))]
+    actions = np.random.default_rng(4).uniform(-1, 1, (4, 2, 3)).astype(np.float32)
+    for step in range(len(actions) + 1):
+        for index in range(2):
+            np.testing.assert_allclose(observations[index], expected[index][0], rtol=0, atol=1e-6)
+            for key in ("young_modulus", "poisson_ratio", "density") + (("inclusion_size",) if "Palpation" in env_id else ()):
+                np.testing.assert_array_equal(infos[key][index], expected[index][-1][key])
+        if step == len(actions):
+            break
+        observations, _, _, _, infos = vector.step(actions[step])
+        expected = [single.step(action) for single, action in zip(singles, actions[step])]
+    vector.close()

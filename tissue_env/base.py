@@ -43,7 +43,7 @@ from .camera import VISUAL_TYPES, Camera, CameraView
 from .rendering import Renderer
 from .worlds import OBS_LIMIT, TaskWorlds
 
-OBSERVATION_TYPES = ("state", "deformation", "dict") + VISUAL_TYPES
+OBSERVATION_TYPES = ("state", "deformation", "dict", "goal") + VISUAL_TYPES
 #: The image sizes (pixels per side) a visual observation accepts: the range its speed is measured in
 #: (benchmarks/visual_speed.py), from what SB3's NatureCNN needs (36) with a margin.
 IMAGE_SIZE_RANGE = (64, 128)
@@ -132,6 +132,28 @@ def check_vector(name, value, unit="m"):
     if not np.all(np.isfinite(array)) or np.any(array <= 0):
         raise ValueError(f"{name} must be finite and > 0 {unit} along every axis, got {value!r}")
     return array
+
+
+#: The difficulty levels of every task (``difficulty`` keyword; each task's ``DIFFICULTY`` table).
+DIFFICULTIES = ("easy", "default", "hard")
+
+
+def difficulty_settings(table, difficulty, given):
+    """The keywords a task's ``difficulty`` sets: ``table[difficulty]`` (the task's ``DIFFICULTY``:
+    level -> keyword -> value, defined once per task), with each keyword of ``given`` that was
+    passed explicitly (not None) in place of the table's; ValueError for an unknown level. The
+    values are then checked by the task's own keyword checks."""
+    if not isinstance(difficulty, str) or difficulty not in table:
+        raise ValueError(f"difficulty must be one of {tuple(table)}, got {difficulty!r}")
+    settings = dict(table[difficulty])
+    settings.update({name: value for name, value in given.items() if value is not None})
+    return settings
+
+
+def check_flag(name, value):
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 #: The largest mesh (nodes) an environment accepts unless told otherwise (``max_nodes``): a reset
@@ -273,10 +295,18 @@ class TissueEnv(gym.Env):
             the implicit integrator treats the volume forces implicitly, so dynamics stay stable.
         gravity: m/s^2 along -y (default 9.81).
         observation_type: "state" (default), "deformation" (adds the displacement of the surface
-            nodes) or "dict" (the "deformation" features as a Dict space).
-        young_modulus_range, poisson_ratio_range: None or (low, high): domain randomisation, a new
-            value drawn uniformly at every reset and reported in every ``info`` of the episode under
-            ``young_modulus`` / ``poisson_ratio`` (the fixed values without a range) (the model is rebuilt: a slower reset).
+            nodes), "dict" (the "deformation" features as a Dict space) or, for a goal-conditioned
+            task (``goal_features``: TumorPositioning), "goal": a Dict of ``observation`` (the
+            "state" vector), ``achieved_goal`` and ``desired_goal``, with ``compute_reward``
+            (``_goal_space``; SB3's HerReplayBuffer).
+        young_modulus_range, poisson_ratio_range, density_range: None or (low, high) (Pa, -,
+            kg/m^3): domain randomisation, a new value drawn uniformly from ``np_random`` at every
+            reset (in this order, each only with a range) and reported in every ``info`` of the
+            episode under ``young_modulus`` / ``poisson_ratio`` / ``density`` (the fixed values
+            without a range). A new material is a new model (built on a cache miss: a slower
+            reset; ``MODEL_CACHE_SIZE`` models are kept, within the "models" byte budget). The
+            tasks add their own ranges (see their docstrings and the documentation's "Domain
+            randomisation" section).
         volume_weight: weight of the |relative volume change| penalty.
         strain_threshold, strain_weight: penalty strain_weight * max(0, max spring strain - threshold)
             (a damage proxy).
@@ -312,6 +342,12 @@ class TissueEnv(gym.Env):
         camera: None (the task's ``default_camera``), a ``tissue_env.camera.Camera`` or a dict of
             its keywords (position, target, up in m, fov_deg, width, height, near, far).
         point_count: K points of the "point_cloud" observation (default 512); point_normals: bool.
+        difficulty: "easy", "default" or "hard" (``DIFFICULTIES``): sets the task's difficulty
+            keywords from its ``DIFFICULTY`` table (goal distance, tolerances, contrast ...: each
+            task's docstring lists them); a difficulty keyword passed explicitly overrides its
+            level's value. "default" is the task as registered.
+        terminate_on_success: end the episode at a success (True at every level but where the
+            task's hard setting asks the agent to hold the success to the end of the episode).
     """
 
     metadata = {"render_modes": ["rgb_array", "human", "depth_array"], "render_fps": 10}
@@ -327,17 +363,28 @@ class TissueEnv(gym.Env):
     #: the same strains read the same at any stiffness), strains and volume change in %.
     length_scale = 0.01
     force_scale = 0.1
-    #: End the episode when the task succeeds.
+    #: End the episode when the task succeeds (the ``terminate_on_success`` keyword; its default is
+    #: the difficulty's).
     terminate_on_success = True
+    #: The keywords each ``difficulty`` sets (``difficulty_settings``; a keyword passed explicitly
+    #: overrides its level's value). A task's table names its own keywords too.
+    DIFFICULTY = {level: dict(terminate_on_success=True) for level in DIFFICULTIES}
     #: Names of the reward terms (each also in info as ``reward_<name>``).
     reward_names: tuple = ()
+    #: A goal-conditioned task's (achieved goal, desired goal) features of the state observation
+    #: (``observation_type="goal"``, ``compute_reward``); None for a task without one.
+    goal_features: tuple | None = None
 
     def __init__(self, *, young_modulus=5.0e3, poisson_ratio=0.45, density=1060.0, shape=None, size=None,
                  integrator="implicit", dt=None, substeps=1, max_step=None, model="baudet",
                  hourglass_control=None, volume_stiffness=None, gravity=9.81, observation_type="state", young_modulus_range=None,
-                 poisson_ratio_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
+                 poisson_ratio_range=None, density_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
                  instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
-                 max_nodes=MAX_NODES, image_size=None, camera=None, point_count=512, point_normals=False):
+                 max_nodes=MAX_NODES, image_size=None, camera=None, point_count=512, point_normals=False,
+                 difficulty="default", terminate_on_success=None):
+        settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(terminate_on_success=terminate_on_success))
+        self.difficulty = difficulty
+        self.terminate_on_success = check_flag("terminate_on_success", settings["terminate_on_success"])
         self.young_modulus = positive_scalar("young_modulus", young_modulus, "Pa")
         self.poisson_ratio = check_poisson_ratio("poisson_ratio", poisson_ratio)
         self.density = positive_scalar("density", density, "kg/m^3")
@@ -357,10 +404,17 @@ class TissueEnv(gym.Env):
         self.gravity = nonnegative_scalar("gravity", gravity)
         if observation_type not in OBSERVATION_TYPES:
             raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")
+        if observation_type == "goal" and self.goal_features is None:
+            raise ValueError(f"observation_type='goal' needs a goal-conditioned task (TumorPositioning); "
+                             f"{type(self).__name__} has no goal that an achieved state can be relabelled with "
+                             f"(see its docstring); use one of {tuple(t for t in OBSERVATION_TYPES if t != 'goal')}")
         self.observation_type = observation_type
         self.young_modulus_range = check_range(
             "young_modulus_range", young_modulus_range, lambda n, v: positive_scalar(n, v, "Pa"))
         self.poisson_ratio_range = check_range("poisson_ratio_range", poisson_ratio_range, check_poisson_ratio)
+        self.density_range = check_range("density_range", density_range,
+                                         lambda n, v: positive_scalar(n, v, "kg/m^3"))
+        self.episode_density = self.density  # the episode's (drawn from density_range at each reset)
         self.volume_weight = nonnegative_scalar("volume_weight", volume_weight)
         self.strain_threshold = nonnegative_scalar("strain_threshold", strain_threshold)
         self.strain_weight = nonnegative_scalar("strain_weight", strain_weight)
@@ -399,7 +453,7 @@ class TissueEnv(gym.Env):
         self._feature_sizes = OrderedDict(
             tool_position=3, tool_displacement=3, reaction_force=3, relative_volume_change=1, max_strain=1)
         self._feature_sizes.update(self._task_feature_sizes())
-        if observation_type != "state":
+        if observation_type not in ("state", "goal"):
             self._feature_sizes["surface_displacement"] = 3 * len(self.surface_nodes)
         if observation_type in VISUAL_TYPES:
             self.observation_space = self._visual_space()
@@ -410,6 +464,8 @@ class TissueEnv(gym.Env):
         else:
             total = sum(self._feature_sizes.values())
             self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(total,), dtype=np.float32)
+        if observation_type == "goal":
+            self.observation_space = self._goal_space()
         self._renderer = None
         self._worlds = None  # this env's one world (``TaskWorlds``), built at its first reset
         self.state = None
@@ -490,8 +546,8 @@ class TissueEnv(gym.Env):
         """Key of the task's material layout (e.g. the inclusion cell), None when homogeneous."""
         return None
 
-    def _material(self, young_modulus, poisson_ratio, task_key) -> Material:
-        return Material(young_modulus, poisson_ratio, self.density)
+    def _material(self, young_modulus, poisson_ratio, task_key, density) -> Material:
+        return Material(young_modulus, poisson_ratio, density)
 
     def _reset_task(self, options):
         """Draw the episode (goal, target, ...) from ``self.np_random``; set ``self.task_key``."""
@@ -514,7 +570,7 @@ class TissueEnv(gym.Env):
         if not result.converged:
             raise ValueError(
                 f"the block has no start equilibrium under gravity ({result.message}) with "
-                f"young_modulus={self.episode_young_modulus:g} Pa, density={self.density:g} kg/m^3, "
+                f"young_modulus={self.episode_young_modulus:g} Pa, density={self.episode_density:g} kg/m^3, "
                 f"gravity={self.gravity:g} m/s^2 and size {self.size.tolist()} m: the tissue cannot carry its "
                 "own weight; use a stiffer or lighter material, a smaller block or less gravity")
         return result.positions
@@ -530,15 +586,18 @@ class TissueEnv(gym.Env):
             raise RuntimeError(f"call reset() before {call}")
 
     # -- model building --------------------------------------------------------------------------
-    def _model(self, young_modulus, poisson_ratio, task_key):
-        key = (float(young_modulus), float(poisson_ratio), task_key)
+    def _model(self, young_modulus, poisson_ratio, task_key, density=None):
+        """The cached model of a material (E Pa, nu, the task's layout key, density kg/m^3, default
+        ``density``), built on a miss."""
+        density = self.density if density is None else float(density)
+        key = (float(young_modulus), float(poisson_ratio), density, task_key)
         with self._cache_lock:
             model = self._model_cache.get(key)
             if model is None:
                 options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
                            if self.model_name == "baudet" else {})
                 model = build_model(
-                    self.mesh, self._material(young_modulus, poisson_ratio, task_key), model=self.model_name,
+                    self.mesh, self._material(young_modulus, poisson_ratio, task_key, density), model=self.model_name,
                     gravity=(0.0, -self.gravity, 0.0), **options)
                 self._model_cache.put(key, model)
             return model
@@ -563,11 +622,14 @@ class TissueEnv(gym.Env):
             young_modulus = float(self.np_random.uniform(*self.young_modulus_range))
         if self.poisson_ratio_range is not None:
             poisson_ratio = float(self.np_random.uniform(*self.poisson_ratio_range))
+        self.episode_density = self.density
+        if self.density_range is not None:
+            self.episode_density = float(self.np_random.uniform(*self.density_range))
         self.episode_young_modulus, self.episode_poisson_ratio = young_modulus, poisson_ratio
         self.tool_offset = np.zeros(3)
         self.task_key = self._default_task_key()
         self._reset_task(options)
-        self.model = self._model(young_modulus, poisson_ratio, self.task_key)
+        self.model = self._model(young_modulus, poisson_ratio, self.task_key, self.episode_density)
         self.rest_volume = float(self.model.rest_volume.sum())
         positions = self._start_positions(self.model)
         self.start_control = self._start_control()
@@ -655,6 +717,38 @@ class TissueEnv(gym.Env):
         task's admissible set (default: the box itself). Vectorised: the worlds call it on their
         (N, 3) offsets (their copies share size and workspace)."""
         return offset
+
+    # -- goal-conditioned API (observation_type="goal") --------------------------------------------
+    def _goal_space(self) -> spaces.Dict:
+        """The ``"goal"`` observation space: ``observation`` (the ``"state"`` vector, float32),
+        ``achieved_goal`` and ``desired_goal`` (the task's ``goal_features`` in the state
+        observation's normalised units, float64: ``compute_reward`` recomputes the step's reward
+        from them to the last bit)."""
+        achieved, _ = self.goal_features
+        size = self._feature_sizes[achieved]
+        goal = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(size,), dtype=np.float64)
+        return spaces.Dict(dict(
+            observation=spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(sum(self._feature_sizes.values()),), dtype=np.float32),
+            achieved_goal=goal, desired_goal=copy.deepcopy(goal)))
+
+    @property
+    def compute_reward(self):
+        """``compute_reward(achieved_goal, desired_goal, info)``: the reward of a step whose
+        outcome was ``achieved_goal`` had the goal been ``desired_goal``, vectorised over a batch
+        of goals (..., k) with ``info`` one step's info or a list / array of them, one per goal
+        (SB3's ``HerReplayBuffer`` passes an array; give it ``copy_info_dict=True``, since the
+        goal-independent terms come from the info). Equal to the step's reward, bit for bit, for
+        the step's own goals (``TaskWorlds.compute_reward``). Present only with
+        ``observation_type="goal"`` (goal-env checkers detect a goal env by this method)."""
+        if self.observation_type != "goal":
+            raise AttributeError(f"compute_reward exists only with observation_type='goal' (this env has "
+                                 f"observation_type={self.observation_type!r})")
+        return self._compute_reward
+
+    def _compute_reward(self, achieved_goal, desired_goal, info):
+        if self._worlds is None:  # the reward's constants only: the worlds reset will load
+            self._worlds = self.worlds_class([self], threads=1)
+        return self._worlds.compute_reward(achieved_goal, desired_goal, info)
 
     def step(self, action):
         action = np.asarray(action, dtype=np.float64)

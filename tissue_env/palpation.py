@@ -8,7 +8,8 @@ from sim_core import Material
 from sim_core import contact, kernels
 from sim_core.model import Control
 
-from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
+from .base import (TissueEnv, check_range, check_region, check_vector, difficulty_settings, nonnegative_scalar,
+                   positive_scalar)
 from .camera import ALBEDO, probe_mesh
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
@@ -80,6 +81,7 @@ class PalpationWorlds(TaskWorlds):
         self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
         self.probe_start = np.zeros((count, 3))
         self.inclusion_ratio_of = np.zeros(count)  # each copy's inclusion stiffness ratio this episode
+        self.inclusion_size_of = np.zeros((count, 3))  # and its inclusion's size, m
         self.inclusion_centre = np.zeros((count, 3))
         self.press_steps = np.zeros(count, dtype=int)
         self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's probe holds
@@ -94,6 +96,7 @@ class PalpationWorlds(TaskWorlds):
 
     def _load_task(self, index, env):
         self.inclusion_ratio_of[index] = env.episode_inclusion_ratio
+        self.inclusion_size_of[index] = env.episode_inclusion_size
         self.probe_start[index] = env.probe_start
         self.start_heights[index] = env.start_heights
         self.inclusion_centre[index] = env.inclusion_centre
@@ -190,7 +193,7 @@ class PalpationWorlds(TaskWorlds):
                     press_steps=measures["press_steps"].copy(), inclusion_centre=self.inclusion_centre.copy(),
                     indentation_stiffness=measures["indentation_stiffness"].copy(),
                     apparent_modulus=measures["apparent_modulus"].copy(),
-                    inclusion_ratio=self.inclusion_ratio_of.copy())
+                    inclusion_ratio=self.inclusion_ratio_of.copy(), inclusion_size=self.inclusion_size_of.copy())
 
     def _is_success(self, measures):
         return measures["press_steps"] >= self.hold_steps
@@ -363,6 +366,25 @@ class PalpationEnv(TissueEnv):
     = 5 mm below the undeformed surface with its axis within ``success_radius`` = 1 cm of the
     inclusion centre (horizontally); ``info["press_steps"]`` counts the steps held so far.
 
+    ## Difficulty
+
+    ``difficulty="easy" | "default" | "hard"`` sets ``inclusion_ratio`` (the contrast),
+    ``inclusion_size``, ``success_radius``, ``hold_steps``, ``start_distance`` and
+    ``terminate_on_success`` from ``PalpationEnv.DIFFICULTY`` (a keyword passed explicitly
+    overrides its level's value): easy, a stiffer inclusion, a wider success radius, a shorter
+    hold and a nearer start; hard, a 4x inclusion of 8 mm, a narrower radius, a longer hold and a
+    start farther from it. Measured success rates and steps to success per level: the training
+    page of the documentation (``benchmarks/success_rates.py --difficulty``).
+
+    ## Domain randomisation
+
+    ``inclusion_ratio_range`` (the contrast), ``inclusion_size_range`` (None or (low, high), each a
+    size in m or three: each axis of the inclusion box drawn uniformly per episode;
+    ``info["inclusion_size"]``) and ``inclusion_region`` (the candidate places, one drawn per
+    episode; ``info["inclusion_centre"]``) vary the inclusion; ``young_modulus_range``,
+    ``poisson_ratio_range`` and ``density_range`` the tissue (``tissue_env.base.TissueEnv``). Each
+    inclusion or material drawn is a model of its own (cached, ``MODEL_CACHE_SIZE`` of them).
+
     ## Arguments
 
     ```python
@@ -379,7 +401,8 @@ class PalpationEnv(TissueEnv):
     ("sphere", default, or "flat"), ``probe_sampling`` ("projected", default, or "node"),
     ``inclusion_size`` (m, a number or (x, y, z), default (0.012, 0.01, 0.012): the inclusion box),
     ``inclusion_ratio_range`` (None or (low, high): a ratio drawn per reset, the model is rebuilt;
-    the episode's ratio is ``info["inclusion_ratio"]``),
+    the episode's ratio is ``info["inclusion_ratio"]``), ``inclusion_size_range`` (see Domain
+    randomisation), ``difficulty``,
     ``inclusion_region`` (None or ((x0, z0), (x1, z1)): fractions of the top face that hold the
     candidate inclusion centres; the candidates are the 1.2 cm cells of the top face whose centre
     lies in it, whatever the ``shape``: at the default size, centres at fractions 0.1, 0.3, 0.5, 0.7,
@@ -414,10 +437,29 @@ class PalpationEnv(TissueEnv):
     camera_direction = (0.3, 1.0, 0.9)
     camera_distance = 2.0
 
-    def __init__(self, *, inclusion_ratio=10.0, inclusion_ratio_range=None, inclusion_region=None, probe_radius=0.009,
-                 probe_tip="sphere", probe_sampling="projected", inclusion_size=(0.012, 0.01, 0.012), max_depth=0.008, success_depth=0.005, success_radius=0.01,
-                 hold_steps=3, start_distance=0.02, success_bonus=10.0, time_penalty=0.05, force_limit=2.0, force_weight=1.0, map_depth=0.004,
-                 explore_bonus=0.5, approach_weight=1.0, **kwargs):
+    #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them):
+    #: the inclusion's contrast (stiffness ratio) and size (m), how near its centre a press counts
+    #: (m), how long it is held (steps), how far from it the probe starts (m).
+    DIFFICULTY = dict(
+        easy=dict(inclusion_ratio=20.0, inclusion_size=(0.012, 0.01, 0.012), success_radius=0.015, hold_steps=2,
+                  start_distance=0.01, terminate_on_success=True),
+        default=dict(inclusion_ratio=10.0, inclusion_size=(0.012, 0.01, 0.012), success_radius=0.01, hold_steps=3,
+                     start_distance=0.02, terminate_on_success=True),
+        hard=dict(inclusion_ratio=4.0, inclusion_size=(0.008, 0.008, 0.008), success_radius=0.007, hold_steps=5,
+                  start_distance=0.03, terminate_on_success=True),
+    )
+
+    def __init__(self, *, inclusion_ratio=None, inclusion_ratio_range=None, inclusion_size_range=None,
+                 inclusion_region=None, probe_radius=0.009,
+                 probe_tip="sphere", probe_sampling="projected", inclusion_size=None, max_depth=0.008, success_depth=0.005, success_radius=None,
+                 hold_steps=None, start_distance=None, success_bonus=10.0, time_penalty=0.05, force_limit=2.0, force_weight=1.0, map_depth=0.004,
+                 explore_bonus=0.5, approach_weight=1.0, difficulty="default", **kwargs):
+        settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(
+            inclusion_ratio=inclusion_ratio, inclusion_size=inclusion_size, success_radius=success_radius,
+            hold_steps=hold_steps, start_distance=start_distance))
+        inclusion_ratio, inclusion_size, success_radius, hold_steps, start_distance = (
+            settings[name] for name in ("inclusion_ratio", "inclusion_size", "success_radius", "hold_steps",
+                                        "start_distance"))
         self.inclusion_ratio = positive_scalar("inclusion_ratio", inclusion_ratio)
         self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
         self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region, "xz")
@@ -432,6 +474,20 @@ class PalpationEnv(TissueEnv):
         #: face in ``_setup_scene``)
         self.probe = contact.Probe(self.probe_radius, probe_tip)
         self.inclusion_size = check_vector("inclusion_size", inclusion_size)
+        if inclusion_size_range is None:
+            self.inclusion_size_range = None
+        else:
+            try:
+                low, high = inclusion_size_range
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"inclusion_size_range must be None or a (low, high) pair of sizes in m (a number or "
+                                 f"three each), got {inclusion_size_range!r}") from error
+            low, high = check_vector("inclusion_size_range", low), check_vector("inclusion_size_range", high)
+            if np.any(low > high):
+                raise ValueError(f"inclusion_size_range must have low <= high along every axis, got "
+                                 f"{inclusion_size_range!r}")
+            self.inclusion_size_range = (low, high)
+        self.episode_inclusion_size = self.inclusion_size.copy()
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
         self.success_depth = positive_scalar("success_depth", success_depth, "m")
         self.success_radius = positive_scalar("success_radius", success_radius, "m")
@@ -446,7 +502,7 @@ class PalpationEnv(TissueEnv):
         self.map_depth = positive_scalar("map_depth", map_depth, "m")
         self.explore_bonus = nonnegative_scalar("explore_bonus", explore_bonus)
         self.approach_weight = nonnegative_scalar("approach_weight", approach_weight)
-        super().__init__(**kwargs)
+        super().__init__(difficulty=difficulty, **kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):
@@ -519,14 +575,19 @@ class PalpationEnv(TissueEnv):
         self.workspace_high = self.workspace_box[1] - start
 
     def _default_task_key(self):
-        # (candidate index, stiffness ratio) of the inclusion: the element stiffnesses follow from
-        # inclusion_shares[index], what the model depends on
-        return (len(self.inclusion_cells) // 2, self.inclusion_ratio)
+        # (candidate index, stiffness ratio, size (m) or None for inclusion_size) of the inclusion:
+        # the element stiffnesses follow from its box's shares, what the model depends on
+        return (len(self.inclusion_cells) // 2, self.inclusion_ratio, None)
 
-    def _material(self, young_modulus, poisson_ratio, task_key):
-        index, ratio = task_key
-        young = float(young_modulus) * (1.0 + (ratio - 1.0) * self.inclusion_shares[index])
-        return Material(young, poisson_ratio, self.density)
+    def _material(self, young_modulus, poisson_ratio, task_key, density):
+        index, ratio, size = task_key
+        if size is None:  # the inclusion_size box
+            shares = self.inclusion_shares[index]
+        else:  # a drawn size (inclusion_size_range): its box around the candidate centre
+            centre = self.inclusion_centres[index]
+            shares = self.mesh.box_shares(centre - 0.5 * np.asarray(size), centre + 0.5 * np.asarray(size))
+        young = float(young_modulus) * (1.0 + (ratio - 1.0) * shares)
+        return Material(young, poisson_ratio, density)
 
     def _task_feature_sizes(self):
         return dict(depth=1, contact_nodes=1, indentation_stiffness=1, hold_progress=1,
@@ -538,9 +599,13 @@ class PalpationEnv(TissueEnv):
         ratio = self.inclusion_ratio
         if self.inclusion_ratio_range is not None:
             ratio = float(self.np_random.uniform(*self.inclusion_ratio_range))
+        size = None
+        if self.inclusion_size_range is not None:
+            size = tuple(float(v) for v in self.np_random.uniform(*self.inclusion_size_range))
         self.inclusion_index, self.episode_inclusion_ratio = index, ratio
+        self.episode_inclusion_size = self.inclusion_size.copy() if size is None else np.array(size)
         self.inclusion_cell = self.inclusion_cells[index].copy()
-        self.task_key = (index, ratio)
+        self.task_key = (index, ratio, size)
         self.inclusion_centre = self.inclusion_centres[index].copy()
         # Probe start: uniform over the workspace among the points at least start_distance from
         # the inclusion (32 draws at once: a fixed number of random numbers per reset).

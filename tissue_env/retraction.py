@@ -7,7 +7,7 @@ import numpy as np
 from sim_core import kernels
 from sim_core.model import Control
 
-from .base import TissueEnv, check_range, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
 from .camera import ALBEDO, Camera, floor_tiles
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
@@ -186,7 +186,11 @@ class RetractionEnv(TissueEnv):
     | 15-16 | flap footprint x range (min, max over its nodes)    | cm from block centre  |
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
-    as a ``Dict`` keyed by name.
+    as a ``Dict`` keyed by name. There is no ``"goal"`` observation: the reward is the covering of
+    the target by the whole deformed flap (every element's footprint against the target grid) and
+    the tension, not a function of a low-dimensional achieved state, and the desired outcome (the
+    target exposed under the tension limit) is the same in every episode, so relabelling a
+    transition with the state it reached would give no other goal to learn from.
 
     ## Rewards
 
@@ -212,7 +216,18 @@ class RetractionEnv(TissueEnv):
     ## Episode End
 
     Terminated on success (exposed fraction >= ``success_exposure`` = 0.95 with |F| <=
-    ``force_limit``) or on divergence (``info["unstable"]``). Truncated after 60 steps.
+    ``force_limit``; unless ``terminate_on_success=False``, the hard level's) or on divergence
+    (``info["unstable"]``). Truncated after 60 steps.
+
+    ## Difficulty
+
+    ``difficulty="easy" | "default" | "hard"`` sets ``force_limit``, ``success_exposure`` and
+    ``terminate_on_success`` from ``RetractionEnv.DIFFICULTY`` (a keyword passed explicitly
+    overrides its level's value): easy, a looser tension limit and 85% exposure; hard, a tension
+    limit near what holding the lifted flap takes, the whole target exposed, and no termination at
+    a success, so the flap must be held back under the limit until the episode ends. Measured
+    success rates and steps to success per level: the training page of the documentation
+    (``benchmarks/success_rates.py --difficulty``).
 
     ## Arguments
 
@@ -227,8 +242,10 @@ class RetractionEnv(TissueEnv):
     step (``RetractionVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
 
     Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
-    ``tension_weight``, ``success_exposure``, ``success_bonus``; shared keywords in
-    ``tissue_env.base.TissueEnv``.
+    ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``; shared keywords in
+    ``tissue_env.base.TissueEnv``. Domain randomisation: ``young_modulus_range``,
+    ``poisson_ratio_range``, ``density_range`` (per episode, in ``info``) and ``target_start_range``
+    (the target's place).
 
     ## Version History
 
@@ -246,8 +263,20 @@ class RetractionEnv(TissueEnv):
     min_shape = (2, 1, 1)
     reward_names = ("exposure", "tension", "success", "volume", "strain")
 
-    def __init__(self, *, target_start_range=(0.03, 0.04), target_length=0.015, force_limit=0.5,
-                 tension_weight=1.0, success_exposure=0.95, success_bonus=5.0, **kwargs):
+    #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them):
+    #: the tension limit (N at E = 5 kPa), the exposed share that counts as a success and whether a
+    #: success ends the episode (hard: the target must be kept exposed under the limit to the end).
+    DIFFICULTY = dict(
+        easy=dict(force_limit=0.8, success_exposure=0.85, terminate_on_success=True),
+        default=dict(force_limit=0.5, success_exposure=0.95, terminate_on_success=True),
+        hard=dict(force_limit=0.15, success_exposure=1.0, terminate_on_success=False),
+    )
+
+    def __init__(self, *, target_start_range=(0.03, 0.04), target_length=0.015, force_limit=None,
+                 tension_weight=1.0, success_exposure=None, success_bonus=5.0, difficulty="default", **kwargs):
+        settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(force_limit=force_limit,
+                                                                         success_exposure=success_exposure))
+        force_limit, success_exposure = settings["force_limit"], settings["success_exposure"]
         if target_start_range is None:
             raise ValueError("target_start_range must be a (low, high) pair in m, got None")
         self.target_start_range = check_range(
@@ -259,7 +288,7 @@ class RetractionEnv(TissueEnv):
         if self.success_exposure > 1:
             raise ValueError(f"success_exposure must lie in (0, 1], got {success_exposure!r}")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
-        super().__init__(**kwargs)
+        super().__init__(difficulty=difficulty, **kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):

@@ -9,7 +9,8 @@ from sim_core.static import FactorCache
 from sim_core.mesh import LOCAL_CORNERS
 from sim_core.model import Control
 
-from .base import TissueEnv, check_range, check_region, check_vector, nonnegative_scalar, positive_scalar
+from .base import (TissueEnv, check_range, check_region, check_vector, difficulty_settings, nonnegative_scalar,
+                   positive_scalar)
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
 
@@ -82,12 +83,27 @@ class TumorPositioningWorlds(TaskWorlds):
     def _task_measures(self, positions):
         corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8, 3)
         tumor = (self.tumor_weights[:, None, :] @ corners)[:, 0]
+        if self.goal_observed:  # the distance of the observed goals, the one compute_reward recomputes
+            achieved, desired = self._goal_vectors(tumor)
+            return dict(tumor=tumor, achieved_goal=achieved, desired_goal=desired,
+                        distance=self.goal_distance(achieved, desired))
         return dict(tumor=tumor, distance=np.linalg.norm(self.goal - tumor, axis=1))
+
+    def _goal_vectors(self, tumor):
+        """(tumour position, goal position) (N, 3) in the observation's units (cm from the block
+        centre): the state observation's ``tumor_position`` and ``goal_position``, and the goal
+        observation's achieved and desired goals."""
+        return (tumor - self.centre) / self.length_scale, (self.goal - self.centre) / self.length_scale
+
+    def goal_distance(self, achieved, desired):
+        """Tumour-goal distance, m, of achieved and desired goals (..., 3) in the observation's units."""
+        return np.linalg.norm(desired - achieved, axis=-1) * self.length_scale
 
     def _task_features(self, measures):
         tumor, scale = measures["tumor"], self.length_scale
+        tumor_position, goal_position = self._goal_vectors(tumor)
         return dict(
-            tumor_position=(tumor - self.centre) / scale, goal_position=(self.goal - self.centre) / scale,
+            tumor_position=tumor_position, goal_position=goal_position,
             goal_error=(self.goal - tumor) / scale, goal_distance=measures["distance"][:, None] / scale,
             tumor_displacement=(tumor - self.tumor_start) / scale,
         )
@@ -99,13 +115,18 @@ class TumorPositioningWorlds(TaskWorlds):
     def _is_success(self, measures):
         return measures["distance"] < self.success_distance
 
+    def _distance_terms(self, distance):
+        """The reward terms of the tumour-goal distances (B,) m: distance and success."""
+        return dict(distance=-distance / self.length_scale,
+                    success=np.where(distance < self.success_distance, self.success_bonus, 0.0))
+
     def _reward_terms(self, measures):
-        terms = dict(
-            distance=-measures["distance"] / self.length_scale,
-            success=np.where(self._is_success(measures), self.success_bonus, 0.0),
-        )
+        terms = self._distance_terms(measures["distance"])
         terms.update(self._damage_terms(measures))
         return terms
+
+    def _goal_reward_terms(self, achieved, desired):
+        return self._distance_terms(self.goal_distance(achieved, desired))
 
 
 class TumorPositioningEnv(TissueEnv):
@@ -170,6 +191,18 @@ class TumorPositioningEnv(TissueEnv):
     ``mesh.surface_nodes()``); ``"dict"`` gives the same features as a ``Dict`` of ``Box`` es keyed
     by name (``tool_position``, ..., ``surface_displacement``).
 
+    ``"goal"`` (goal-conditioned, for hindsight experience replay): a ``Dict`` of ``observation``
+    (the 24 values above, float32), ``achieved_goal`` (the tumour position, indices 11-13) and
+    ``desired_goal`` (the goal position, indices 14-16), both ``Box(-100, 100, (3,), float64)`` in
+    cm from the block centre. ``env.unwrapped.compute_reward(achieved_goal, desired_goal, info)``
+    recomputes the reward of a step for any goals, vectorised over a batch of goals (..., 3) with
+    one info or one per goal (a list or an object array, as SB3's ``HerReplayBuffer`` passes them
+    with ``copy_info_dict=True``): the distance and success terms from the goals, the volume,
+    strain and instability terms from the info's ``relative_volume_change``, ``max_strain`` and
+    ``unstable``. For a step's own goals it equals the step's reward bit for bit (the goal env
+    measures the tumour-goal distance on the observed goals, within 1e-17 m of the other
+    observation types'). The vector env has the same observation space and ``compute_reward``.
+
     ## Rewards
 
     ``r = reward_distance + reward_success + reward_volume + reward_strain (+ reward_instability)``:
@@ -191,12 +224,24 @@ class TumorPositioningEnv(TissueEnv):
     central half along every axis); the goal is the tumour's static equilibrium for a tool
     displacement in a random direction, of ``goal_scale_range`` (default 0.5-1) times
     ``goal_displacement`` (default 12 mm) along its largest axis (clipped to the workspace),
-    scaled up (within the workspace) until the goal is at least 2 ``success_distance`` (4 mm) away.
+    scaled up (within the workspace) until the goal is at least ``goal_min_distance`` (default
+    2 ``success_distance``, 4 mm) away.
+
+    ## Difficulty
+
+    ``difficulty="easy" | "default" | "hard"`` sets ``goal_displacement``, ``goal_min_distance``,
+    ``success_distance`` and ``terminate_on_success`` from the table ``TumorPositioningEnv.DIFFICULTY``
+    (a keyword passed explicitly overrides its level's value): easy, nearer goals and a looser
+    tolerance; hard, goals farther away (a longer tool displacement, and scaled up to a longer least
+    distance), a tolerance of 1 mm and no termination at a success, so the tumour must be brought
+    to the goal and held there until the episode ends (``info["is_success"]`` at its last step). The
+    scripted controller's and random actions' success rates and steps to success at each level
+    are on the training page of the documentation (``benchmarks/success_rates.py --difficulty``).
 
     ## Episode End
 
-    Terminated when the tumour is within ``success_distance`` of the goal (``info["is_success"]``)
-    or when the simulation diverges (``info["unstable"] = True`` with ``info["unstable_reason"]``).
+    Terminated when the tumour is within ``success_distance`` of the goal (``info["is_success"]``;
+    unless ``terminate_on_success=False``, the hard level's) or when the simulation diverges (``info["unstable"] = True`` with ``info["unstable_reason"]``).
     Truncated after 50 steps (registered ``max_episode_steps``).
 
     ## Arguments
@@ -215,10 +260,17 @@ class TumorPositioningEnv(TissueEnv):
     Task keywords: ``tool_size`` (m, the side of the grasped square), ``workspace`` (m, per axis), ``goal_displacement`` (m), ``goal_scale_range``
     ((low, high) > 0: the range of the goal's tool displacement, in units of
     ``goal_displacement``), ``tumor_region`` (``((x0, y0, z0), (x1, y1, z1))`` fractions of the
-    block: the range of the tumour position), ``success_distance`` (m),
-    ``success_bonus``; shared keywords are listed in ``tissue_env.base.TissueEnv``
+    block: the range of the tumour position), ``success_distance`` (m), ``goal_min_distance`` (m),
+    ``success_bonus``, ``difficulty``; shared keywords are listed in ``tissue_env.base.TissueEnv``
     (``young_modulus``, ``poisson_ratio``, ``density``, ``shape``, ``size``, ``integrator``, ``dt``,
-    ``substeps``, ``young_modulus_range``, ``poisson_ratio_range``, ``render_mode``, ...).
+    ``substeps``, ``young_modulus_range``, ``poisson_ratio_range``, ``density_range``,
+    ``terminate_on_success``, ``render_mode``, ...).
+
+    Domain randomisation: ``young_modulus_range``, ``poisson_ratio_range``, ``density_range``
+    (the material, per episode; ``info["young_modulus"]``, ``["poisson_ratio"]``, ``["density"]``),
+    ``tumor_region`` (the tumour's rest position) and ``goal_scale_range`` (the goal's tool
+    displacement); the block size and the grasped patch (``size``, ``tool_size``) are fixed per env
+    (see the documentation's "Domain randomisation" section).
 
     ## Version History
 
@@ -233,10 +285,26 @@ class TumorPositioningEnv(TissueEnv):
     reward_names = ("distance", "success", "volume", "strain")
     #: The default camera (``TissueEnv.default_camera``): above the grasped top, in front.
     camera_target = (0.5, 0.6, 0.5)
+    goal_features = ("tumor_position", "goal_position")
 
-    def __init__(self, *, tool_size=0.025, workspace=0.02, goal_displacement=0.012, goal_scale_range=(0.5, 1.0),
+    #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them):
+    #: the goal's tool displacement (m) and the least tumour-goal distance a goal is scaled up to
+    #: (m; None: 2 success_distance), which set the goal distance, the success tolerance (m) and
+    #: whether a success ends the episode (hard: the tumour must be held at the goal to the end).
+    DIFFICULTY = dict(
+        easy=dict(goal_displacement=0.008, goal_min_distance=0.004, success_distance=0.003, terminate_on_success=True),
+        default=dict(goal_displacement=0.012, goal_min_distance=None, success_distance=0.002,
+                     terminate_on_success=True),
+        hard=dict(goal_displacement=0.016, goal_min_distance=0.008, success_distance=0.001,
+                  terminate_on_success=False),
+    )
+
+    def __init__(self, *, tool_size=0.025, workspace=0.02, goal_displacement=None, goal_scale_range=(0.5, 1.0),
                  tumor_region=((0.25, 0.25, 0.25), (0.75, 0.75, 0.75)),
-                 success_distance=0.002, success_bonus=5.0, **kwargs):
+                 success_distance=None, success_bonus=5.0, goal_min_distance=None, difficulty="default", **kwargs):
+        settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(
+            goal_displacement=goal_displacement, success_distance=success_distance, goal_min_distance=goal_min_distance))
+        goal_displacement, success_distance = settings["goal_displacement"], settings["success_distance"]
         self.tool_size = positive_scalar("tool_size", tool_size, "m")
         self.workspace = check_vector("workspace", workspace)
         self.goal_displacement = check_vector("goal_displacement", goal_displacement)
@@ -245,9 +313,15 @@ class TumorPositioningEnv(TissueEnv):
         self.goal_scale_range = check_range("goal_scale_range", goal_scale_range, positive_scalar)
         self.tumor_region = check_region("tumor_region", tumor_region, "xyz")
         self.success_distance = positive_scalar("success_distance", success_distance, "m")
+        goal_min_distance = settings["goal_min_distance"]
+        self.goal_min_distance = (2.0 * self.success_distance if goal_min_distance is None
+                                  else positive_scalar("goal_min_distance", goal_min_distance, "m"))
+        if self.goal_min_distance < self.success_distance:
+            raise ValueError(f"goal_min_distance must be at least success_distance ({self.success_distance:g} m): a "
+                             f"nearer goal would be a success at reset, got {goal_min_distance!r}")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
         self._goal_factors = FactorCache(size=2)  # start tangent LUs of the goal solves, per model
-        super().__init__(**kwargs)
+        super().__init__(difficulty=difficulty, **kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):
@@ -308,7 +382,7 @@ class TumorPositioningEnv(TissueEnv):
             raise ValueError(
                 f"no reachable goal: {GOAL_ATTEMPTS} tool displacements found no static equilibrium that moves the "
                 f"tumour {self.success_distance:g} m (young_modulus={self.episode_young_modulus:g} Pa, "
-                f"poisson_ratio={self.episode_poisson_ratio:g}, density={self.density:g} kg/m^3); the material "
+                f"poisson_ratio={self.episode_poisson_ratio:g}, density={self.episode_density:g} kg/m^3); the material "
                 "cannot be positioned in this block: use a stiffer material or a smaller goal_displacement")
         self.goal = goal
         self.goal_tool_displacement = displacement
@@ -321,7 +395,7 @@ class TumorPositioningEnv(TissueEnv):
         direction /= max(np.abs(direction).max(), 1e-12)
         displacement = self.np_random.uniform(*self.goal_scale_range) * direction * self.goal_displacement
         displacement = np.clip(displacement, self.workspace_low, self.workspace_high)
-        positions, minimum = start, 2.0 * self.success_distance
+        positions, minimum = start, self.goal_min_distance
         reached = np.zeros(3)  # the tool displacement of the last converged solve
         for _ in range(3):
             control = self.base_control.copy().impose(self.tool_nodes, self.tool_rest + displacement)

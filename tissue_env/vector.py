@@ -225,6 +225,17 @@ class TissueVectorEnv(VectorEnv):
         self._observations = observations
         return _copy(observations), total, terminated, truncated, _masked(infos, np.ones(count, dtype=bool))
 
+    # -- goal-conditioned API (observation_type="goal") -----------------------------------------------
+    @property
+    def compute_reward(self):
+        """The task's ``compute_reward(achieved_goal, desired_goal, info)`` (``TissueEnv.compute_reward``;
+        a step's infos as the vector env gives them, a dict of (N,) arrays, are one info per copy).
+        Present only with ``observation_type="goal"``."""
+        if self.envs[0].observation_type != "goal":
+            raise AttributeError(f"compute_reward exists only with observation_type='goal' (this env has "
+                                 f"observation_type={self.envs[0].observation_type!r})")
+        return self.worlds.compute_reward
+
     # -- rendering and closing -------------------------------------------------------------------------
     def render(self):
         if self.render_mode is None:

@@ -61,6 +61,27 @@ def observation_arrays(parts, names, as_dict: bool, clipped=None):
             for name, part, end in zip(names, parts, ends)}
 
 
+def _info_values(info, count, names):
+    """{name: (count,) array} of the entries ``names`` of ``info``: one info (a dict of values, or of
+    (count,) arrays, a vector env's) for every goal, or a sequence / array of ``count`` infos; else
+    ValueError naming what is missing."""
+    if isinstance(info, dict):
+        infos = None
+    else:
+        infos = list(np.asarray(info, dtype=object).ravel())
+        if len(infos) != count or not all(isinstance(item, dict) for item in infos):
+            raise ValueError(f"compute_reward's info must be one info dict or {count} of them (one per goal), got "
+                             f"{len(infos)} item(s) of type(s) {sorted({type(i).__name__ for i in infos})}")
+    missing = sorted({name for item in ([info] if infos is None else infos) for name in names if name not in item})
+    if missing:
+        raise ValueError(f"compute_reward needs the step's info entries {names} (the goal-independent reward terms), "
+                         f"missing {missing}; with stable-baselines3's HerReplayBuffer pass "
+                         "replay_buffer_kwargs=dict(copy_info_dict=True)")
+    if infos is None:
+        return {name: np.broadcast_to(np.asarray(info[name]), (count,)) for name in names}
+    return {name: np.array([item[name] for item in infos]) for name in names}
+
+
 def _writeable(array):
     """``array``, or a copy of it where it is a read-only view (a task's control may return one)."""
     return array if array.flags.writeable else array.copy()
@@ -118,6 +139,7 @@ class TaskWorlds:
         self.rest_volume = np.ones(count)
         self.episode_young_modulus = np.zeros(count)  # each world's material this episode (Pa, -)
         self.episode_poisson_ratio = np.zeros(count)
+        self.episode_density = np.zeros(count)  # kg/m^3
         #: (N,) each world's E / REFERENCE_YOUNG_MODULUS: its force unit and force limits scale by it
         self.stiffness_ratio = np.ones(count)
         self.elapsed = np.zeros(count, dtype=int)
@@ -129,6 +151,9 @@ class TaskWorlds:
         self.target = self.positions.copy()
         self.measures = None
         self._feature_sizes = env._feature_sizes
+        #: observation_type "goal": the task measures its goal distance on the observed goals
+        #: (``measures["achieved_goal"]``, ``["desired_goal"]``), what ``compute_reward`` reads
+        self.goal_observed = env.observation_type == "goal"
         self.reward_names = env.reward_names + ("instability",)
         # constants shared by every world (the same keywords built them)
         for name in ("max_step", "dt", "substeps", "instability_penalty", "volume_weight",
@@ -199,6 +224,7 @@ class TaskWorlds:
         self.rest_volume[index] = env.rest_volume
         self.episode_young_modulus[index] = env.episode_young_modulus
         self.episode_poisson_ratio[index] = env.episode_poisson_ratio
+        self.episode_density[index] = env.episode_density
         self.stiffness_ratio[index] = env.episode_young_modulus / REFERENCE_YOUNG_MODULUS
         self.elapsed[index] = 0
         self._load_task(index, env)
@@ -242,22 +268,76 @@ class TaskWorlds:
         measures = self._measure(tool_mask)
         self._record(measures, active, np.zeros(count, dtype=bool))
         unstable = np.array([reason is not None for reason in reasons])
-        terms = self._reward_terms(measures)
+        rewards, total = self._combine_rewards(self._reward_terms(measures), unstable)
+        success = self._is_success(measures) & ~unstable
+        terminated = unstable | (success & self.terminate_on_success)
+        self.measures = measures
+        return self._observation(measures), total, terminated, self._info(measures, rewards, reasons, success)
+
+    def _combine_rewards(self, terms, unstable):
+        """(rewards: name -> (N,) each reward term, total (N,)) of the task's reward ``terms`` and
+        the worlds' divergence ``unstable`` (N,) bool: a diverging step gets only the instability
+        penalty. The step's and ``compute_reward``'s."""
         rewards = OrderedDict()
         for name in self.reward_names:
             if name == "instability":
                 continue  # added last, alone on a diverging step
             rewards[name] = np.where(unstable, 0.0, terms[name])
-        success = self._is_success(measures) & ~unstable
-        total = np.zeros(count)
+        total = np.zeros(len(unstable))
         for value in rewards.values():
             total = total + value
         instability = np.where(unstable, -self.instability_penalty, 0.0)
         total = np.where(unstable, instability, total)  # a diverging step: only this term
         rewards["instability"] = instability
-        terminated = unstable | (success & self.terminate_on_success)
-        self.measures = measures
-        return self._observation(measures), total, terminated, self._info(measures, rewards, reasons, success)
+        return rewards, total
+
+    # -- goal-conditioned API (observation_type="goal") ----------------------------------------------
+    #: The info entries ``compute_reward`` reads: the goal-independent reward terms follow from them.
+    GOAL_INFO_KEYS = ("relative_volume_change", "max_strain", "unstable")
+
+    def _goal_reward_terms(self, achieved, desired) -> dict:
+        """The reward terms that depend on the goal, of (B, k) normalised achieved and desired
+        goals (B,) each (a goal-conditioned task implements it)."""
+        raise NotImplementedError
+
+    def _goal_observation(self, measures):
+        """The ``"goal"`` observation of every world: ``observation`` (the ``"state"`` vector),
+        ``achieved_goal`` and ``desired_goal`` (the task's ``measures["achieved_goal"]`` and
+        ``["desired_goal"]``, float64, as its reward read them)."""
+        features = self._features(measures)
+        parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
+        self.clipped = np.zeros(self.num_envs, dtype=bool)
+        observation = observation_arrays(parts, list(self._feature_sizes), False, self.clipped)
+        goals = {}
+        for name in ("achieved_goal", "desired_goal"):
+            value = np.array(measures[name], dtype=np.float64)
+            self.clipped |= ~np.all(np.abs(value) <= OBS_LIMIT, axis=-1)
+            np.nan_to_num(value, copy=False, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
+            goals[name] = np.clip(value, -OBS_LIMIT, OBS_LIMIT, out=value)
+        return dict(observation=observation, **goals)
+
+    def compute_reward(self, achieved_goal, desired_goal, info):
+        """The reward of steps whose outcome was ``achieved_goal`` (..., k) had the goal been
+        ``desired_goal`` (..., k), both in the observation's normalised units; ``info``: the step's
+        info (a dict of values, or of (B,) arrays as a vector env gives), or a sequence / array of
+        B infos, one per goal. The goal terms are the task's (``_goal_reward_terms``), the others
+        follow from the info (``GOAL_INFO_KEYS``: ``_damage_terms``, and a diverging step's
+        penalty alone), combined as in the step (``_combine_rewards``): for a step's own goals it
+        is the step's reward, bit for bit. Returns a float for one pair of goals, else an array of
+        the goals' leading shape."""
+        achieved = np.asarray(achieved_goal, dtype=np.float64)
+        desired = np.asarray(desired_goal, dtype=np.float64)
+        size = self.task.observation_space["achieved_goal"].shape[0]
+        if achieved.shape != desired.shape or achieved.ndim < 1 or achieved.shape[-1] != size:
+            raise ValueError(f"compute_reward takes achieved_goal and desired_goal of one shape (..., {size}), got "
+                             f"{achieved.shape} and {desired.shape}")
+        batch = achieved.shape[:-1]
+        count = int(np.prod(batch))
+        values = _info_values(info, count, self.GOAL_INFO_KEYS)
+        terms = self._goal_reward_terms(achieved.reshape(count, size), desired.reshape(count, size))
+        terms.update(self._damage_terms(values))
+        total = self._combine_rewards(terms, values["unstable"].astype(bool))[1]
+        return float(total[0]) if not batch else total.reshape(batch)
 
     # -- physics -------------------------------------------------------------------------------------
     def _advance(self, fixed, target, tool_mask, active):
@@ -388,7 +468,7 @@ class TaskWorlds:
             max_strain=100.0 * measures["max_strain"][:, None],
         )
         features.update(self._task_features(measures))
-        if env.observation_type != "state":
+        if env.observation_type not in ("state", "goal"):
             surface = env.surface_nodes
             displacement = positions[:, surface] - env.mesh.nodes[surface]
             features["surface_displacement"] = displacement.reshape(self.num_envs, -1) / self.length_scale
@@ -402,6 +482,8 @@ class TaskWorlds:
     def _observation(self, measures):
         if self.task.observation_type in VISUAL_TYPES:
             return self._visual_observation(measures)
+        if self.goal_observed:
+            return self._goal_observation(measures)
         features = self._features(measures)
         parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
         self.clipped = np.zeros(self.num_envs, dtype=bool)
@@ -438,6 +520,7 @@ class TaskWorlds:
             # the episode's material, as drawn from the *_range keywords (or the fixed values)
             young_modulus=self.episode_young_modulus.copy(),
             poisson_ratio=self.episode_poisson_ratio.copy(),
+            density=self.episode_density.copy(),
             out_of_range=np.array([reason is not None for reason in outside]),
             out_of_range_reason=outside,
             observation_clipped=self.clipped.copy(),

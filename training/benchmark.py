@@ -1,7 +1,12 @@
 """Train PPO and SAC with several seeds on every task and tabulate them against random and scripted.
 
     python -m training.benchmark [--envs ID ...] [--algos ppo sac] [--seeds 0 1 2] [--episodes 20]
-        [--output-dir DIR | --publish] [--out FILE.json]
+        [--variant her|hard] [--output-dir DIR | --publish] [--out FILE.json]
+
+``--variant`` trains a named setting (``VARIANTS``: its env keywords and hyperparameter file)
+instead of the defaults, e.g. ``her``: SAC with a HerReplayBuffer on TumorPositioning's goal
+observation; ``hard``: the task's ``difficulty="hard"``. Its runs, learning curves and summary
+entries carry the variant's name.
 
 Each (env, algo, seed) run goes to runs/benchmark/...; a finished run (result.json present) is not
 trained again, an interrupted one resumes from its checkpoint, so the script can be stopped and
@@ -20,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import check_env_id, load_hyperparams, run_name, write_json
+from .common import HYPERPARAMS, check_env_id, load_hyperparams, run_name, write_json
 from .evaluate import evaluate
 from .plot import plot
 from .train import train
@@ -34,16 +39,29 @@ PUBLISHED_RESULTS = ROOT / "benchmarks" / "results"
 PUBLISHED_FIGURES = ROOT / "docs" / "figures"
 
 
-def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy") -> Path:
-    run_dir = runs / run_name(env_id) / algo / (f"seed{seed}" if vec_env == "dummy" else f"seed{seed}-{vec_env}")
+#: Named training settings (``--variant``): the env keywords and the hyperparameter file per
+#: algorithm ("{algo}" is replaced; None: hyperparams/<algo>.yml).
+VARIANTS = {
+    # hindsight experience replay on the goal observation (TumorPositioning, the goal-conditioned task)
+    "her": dict(env_kwargs={"observation_type": "goal"}, config=str(HYPERPARAMS / "her" / "{algo}.yml")),
+    # the task's hard setting (its DIFFICULTY table), the default hyperparameters and budget
+    "hard": dict(env_kwargs={"difficulty": "hard"}, config=None),
+}
+
+
+def run_one(env_id: str, algo: str, seed: int, runs: Path, vec_env: str = "dummy", variant: str | None = None) -> Path:
+    name = f"seed{seed}" + ("" if vec_env == "dummy" else f"-{vec_env}") + (f"-{variant}" if variant else "")
+    run_dir = runs / run_name(env_id) / algo / name
     if (run_dir / "result.json").is_file() and (run_dir / "model.zip").is_file():
         return run_dir
-    hyperparams = load_hyperparams(algo, env_id)
+    setting = VARIANTS[variant] if variant else dict(env_kwargs={}, config=None)
+    config_file = setting["config"].format(algo=algo) if setting["config"] else None
+    hyperparams = load_hyperparams(algo, env_id, config_file)
     n_envs = int(hyperparams.pop("n_envs", 1))
     timesteps = int(hyperparams.pop("n_timesteps", 20000))
     config = dict(env=env_id, algo=algo, timesteps=timesteps, seed=seed, n_envs=n_envs, vec_env=vec_env,
-                  threads=1, env_kwargs={}, hyperparams=hyperparams, eval_freq=max(timesteps // 10, 1),
-                  eval_episodes=10, checkpoint_freq=max(timesteps // 5, 1))
+                  threads=1, env_kwargs=dict(setting["env_kwargs"]), hyperparams=hyperparams,
+                  eval_freq=max(timesteps // 10, 1), eval_episodes=10, checkpoint_freq=max(timesteps // 5, 1))
     resume = (run_dir / "config.json").is_file()
     print(f"{'resuming' if resume else 'training'} {env_id} {algo} seed {seed} ({timesteps} steps)", flush=True)
     return train(config, run_dir, resume=resume, progress=False)
@@ -70,6 +88,9 @@ def parse_args(argv=None):
     parser.add_argument("--vec-env", choices=("dummy", "batched"), default="dummy",
                         help="the training envs (batched: tissue_env.sb3.BatchedVecEnv; its runs, figures and "
                              "--out default carry the suffix _batched)")
+    parser.add_argument("--variant", choices=sorted(VARIANTS), default=None,
+                        help="a named setting instead of the defaults (VARIANTS: her, SAC + HerReplayBuffer on the "
+                             "goal observation; hard, the task's difficulty='hard')")
     parser.add_argument("--runs-dir", default=str(ROOT / "runs" / "benchmark"))
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--output-dir", default=None,
@@ -92,15 +113,16 @@ def main(argv=None) -> int:
             dirs, evaluations, walls = [], [], []
             for seed in args.seeds:
                 start = time.perf_counter()
-                run_dir = run_one(env_id, algo, seed, runs, args.vec_env)
+                run_dir = run_one(env_id, algo, seed, runs, args.vec_env, args.variant)
                 dirs.append(run_dir)
                 evaluations.append(evaluate(run_dir, args.episodes, seed=1000))
                 walls.append(json.loads((run_dir / "result.json").read_text())["wall_clock_s"])
                 print(f"  seed {seed}: success {evaluations[-1]['agent']['success_rate']:.0%} "
                       f"({time.perf_counter() - start:.0f} s)", flush=True)
             task = env_id.split("/")[-1]
-            plot(dirs, figures / f"learning_{task}_{algo}{suffix}.png")
-            key = f"{env_id} {algo}"
+            variant = f"_{args.variant}" if args.variant else ""
+            plot(dirs, figures / f"learning_{task}_{algo}{suffix}{variant}.png")
+            key = f"{env_id} {algo}" + (f" {args.variant}" if args.variant else "")
             summary[key] = dict(
                 env=env_id, algo=algo, seeds=args.seeds, timesteps=json.loads((dirs[0] / "config.json").read_text())["timesteps"],
                 train_wall_clock_s=float(np.mean(walls)),
@@ -108,8 +130,11 @@ def main(argv=None) -> int:
                 agent_return=[e["agent"]["mean_return"] for e in evaluations],
                 random=evaluations[0]["random"], scripted=evaluations[0]["scripted"],
                 vec_env=args.vec_env,
+                variant=args.variant,
+                env_kwargs=json.loads((dirs[0] / "config.json").read_text())["env_kwargs"],
                 command=f"python -m training.benchmark --envs {env_id} --algos {algo} --seeds "
                         + " ".join(map(str, args.seeds)) + (f" --vec-env {args.vec_env}" if suffix else "")
+                        + (f" --variant {args.variant}" if args.variant else "")
                         + (" --publish" if args.publish else ""),
             )
             write_json(out, summary)

@@ -30,7 +30,7 @@ import numpy as np
 
 from sim_core.files import atomic_path
 
-from .common import write_json
+from .common import load_model, write_json
 
 CHECKPOINT_GLOB = "model_*_steps.zip"
 #: replay buffers kept (one is up to buffer_size transitions: tens of MB); two, so that a damaged
@@ -141,7 +141,7 @@ def checkpoint_loader(folder: Path, algo_cls, normalize: bool, off_policy: bool,
         if zip_path.stat().st_size == 0:
             raise CheckpointError("empty file (0 bytes)", zip_path)
         try:
-            model = algo_cls.load(str(zip_path), **load_kwargs)
+            model = load_model(algo_cls, str(zip_path), **load_kwargs)
         except Exception as error:
             raise CheckpointError(f"{type(error).__name__}: {error}", zip_path) from error
         if model.num_timesteps != step:

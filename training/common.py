@@ -75,7 +75,8 @@ def load_hyperparams(algo: str, env_id: str, config: str | None = None) -> dict:
     The files are in rl_zoo3's format: one entry per environment id with ``n_timesteps``,
     ``policy``, the rl_zoo3 keys ``n_envs``, ``normalize`` (true, or a mapping of VecNormalize
     keywords) and ``noise_type`` / ``noise_std`` (off-policy exploration), and the algorithm's
-    constructor keywords. The entry is read on top of a ``default`` entry (the files' YAML anchor,
+    constructor keywords (``replay_buffer_class`` by name, e.g. ``HerReplayBuffer`` with
+    ``policy: MultiInputPolicy`` on a goal observation). The entry is read on top of a ``default`` entry (the files' YAML anchor,
     which their entries also merge with ``<<: *default``; a file of only ``default`` applies to
     every id). ``policy_kwargs`` and ``normalize`` must be YAML mappings, not rl_zoo3's Python
     strings, and the rl_zoo3 keys in ``UNSUPPORTED_ZOO_KEYS`` are refused."""
@@ -98,14 +99,52 @@ def load_hyperparams(algo: str, env_id: str, config: str | None = None) -> dict:
     if unsupported:
         raise UsageError(f"{path} [{env_id}]: rl_zoo3 key(s) {', '.join(unsupported)} not supported by the "
                          "training scripts")
-    for key in ("policy_kwargs", "normalize"):
+    for key in ("policy_kwargs", "normalize", "replay_buffer_kwargs"):
         if isinstance(merged.get(key), str):
             raise UsageError(f"{path} [{env_id}]: write {key} as a YAML mapping (e.g. {{net_arch: [64, 64]}}), "
                              f"not as a Python string ({merged[key]!r})")
+    if merged.get("replay_buffer_class") is not None:
+        replay_buffer_class(merged["replay_buffer_class"], f"{path} [{env_id}]")
     if merged.get("noise_type") is not None and merged["noise_type"] not in NOISE_TYPES:
         raise UsageError(f"{path} [{env_id}]: noise_type must be one of {', '.join(NOISE_TYPES)}, "
                          f"got {merged['noise_type']!r}")
     return merged
+
+
+#: Replay buffers a hyperparameter file may name (``replay_buffer_class``), as stable-baselines3 exports them.
+REPLAY_BUFFERS = ("ReplayBuffer", "DictReplayBuffer", "HerReplayBuffer")
+
+
+def replay_buffer_class(name, where: str = "replay_buffer_class"):
+    """The stable-baselines3 replay buffer class called ``name`` (``REPLAY_BUFFERS``); UsageError otherwise."""
+    if not isinstance(name, str) or name not in REPLAY_BUFFERS:
+        raise UsageError(f"{where}: replay_buffer_class must be one of {', '.join(REPLAY_BUFFERS)}, got {name!r}")
+    import stable_baselines3
+    from stable_baselines3.common import buffers
+
+    return getattr(stable_baselines3, name, None) or getattr(buffers, name)
+
+
+def load_model(algo_cls, path, **load_kwargs):
+    """``algo_cls.load(path, **load_kwargs)`` that also loads a model trained with a
+    ``HerReplayBuffer``: stable-baselines3 rebuilds such a buffer only with an env to compute its
+    rewards, which an evaluation or a checkpoint's load (the env comes later) does not pass. The model is
+    loaded with an empty ``DictReplayBuffer`` and its HER class and keywords restored as attributes:
+    an evaluation only predicts, a resume puts the checkpoint's HER buffer back and gives it the env."""
+    from stable_baselines3 import HerReplayBuffer
+    from stable_baselines3.common.buffers import DictReplayBuffer
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data = load_from_zip_file(path, device=load_kwargs.get("device", "auto"), load_data=True)[0]
+    her = isinstance(data.get("replay_buffer_class"), type) and issubclass(data["replay_buffer_class"], HerReplayBuffer)
+    if not her:
+        return algo_cls.load(path, **load_kwargs)
+    custom = dict(load_kwargs.pop("custom_objects", None) or {}, replay_buffer_class=DictReplayBuffer,
+                  replay_buffer_kwargs={})
+    model = algo_cls.load(path, custom_objects=custom, **load_kwargs)
+    model.replay_buffer_class = data["replay_buffer_class"]
+    model.replay_buffer_kwargs = data.get("replay_buffer_kwargs") or {}
+    return model
 
 
 def action_noise(hyperparams: dict, n_actions: int):

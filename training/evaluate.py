@@ -18,7 +18,7 @@ import numpy as np
 
 from tissue_env.episodes import run_episode
 
-from .common import UsageError, algorithm_class, check_env_id, fail
+from .common import UsageError, algorithm_class, check_env_id, fail, load_model
 
 PROGRAM = "training.evaluate"
 
@@ -71,7 +71,7 @@ def agent_policy(run_dir: Path, config: dict):
     model_path = run_dir / "model.zip"
     normaliser = None
     if model_path.is_file():
-        model = algo_cls.load(str(model_path), device="cpu")
+        model = load_model(algo_cls, str(model_path), device="cpu")
         stats = run_dir / "vecnormalize.pkl"
         if stats.is_file():
             import pickle

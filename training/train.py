@@ -32,7 +32,7 @@ from datetime import datetime
 from pathlib import Path
 
 from .common import (UsageError, action_noise, algorithm_class, check_algo, check_env_id, fail, load_hyperparams,
-                     make_env, parse_env_kwargs, run_name, write_json)
+                     make_env, parse_env_kwargs, replay_buffer_class, run_name, write_json)
 
 PROGRAM = "training.train"
 
@@ -208,6 +208,8 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     normalize = hyperparams.pop("normalize", False)
     noise = {key: hyperparams.pop(key) for key in ("noise_type", "noise_std", "action_noise_std") if key in hyperparams}
     policy = hyperparams.pop("policy", "MlpPolicy")
+    if hyperparams.get("replay_buffer_class") is not None:  # named in the file (e.g. HerReplayBuffer)
+        hyperparams["replay_buffer_class"] = replay_buffer_class(hyperparams["replay_buffer_class"])
     algo_cls = algorithm_class(config["algo"])
     off_policy = issubclass(algo_cls, OffPolicyAlgorithm)
     n_envs = config["n_envs"]
@@ -225,6 +227,9 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     if loaded is not None:
         model = loaded[0]
         model.set_env(train_env)
+        buffer = getattr(model, "replay_buffer", None)
+        if hasattr(buffer, "set_env") and getattr(buffer, "env", None) is None:
+            buffer.set_env(model.get_env())  # a HerReplayBuffer computes relabelled rewards through the env
     else:
         exploration = action_noise(noise, train_env.action_space.shape[0])
         if exploration is not None:
