@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import finite_array
-from .mesh import LOCAL_CORNERS, HexMesh, _parse_shape, _parse_spacing
+from .mesh import LOCAL_CORNERS, HexMesh
 
 #: The 6 edges of a tetrahedron (local node pairs).
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
@@ -129,7 +129,7 @@ class TetMesh:
         tetrahedra (``KUHN_TETRAHEDRA``) on the nodes of ``HexMesh.block(shape, spacing)``: node
         (i, j, k) at (i dx, j dy, k dz) has index i + (nx + 1) (j + (ny + 1) k). Cube c's
         tetrahedra are elements 6 c .. 6 c + 5."""
-        return cls.from_hex(HexMesh.block(_parse_shape(shape), _parse_spacing(spacing)))
+        return cls.from_hex(HexMesh.block(shape, spacing))
 
     @classmethod
     def from_hex(cls, mesh: HexMesh) -> "TetMesh":

@@ -226,8 +226,10 @@ def test_training_loader_reads_every_entry_of_every_hyperparameter_file():
     import tissue_env  # noqa: F401
     from training.common import algorithm_class, load_hyperparams
 
-    assert {path.stem for path in HYPERPARAMS} == {"ppo", "sac", "td3"}
-    for path in HYPERPARAMS:
+    assert {path.stem for path in HYPERPARAMS} == {"ppo", "ppo_pixels", "sac", "td3"}
+    # the per-algorithm files; a variant's file (ppo_pixels.yml: pixel observations, CnnPolicy, one task)
+    # is read by benchmarks/training_pixels.py and tested with it
+    for path in (p for p in HYPERPARAMS if "_" not in p.stem):
         algo = path.stem
         accepted = set(inspect.signature(algorithm_class(algo).__init__).parameters)
         ids = _env_ids(path)
