@@ -215,10 +215,7 @@ class HexMesh:
 
     def surface_faces(self) -> np.ndarray:
         """(F, 4) node indices of the boundary quads, outward oriented (faces used by one element)."""
-        faces = self.elements[:, FACES].reshape(-1, 4)
-        key = np.sort(faces, axis=1)
-        _, index, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-        return faces[np.sort(index[counts == 1])]
+        return boundary_faces(self.elements, FACES)
 
     def surface_nodes(self) -> np.ndarray:
         """Sorted indices of the nodes on the boundary surface."""
@@ -226,10 +223,7 @@ class HexMesh:
 
     def node_index(self, i, j, k):
         """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
-        if self.shape is None:
-            raise ValueError("node_index needs a structured block mesh (HexMesh.block)")
-        nx, ny, _ = self.shape
-        return np.asarray(i) + (nx + 1) * (np.asarray(j) + (ny + 1) * np.asarray(k))
+        return block_node_index(self.shape, i, j, k, "HexMesh.block")
 
     # -- files -----------------------------------------------------------------------------
     def write(self, path, point_data: dict | None = None, positions=None) -> None:
@@ -238,15 +232,8 @@ class HexMesh:
         The format follows the extension: .vtu, .msh (Gmsh 4.1, binary: meshio's ASCII reader
         cannot read point data back), .vtk, .xdmf, ...
         """
-        import meshio
-
         points = self.nodes if positions is None else finite_array("positions", positions, (self.n_nodes, 3))
-        mesh = meshio.Mesh(points, [("hexahedron", self.elements)], point_data=point_data or {})
-        path = Path(path)
-        if path.suffix == ".msh":
-            meshio.write(path, mesh, file_format="gmsh", binary=True)
-        else:
-            meshio.write(path, mesh)
+        write_mesh_file(path, points, "hexahedron", self.elements, point_data)
 
     @classmethod
     def read(cls, path) -> "HexMesh":
@@ -259,49 +246,10 @@ class HexMesh:
         ``SystemExit`` some of meshio's readers raise), no hexahedra in it (the cell types found
         are listed), or hexahedra that do not form a valid mesh (``HexMesh``'s checks).
         """
-        import contextlib
-        import io
-
-        import meshio
-        from meshio._helpers import _filetypes_from_path  # the extension lookup meshio.read uses
-
         path = Path(path)
-        if not path.exists():
-            raise FileNotFoundError(2, "mesh file not found", str(path))
-        if not path.is_file():
-            raise ValueError(f"{path} is not a file: HexMesh.read needs a mesh file (.vtu, .vtk, .msh, ...)")
-        try:
-            formats = _filetypes_from_path(path)
-        except Exception as error:
-            extension = repr("".join(path.suffixes)) if path.suffix else "(none)"
-            raise ValueError(
-                f"{path}: unsupported mesh file extension {extension}; HexMesh.read "
-                "reads meshio's formats that hold hexahedra, e.g. .vtu, .vtk, .msh (Gmsh), .xdmf, .med, .inp"
-            ) from error
-        file_format = f"{path.suffix} ({' or '.join(formats)})" if len(formats) > 1 else f"{path.suffix} ({formats[0]})"
-        if path.stat().st_size == 0:
-            raise ValueError(f"{path} is empty (0 bytes): not a {file_format} mesh; write one with HexMesh.write")
-        log = io.StringIO()
-        try:
-            with contextlib.redirect_stderr(log), contextlib.redirect_stdout(log):
-                mesh = meshio.read(path)
-        except (Exception, SystemExit) as error:  # meshio's vtu/vtk readers exit on a bad file
-            detail = " ".join((log.getvalue() + " " + (str(error) if not isinstance(error, SystemExit) else "")).split())
-            raise ValueError(
-                f"{path} is not a readable {file_format} mesh (corrupt, truncated or another format): "
-                f"{type(error).__name__}{': ' + detail if detail else ''}"
-            ) from error
-        blocks = [np.asarray(cells.data) for cells in mesh.cells if cells.type == "hexahedron"]
-        if not blocks:
-            found = ", ".join(f"{len(cells.data)} {cells.type}" for cells in mesh.cells) or "no cells at all"
-            raise ValueError(f"{path} contains no hexahedra (found {found}); HexMesh needs 8-node hexahedral "
-                             "cells (meshio type 'hexahedron')")
-        points = np.asarray(mesh.points, dtype=float)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"{path}: points must be 3D, (N, 3) coordinates in m; got an array of shape {points.shape}")
-        bad = int(np.size(points) - np.count_nonzero(np.isfinite(points)))
-        if bad:
-            raise ValueError(f"{path}: {bad} point coordinates are not finite (NaN or infinity); they must be numbers in m")
+        mesh, points = read_mesh_file(path, "HexMesh.read", "hexahedra", "e.g. .vtu, .vtk, .msh (Gmsh), .xdmf, .med, .inp",
+                                      "HexMesh.write")
+        blocks = cell_blocks(mesh, path, "hexahedron", "hexahedra", "HexMesh needs 8-node hexahedral cells")
         try:
             return cls(points, np.concatenate(blocks))
         except ValueError as error:
@@ -496,6 +444,95 @@ def voxel_factor(spacing, element_size) -> int:
 
 
 # -- element geometry (vectorised over elements) ---------------------------------------------
+# -- what every mesh kind shares (HexMesh, TetMesh, surfaces) ---------------------------------
+def boundary_faces(elements: np.ndarray, local_faces: np.ndarray) -> np.ndarray:
+    """The faces used by one element only, in the elements' (outward) local order: ``local_faces``
+    (F_e, n) indexes each element's nodes; returns (F, n) node indices."""
+    faces = elements[:, local_faces].reshape(-1, local_faces.shape[1])
+    _, index, counts = np.unique(np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True)
+    return faces[np.sort(index[counts == 1])]
+
+
+def block_node_index(shape, i, j, k, builder: str):
+    """Index of structured-block node (i, j, k), x fastest; ValueError when the mesh has no ``shape``
+    (it was not built by ``builder``)."""
+    if shape is None:
+        raise ValueError(f"node_index needs a structured block mesh ({builder})")
+    nx, ny, _ = shape
+    return np.asarray(i) + (nx + 1) * (np.asarray(j) + (ny + 1) * np.asarray(k))
+
+
+def write_mesh_file(path, points: np.ndarray, cell_type: str, elements: np.ndarray, point_data=None) -> None:
+    """Write one block of meshio cells; the format follows the extension (.msh: Gmsh 4.1 binary,
+    since meshio's ASCII reader cannot read point data back)."""
+    import meshio
+
+    mesh = meshio.Mesh(points, [(cell_type, elements)], point_data=point_data or {})
+    path = Path(path)
+    if path.suffix == ".msh":
+        meshio.write(path, mesh, file_format="gmsh", binary=True)
+    else:
+        meshio.write(path, mesh)
+
+
+def read_mesh_file(path: Path, reader: str, content: str, formats: str, writer: str | None = None):
+    """``(meshio mesh, points (N, 3) m)`` of ``path``, with the errors every reader here gives.
+
+    Raises ``FileNotFoundError`` when ``path`` does not exist (as ``open`` does) and ``ValueError``,
+    naming the file, for everything else: not a file, an extension meshio does not read, an empty
+    file, one meshio cannot parse as its format (corrupt, truncated, another format; chained from
+    meshio's error, including the ``SystemExit`` some of meshio's readers raise), points that are not
+    finite 3D coordinates. ``reader`` (e.g. "HexMesh.read"), ``content`` ("hexahedra") and
+    ``formats`` (examples of extensions) word the messages; ``writer`` names what writes such a file.
+    """
+    import contextlib
+    import io
+
+    import meshio
+    from meshio._helpers import _filetypes_from_path  # the extension lookup meshio.read uses
+
+    if not path.exists():
+        raise FileNotFoundError(2, "mesh file not found", str(path))
+    if not path.is_file():
+        raise ValueError(f"{path} is not a file: {reader} needs a mesh file ({formats})")
+    try:
+        found = _filetypes_from_path(path)
+    except Exception as error:
+        extension = repr("".join(path.suffixes)) if path.suffix else "(none)"
+        raise ValueError(f"{path}: unsupported mesh file extension {extension}; {reader} reads meshio's formats "
+                         f"that hold {content}, {formats}") from error
+    file_format = f"{path.suffix} ({' or '.join(found)})" if len(found) > 1 else f"{path.suffix} ({found[0]})"
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path} is empty (0 bytes): not a {file_format} mesh" + (f"; write one with {writer}" if writer else ""))
+    log = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(log), contextlib.redirect_stdout(log):
+            mesh = meshio.read(path)
+    except (Exception, SystemExit) as error:  # meshio's vtu/vtk readers exit on a bad file
+        detail = " ".join((log.getvalue() + " " + (str(error) if not isinstance(error, SystemExit) else "")).split())
+        raise ValueError(
+            f"{path} is not a readable {file_format} mesh (corrupt, truncated or another format): "
+            f"{type(error).__name__}{': ' + detail if detail else ''}"
+        ) from error
+    points = np.asarray(mesh.points, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{path}: points must be 3D, (N, 3) coordinates in m; got an array of shape {points.shape}")
+    bad = int(np.size(points) - np.count_nonzero(np.isfinite(points)))
+    if bad:
+        raise ValueError(f"{path}: {bad} point coordinates are not finite (NaN or infinity); they must be numbers in m")
+    return mesh, points
+
+
+def cell_blocks(mesh, path, cell_type: str, content: str, need: str) -> list:
+    """The (n_i, k) node-index arrays of ``mesh``'s cells of meshio type ``cell_type``; ValueError
+    naming the file and the cell types it holds when there are none (``need`` says what is needed)."""
+    blocks = [np.asarray(cells.data) for cells in mesh.cells if cells.type == cell_type]
+    if not blocks:
+        found = ", ".join(f"{len(cells.data)} {cells.type}" for cells in mesh.cells) or "no cells at all"
+        raise ValueError(f"{path} contains no {content} (found {found}); {need} (meshio type {cell_type!r})")
+    return blocks
+
+
 def hex_jacobians(positions: np.ndarray, elements: np.ndarray, gradients=GAUSS_GRADIENTS) -> np.ndarray:
     """(M, P, 3, 3) Jacobians dx/dxi at the given reference points (rows: x, columns: xi)."""
     corners = positions[elements]  # (M, 8, 3)

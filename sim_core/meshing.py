@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import finite_array
+from .mesh import read_mesh_file
 
 #: The 6 tetrahedra of a grid cell around its diagonal (0,0,0)-(1,1,1) (Kuhn's subdivision):
 #: one per order of the axes. Neighbouring cells cut their shared face along the same diagonal,
@@ -166,33 +167,13 @@ def read_surface(path):
     do) and ``ValueError``, naming the file, when meshio cannot read it (unknown extension, empty,
     corrupt or truncated) or it holds no triangles or non-finite points.
     """
-    import contextlib
-    import io
-
-    import meshio
-
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(2, "surface file not found", str(path))
-    if not path.is_file() or path.stat().st_size == 0:
-        raise ValueError(f"{path} is {'empty' if path.is_file() else 'not a file'}: read_surface needs a "
-                         "surface mesh file (.stl, .obj, .ply, .off, .vtk, ...)")
-    log = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(log), contextlib.redirect_stdout(log):
-            mesh = meshio.read(path)
-    except (Exception, SystemExit) as error:  # meshio's vtk readers exit on a bad file
-        detail = " ".join((log.getvalue() + " " + ("" if isinstance(error, SystemExit) else str(error))).split())
-        raise ValueError(f"{path} is not a readable surface mesh (unknown extension, corrupt, truncated or "
-                         f"another format): {type(error).__name__}{': ' + detail if detail else ''}") from error
+    mesh, points = read_mesh_file(path, "read_surface", "triangles or quads", "e.g. .stl, .obj, .ply, .off, .vtk")
     blocks = [np.asarray(c.data) for c in mesh.cells if c.type == "triangle"]
     blocks += [np.asarray(c.data)[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3) for c in mesh.cells if c.type == "quad"]
     if not blocks:
         found = ", ".join(f"{len(c.data)} {c.type}" for c in mesh.cells) or "no cells at all"
         raise ValueError(f"{path} contains no triangles or quads (found {found}); read_surface needs a surface")
-    points = np.asarray(mesh.points, dtype=float)
-    if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
-        raise ValueError(f"{path}: points must be finite (N, 3) coordinates, got shape {points.shape}")
     faces = np.concatenate(blocks).astype(np.int64)
     merged, index = np.unique(points, axis=0, return_inverse=True)
     faces = index.ravel()[faces]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import finite_array
-from .mesh import LOCAL_CORNERS, HexMesh
+from .mesh import LOCAL_CORNERS, HexMesh, block_node_index, boundary_faces, cell_blocks, read_mesh_file, write_mesh_file
 
 #: The 6 edges of a tetrahedron (local node pairs).
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
@@ -166,10 +166,7 @@ class TetMesh:
     def surface_faces(self) -> np.ndarray:
         """(F, 3) node indices of the boundary triangles (faces used by one tetrahedron), outward
         oriented: (x1 - x0) x (x2 - x0) points out of the mesh."""
-        faces = self.elements[:, TET_FACES].reshape(-1, 3)
-        key = np.sort(faces, axis=1)
-        _, index, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-        return faces[np.sort(index[counts == 1])]
+        return boundary_faces(self.elements, TET_FACES)
 
     def surface_nodes(self) -> np.ndarray:
         """Sorted indices of the nodes on the boundary surface."""
@@ -177,24 +174,14 @@ class TetMesh:
 
     def node_index(self, i, j, k):
         """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
-        if self.shape is None:
-            raise ValueError("node_index needs a structured block mesh (TetMesh.block)")
-        nx, ny, _ = self.shape
-        return np.asarray(i) + (nx + 1) * (np.asarray(j) + (ny + 1) * np.asarray(k))
+        return block_node_index(self.shape, i, j, k, "TetMesh.block")
 
     # -- files -----------------------------------------------------------------------------
     def write(self, path, point_data: dict | None = None, positions=None) -> None:
         """Write the mesh (optionally deformed ``positions`` and ``point_data``) with meshio; the
         format follows the extension (.vtu, .msh: Gmsh 4.1 binary, as ``HexMesh.write``)."""
-        import meshio
-
         points = self.nodes if positions is None else finite_array("positions", positions, (self.n_nodes, 3))
-        mesh = meshio.Mesh(points, [("tetra", self.elements)], point_data=point_data or {})
-        path = Path(path)
-        if path.suffix == ".msh":
-            meshio.write(path, mesh, file_format="gmsh", binary=True)
-        else:
-            meshio.write(path, mesh)
+        write_mesh_file(path, points, "tetra", self.elements, point_data)
 
     @classmethod
     def read(cls, path) -> "TetMesh":
@@ -204,32 +191,9 @@ class TetMesh:
         file, when meshio cannot read it (unsupported extension, empty, corrupt or another format),
         when it holds no tetrahedra (the cell types found are listed) or when its tetrahedra do not
         form a valid mesh (``TetMesh``'s checks: e.g. an inverted tetrahedron)."""
-        import contextlib
-        import io
-
-        import meshio
-
         path = Path(path)
-        if not path.exists():
-            raise FileNotFoundError(2, "mesh file not found", str(path))
-        if not path.is_file() or path.stat().st_size == 0:
-            raise ValueError(f"{path} is not a mesh file (a directory or empty); TetMesh.read needs .vtu, .msh, ...")
-        log = io.StringIO()
-        try:
-            with contextlib.redirect_stderr(log), contextlib.redirect_stdout(log):
-                mesh = meshio.read(path)
-        except (Exception, SystemExit) as error:  # meshio's vtu/vtk readers exit on a bad file
-            detail = " ".join((log.getvalue() + " " + (str(error) if not isinstance(error, SystemExit) else "")).split())
-            raise ValueError(f"{path} is not a readable mesh file (unsupported extension, corrupt, truncated or "
-                             f"another format): {type(error).__name__}{': ' + detail if detail else ''}") from error
-        blocks = [np.asarray(cells.data) for cells in mesh.cells if cells.type == "tetra"]
-        if not blocks:
-            found = ", ".join(f"{len(cells.data)} {cells.type}" for cells in mesh.cells) or "no cells at all"
-            raise ValueError(f"{path} contains no tetrahedra (found {found}); TetMesh needs 4-node tetrahedral "
-                             "cells (meshio type 'tetra')")
-        points = np.asarray(mesh.points, dtype=float)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"{path}: points must be 3D, (N, 3) coordinates in m; got an array of shape {points.shape}")
+        mesh, points = read_mesh_file(path, "TetMesh.read", "tetrahedra", "e.g. .vtu, .vtk, .msh (Gmsh)", "TetMesh.write")
+        blocks = cell_blocks(mesh, path, "tetra", "tetrahedra", "TetMesh needs 4-node tetrahedral cells")
         try:
             return cls(points, np.concatenate(blocks))
         except ValueError as error:
