@@ -304,10 +304,7 @@ class TaskWorlds:
         """The ``"goal"`` observation of every world: ``observation`` (the ``"state"`` vector),
         ``achieved_goal`` and ``desired_goal`` (the task's ``measures["achieved_goal"]`` and
         ``["desired_goal"]``, float64, as its reward read them)."""
-        features = self._features(measures)
-        parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
-        self.clipped = np.zeros(self.num_envs, dtype=bool)
-        observation = observation_arrays(parts, list(self._feature_sizes), False, self.clipped)
+        observation = self._feature_observation(measures, as_dict=False)
         goals = {}
         for name in ("achieved_goal", "desired_goal"):
             value = np.array(measures[name], dtype=np.float64)
@@ -484,10 +481,14 @@ class TaskWorlds:
             return self._visual_observation(measures)
         if self.goal_observed:
             return self._goal_observation(measures)
+        return self._feature_observation(measures, as_dict=self.task.observation_type == "dict")
+
+    def _feature_observation(self, measures, as_dict):
+        """The worlds' feature vectors (or dicts of them), clipped to +-OBS_LIMIT; resets ``self.clipped``."""
         features = self._features(measures)
         parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
         self.clipped = np.zeros(self.num_envs, dtype=bool)
-        return observation_arrays(parts, list(self._feature_sizes), self.task.observation_type == "dict", self.clipped)
+        return observation_arrays(parts, list(self._feature_sizes), as_dict, self.clipped)
 
     # -- visual observations (tissue_env.camera) -----------------------------------------------------
     def _scene_extras(self):
