@@ -519,8 +519,7 @@ class TissueEnv(gym.Env):
                              f"{camera.width} x {camera.height}")
         if isinstance(point_count, bool) or not float(point_count).is_integer() or not 1 <= point_count <= 100_000:
             raise ValueError(f"point_count must be an integer from 1 to 100000, got {point_count!r}")
-        if not isinstance(point_normals, (bool, np.bool_)):
-            raise ValueError(f"point_normals must be True or False, got {point_normals!r}")
+        point_normals = check_flag("point_normals", point_normals)
         reach = OBS_LIMIT * self.length_scale  # the state observation's range of positions
         return CameraView(camera, self._surface_faces, self.mesh.nodes, self.tool_nodes, int(point_count),
                           bool(point_normals), bounds=(self.centre - reach, self.centre + reach))
