@@ -109,7 +109,7 @@ class HexMesh:
         ei, ej, ek = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
         base = np.stack([ei.ravel(order="F"), ej.ravel(order="F"), ek.ravel(order="F")], axis=1)
         corner = base[:, None, :] + LOCAL_CORNERS.astype(int)[None, :, :]
-        elements = corner[..., 0] + (nx + 1) * (corner[..., 1] + (ny + 1) * corner[..., 2])
+        elements = block_node_index((nx, ny, nz), corner[..., 0], corner[..., 1], corner[..., 2], "HexMesh.block")
         return cls(nodes, elements, shape=(nx, ny, nz), spacing=spacing)
 
     @classmethod
@@ -170,7 +170,7 @@ class HexMesh:
         voxel = np.flatnonzero(occupied.ravel(order="F"))
         base = np.stack(np.unravel_index(voxel, (nx, ny, nz), order="F"), axis=1)
         corner = base[:, None, :] + LOCAL_CORNERS.astype(int)[None, :, :]
-        grid_index = corner[..., 0] + (nx + 1) * (corner[..., 1] + (ny + 1) * corner[..., 2])
+        grid_index = block_node_index((nx, ny, nz), corner[..., 0], corner[..., 1], corner[..., 2], "from_mask")
         used, elements = np.unique(grid_index, return_inverse=True)
         elements = elements.reshape(-1, 8)
         grid = np.stack(np.unravel_index(used, (nx + 1, ny + 1, nz + 1), order="F"), axis=1)
