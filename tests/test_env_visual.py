@@ -185,3 +185,8 @@ def test_camera_keywords():
                                     ("observation_type", "image", "observation_type must be one of")):
         with pytest.raises(ValueError, match=message):
             gym.make(env_id, **{keyword: value})
+
+
+def test_a_camera_dict_with_an_unknown_key_is_refused_with_the_keys_allowed():
+    with pytest.raises(ValueError, match=r"unknown keys \['zoom'\].*fov_deg"):
+        gym.make("tissue_env/Retraction-v0", observation_type="rgb", camera=dict(zoom=2.0))

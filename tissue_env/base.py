@@ -25,6 +25,7 @@ the opt-in "static" integrator.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import threading
 import warnings
 from collections import OrderedDict
@@ -507,6 +508,10 @@ class TissueEnv(gym.Env):
             camera = self.default_camera(size, size)
         else:
             if isinstance(camera, dict):
+                allowed = tuple(f.name for f in dataclasses.fields(Camera) if f.init)
+                unknown = sorted(set(camera) - set(allowed))
+                if unknown:
+                    raise ValueError(f"camera dict has unknown keys {unknown}; a Camera takes {allowed}")
                 camera = Camera(**camera)
             elif not isinstance(camera, Camera):
                 raise ValueError(f"camera must be None, a tissue_env.camera.Camera or a dict of its keywords, "
