@@ -170,6 +170,13 @@ def read_surface(path):
     """
     path = Path(path)
     mesh, points = read_mesh_file(path, "read_surface", "triangles or quads", "e.g. .stl, .obj, .ply, .off, .vtk")
+    return surface_of(mesh, points, path)
+
+
+def surface_of(mesh, points, path):
+    """``(vertices, faces)`` of a meshio ``mesh`` read from ``path`` (``read_surface``'s result:
+    triangles and cut quads, coincident points merged, unused ones dropped); ValueError naming the
+    file when it holds neither triangles nor quads."""
     blocks = [np.asarray(c.data) for c in mesh.cells if c.type == "triangle"]
     blocks += [np.asarray(c.data)[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3) for c in mesh.cells if c.type == "quad"]
     if not blocks:

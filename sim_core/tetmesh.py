@@ -142,6 +142,20 @@ class TetMesh:
         return cls(mesh.nodes.copy(), elements, shape=mesh.shape,
                    spacing=None if mesh.spacing is None else np.array(mesh.spacing))
 
+    @classmethod
+    def from_surface(cls, vertices, faces, **options) -> "TetMesh":
+        """Fill a closed triangle surface (vertices (V, 3) m, faces (F, 3), outward
+        counter-clockwise) with tetrahedra: ``sim_core.meshing.tetrahedralise`` (fTetWild, the
+        ``[mesh]`` extra), whose keywords ``options`` passes on (``edge_length`` m,
+        ``max_volume`` m^3, the quality limits ``max_radius_edge`` and ``min_mean_ratio``, ...).
+
+        Raises ``ValueError`` for a surface that is not closed or tetrahedra outside the quality
+        limits, ``ImportError`` naming the extra when pytetwild is missing."""
+        from .meshing import tetrahedralise  # meshing builds on this module
+
+        nodes, tets = tetrahedralise(vertices, faces, **options)
+        return cls(nodes, tets)
+
     # -- geometry --------------------------------------------------------------------------
     @property
     def n_nodes(self) -> int:
@@ -184,15 +198,32 @@ class TetMesh:
         write_mesh_file(path, points, "tetra", self.elements, point_data)
 
     @classmethod
-    def read(cls, path) -> "TetMesh":
-        """Read the tetrahedra of a mesh file with meshio (.vtu, .msh, .vtk, ...).
+    def read(cls, path, **options) -> "TetMesh":
+        """Read a mesh file with meshio: its tetrahedra (.vtu, .msh, .vtk, ...), or, when it holds
+        a closed triangle surface and no tetrahedra (.stl, .obj, .ply, .off, ...), that surface
+        filled with tetrahedra by ``from_surface`` (``options`` are its keywords; coordinates are
+        taken as metres).
 
         Raises ``FileNotFoundError`` when ``path`` does not exist and ``ValueError``, naming the
         file, when meshio cannot read it (unsupported extension, empty, corrupt or another format),
-        when it holds no tetrahedra (the cell types found are listed) or when its tetrahedra do not
-        form a valid mesh (``TetMesh``'s checks: e.g. an inverted tetrahedron)."""
+        when it holds neither tetrahedra nor a surface (the cell types found are listed), when its
+        tetrahedra do not form a valid mesh (``TetMesh``'s checks: e.g. an inverted tetrahedron) or
+        when its surface is not closed."""
         path = Path(path)
-        mesh, points = read_mesh_file(path, "TetMesh.read", "tetrahedra", "e.g. .vtu, .vtk, .msh (Gmsh)", "TetMesh.write")
+        mesh, points = read_mesh_file(path, "TetMesh.read", "tetrahedra or a closed surface",
+                                      "e.g. .vtu, .vtk, .msh (Gmsh), or a surface: .stl, .obj, .ply, .off",
+                                      "TetMesh.write")
+        if not any(cells.type == "tetra" for cells in mesh.cells) and any(
+                cells.type in ("triangle", "quad") for cells in mesh.cells):
+            from .meshing import surface_of  # meshing builds on this module
+
+            try:
+                return cls.from_surface(*surface_of(mesh, points, path), **options)
+            except ValueError as error:
+                raise ValueError(f"{path}: its surface cannot be filled with tetrahedra: {error}") from error
+        if options:
+            raise ValueError(f"{path} holds tetrahedra: the tetrahedralisation keywords {sorted(options)} apply only "
+                             "to a surface file")
         blocks = cell_blocks(mesh, path, "tetra", "tetrahedra", "TetMesh needs 4-node tetrahedral cells")
         try:
             return cls(points, np.concatenate(blocks))

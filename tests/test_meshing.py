@@ -168,3 +168,48 @@ def test_missing_extra_names_it(monkeypatch):
     vertices, faces = icosphere(1)
     with pytest.raises(ImportError, match=r"tissue-gym\[mesh\]"):
         tetrahedralise(vertices, faces)
+
+
+@pytest.mark.parametrize("model", ["baudet", "baudet-hyperelastic"])
+def test_tet_mesh_from_a_surface_file_passes_the_patch_test(tmp_path, model):
+    """``TetMesh.read`` of an STL sphere (1 cm radius) tetrahedralises it (``TetMesh.from_surface``):
+    every tetrahedron positive, volume within 2% of the surface's. On those unstructured tetrahedra
+    the patch test: with the surface nodes moved by a homogeneous stretch (1% along x, -0.45% across),
+    the static interior nodes follow the same affine field to 1e-8 of the stretch (a linear
+    tetrahedron's springs and stress correction are exact for an affine field whatever its shape,
+    and a homogeneous deformation is an equilibrium of any homogeneous law, the hyperelastic one included)."""
+    pytest.importorskip("pytetwild", reason="the mesh extra (pytetwild) is not installed")
+    import meshio
+
+    from sim_core import Material, TetMesh, build_model, solve_static
+    from sim_core.model import Control
+
+    vertices, faces = icosphere(2)
+    path = tmp_path / "sphere.stl"
+    meshio.write_points_cells(path, vertices, [("triangle", faces)], binary=True)
+    mesh = TetMesh.read(path, edge_length=0.004)
+    assert np.all(mesh.element_volumes() > 0)
+    assert abs(mesh.element_volumes().sum() / enclosed_volume(vertices, faces) - 1) < 0.02
+    mesh.write(tmp_path / "sphere.vtu")
+    with pytest.raises(ValueError, match="only to a surface file"):
+        TetMesh.read(tmp_path / "sphere.vtu", edge_length=0.004)
+
+    stretch = np.diag([1.01, 0.9955, 0.9955])
+    surface = mesh.surface_nodes()
+    interior = np.setdiff1d(np.arange(mesh.n_nodes), surface)
+    assert len(interior) > 0
+    built = build_model(mesh, Material(1e4, 0.45, 1000.0), model=model, gravity=(0.0, 0.0, 0.0))
+    control = Control.free(mesh.n_nodes).impose(surface, mesh.nodes[surface] @ stretch.T)
+    result = solve_static(built, control, tolerance=1e-12)
+    assert result.converged
+    error = np.abs(result.positions[interior] - mesh.nodes[interior] @ stretch.T).max()
+    assert error < 1e-8 * 0.01 * 0.01  # of the 1e-4 m stretch of a 1 cm radius
+
+
+def test_from_surface_refuses_an_open_surface():
+    pytest.importorskip("pytetwild", reason="the mesh extra (pytetwild) is not installed")
+    from sim_core import TetMesh
+
+    vertices, faces = icosphere(1)
+    with pytest.raises(ValueError, match="closed|edge"):
+        TetMesh.from_surface(vertices, faces[1:])
