@@ -346,9 +346,11 @@ def env_accuracy_sections():
         for part in ("discretisation", "stepping", "constitutive"):
             errors = default.get(part, {}).get("errors")
             if errors:
-                rows.append([task, "x".join(map(str, default["shape"])), num(default["dt"]), part,
-                             pct(errors["force"]), pct(errors["target"]), pct(errors["volume"])])
-    out += [table(["task", "default shape", "dt (s)", "error source", "force (%)", "target (%)", "volume (%)"], rows),
+                rows.append([task, default.get("model", "baudet"), "x".join(map(str, default["shape"])),
+                             num(default["dt"]), part, pct(errors["force"]), pct(errors["target"]),
+                             pct(errors["volume"])])
+    out += [table(["task", "model", "default shape", "dt (s)", "error source", "force (%)", "target (%)", "volume (%)"],
+                  rows),
             "\n", figure("env_accuracy.png", "environment accuracy"), "\n"]
 
     out += ["## Environments: dynamic convergence with the mesh\n\n",
