@@ -442,7 +442,8 @@ def build_model(
                 f"stiffness {np.round(edge_k[bad], 6).tolist()} N/m, which makes the element "
                 "unstable (negative-energy modes). Baudet's formula needs "
                 "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
-                "poisson_ratio > -0.25 and near-cubic elements (1:1:1.2 works for nu >= 0)"
+                "poisson_ratio > -0.25 and near-cubic elements, or model='baudet-hyperelastic' for box-shaped "
+                "elements (its springs are positive on every box)"
             )
         if model in SPRING_SHEAR_MODELS and max_shear_error is not None:
             check_shear_error(model, axis_rest_length, max_shear_error)
