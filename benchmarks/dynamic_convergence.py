@@ -6,7 +6,7 @@ equilibrium (the lag). The lag is physics as much as error (the tissue has mass 
 the tool outruns it), and it need not fall with resolution: Retraction's flap lags 34% in force at
 (8, 2, 4) and 154% at (20, 3, 10). What an agent sees is the dynamic observation, so this
 benchmark measures that one against the same dynamic run on a fine mesh: the scene of
-``env_accuracy`` (same scenes,
+``env_accuracy`` (the env's tissue model, ``env_accuracy.env_setting``; same scenes,
 displacements, tool speed ``max_step`` per env step, the env's dt, one substep, its solver
 tolerance), the scripted tool reaching each tested displacement at full speed without holding
 (``sim_core.resolution.dynamic_scene``), observations taken on arrival: tool force, target
@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT))
 
 from training.common import write_json  # noqa: E402
 from benchmarks.env_accuracy import (  # noqa: E402
-    TASKS, env_default_dt, env_default_shape, env_defaults, env_solver_tolerance,
+    TASKS, env_default_dt, env_default_shape, env_setting, env_solver_tolerance,
 )
 from sim_core.resolution import dynamic_scene, scene_errors, solve_scene  # noqa: E402
 
@@ -65,7 +65,8 @@ def element_size(scene, shape):
     return float(np.prod(size / np.asarray(shape, dtype=float)) ** (1.0 / 3.0))
 
 
-def dynamic(scenes, shape, dt, max_step, solver_tolerance, alpha, kappa, damping_ratio=1.0, integrator="implicit"):
+def dynamic(scenes, shape, dt, max_step, solver_tolerance, alpha, kappa, damping_ratio=1.0, integrator="implicit",
+            model="baudet"):
     """The env-like dynamic observations of every scene at ``shape``: (solutions, env steps, seconds)
     or raises RuntimeError naming the diverging scene."""
     solutions, steps, seconds = [], 0, 0.0
@@ -74,7 +75,7 @@ def dynamic(scenes, shape, dt, max_step, solver_tolerance, alpha, kappa, damping
             scene, shape, dt=dt, substeps=1, max_step=max_step, hold_steps=0, hourglass_control=alpha,
             volume_stiffness=kappa, solver_tolerance=solver_tolerance,
             solver=dict(preconditioner="auto") if integrator == "implicit" else None,
-            damping_ratio=damping_ratio, integrator=integrator)
+            damping_ratio=damping_ratio, integrator=integrator, model=model)
         if reason is not None:
             raise RuntimeError(f"{scene.name} at {shape} diverged: {reason}")
         solutions.append(solution)
@@ -98,7 +99,7 @@ def run(task, shapes=None, fine=None, damping_ratio=1.0, constant_viscosity=Fals
     scenes = make()
     shapes = [tuple(s) for s in (shapes or SHAPES[task])]
     fine = tuple(fine or scenes[0].shape(fine_resolution))
-    alpha, kappa = env_defaults()
+    model, alpha, kappa = env_setting(task)
     dt, tolerance = env_default_dt(task), env_solver_tolerance(task)
     default_size = element_size(scenes[0], env_default_shape(task))
 
@@ -107,13 +108,13 @@ def run(task, shapes=None, fine=None, damping_ratio=1.0, constant_viscosity=Fals
 
     clock = time.perf_counter()
     references, fine_steps, fine_seconds = dynamic(scenes, fine, dt, max_step, tolerance, alpha, kappa, ratio(fine),
-                                                   integrator)
+                                                   integrator, model)
     rows = []
     for shape in shapes:
         solutions, steps, seconds = dynamic(scenes, shape, dt, max_step, tolerance, alpha, kappa, ratio(shape),
-                                            integrator)
-        static = [solve_scene(scene, shape, hourglass_control=alpha, volume_stiffness=kappa, check_stability=False)
-                  for scene in scenes]
+                                            integrator, model)
+        static = [solve_scene(scene, shape, model=model, hourglass_control=alpha, volume_stiffness=kappa,
+                              check_stability=False) for scene in scenes]
         rows.append(dict(shape=list(shape), errors=errors(solutions, references), lag=errors(solutions, static),
                          damping_ratio=ratio(shape), env_steps=steps, seconds=seconds,
                          seconds_per_step=seconds / max(steps, 1),
@@ -121,7 +122,7 @@ def run(task, shapes=None, fine=None, damping_ratio=1.0, constant_viscosity=Fals
                          volume=[s.volume.tolist() for s in solutions],
                          force_norm=[np.linalg.norm(s.force, axis=1).tolist() for s in solutions]))
     return dict(task=task, integrator=integrator, dt=dt, substeps=1, max_step=max_step, solver_tolerance=tolerance,
-                hourglass_control=alpha,
+                model=model, hourglass_control=alpha,
                 volume_stiffness=kappa, damping="constant viscosity" if constant_viscosity else float(damping_ratio),
                 fine_damping_ratio=ratio(fine), fine_shape=list(fine), fine_seconds=fine_seconds, fine_env_steps=fine_steps,
                 fine_volume=[r.volume.tolist() for r in references],
@@ -133,7 +134,8 @@ def table(results):
     print("dynamic observations (tool at full speed, no hold) against the fine mesh's, and the lag (against the "
           "shape's own static equilibrium); errors in % (force / target / volume)")
     for name, result in results.items():
-        print(f"{name}: fine {tuple(result['fine_shape'])}, {result.get('integrator', 'implicit')}, "
+        print(f"{name} ({result.get('model', 'baudet')}): fine {tuple(result['fine_shape'])}, "
+              f"{result.get('integrator', 'implicit')}, "
               f"dt {result['dt'] * 1e3:.0f} ms, max_step {result['max_step'] * 1e3:.0f} mm, damping {result['damping']}")
         for row in result["shapes"]:
             e, lag = row["errors"], row["lag"]

@@ -1,12 +1,13 @@
 """How fine must each environment's model be, and how accurate is it? (issue 4, issue 6 sec. 3)
 
 For each task this reproduces the environment's scene at its defaults (geometry, material, attached
-face, tool, gravity, floor, inclusion) with ``sim_core.resolution.Scene`` and the environments'
-mass-spring setting (hourglass_control and volume_stiffness read from ``TissueEnv``'s defaults:
-1 and 100), and reports
+face, tool, gravity, floor, inclusion) with ``sim_core.resolution.Scene`` and the environment's
+tissue model (``env_setting``: its class's ``default_model``, "baudet" with hourglass_control and
+volume_stiffness read from ``TissueEnv``'s defaults, 1 and 100, or "baudet-hyperelastic", which has
+neither: Retraction, whose elements are boxes), and reports
 
 (a) discretisation ("model no more than a scene needs"): ``choose_resolution`` against the fine
-    model, the same mass-spring model and setting on a fine mesh (``reference="baudet"``): the
+    model, the same mass-spring model and setting on a fine mesh (the fine reference): the
     coarsest resolution n (elements no longer than max(size) / n) whose static tool force, target
     displacement and volume change stay within 5% (and 10%) of the fine model at every tested
     tool displacement, with stable equilibria. The fine model's own convergence is its error
@@ -116,6 +117,14 @@ def env_defaults():
     return MODEL_DEFAULTS["baudet"]
 
 
+def env_setting(name):
+    """(model, hourglass_control, volume_stiffness) of task ``name``'s environment at its defaults:
+    its class's ``default_model``, with ``env_defaults`` for "baudet" and (0, 0) for
+    "baudet-hyperelastic" (no hourglass control, no volume forces)."""
+    model = env_class(name).default_model
+    return (model, *env_defaults()) if model == "baudet" else (model, 0.0, 0.0)
+
+
 def absolute_errors(case_errors, reference):
     """Per-case errors in physical units: |q - q_ref| for the tool force (N), the target
     displacement (mm) and the volume change (percentage points), from the relative errors
@@ -153,24 +162,22 @@ ENV_IDS = {"TumorPositioning": "tissue_env/TumorPositioning-v0", "Palpation": "t
            "Retraction": "tissue_env/Retraction-v0"}
 
 
-def env_default_shape(name):
+def env_class(name):
     from tissue_env import PalpationEnv, RetractionEnv, TumorPositioningEnv
 
-    return tuple(dict(TumorPositioning=TumorPositioningEnv, Palpation=PalpationEnv,
-                      Retraction=RetractionEnv)[name].default_shape)
+    return dict(TumorPositioning=TumorPositioningEnv, Palpation=PalpationEnv, Retraction=RetractionEnv)[name]
+
+
+def env_default_shape(name):
+    return tuple(env_class(name).default_shape)
 
 
 def env_default_dt(name):
-    from tissue_env import PalpationEnv, RetractionEnv, TumorPositioningEnv
-
-    return dict(TumorPositioning=TumorPositioningEnv, Palpation=PalpationEnv, Retraction=RetractionEnv)[name].default_dt
+    return env_class(name).default_dt
 
 
 def env_solver_tolerance(name):
-    from tissue_env import PalpationEnv, RetractionEnv, TumorPositioningEnv
-
-    return dict(TumorPositioning=TumorPositioningEnv, Palpation=PalpationEnv,
-                Retraction=RetractionEnv)[name].default_solver_tolerance
+    return env_class(name).default_solver_tolerance
 
 
 def env_speed(env_id, shape, steps=300, seed=0, clock=None):
@@ -237,9 +244,10 @@ def _pick_stepping(candidates, tolerance):
     return min(good, key=lambda c: (c.substeps, round(c.iterations, 1), max(c.errors.values()) / tolerance))
 
 
-def _constitutive(scenes, shape, fem, alpha, kappa):
+def _constitutive(scenes, shape, fem, model, alpha, kappa):
     """The mass-spring model on ``shape`` against the fem-neohookean reference ``fem``."""
-    candidate = evaluate(scenes, shape, fem[0], TOLERANCE, hourglass_control=alpha, volume_stiffness=kappa)
+    candidate = evaluate(scenes, shape, fem[0], TOLERANCE, hourglass_control=alpha, volume_stiffness=kappa,
+                         model=model)
     out = candidate.summary()
     if candidate.case_errors is not None:
         out["case_errors_absolute"] = _absolute(candidate.case_errors, scenes, fem[0])
@@ -277,6 +285,7 @@ def run(quick=False, tasks=None):
     for name, (make, max_step, fem_resolution, fine_resolution, resolutions) in TASKS.items():
         if tasks and name not in tasks:
             continue
+        model, alpha, kappa = env_setting(name)
         default_shape = env_default_shape(name)
         default_dt = env_default_dt(name)
         solver_tolerance = env_solver_tolerance(name)
@@ -285,10 +294,10 @@ def run(quick=False, tasks=None):
         scenes = make()
         clock = time.perf_counter()
         # (a) discretisation against the fine mass-spring model
-        fine = reference_solutions(scenes, reference_resolution=fine_resolution, model="baudet",
+        fine = reference_solutions(scenes, reference_resolution=fine_resolution, model=model,
                                    hourglass_control=alpha, volume_stiffness=kappa)
         choice = choose_resolution(scenes, TOLERANCE, resolutions=resolutions, hourglass_controls=(alpha,),
-                                   volume_stiffnesses=(kappa,), references=fine, full_scan=True)
+                                   volume_stiffnesses=(kappa,), references=fine, full_scan=True, model=model)
         fine_nodes = int(np.prod(np.asarray(fine[1][0]) + 1))
         chosen = {f"{int(t * 100)}pct": _pick(choice.candidates, {q: t for q in ("force", "target", "volume")}, fine_nodes)
                   for t in TOLERANCES}
@@ -311,11 +320,11 @@ def run(quick=False, tasks=None):
         shapes = ({tuple(default_shape)} | {tuple(c.shape) for c in chosen.values() if c is not None}
                   | ({tuple(budget.shape)} if budget is not None else set()))
         for shape in sorted(shapes, key=lambda s: np.prod(np.asarray(s) + 1)):
-            static = [solve_scene(s, shape, hourglass_control=alpha, volume_stiffness=kappa, check_stability=False)
-                      for s in scenes]
+            static = [solve_scene(s, shape, model=model, hourglass_control=alpha, volume_stiffness=kappa,
+                                  check_stability=False) for s in scenes]
             steps = choose_stepping(scenes, shape, TOLERANCE, dts=DTS, substeps=SUBSTEPS, max_step=max_step,
                                     hourglass_control=alpha, volume_stiffness=kappa, static=static,
-                                    solver_tolerance=solver_tolerance, solver=dict(preconditioner="auto"))
+                                    solver_tolerance=solver_tolerance, solver=dict(preconditioner="auto"), model=model)
             entry = steps.summary()
             entry["chosen_by_tolerance"] = {f"{int(t * 100)}pct": (lambda c: None if c is None else c.summary())(
                 _pick_stepping(steps.candidates, t)) for t in TOLERANCES}
@@ -325,7 +334,7 @@ def run(quick=False, tasks=None):
                 recommendation[key] = None
                 continue
             step = stepping["x".join(map(str, c.shape))]["chosen_by_tolerance"][key]
-            recommendation[key] = dict(shape=list(c.shape), resolution=c.resolution, hourglass_control=alpha,
+            recommendation[key] = dict(shape=list(c.shape), resolution=c.resolution, model=model, hourglass_control=alpha,
                                        volume_stiffness=kappa, dt=None if step is None else step["dt"],
                                        substeps=None if step is None else step["substeps"],
                                        discretisation_errors=c.errors, stepping_errors=None if step is None else step["errors"])
@@ -337,11 +346,11 @@ def run(quick=False, tasks=None):
                                                    target_displacement=(r.target - r.target_rest).tolist(),
                                                    volume=r.volume.tolist(), stable=[bool(v) for v in r.stable])
                                               for s, r in zip(scenes, fem[0])])
-        constitutive["env_default"] = _constitutive(scenes, default_shape, fem, alpha, kappa)
+        constitutive["env_default"] = _constitutive(scenes, default_shape, fem, model, alpha, kappa)
         for key, c in chosen.items():
             if c is not None:
                 constitutive[f"chosen_{key}"] = (constitutive["env_default"] if tuple(c.shape) == tuple(default_shape)
-                                                 else _constitutive(scenes, c.shape, fem, alpha, kappa))
+                                                 else _constitutive(scenes, c.shape, fem, model, alpha, kappa))
         default_step = stepping["x".join(map(str, default_shape))]
         env_dt = next(c for c in default_step["candidates"] if c["dt"] == default_dt and c["substeps"] == ENV_SUBSTEPS)
         budget_summary = None if budget is None else dict(
@@ -351,7 +360,9 @@ def run(quick=False, tasks=None):
         out["tasks"][name] = dict(
             scenes=[s.name for s in scenes], displacements_m=[[p.tolist() for p in s.displacements] for s in scenes],
             max_step=max_step, recommendation=recommendation, env_speeds=speeds, budget_choice=budget_summary,
-            env_default=dict(shape=list(default_shape), dt=default_dt, substeps=ENV_SUBSTEPS, hourglass_control=alpha,
+            model=model,
+            env_default=dict(shape=list(default_shape), dt=default_dt, substeps=ENV_SUBSTEPS, model=model,
+                             hourglass_control=alpha,
                              volume_stiffness=kappa, discretisation=default_disc, stepping=env_dt,
                              constitutive=constitutive["env_default"]),
             discretisation=discretisation, stepping=stepping, constitutive=constitutive,
@@ -377,7 +388,8 @@ def table(out):
     print(f"\nerrors in % (force / target / volume); setting hg={out['hourglass_control']:g} vs={out['volume_stiffness']:g}")
     for name, task in out["tasks"].items():
         disc = task["discretisation"]
-        print(f"\n{name}: fine model {tuple(disc['reference_shape'][0])}, stable {disc['reference_stable']}")
+        print(f"\n{name} ({task.get('model', 'baudet')}): fine model {tuple(disc['reference_shape'][0])}, "
+              f"stable {disc['reference_stable']}")
         for conv in disc["reference_convergence"] or []:
             print(f"  fine-model convergence: n={conv['resolution']} {tuple(conv['shape'] or ())} vs fine "
                   f"{_fmt(conv['errors'])}")

@@ -10,7 +10,8 @@ env's default mesh with each model (``baudet`` in the envs' setting: hourglass c
 stiffness from ``tissue_env.base.MODEL_DEFAULTS``) and compared with ``fem-neohookean`` on the finer
 mesh env_accuracy uses (``--reference-scale`` refines it: that reference is coarse for
 TumorPositioning, 8^3 against the env's 7^3, and is the env's own mesh for Palpation): the largest relative error of each quantity over the cases, whether every
-equilibrium is stable (no saddle), and the solve time. Written to ``--output`` (JSON, atomically).
+equilibrium is stable (no saddle), and the solve time; a model that refuses the mesh (``baudet`` on
+Retraction's box elements, ``sim_core.model.MAX_SHEAR_ERROR``) is reported with its reason. Written to ``--output`` (JSON, atomically).
 """
 
 import argparse
@@ -55,9 +56,9 @@ def main(argv=None):
                                  model=model)
             rows[model] = dict(errors=candidate.errors, stable=bool(candidate.stable),
                                converged=bool(candidate.converged), solve_time=candidate.solve_time,
-                               lowest_eigenvalue=candidate.lowest_eigenvalue)
+                               lowest_eigenvalue=candidate.lowest_eigenvalue, reason=candidate.reason)
             print(f"{name} {model} {shape}: " + ", ".join(f"{q} {100 * v:.1f}%" for q, v in (candidate.errors or {}).items())
-                  + f", stable {candidate.stable}", flush=True)
+                  + f", stable {candidate.stable}" + (f" ({candidate.reason})" if candidate.reason else ""), flush=True)
         out["tasks"][name] = dict(shape=list(shape), reference_shapes=[list(s) for s in fem[1]], models=rows,
                                   wall_time=time.perf_counter() - start)
     write_json(args.output, out, indent=1, default=float)

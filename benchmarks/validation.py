@@ -55,7 +55,8 @@ from sim_core.experiments import (  # noqa: E402
     tool_patch_nodes)
 from sim_core.fem import LinearFEM  # noqa: E402
 from sim_core.hyperelastic import NeoHookeanFEM  # noqa: E402
-from sim_core.model import MSS_MODELS as MSS_NAMES, Control, baudet_stiffness  # noqa: E402
+from sim_core.laws import baudet_shear_ratio  # noqa: E402
+from sim_core.model import MAX_SHEAR_ERROR, MSS_MODELS as MSS_NAMES, Control, baudet_stiffness  # noqa: E402
 from sim_core.static import lowest_eigenvalue, solve_static, zero_energy_modes  # noqa: E402
 
 FIGURES = ROOT / "docs" / "figures"
@@ -761,21 +762,28 @@ def figure_non_cubic():
     nu = 0.45
     g0 = E0 / (2 * (1 + nu))
     rows = []
-    for aspect in (0.5, 0.75, 1.0, 1.25, 1.5, 1.6):
-        for orientation, spacing in (("short/long axis along z", (0.1, 0.1, 0.1 * aspect)),
-                                     ("along x", (0.1 * aspect, 0.1, 0.1))):
-            if not admissible(aspect, nu):
-                continue
-            mss = shear((6, 6, 6), spacing, E0, nu, angle_deg=5)
-            fem = shear((6, 6, 6), spacing, E0, nu, angle_deg=5, model="fem-linear")
-            pull = elongation((6, 6, 6), spacing, E0, nu, strain=0.001)
-            x, y, z = spacing
-            predicted = (x * x + y * y + z * z) / (3 * z * z)  # docs/physics.md 2: shear in the plane normal to z
-            rows.append(dict(aspect=aspect, orientation=orientation, shear_ratio=mss.shear_modulus / g0,
-                             shear_ratio_to_fem=mss.shear_modulus / fem.shear_modulus,
-                             fem_shear_ratio=fem.shear_modulus / g0, predicted_shear_ratio=predicted,
-                             shear_e_dm=position_errors(mss, fem)[0], shear_e_max=position_errors(mss, fem)[1],
-                             elongation_E_ratio=pull.young_modulus / E0, elongation_nu=pull.poisson_ratio))
+    for label in ("baudet", HYPER):
+        # baudet runs with build_model's shear bound off (max_shear_error=None): the figure shows
+        # the error the bound refuses
+        options = dict(max_shear_error=None) if label == "baudet" else {}
+        for aspect in (0.5, 0.75, 1.0, 1.25, 1.5, 1.6, 2.0):
+            for orientation, spacing in (("short/long axis along z", (0.1, 0.1, 0.1 * aspect)),
+                                         ("along x", (0.1 * aspect, 0.1, 0.1))):
+                if label == "baudet" and not admissible(aspect, nu):
+                    continue
+                mss = run_model(shear, label, shape=(6, 6, 6), spacing=spacing, young_modulus=E0, poisson_ratio=nu,
+                                angle_deg=5, **options)
+                fem = shear((6, 6, 6), spacing, E0, nu, angle_deg=5, model="fem-linear")
+                pull = run_model(elongation, label, shape=(6, 6, 6), spacing=spacing, young_modulus=E0,
+                                 poisson_ratio=nu, strain=0.001, **options)
+                # docs/physics.md 2: Baudet's springs in the plane normal to z (the hyperelastic model: exact)
+                predicted = baudet_shear_ratio(np.array([spacing]))[0, 2] if label == "baudet" else 1.0
+                rows.append(dict(model=label, aspect=aspect, orientation=orientation,
+                                 shear_ratio=mss.shear_modulus / g0,
+                                 shear_ratio_to_fem=mss.shear_modulus / fem.shear_modulus,
+                                 fem_shear_ratio=fem.shear_modulus / g0, predicted_shear_ratio=predicted,
+                                 shear_e_dm=position_errors(mss, fem)[0], shear_e_max=position_errors(mss, fem)[1],
+                                 elongation_E_ratio=pull.young_modulus / E0, elongation_nu=pull.poisson_ratio))
     write_csv("validation_7_non_cubic", rows)
     write_csv("validation_7_admissible_aspect", limits)
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.8))
@@ -788,20 +796,27 @@ def figure_non_cubic():
     axes[0].minorticks_off()
     axes[0].set_xlabel("aspect a of an element (1, 1, a)")
     axes[0].set_ylabel("Poisson's ratio")
-    axes[0].set_title("build_model accepts (green) / rejects (red: an edge k <= 0)")
-    for orientation, marker in (("short/long axis along z", "o"), ("along x", "s")):
-        data = [r for r in rows if r["orientation"] == orientation]
-        a = [r["aspect"] for r in data]
-        axes[1].plot(a, [r["shear_ratio_to_fem"] for r in data], marker + "-", label=f"baudet / fem-linear, odd axis {orientation}")
-        axes[1].plot(a, [r["predicted_shear_ratio"] for r in data], "k" + marker, mfc="none", markersize=9,
-                     label=f"element G_xy / G = D^2 / (3 z^2) (docs/physics.md 2), {orientation}")
-        axes[2].plot(a, [r["shear_e_dm"] for r in data], marker + "-", label=f"shear %e_dm, odd axis {orientation}")
-        axes[2].plot(a, [abs(r["elongation_E_ratio"] - 1) * 100 for r in data], marker + "--",
-                     label=f"elongation at 0.1%: |E/E0 - 1| (%), {orientation}")
+    for edge in bounded_aspects():
+        axes[0].axvline(edge, color="tab:blue", linewidth=1.0)
+    axes[0].text(1.0, -0.2, f"baudet's default\nbound: G within\n{MAX_SHEAR_ERROR:.0%}", fontsize=7, ha="center",
+                 color="tab:blue")
+    axes[0].set_title("Baudet edge k > 0 (green) / <= 0 (red); blue: accepted by max_shear_error")
+    for label, line in (("baudet", "-"), (HYPER, ":")):
+        for orientation, marker in (("short/long axis along z", "o"), ("along x", "s")):
+            data = [r for r in rows if r["orientation"] == orientation and r["model"] == label]
+            a = [r["aspect"] for r in data]
+            axes[1].plot(a, [r["shear_ratio_to_fem"] for r in data], marker + line,
+                         label=f"{label} / fem-linear, odd axis {orientation}")
+            axes[2].plot(a, [r["shear_e_dm"] for r in data], marker + line, label=f"{label} shear %e_dm, {orientation}")
+            if label == "baudet":
+                axes[1].plot(a, [r["predicted_shear_ratio"] for r in data], "k" + marker, mfc="none", markersize=9,
+                             label=f"baudet element G_xy / G = D^2 / (3 z^2) (docs/physics.md 2), {orientation}")
+                axes[2].plot(a, [abs(r["elongation_E_ratio"] - 1) * 100 for r in data], marker + "--",
+                             label=f"baudet elongation at 0.1%: |E/E0 - 1| (%), {orientation}")
     axes[1].axhline(1.0, color="green", linewidth=0.8)
     axes[1].set_xlabel("aspect a")
     axes[1].set_ylabel("G_xy measured by the MSS / by fem-linear (6x6x6, 5 deg)")
-    axes[1].legend(fontsize=7)
+    axes[1].legend(fontsize=6, loc="upper right")
     axes[2].set_xlabel("aspect a")
     axes[2].set_ylabel("error (%) against fem-linear / imposed E")
     axes[2].set_yscale("log")
@@ -809,16 +824,32 @@ def figure_non_cubic():
     for ax in axes[1:]:
         ax.grid(alpha=0.3)
     fig.suptitle(f"Fig. 7 - non-cubic elements (1, 1, a), nu = {nu}: where Baudet's stiffness is admissible, "
-                 "and shear/elongation errors where it is")
+                 "and the shear/elongation errors of baudet (where it is) and baudet-hyperelastic")
     save(fig, "validation_7_non_cubic")
-    worst = max((r for r in rows if r["aspect"] != 1.0), key=lambda r: r["shear_e_dm"])
+    baudet_rows = [r for r in rows if r["model"] == "baudet"]
+    hyper_rows = [r for r in rows if r["model"] == HYPER]
+    worst = max((r for r in baudet_rows if r["aspect"] != 1.0), key=lambda r: r["shear_e_dm"])
+    low, high = bounded_aspects()
     SUMMARY["7_non_cubic"] = dict(
-        headline=(f"1:1:2 and 1:1:4 are rejected for every nu (aspect limit a < {limits[-1]['max_aspect']:.3f} even at "
-                  f"nu = 0.499); accepted elements keep E, nu exact at small strain (worst |E/E0 - 1| at 0.1% "
-                  f"{max(abs(r['elongation_E_ratio'] - 1) for r in rows) * 100:.3f}%) but shear is off: "
-                  f"G_MSS/G_FEM = {worst['shear_ratio_to_fem']:.2f} and %e_dm {worst['shear_e_dm']:.1f} at a = {worst['aspect']} "
-                  f"({worst['orientation']})"),
-        limits=limits, rows=rows)
+        headline=(f"1:1:2 and 1:1:4 are rejected by baudet's edge stiffness for every nu (aspect limit a < "
+                  f"{limits[-1]['max_aspect']:.3f} even at nu = 0.499); accepted elements keep E, nu exact at small "
+                  f"strain (worst |E/E0 - 1| at 0.1% {max(abs(r['elongation_E_ratio'] - 1) for r in baudet_rows) * 100:.3f}%) "
+                  f"but shear is off: G_MSS/G_FEM = {worst['shear_ratio_to_fem']:.2f} and %e_dm {worst['shear_e_dm']:.1f} "
+                  f"at a = {worst['aspect']} ({worst['orientation']}), so build_model refuses baudet elements beyond "
+                  f"a in [{low:.3f}, {high:.3f}] (max_shear_error {MAX_SHEAR_ERROR:.0%}); baudet-hyperelastic on "
+                  f"a = 0.5-2: G/G_FEM {min(r['shear_ratio_to_fem'] for r in hyper_rows):.3f}-"
+                  f"{max(r['shear_ratio_to_fem'] for r in hyper_rows):.3f}, %e_dm at most "
+                  f"{max(r['shear_e_dm'] for r in hyper_rows):.2f}"),
+        limits=limits, bounded_aspects=[low, high], rows=rows)
+
+
+def bounded_aspects():
+    """(low, high): the aspects a of an element (1, 1, a) whose Baudet shear modulus is within
+    MAX_SHEAR_ERROR in every plane (``build_model``'s default bound)."""
+    fine = np.geomspace(0.5, 2.0, 200001)
+    error = np.abs(baudet_shear_ratio(np.stack([np.ones_like(fine), np.ones_like(fine), fine], axis=1)) - 1).max(axis=1)
+    inside = fine[error <= MAX_SHEAR_ERROR]
+    return float(inside.min()), float(inside.max())
 
 
 # == Large deformation: baudet-hyperelastic beside baudet and the FEM laws (issue 27) ==========

@@ -240,9 +240,10 @@ def validation_page():
                   [[r["nu"], num(r["min_aspect"], 4), num(r["max_aspect"], 4)]
                    for r in load_csv("validation_7_admissible_aspect.csv")]), "\n",
             caption(validate, "validation_7_non_cubic.csv"), "\n"]
-    out += [table(["aspect", "orientation", "G / G_FEM", "predicted G / G0", "shear %e_dm", "E / E0 (elongation)",
-                   "nu (elongation)"],
-                  [[num(r["aspect"]), r["orientation"], num(r["shear_ratio_to_fem"]), num(r["predicted_shear_ratio"]),
+    out += [table(["model", "aspect", "orientation", "G / G_FEM", "predicted element G / G0", "shear %e_dm",
+                   "E / E0 (elongation)", "nu (elongation)"],
+                  [[r["model"], num(r["aspect"]), r["orientation"], num(r["shear_ratio_to_fem"]),
+                    num(r["predicted_shear_ratio"]),
                     num(r["shear_e_dm"]), num(r["elongation_E_ratio"], 4), num(r["elongation_nu"], 4)]
                    for r in load_csv("validation_7_non_cubic.csv")]),
             "\n", figure("validation_7_non_cubic.png", "non-cubic elements"), "\n"]
@@ -345,9 +346,11 @@ def env_accuracy_sections():
         for part in ("discretisation", "stepping", "constitutive"):
             errors = default.get(part, {}).get("errors")
             if errors:
-                rows.append([task, "x".join(map(str, default["shape"])), num(default["dt"]), part,
-                             pct(errors["force"]), pct(errors["target"]), pct(errors["volume"])])
-    out += [table(["task", "default shape", "dt (s)", "error source", "force (%)", "target (%)", "volume (%)"], rows),
+                rows.append([task, default.get("model", "baudet"), "x".join(map(str, default["shape"])),
+                             num(default["dt"]), part, pct(errors["force"]), pct(errors["target"]),
+                             pct(errors["volume"])])
+    out += [table(["task", "model", "default shape", "dt (s)", "error source", "force (%)", "target (%)", "volume (%)"],
+                  rows),
             "\n", figure("env_accuracy.png", "environment accuracy"), "\n"]
 
     out += ["## Environments: dynamic convergence with the mesh\n\n",

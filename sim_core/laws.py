@@ -34,6 +34,15 @@ def baudet_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ratio):
     return edge, diagonal
 
 
+def baudet_shear_ratio(axis_lengths: np.ndarray) -> np.ndarray:
+    """(M, 3) shear modulus of Baudet's springs over the material's, G_meas / G = D^2 / (3 k^2), in
+    the plane normal to each axis k (column k) of an element of rest edge lengths ``axis_lengths``
+    (M, 3) m [2]: 1 in every plane for a cube only (one diagonal stiffness serves three planes)."""
+    axis_lengths = np.asarray(axis_lengths, float)
+    d2 = (axis_lengths**2).sum(axis=-1, keepdims=True)
+    return d2 / (3.0 * axis_lengths**2)
+
+
 # -- constitutive law (pointwise, vectorised over any leading axes) ----------------------------
 def lame_parameters(young_modulus, poisson_ratio):
     """(mu, lambda) in Pa from E (Pa) and nu (docs/physics.md notation)."""

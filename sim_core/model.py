@@ -16,7 +16,7 @@ import scipy.sparse as sp
 
 from ._validate import finite_array
 from .elements import element_block_positions, element_blocks, element_stiffness
-from .laws import baudet_stiffness, lame_parameters
+from .laws import baudet_shear_ratio, baudet_stiffness, lame_parameters
 from .material import Material
 from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
@@ -28,6 +28,13 @@ from .tetmesh import TET_EDGES, TetMesh
 MSS_MODELS = ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic")
 #: The mass-spring models a ``TetMesh`` takes (docs/physics.md section 12).
 TET_MODELS = ("baudet", "baudet-hyperelastic")
+#: The largest relative shear-modulus error ``build_model`` accepts by default in any plane of an
+#: element of the models whose springs set the shear modulus alone ("baudet", "baudet-original";
+#: ``laws.baudet_shear_ratio``): elements 1:1:a with a in about [0.96, 1.04]. 5% is the project's
+#: accuracy floor in shear against FEM (docs/physics.md section 2).
+MAX_SHEAR_ERROR = 0.05
+#: The models whose shear modulus on a box element is that of Baudet's springs (``max_shear_error``).
+SPRING_SHEAR_MODELS = ("baudet", "baudet-original")
 
 
 @dataclass(frozen=True, eq=False)
@@ -320,6 +327,7 @@ def build_model(
     gravity=(0.0, 0.0, 0.0),
     hourglass_control: float = 0.0,
     springs: str = "faces",
+    max_shear_error: float | None = MAX_SHEAR_ERROR,
 ) -> Model:
     """Build a mass-spring ``Model`` once from geometry and material.
 
@@ -355,6 +363,14 @@ def build_model(
             diagonals matched to the hourglass modes' energy, ``stress_correction.element_spring_stiffness``),
             "isotropic" (12 edges and 4 inner diagonals of a nu = 1/4 solid, positive for every box)
             or "baudet" (Baudet's springs and formula, non-positive on elongated boxes) [11].
+        max_shear_error: "baudet" and "baudet-original" on hexahedra: the largest relative error
+            |G_meas / G - 1| of the springs' shear modulus in any plane of any element
+            (``laws.baudet_shear_ratio``, D^2 / (3 k^2) - 1: exact for cubes only) accepted; an
+            element beyond it is a ValueError naming the models that are right on such elements
+            ("baudet-hyperelastic", whose stress correction gives the exact shear modulus on every
+            box, and the tetrahedral path, ``TetMesh``). Default ``MAX_SHEAR_ERROR`` (5%: elements
+            1:1:a with a in about [0.96, 1.04]); None accepts any box (ablations of the known shear
+            error). The other models ignore it [2].
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
@@ -426,8 +442,11 @@ def build_model(
                 f"stiffness {np.round(edge_k[bad], 6).tolist()} N/m, which makes the element "
                 "unstable (negative-energy modes). Baudet's formula needs "
                 "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
-                "poisson_ratio > -0.25 and near-cubic elements (1:1:1.2 works for nu >= 0)"
+                "poisson_ratio > -0.25 and near-cubic elements, or model='baudet-hyperelastic' for box-shaped "
+                "elements (its springs are positive on every box)"
             )
+        if model in SPRING_SHEAR_MODELS and max_shear_error is not None:
+            check_shear_error(model, axis_rest_length, max_shear_error)
     if not hyperelastic:
         local_pairs = np.concatenate([EDGES, DIAGONALS])
         values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
@@ -487,6 +506,28 @@ def build_model(
                      **(dict(springs=springs) if hyperelastic else {})),
         stress_correction=stress_correction,
     )
+
+
+def check_shear_error(model: str, axis_lengths: np.ndarray, max_shear_error: float) -> None:
+    """ValueError when the springs of ``model`` ("baudet", "baudet-original") give an element of
+    rest edge lengths ``axis_lengths`` (M, 3) m a shear modulus more than ``max_shear_error``
+    (relative, >= 0) off in some plane (docs/physics.md section 2)."""
+    max_shear_error = float(finite_array("max_shear_error", max_shear_error))
+    if max_shear_error < 0:
+        raise ValueError(f"max_shear_error must be None or >= 0 (a relative error), got {max_shear_error}")
+    error = np.abs(baudet_shear_ratio(axis_lengths) - 1.0)  # (M, 3)
+    if np.all(error <= max_shear_error):
+        return
+    bad = int(np.argmax(error.max(axis=1)))
+    plane = int(np.argmax(error[bad]))
+    raise ValueError(
+        f"model={model!r} gives element {bad} of edge lengths {np.round(axis_lengths[bad], 6).tolist()} m a shear "
+        f"modulus {baudet_shear_ratio(axis_lengths[bad])[plane]:.3f} times the material's in the plane normal to "
+        f"axis {'xyz'[plane]} (Baudet's springs give D^2 / (3 k^2) G: exact on cubes only, docs/physics.md "
+        f"section 2), beyond max_shear_error={max_shear_error:g}. For box-shaped elements use "
+        f"model='baudet-hyperelastic' (its stress correction gives the exact shear modulus on every box), or the "
+        f"tetrahedral path (a TetMesh, element='tet' in the experiments); or mesh with near-cubic elements "
+        f"(1:1:a with a in about [0.96, 1.04] at 5%); max_shear_error=None accepts the error")
 
 
 def _masses_and_damping(mesh, density, rest_volume, springs, stiffness, damping_ratio):

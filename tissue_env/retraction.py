@@ -140,9 +140,10 @@ class RetractionEnv(TissueEnv):
     """
     ## Description
 
-    A flap of tissue (6 x 0.8 x 3 cm, 8 x 2 x 4 hexahedra, Baudet mass-spring model of ``sim_core``,
-    gravity on) lies on a rigid, frictionless floor (y = 0) and stays attached to the body along its
-    edge x = 0. Contact is an active set, as in the static scene of ``sim_core.studies.solving``: the
+    A flap of tissue (6 x 0.8 x 3 cm, 12 x 2 x 6 hexahedra of 5 x 4 x 5 mm, the hyperelastic
+    mass-spring model ``baudet-hyperelastic`` of ``sim_core``, whose stress correction gets these box
+    elements' shear modulus right where Baudet's springs alone are 0.76-1.375x off; gravity on) lies
+    on a rigid, frictionless floor (y = 0) and stays attached to the body along its edge x = 0. Contact is an active set, as in the static scene of ``sim_core.studies.solving``: the
     height of every node on the floor is imposed in the implicit step (x and z stay free), a node
     the tissue pulls up is released, and a free node that goes below the floor is put back on it
     (losing its downward velocity) and joins the set. Held still, the flap settles exactly on the
@@ -253,10 +254,14 @@ class RetractionEnv(TissueEnv):
     """
 
     #: The most accurate shape that keeps 300 env steps/s with a 1.25x margin
-    #: (benchmarks/env_accuracy.py): static tool force / flap centre / volume change within
-    #: 9.3 / 6.0 / 39% of the (24, 4, 12) model, against 12.5 / 7.1 / 59% at (10, 2, 5),
-    #: 18 / 8 / 93% at (8, 2, 4) and 36 / 11 / 158% at (6, 1, 3).
+    #: (benchmarks/env_accuracy.py, with the default model): static tool force / flap centre /
+    #: volume change within 1.7 / 3.0 / 9.6% of the (24, 4, 12) model, against 2.8 / 3.5 / 12.4% at
+    #: (10, 2, 5), 4.6 / 3.8 / 18% at (8, 2, 4) and 8.3 / 8.4 / 46% at (6, 1, 3); 5.9 / 6.8 / 10.3%
+    #: from neo-Hookean FEM on a (15, 2, 8) mesh.
     worlds_class = RetractionWorlds
+    #: The default elements are 5 x 4 x 5 mm boxes, whose shear modulus Baudet's springs get 0.76-1.375x
+    #: wrong (``build_model`` refuses them): the hyperelastic stress correction gets it exact.
+    default_model = "baudet-hyperelastic"
     default_shape = (12, 2, 6)
     default_size = (0.06, 0.008, 0.03)
     default_max_step = 0.005

@@ -3,8 +3,9 @@ stepping, that keep a scene's observed quantities within a tolerance of the fine
 sec. 3). This module chooses the resolution, ``sim_core.studies.stepping`` the stepping; both solve
 the scenes of ``sim_core.studies.scenes`` with ``sim_core.studies.solving``.
 
-Two references: ``reference="baudet"`` (the default of ``choose_resolution``) is the same
-mass-spring model and setting on a fine mesh, so the error is the discretisation error alone;
+Two references: the fine model (the default of ``choose_resolution``: ``reference`` = its ``model``,
+"baudet" or "baudet-hyperelastic") is the same mass-spring model and setting on a fine mesh, so the
+error is the discretisation error alone;
 ``"fem-neohookean"`` is a finite-element continuum model, so the error adds the constitutive
 difference (the mass-spring law departs from neo-Hookean at large strain and that part does not
 fall with resolution).
@@ -25,8 +26,9 @@ simulation does not stay there). The error of a quantity is ``scene_errors``' (i
 ``sim_core.studies.solving``): max_k |q_k - q_k^ref| / max_k |q_k^ref| over the K displacements.
 
 Resolution ``n`` means elements no larger than ``max(size) / n`` along any axis (``Scene.shape``).
-Shapes whose elements the mass-spring model rejects (too elongated for Baudet's stiffness,
-docs/physics.md section 2) are reported as inadmissible. The settings do not change the number of
+Shapes whose elements the mass-spring model rejects ("baudet": boxes, whose shear modulus its
+springs get wrong, or too elongated for its stiffness; docs/physics.md section 2) are reported as
+inadmissible. The settings do not change the number of
 unknowns; their measured solve times are reported next to the errors.
 SI units: m, Pa, N, kg/m^3, m/s^2.
 """
@@ -98,10 +100,11 @@ class ResolutionChoice:
         candidates: every candidate tried, in order.  tolerance: {quantity: tolerance}.
         reference_shape: the reference mesh (per scene).  reference_time: s (all references).
         reference_stable: every reference equilibrium is a minimum.  reference: the solutions
-            (for "baudet", a dict {(hourglass_control, volume_stiffness): solutions}).
-        total_time: s.  reference_model: "baudet" (fine mass-spring) or "fem-neohookean".
-        reference_convergence: for "baudet", per setting, the errors of the finest candidate
-            coarser than the reference against it (how far the reference itself may be from
+            (for a fine mass-spring model, a dict {(hourglass_control, volume_stiffness): solutions}).
+        total_time: s.  reference_model: the fine mass-spring model ("baudet",
+            "baudet-hyperelastic") or "fem-neohookean".
+        reference_convergence: for a fine mass-spring reference, per setting, the errors of the
+            finest candidate coarser than the reference against it (how far the reference itself may be from
             convergence), a list of dicts; None for "fem-neohookean".
     """
 
@@ -189,13 +192,15 @@ def evaluate(scenes, shape, references, tolerance, *, hourglass_control, volume_
                      case_errors=case_errors, case_stable=case_stable, **common)
 
 
-REFERENCE_MODELS = ("baudet", "fem-neohookean")
+#: The mass-spring models ``choose_resolution`` tries (its ``model``), each its own fine reference.
+MSS_MODELS = ("baudet", "baudet-hyperelastic")
+REFERENCE_MODELS = MSS_MODELS + ("fem-neohookean",)
 
 
 class References(tuple):
     """``(solutions, shapes, seconds)`` from ``reference_solutions`` (a plain 3-tuple when
-    unpacked), with the reference ``model`` and, for "baudet", its ``hourglass_control`` and
-    ``volume_stiffness`` (None for "fem-neohookean")."""
+    unpacked), with the reference ``model`` and, for a mass-spring model, its ``hourglass_control`` and
+    ``volume_stiffness`` (0 for "baudet-hyperelastic", which has neither; None for "fem-neohookean")."""
 
     def __new__(cls, solutions, shapes, seconds, model="fem-neohookean", hourglass_control=None,
                 volume_stiffness=None):
@@ -205,7 +210,7 @@ class References(tuple):
 
     @property
     def setting(self):
-        return None if self.model != "baudet" else (self.hourglass_control, self.volume_stiffness)
+        return None if self.model not in MSS_MODELS else (self.hourglass_control, self.volume_stiffness)
 
 
 def _reference_shape_arguments(reference_resolution, reference_shape):
@@ -233,9 +238,10 @@ def reference_solutions(scenes, *, reference_resolution=10, reference_shape=None
 
     Args:
         reference_resolution: n of the reference mesh (``Scene.shape(n)``), or ``reference_shape``.
-        model: "fem-neohookean" (the constitutive reference: a converged continuum model) or
+        model: "fem-neohookean" (the constitutive reference: a converged continuum model),
             "baudet" (the same mass-spring model, with ``hourglass_control`` and
-            ``volume_stiffness``, on the fine mesh: the discretisation reference).
+            ``volume_stiffness``, on the fine mesh: the discretisation reference) or
+            "baudet-hyperelastic" (the same, without those settings).
     Raises:
         ValueError naming the argument when an input is invalid.
     """
@@ -245,18 +251,26 @@ def reference_solutions(scenes, *, reference_resolution=10, reference_shape=None
     reference_resolution, reference_shape = _reference_shape_arguments(reference_resolution, reference_shape)
     shapes = [reference_shape if reference_shape is not None else s.shape(reference_resolution) for s in scenes]
     start = time.perf_counter()
-    if model == "baudet":
-        alpha = check_scalar("hourglass_control", hourglass_control, low=0.0, strict=False)
-        kappa = check_scalar("volume_stiffness", volume_stiffness, low=0.0, strict=False)
-        solutions = [solve_scene(s, shape, hourglass_control=alpha, volume_stiffness=kappa)
+    if model in MSS_MODELS:
+        alpha, kappa = _setting(model, hourglass_control, volume_stiffness)
+        solutions = [solve_scene(s, shape, model=model, hourglass_control=alpha, volume_stiffness=kappa)
                      for s, shape in zip(scenes, shapes)]
         return References(solutions, shapes, time.perf_counter() - start, model, alpha, kappa)
     solutions = [solve_scene(s, shape, model="fem-neohookean") for s, shape in zip(scenes, shapes)]
     return References(solutions, shapes, time.perf_counter() - start)
 
 
+def _setting(model, hourglass_control, volume_stiffness):
+    """(alpha, kappa) of a mass-spring ``model``: checked for "baudet", (0, 0) for "baudet-hyperelastic"
+    (no hourglass control, no volume forces)."""
+    if model == "baudet-hyperelastic":
+        return 0.0, 0.0
+    return (check_scalar("hourglass_control", hourglass_control, low=0.0, strict=False),
+            check_scalar("volume_stiffness", volume_stiffness, low=0.0, strict=False))
+
+
 def _reference_map(references, model, settings, scenes, reference_resolution, reference_shape):
-    """{setting: References} for "baudet" ({None: References} for "fem-neohookean"), computing
+    """{setting: References} for a mass-spring ``model`` ({None: References} for "fem-neohookean"), computing
     the ones not given."""
     given = {}
     if references is not None:
@@ -280,14 +294,14 @@ def _reference_map(references, model, settings, scenes, reference_resolution, re
     out = {}
     for alpha, kappa in settings:
         out[(alpha, kappa)] = given.get((alpha, kappa)) or reference_solutions(
-            scenes, reference_resolution=reference_resolution, reference_shape=reference_shape, model="baudet",
+            scenes, reference_resolution=reference_resolution, reference_shape=reference_shape, model=model,
             hourglass_control=alpha, volume_stiffness=kappa)
     return out
 
 
 def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourglass_controls=(0.0, 0.25, 0.5, 1.0),
                       volume_stiffnesses=(1.0, 100.0), reference=None, reference_resolution=10, reference_shape=None,
-                      quantities=QUANTITIES, full_scan=False, references=None) -> ResolutionChoice:
+                      quantities=QUANTITIES, full_scan=False, references=None, model="baudet") -> ResolutionChoice:
     """The coarsest mass-spring resolution and setting that reproduce ``scene`` within ``tolerance``.
 
     Args:
@@ -297,16 +311,20 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
             {"force": ..., "target": ..., "volume": ...} (``sim_core.studies.solving`` for the definition).
         resolutions: the n to try, coarsest first (integers >= 1; ``Scene.shape(n)``).
         hourglass_controls: alpha values to try (>= 0).  volume_stiffnesses: kappa multipliers (>= 0).
-        reference: "baudet" (the fine model: the same mass-spring model and setting on the
+            Both "baudet"'s only.
+        reference: ``model`` (the fine model: the same mass-spring model and setting on the
             reference mesh; only resolutions strictly coarser than it can be chosen) or
             "fem-neohookean" (the constitutive reference). Default: the model of ``references``
-            when given, else "baudet".
+            when given, else ``model``.
         reference_resolution: n of the reference mesh (or ``reference_shape``).
         quantities: which observed quantities must meet the tolerance (a subset of QUANTITIES).
         full_scan: try every resolution (for charts); otherwise stop at the first one with an
             admissible setting.
-        references: precomputed ``reference_solutions(...)`` result to reuse (for "baudet", one per
+        references: precomputed ``reference_solutions(...)`` result to reuse (for the fine model, one per
             setting: a single result or a dict {(alpha, kappa): result}; missing ones are computed).
+        model: the mass-spring model of the candidates, "baudet" (with the settings) or
+            "baudet-hyperelastic" (one setting: no hourglass control, no volume forces; boxes the
+            "baudet" model refuses are admissible to it).
     Returns:
         ``ResolutionChoice``; ``chosen`` is None when no candidate is admissible.
     Raises:
@@ -316,11 +334,15 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
     scenes = check_scenes(scene)
     if any(not np.allclose(s.size, scenes[0].size) for s in scenes):
         raise ValueError("scene: every Scene in the list must have the same size")
+    if model not in MSS_MODELS:
+        raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
     if reference is None:
         reference = getattr(references, "model", "fem-neohookean") if isinstance(references, tuple) else (
-            "baudet" if references is None or isinstance(references, dict) else "fem-neohookean")
-    if reference not in REFERENCE_MODELS:
-        raise ValueError(f"reference must be one of {REFERENCE_MODELS}, got {reference!r}")
+            model if references is None or isinstance(references, dict) else "fem-neohookean")
+    if reference not in (model, "fem-neohookean"):
+        raise ValueError(f"reference must be the candidates' model {model!r} (the fine model) or 'fem-neohookean', "
+                         f"got {reference!r}")
+    fine = reference != "fem-neohookean"
     quantities = check_quantities(quantities)
     tolerance = check_tolerances(tolerance, quantities)
     try:
@@ -335,7 +357,8 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
     hourglass_controls = _settings("hourglass_controls", hourglass_controls, 0.0)
     volume_stiffnesses = _settings("volume_stiffnesses", volume_stiffnesses, 0.0)
     reference_resolution, reference_shape = _reference_shape_arguments(reference_resolution, reference_shape)
-    settings = [(alpha, kappa) for alpha in hourglass_controls for kappa in volume_stiffnesses]
+    settings = ([_setting(model, None, None)] if model == "baudet-hyperelastic" else
+                [(alpha, kappa) for alpha in hourglass_controls for kappa in volume_stiffnesses])
     ref_map = _reference_map(references, reference, settings, scenes, reference_resolution, reference_shape)
     ref_of = (lambda setting: ref_map[None]) if reference == "fem-neohookean" else ref_map.__getitem__
     everything = list(ref_map.values())
@@ -354,8 +377,8 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
         here = []
         for alpha, kappa in settings:
             candidate = evaluate(scenes, shape, ref_of((alpha, kappa))[0], tolerance, hourglass_control=alpha,
-                                 volume_stiffness=kappa, resolution=resolution)
-            if reference == "baudet" and candidate.admissible and candidate.n_nodes >= ref_nodes:
+                                 volume_stiffness=kappa, resolution=resolution, model=model)
+            if fine and candidate.admissible and candidate.n_nodes >= ref_nodes:
                 candidate.admissible, candidate.reason = False, "not coarser than the reference"
             here.append(candidate)
         candidates.extend(here)
@@ -365,14 +388,14 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
             if not full_scan:
                 break
     sound = [c for c in candidates if c.converged and c.stable and c.errors is not None
-             and (reference != "baudet" or c.n_nodes < ref_nodes)]
+             and (not fine or c.n_nodes < ref_nodes)]
     best = None
     if sound:
         smallest = min(c.worst_ratio(tolerance) for c in sound)
         best = min((c for c in sound if c.worst_ratio(tolerance) <= 1.1 * smallest),
                    key=lambda c: (c.n_nodes, c.worst_ratio(tolerance)))
     convergence = None
-    if reference == "baudet":
+    if fine:
         convergence = []
         for alpha, kappa in settings:
             coarser = [c for c in candidates if c.errors is not None and c.n_nodes < ref_nodes

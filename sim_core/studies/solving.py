@@ -57,15 +57,25 @@ class SceneSolution:
     check_time: float = 0.0
 
 
-def mss_solver(mesh, material, gravity, hourglass_control, volume_stiffness, check_stability, model="baudet"):
-    """``model_solver`` of a mass-spring ``model`` ("baudet" with the given hourglass control and
-    volume stiffness, or "baudet-hyperelastic", which has neither)."""
+#: The mass-spring models a scene is solved with (``mss_model``).
+SCENE_MODELS = ("baudet", "baudet-hyperelastic")
+
+
+def mss_model(mesh, material, gravity, hourglass_control, volume_stiffness, model="baudet", damping_ratio=1.0):
+    """The scene's mass-spring ``Model``: "baudet" with the given hourglass control and volume
+    stiffness, or "baudet-hyperelastic", which has neither (they are ignored); gravity in m/s^2 along -y."""
+    if model not in SCENE_MODELS:
+        raise ValueError(f"model must be one of {SCENE_MODELS}, got {model!r}")
     if model == "baudet-hyperelastic":
-        built = build_model(mesh, material, model=model, gravity=(0.0, -gravity, 0.0))
-    else:
-        built = build_model(mesh, material, gravity=(0.0, -gravity, 0.0), hourglass_control=hourglass_control,
-                            volume_stiffness=volume_stiffness)
-    return model_solver(built, check_stability)
+        return build_model(mesh, material, model=model, gravity=(0.0, -gravity, 0.0), damping_ratio=damping_ratio)
+    return build_model(mesh, material, gravity=(0.0, -gravity, 0.0), hourglass_control=hourglass_control,
+                       volume_stiffness=volume_stiffness, damping_ratio=damping_ratio)
+
+
+def mss_solver(mesh, material, gravity, hourglass_control, volume_stiffness, check_stability, model="baudet"):
+    """``model_solver`` of a mass-spring ``model`` (``mss_model``)."""
+    return model_solver(mss_model(mesh, material, gravity, hourglass_control, volume_stiffness, model),
+                        check_stability)
 
 
 def model_solver(model, check_stability=False):

@@ -16,13 +16,13 @@ import numpy as np
 from .. import contact as contact_
 from ..forces import external_forces, internal_forces
 from ..integrators import make_integrator
-from ..model import Control, State, build_model
+from ..model import Control, State
 from ..static import STATIC_CONTACT_PASSES, same_contact
 from .checks import check_integer, check_scalar
 from .scenes import check_scenes
 from .solving import (
-    QUANTITIES, SceneSolution, check_quantities, check_tolerances, contact_candidates, from_surface, mss_solver,
-    scene_errors, solve_scene, solve_with_contact, tool_control, tool_force,
+    QUANTITIES, SceneSolution, check_quantities, check_tolerances, contact_candidates, from_surface, mss_model,
+    mss_solver, scene_errors, solve_scene, solve_with_contact, tool_control, tool_force,
 )
 
 
@@ -77,7 +77,7 @@ class SteppingChoice:
 
 
 def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass_control, volume_stiffness,
-                  solver_tolerance, solver=None, damping_ratio=1.0, integrator="implicit"):
+                  solver_tolerance, solver=None, damping_ratio=1.0, integrator="implicit", model="baudet"):
     """Observed quantities of ``scene`` as an environment produces them: from the static rest state
     (gravity, tool at rest) the tool moves towards each tested displacement by at most ``max_step``
     per component per env step (a scripted controller at full speed; the displacements of a path
@@ -87,15 +87,16 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
     is taken then. ``damping_ratio``: ``build_model``'s multiplier of the critical spring damping.
     ``integrator``: "implicit" (``ImplicitEuler`` with ``solver_tolerance`` and the ``solver``
     keywords) or "static" (``sim_core.static.QuasiStatic``, the ``solver`` keywords: an equilibrium
-    per step, as the envs' ``integrator="static"``).
+    per step, as the envs' ``integrator="static"``). ``model``: "baudet" or "baudet-hyperelastic"
+    (``solving.mss_model``; hourglass_control and volume_stiffness are baudet's).
     Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""
     if integrator not in ("implicit", "static"):
         raise ValueError(f"integrator must be 'implicit' or 'static', got {integrator!r}")
     mesh, material, fixed, tool, target_nodes, weights = scene.discretise(shape)
     nodes = mesh.nodes
-    model = build_model(mesh, material, gravity=(0.0, -scene.gravity, 0.0), hourglass_control=hourglass_control,
-                        volume_stiffness=volume_stiffness, damping_ratio=damping_ratio)
-    solve, _ = mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness, False)
+    model_name = model
+    model = mss_model(mesh, material, scene.gravity, hourglass_control, volume_stiffness, model_name, damping_ratio)
+    solve, _ = mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness, False, model_name)
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
     candidates = contact_candidates(scene, mesh.n_nodes, fixed, tool)
     obstacle = scene.obstacle(mesh, candidates)
@@ -182,7 +183,7 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
 
 def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_steps=0, hourglass_control=1.0,
                    volume_stiffness=100.0, static=None, tolerance=0.05, solver_tolerance=1e-4,
-                   solver=None) -> SteppingCandidate:
+                   solver=None, model="baudet") -> SteppingCandidate:
     """How far an environment's stepping (``substeps`` implicit Euler steps of ``dt`` per env step,
     the tool moving ``max_step`` per env step, then held ``hold_steps`` env steps) leaves the
     observed quantities from the static equilibrium at the same tool position, on ``shape``.
@@ -195,6 +196,7 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
         solver_tolerance: relative residual of the linear solves (the envs' default, 1e-4).
         solver: further ``ImplicitEuler`` keywords (e.g. ``preconditioner``, ``max_iterations``);
             None: its defaults.
+        model: "baudet" or "baudet-hyperelastic" (which ignores hourglass_control and volume_stiffness).
     Returns:
         ``SteppingCandidate`` (errors in the ``scene_errors`` convention against ``static``).
     Raises:
@@ -216,13 +218,14 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
     tolerance = tolerance if isinstance(tolerance, dict) and set(tolerance) <= set(QUANTITIES) and all(
         isinstance(v, float) for v in tolerance.values()) else check_tolerances(tolerance, QUANTITIES)
     if static is None:
-        static = [solve_scene(s, shape, hourglass_control=alpha, volume_stiffness=kappa, check_stability=False)
-                  for s in scenes]
+        static = [solve_scene(s, shape, model=model, hourglass_control=alpha, volume_stiffness=kappa,
+                              check_stability=False) for s in scenes]
     errors, case_errors, steps, iterations, elapsed = {}, {q: [] for q in QUANTITIES}, 0, 0, 0.0
     for scene_, reference in zip(scenes, static):
         solution, n, its, seconds, reason = dynamic_scene(
             scene_, shape, dt=dt, substeps=substeps, max_step=max_step, hold_steps=hold_steps,
-            hourglass_control=alpha, volume_stiffness=kappa, solver_tolerance=solver_tolerance, solver=solver)
+            hourglass_control=alpha, volume_stiffness=kappa, solver_tolerance=solver_tolerance, solver=solver,
+            model=model)
         steps, iterations, elapsed = steps + n, iterations + its, elapsed + seconds
         if solution is None:
             return SteppingCandidate(dt, substeps, None, None, steps, iterations / max(steps, 1),
@@ -241,13 +244,13 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
 
 def choose_stepping(scene, shape, tolerance=0.05, *, dts=(0.01, 0.02, 0.04), substeps=(1, 2), max_step=0.002,
                     hold_steps=0, hourglass_control=1.0, volume_stiffness=100.0, quantities=QUANTITIES,
-                    static=None, solver_tolerance=1e-4, solver=None) -> SteppingChoice:
+                    static=None, solver_tolerance=1e-4, solver=None, model="baudet") -> SteppingChoice:
     """The cheapest env stepping (``dt``, ``substeps``) whose observations stay within ``tolerance``
     of the static equilibrium at the same tool position (``stepping_error``) on ``shape``.
 
     Cheapest: fewest implicit steps per env step (``substeps``), then fewest linear-solver
-    iterations per env step, then the smallest worst error / tolerance. ``solver_tolerance`` and
-    ``solver`` (``ImplicitEuler`` keywords) as in ``stepping_error``.
+    iterations per env step, then the smallest worst error / tolerance. ``solver_tolerance``,
+    ``solver`` (``ImplicitEuler`` keywords) and ``model`` as in ``stepping_error``.
     Raises:
         ValueError naming the argument when an input is invalid.
     """
@@ -266,11 +269,12 @@ def choose_stepping(scene, shape, tolerance=0.05, *, dts=(0.01, 0.02, 0.04), sub
         raise ValueError("substeps must hold at least one integer >= 1")
     shape = tuple(int(s) for s in shape)
     if static is None:
-        static = [solve_scene(s, shape, hourglass_control=hourglass_control, volume_stiffness=volume_stiffness,
-                              check_stability=False) for s in scenes]
+        static = [solve_scene(s, shape, model=model, hourglass_control=hourglass_control,
+                              volume_stiffness=volume_stiffness, check_stability=False) for s in scenes]
     candidates = [stepping_error(scenes, shape, dt=dt, substeps=n, max_step=max_step, hold_steps=hold_steps,
                                  hourglass_control=hourglass_control, volume_stiffness=volume_stiffness,
-                                 static=static, tolerance=tolerance, solver_tolerance=solver_tolerance, solver=solver)
+                                 static=static, tolerance=tolerance, solver_tolerance=solver_tolerance, solver=solver,
+                                 model=model)
                   for n in substeps for dt in dts]
     admissible = [c for c in candidates if c.admissible]
     chosen = None
