@@ -31,11 +31,12 @@ neither: Retraction, whose elements are boxes), and reports
     so these errors do not fall with resolution.
 
 Scenes (SI units; tool displacements from rest, y up):
-- TumorPositioning: 5 cm cube, bottom fixed, tool = the top nodes in the central 2.5 cm square
-  (glued; the env's ``tool_size``), target = the block centre; displacements: press 6 and 12 mm,
-  pull 12 mm, drag 12 mm along x, (8, -8, 8) mm (goals are 6-12 mm tool moves, the workspace
-  +-20 mm). Fine model n = 16 (the tool square falls on nodes for n = 4, 8, 12, 16; in between
-  the grasped nodes span less, as in the env, so the error is not monotonic in n).
+- TumorPositioning: 5 cm cube, bottom fixed, tool = the top-face patch the default env grasps
+  (glued; its ``tool_size`` = 2.5 cm square selects the 4 x 4 nodes spanning 2.14 cm at (7, 7, 7)),
+  target = the block centre; displacements: press 6 and 12 mm, pull 12 mm, drag 12 mm along x,
+  (8, -8, 8) mm (goals are 6-12 mm tool moves, the workspace +-20 mm). Fine model and FEM
+  reference n = 14, where the patch's edges fall on nodes (as for n = 7, 21; in between the
+  grasped nodes span less, so the error is not monotonic in n).
 - Palpation: 6 x 3 x 6 cm slab, bottom fixed, inclusion (the default 1.2 x 1 x 1.2 cm box,
   1-2 cm deep, 10x stiffer), a frictionless sphere-ended probe of radius 9 mm (the env's
   defaults; an active-set contact, ``sim_core.contact``) pressed 2, 4, 6, 8 mm (the env's
@@ -75,13 +76,28 @@ TOLERANCES = (0.05, 0.10)
 
 
 def tumor_scenes():
-    # tissue_env.TumorPositioningEnv defaults: size 5 cm, shape (4, 4, 4), tool = top nodes within
-    # 1.5 elements of the centre = the 3x3 nodes spanning [1.25, 3.75] cm in x and z.
+    # tissue_env.TumorPositioningEnv defaults: size 5 cm, bottom fixed, the tool glued to the top
+    # nodes its ``tool_size`` square selects on the default mesh: at (7, 7, 7) the 4 x 4 nodes
+    # spanning [1.43, 3.57] cm in x and z. The scene is that patch, so the references (n = 14, 21,
+    # ... put nodes on its edges) model the tool the env simulates, not a wider square it does not
+    # grasp (at n = 8 or 16 the 2.5 cm square holds a patch 37% larger in area).
+    low, high = tumor_grasp()
     return [Scene(size=0.05, young_modulus=E, poisson_ratio=NU, density=RHO, gravity=G, fixed_face="y-",
-                  tool_low=(0.0125, 0.05, 0.0125), tool_high=(0.0375, 0.05, 0.0375),
+                  tool_low=tuple(low), tool_high=tuple(high),
                   displacements=[(0, -6 * MM, 0), (0, -12 * MM, 0), (0, 12 * MM, 0), (12 * MM, 0, 0),
                                  (8 * MM, -8 * MM, 8 * MM)],
                   target=(0.025, 0.025, 0.025), name="TumorPositioning")]
+
+
+def tumor_grasp():
+    """(low, high) (3,) m: the corners of the patch TumorPositioning's default env grasps."""
+    from tissue_env import TumorPositioningEnv
+
+    env = TumorPositioningEnv()
+    try:
+        return env.tool_rest.min(axis=0), env.tool_rest.max(axis=0)
+    finally:
+        env.close()
 
 
 def palpation_scenes():
@@ -140,7 +156,7 @@ def absolute_errors(case_errors, reference):
 TASKS = {
     # name: (scenes, env max_step (m), fem reference n, fine-model n, candidate n); the env's default
     # shape is read from its class (``env_default_shape``)
-    "TumorPositioning": (tumor_scenes, 0.002, 8, 16, (2, 3, 4, 5, 6, 7, 8, 12)),
+    "TumorPositioning": (tumor_scenes, 0.002, 14, 14, (2, 3, 4, 5, 6, 7, 8, 12)),
     "Palpation": (palpation_scenes, 0.004, 10, 12, (4, 5, 6, 7, 8, 10)),
     "Retraction": (retraction_scenes, 0.005, 15, 24, (4, 5, 6, 7, 8, 10, 12, 15, 20)),
 }

@@ -362,8 +362,9 @@ class TissueEnv(gym.Env):
     default_size = (0.06, 0.04, 0.06)
     default_max_step = 0.002
     min_shape = (2, 2, 2)
-    #: The tissue model of ``model=None``: "baudet" where the default elements are cubes, whose shear
-    #: modulus Baudet's springs get right; a task meshed with boxes takes "baudet-hyperelastic".
+    #: The tissue model of ``model=None``: per task, the model closer to neo-Hookean FEM on its scene
+    #: (``benchmarks/env_models.py``); a task meshed with boxes needs "baudet-hyperelastic" (Baudet's
+    #: springs get the shear modulus right on cubes only).
     default_model = "baudet"
     #: Observation units: lengths in cm, forces in units of 0.1 N x E / 5 kPa (``worlds.REFERENCE_YOUNG_MODULUS``:
     #: the same strains read the same at any stiffness), strains and volume change in %.
