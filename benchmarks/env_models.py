@@ -1,20 +1,22 @@
 """The environments' scenes with each mass-spring model against neo-Hookean FEM: which physics should
 the environments use?
 
-Usage: python benchmarks/env_models.py [--models baudet baudet-hyperelastic] [--reference-scale 1]
-       [--output benchmarks/results/env_models.json]
+Usage: python benchmarks/env_models.py [--task NAME ...] [--models baudet baudet-hyperelastic]
+       [--reference-scale 1] [--output benchmarks/results/env_models.json]
 
 For each task the static scenes of ``benchmarks/env_accuracy.py`` (tool force, target displacement
 and volume change at every tested tool displacement, with gravity and contact) are solved on the
 env's default mesh with each model (``baudet`` in the envs' setting: hourglass control and volume
 stiffness from ``tissue_env.base.MODEL_DEFAULTS``) and compared with ``fem-neohookean`` on the finer
-mesh env_accuracy uses (``--reference-scale`` refines it: that reference is coarse for
-TumorPositioning, 8^3 against the env's 7^3, and is the env's own mesh for Palpation): the largest relative error of each quantity over the cases, whether every
+mesh env_accuracy uses (``--reference-scale`` refines it; for Palpation that reference is the
+env's own mesh): the largest relative error of each quantity over the cases, whether every
 equilibrium is stable (no saddle), and the solve time; a model that refuses the mesh (``baudet`` on
-Retraction's box elements, ``sim_core.model.MAX_SHEAR_ERROR``) is reported with its reason. Written to ``--output`` (JSON, atomically).
+Retraction's box elements, ``sim_core.model.MAX_SHEAR_ERROR``) is reported with its reason. Written to ``--output`` (JSON, atomically; ``--task NAME`` re-runs
+those tasks and keeps the others' results).
 """
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -45,6 +47,9 @@ def main(argv=None):
                        else f"benchmarks/results/env_models_reference_x{args.reference_scale:g}.json")
     alpha, kappa = ea.env_defaults()
     out = dict(reference="fem-neohookean", reference_scale=args.reference_scale, tasks={})
+    previous = Path(args.output)
+    if previous.exists():  # --task re-runs those tasks and keeps the others' results
+        out["tasks"].update(json.loads(previous.read_text()).get("tasks", {}))
     for name in args.task:
         make, _, fem_resolution, _, _ = ea.TASKS[name]
         scenes, shape = make(), ea.env_default_shape(name)

@@ -133,8 +133,9 @@ class TumorPositioningEnv(TissueEnv):
     """
     ## Description
 
-    A block of liver-like tissue (5 x 5 x 5 cm, 7 x 7 x 7 hexahedra of 7.1 mm, Baudet mass-spring
-    model of ``sim_core``) rests with its bottom face (y = 0) attached to the body. A tool grasps the
+    A block of liver-like tissue (5 x 5 x 5 cm, 7 x 7 x 7 hexahedra of 7.1 mm, the
+    ``baudet-hyperelastic`` mass-spring model of ``sim_core``: compressible neo-Hookean at every
+    strain) rests with its bottom face (y = 0) attached to the body. A tool grasps the
     top-surface nodes in the ``tool_size`` = 2.5 cm square at the centre of the top face (all
     components imposed: 4 x 4 nodes spanning 2.14 cm at the default shape, 3 x 3 spanning 1.67 cm
     at (6, 6, 6), 5 x 5 spanning the full 2.5 cm at (8, 8, 8)). A tumour is a material point inside the block (followed by trilinear
@@ -145,17 +146,17 @@ class TumorPositioningEnv(TissueEnv):
     the workspace.
 
     Physics: one implicit Euler step of ``dt`` = 40 ms per env step (``substeps`` keyword), linear
-    solves to a relative residual of 1e-2 (``solver_tolerance``), gravity on, hourglass control 1,
-    volume stiffness x100 (``tissue_env.base``). The defaults are measured
-    (``benchmarks/env_accuracy.py``, ``benchmarks/env_speed.py``, README "Environments"): the
-    default shape is the most accurate one that keeps 300 env steps/s on one core with a 1.25x
-    margin. Against the same model on a 16^3 mesh its static tool force, tumour displacement and
-    volume change are within 2.3%, 2.4% and 3.6% (the previous defaults: 6^3 10.4%, 6.4%, 6.4%;
-    4^3 31%, 10.9%, 31.7%), its observations with the tool at full speed within 3.5%, 2.5% and 4.0%
-    of the 16^3 mesh's (``benchmarks/dynamic_convergence.py``); the lag behind the static
-    equilibrium of a tool moving at full speed is within 4.3%, 0.8% and 3.1%. The loose solver tolerance leaves these lags unchanged (an inexact solve keeps the
-    equilibria) and runs faster; no divergence in 100 random-action episodes. After a tool
-    move the tumour settles to the static equilibrium within a few steps (tested).
+    solves to a relative residual of 1e-2 (``solver_tolerance``), gravity on (``tissue_env.base``;
+    ``model="baudet"`` takes Baudet's small-strain model with hourglass control 1 and volume
+    stiffness x100). The defaults are measured (``benchmarks/env_accuracy.py``,
+    ``benchmarks/env_models.py``, ``benchmarks/dynamic_convergence.py``; the documentation's
+    environment accuracy page has the numbers): the default shape is the most accurate one that
+    keeps 300 env steps/s on one core with a 1.25x margin, and the model is the one closer to
+    neo-Hookean FEM on this scene (the patch the tool grasps, on a 14^3 mesh): within 10% in
+    static tool force, tumour displacement and volume change, where ``baudet`` is off by tens of
+    percent. The loose solver tolerance keeps the equilibria (an inexact solve converges to the
+    same state) and runs faster; no divergence in 100 random-action episodes. After a tool move
+    the tumour settles to the static equilibrium within a few steps (tested).
 
     ## Action Space
 
