@@ -45,6 +45,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/dynamic_convergence.py --constant-viscosity --output benchmarks/results/dynamic_convergence_constant_viscosity.json
 	$(PY) benchmarks/dynamic_convergence.py --damping-ratio 3 --output benchmarks/results/dynamic_convergence_damping3.json
 	$(PY) benchmarks/dynamic_convergence.py --integrator static --output benchmarks/results/dynamic_convergence_static.json
+	$(PY) benchmarks/env_models.py
+	$(PY) benchmarks/env_models.py --reference-scale 1.5 --output benchmarks/results/env_models_reference_x1.5.json
+	$(PY) benchmarks/material_range.py
 	$(PY) benchmarks/vector_env_speed.py
 	$(PY) benchmarks/vector_env_speed.py --async --rounds 2 --output benchmarks/results/vector_env_speed_async.json
 	$(PY) benchmarks/training_speed.py

@@ -26,7 +26,8 @@ def _generator():
 def test_generated_pages_match_the_committed_ones():
     pages = _generator().pages()
     assert {"docs/tasks/tumor-positioning.md", "docs/tasks/palpation.md", "docs/tasks/retraction.md",
-            "docs/generated/validation.md", "docs/generated/performance.md", "docs/generated/training.md"} <= set(pages)
+            "docs/generated/validation.md", "docs/generated/performance.md", "docs/generated/training.md",
+            "docs/generated/environment_accuracy.md"} <= set(pages)
     stale = [name for name, text in pages.items()
              if not (ROOT / name).exists() or (ROOT / name).read_text() != text]
     assert not stale, f"run `python docs/gen_pages.py` and commit: {stale}"
@@ -45,6 +46,27 @@ def test_task_pages_come_from_the_docstrings_and_the_registry():
         assert first_line.replace("``", "`") in text
         env_id = next(i for i, (entry, _) in tissue_env.ENV_IDS.items() if entry.endswith(":" + cls.__name__))
         assert f"`{env_id}`" in text and f"{tissue_env.ENV_IDS[env_id][1]} env steps" in text
+
+
+def test_environment_accuracy_page_reads_the_results_files():
+    """The page's defaults and errors are env_accuracy.json's and env_models.json's, and each table names
+    the command that regenerates its file."""
+    import json
+
+    generator = _generator()
+    text = generator.pages()["docs/generated/environment_accuracy.md"]
+    accuracy = json.loads((ROOT / "benchmarks" / "results" / "env_accuracy.json").read_text())
+    for task, entry in accuracy["tasks"].items():
+        default = entry["env_default"]
+        assert f"| {task} | `{default.get('model', 'baudet')}` | {generator.shape_label(default['shape'])} |" in text
+        assert generator.triple(default["discretisation"]["errors"]) in text
+        assert generator.triple(default["constitutive"]["errors"]) in text
+    models = json.loads((ROOT / "benchmarks" / "results" / "env_models.json").read_text())
+    palpation = models["tasks"]["Palpation"]["models"]["baudet-hyperelastic"]
+    assert generator.num(palpation["lowest_eigenvalue"]) in text
+    for source in ("env_accuracy.json", "env_models.json", "env_models_reference_x1.5.json", "dynamic_convergence.json",
+                   "dynamic_convergence_static.json", "env_speed.json", "vector_env_speed.json", "material_range.json"):
+        assert f"*Regenerate `benchmarks/results/{source}`:* `python benchmarks/" in text, source
 
 
 def test_strict_build(tmp_path):
@@ -68,6 +90,6 @@ def test_strict_build(tmp_path):
     for page in ("index.html", "physics/index.html", "api/index.html", "getting-started/index.html",
                  "tasks/tumor-positioning/index.html", "tasks/palpation/index.html", "tasks/retraction/index.html",
                  "generated/validation/index.html", "generated/performance/index.html",
-                 "generated/training/index.html", "changelog/index.html"):
+                 "generated/training/index.html", "generated/environment_accuracy/index.html", "changelog/index.html"):
         assert (site / page).is_file(), page
     assert "Changelog" in (site / "changelog" / "index.html").read_text()

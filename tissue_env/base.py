@@ -16,7 +16,7 @@ TumorPositioning and Palpation) per env step is enough, and with the springs' cr
 block settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
 ``solve_static`` in tests/test_env_tumor_positioning.py). Each task's ``default_shape`` is the
 most accurate shape that keeps a speed budget of 300 env steps/s (``benchmarks/env_accuracy.py``;
-the environment accuracy page of the documentation).
+docs/generated/environment_accuracy.md, written by docs/gen_pages.py).
 A full ``solve_static`` per env step costs several implicit steps (a sparse LU factorisation per
 Newton iteration), so it is used only at reset (initial sag under gravity, goal generation) and by
 the opt-in "static" integrator.
