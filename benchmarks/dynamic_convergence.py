@@ -52,7 +52,9 @@ from sim_core.resolution import dynamic_scene, scene_errors, solve_scene  # noqa
 #: shapes compared by default (the env default among them); the fine dynamic reference is
 #: env_accuracy's fine model (its resolution n, ``Scene.shape``)
 SHAPES = {
-    "TumorPositioning": [(4, 4, 4), (6, 6, 6), (7, 7, 7), (8, 8, 8), (12, 12, 12)],
+    # not (4, 4, 4): there the grasped patch (env_accuracy.tumor_scenes) is the one centre node, a point
+    # load whose 12 mm press has no converged static equilibrium
+    "TumorPositioning": [(6, 6, 6), (7, 7, 7), (8, 8, 8), (12, 12, 12)],
     "Palpation": [(6, 3, 6), (8, 4, 8), (10, 5, 10)],
     "Retraction": [(8, 2, 4), (10, 2, 5), (12, 2, 6), (20, 3, 10)],
 }
