@@ -375,6 +375,24 @@ class TissueEnv(gym.Env):
     #: A goal-conditioned task's (achieved goal, desired goal) features of the state observation
     #: (``observation_type="goal"``, ``compute_reward``); None for a task without one.
     goal_features: tuple | None = None
+    #: Domain randomisation: the physical parameters an episode may draw, each name -> the keyword of
+    #: its (low, high) range. The episode's value of each is in every ``info`` under its name, and with
+    #: ``observe_parameters`` those drawn are observed. A task lists its own (the README's task table
+    #: is generated from it, docs/gen_pages.py).
+    randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
+                                 density="density_range", size="size_range")
+    #: The task's other keywords of its episode distribution (goal, target, inclusion place ...).
+    episode_keywords: tuple = ()
+    #: A one-line description of the task and of its success (README's task table; ``{keyword}`` and
+    #: ``{keyword:unit}`` are replaced by the keyword's default, ``readme_summary``).
+    summary = ""
+    success_summary = ""
+
+    @classmethod
+    def observation_types(cls) -> tuple:
+        """The ``observation_type`` values the task takes: every one of OBSERVATION_TYPES, "goal" only
+        for a goal-conditioned task (``goal_features``)."""
+        return tuple(kind for kind in OBSERVATION_TYPES if kind != "goal" or cls.goal_features is not None)
 
     def __init__(self, *, young_modulus=5.0e3, poisson_ratio=0.45, density=1060.0, shape=None, size=None,
                  integrator="implicit", dt=None, substeps=1, max_step=None, model="baudet",
@@ -405,10 +423,10 @@ class TissueEnv(gym.Env):
         self.gravity = nonnegative_scalar("gravity", gravity)
         if observation_type not in OBSERVATION_TYPES:
             raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")
-        if observation_type == "goal" and self.goal_features is None:
+        if observation_type not in self.observation_types():
             raise ValueError(f"observation_type='goal' needs a goal-conditioned task (TumorPositioning); "
                              f"{type(self).__name__} has no goal that an achieved state can be relabelled with "
-                             f"(see its docstring); use one of {tuple(t for t in OBSERVATION_TYPES if t != 'goal')}")
+                             f"(see its docstring); use one of {self.observation_types()}")
         self.observation_type = observation_type
         self.young_modulus_range = check_range(
             "young_modulus_range", young_modulus_range, lambda n, v: positive_scalar(n, v, "Pa"))

@@ -430,6 +430,17 @@ class PalpationEnv(TissueEnv):
     #: boxes, so that ``shape`` does not move the candidates (see ``_setup_scene``).
     cell_size = np.array([0.012, 0.01, 0.012])
     reward_names = ("success", "explore", "approach", "time", "force", "volume", "strain")
+    #: The slab's size is fixed per env: the probe's surface projection and the candidate lattice are
+    #: built on its geometry (``_setup_scene``), shared by the worlds.
+    randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
+                                 density="density_range", inclusion_ratio="inclusion_ratio_range",
+                                 inclusion_size="inclusion_size_range")
+    episode_keywords = ("inclusion_region",)
+    summary = ("indent a {default_size:cm} slab with a probe (random start, at least {start_distance:cm} from the "
+               "inclusion) and find a {inclusion_ratio:x} stiffer inclusion; the observation carries the agent's own "
+               "palpation map (apparent modulus of the latest press on each candidate cell)")
+    success_summary = ("probe at least {success_depth:mm} deep, within {success_radius:cm} of the inclusion "
+                       "horizontally, held for {hold_steps} steps")
     #: Start height of the probe tip above the undeformed surface, m.
     clearance = 0.002
     #: The default camera (``TissueEnv.default_camera``): above the slab and in front, the probe's side.

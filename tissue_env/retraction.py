@@ -262,6 +262,9 @@ class RetractionEnv(TissueEnv):
     default_max_step = 0.005
     min_shape = (2, 1, 1)
     reward_names = ("exposure", "tension", "success", "volume", "strain")
+    episode_keywords = ("target_start_range",)
+    summary = "lift the free edge of a flap lying on a rigid floor to expose a target strip, under a tension limit"
+    success_summary = "at least {success_exposure:%} exposed with tool force at most {force_limit:N}"
 
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them):
     #: the tension limit (N at E = 5 kPa), the exposed share that counts as a success and whether a

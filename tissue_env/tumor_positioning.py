@@ -286,6 +286,10 @@ class TumorPositioningEnv(TissueEnv):
     #: The default camera (``TissueEnv.default_camera``): above the grasped top, in front.
     camera_target = (0.5, 0.6, 0.5)
     goal_features = ("tumor_position", "goal_position")
+    randomised_parameters = dict(TissueEnv.randomised_parameters, tool_size="tool_size_range")
+    episode_keywords = ("tumor_region", "goal_scale_range")
+    summary = "move a grasped top patch so that a tumour inside a {default_size:cm} block reaches a reachable goal"
+    success_summary = "tumour within {success_distance:mm} of the goal"
 
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them):
     #: the goal's tool displacement (m) and the least tumour-goal distance a goal is scaled up to
