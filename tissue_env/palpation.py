@@ -6,10 +6,9 @@ import numpy as np
 
 from sim_core import Material
 from sim_core import contact, kernels
-from sim_core.model import Control
 
-from .base import (TissueEnv, check_range, check_region, check_vector, difficulty_settings, nonnegative_scalar,
-                   positive_scalar)
+from .base import (TissueEnv, check_range, check_region, check_vector, check_vector_range, difficulty_settings,
+                   nonnegative_scalar, positive_scalar)
 from .camera import ALBEDO, probe_mesh
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
@@ -384,6 +383,10 @@ class PalpationEnv(TissueEnv):
     episode; ``info["inclusion_centre"]``) vary the inclusion; ``young_modulus_range``,
     ``poisson_ratio_range`` and ``density_range`` the tissue (``tissue_env.base.TissueEnv``). Each
     inclusion or material drawn is a model of its own (cached, ``MODEL_CACHE_SIZE`` of them).
+    ``observe_parameters=True`` appends the drawn parameters (``randomised_parameters``), each
+    normalised to [-1, 1] over its range, to the observation. The slab's size and the probe are
+    fixed per env (``size_range`` is a ValueError): the probe's surface projection and the
+    candidate cells (the palpation map's length) are built on the slab's geometry.
 
     ## Arguments
 
@@ -485,19 +488,7 @@ class PalpationEnv(TissueEnv):
         #: face in ``_setup_scene``)
         self.probe = contact.Probe(self.probe_radius, probe_tip)
         self.inclusion_size = check_vector("inclusion_size", inclusion_size)
-        if inclusion_size_range is None:
-            self.inclusion_size_range = None
-        else:
-            try:
-                low, high = inclusion_size_range
-            except (TypeError, ValueError) as error:
-                raise ValueError(f"inclusion_size_range must be None or a (low, high) pair of sizes in m (a number or "
-                                 f"three each), got {inclusion_size_range!r}") from error
-            low, high = check_vector("inclusion_size_range", low), check_vector("inclusion_size_range", high)
-            if np.any(low > high):
-                raise ValueError(f"inclusion_size_range must have low <= high along every axis, got "
-                                 f"{inclusion_size_range!r}")
-            self.inclusion_size_range = (low, high)
+        self.inclusion_size_range = check_vector_range("inclusion_size_range", inclusion_size_range)
         self.episode_inclusion_size = self.inclusion_size.copy()
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
         self.success_depth = positive_scalar("success_depth", success_depth, "m")
@@ -532,7 +523,7 @@ class PalpationEnv(TissueEnv):
         if self.probe_sampling == "projected":
             self.probe = contact.Probe(self.probe_radius, self.probe_tip,
                                        contact.SurfaceProjection.top_face(self.mesh, self.top_nodes))
-        self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
+        self._place_scene(nodes)
         # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
         # surface, the axis over the central 80 % of the top face. ``workspace_low/high`` (what
         # the base class clips ``tool_offset`` to) are relative to the episode's probe start.
