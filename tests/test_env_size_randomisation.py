@@ -29,6 +29,7 @@ FLAP_SIZES = ((0.055, 0.007, 0.027), (0.065, 0.009, 0.033))
     (POSITIONING, dict(tool_size_range=(0.03, 0.02)), "tool_size_range must have low <= high"),
     (POSITIONING, dict(tool_size_range=(0.001, 0.02)), "tool_size_range's low end = 0.001 m grasps no top node"),
     (POSITIONING, dict(tool_size_range=(0.02, 0.03), observation_type="rgb"), "tool_size_range draws the grasped"),
+    (PALPATION, dict(probe_radius_range=(0.0, 0.01)), "probe_radius_range must be a finite number > 0"),
     (POSITIONING, dict(observe_parameters=1), "observe_parameters must be True or False"),
     (POSITIONING, dict(observe_parameters=True), "none is: give one of"),
     (RETRACTION, dict(observe_parameters=True, density_range=(1000, 1100), observation_type="depth"),
@@ -48,16 +49,20 @@ def _steps(env, actions):
     return np.array(records)
 
 
-@pytest.mark.parametrize("env_id, size", [(POSITIONING, (0.047, 0.052, 0.054)), (RETRACTION, (0.058, 0.0085, 0.031))])
-def test_a_drawn_size_is_the_physics_of_a_block_built_at_that_size(env_id, size):
-    # a range of one value draws that size: the episode must be the env built with size=... (the
-    # tool, the attached face, the masses, the springs all on the scaled block), bit for bit
-    drawn = gym.make(env_id, size_range=(size, size))
-    built = gym.make(env_id, size=size)
+@pytest.mark.parametrize("env_id, name, value", [
+    (POSITIONING, "size", (0.047, 0.052, 0.054)), (RETRACTION, "size", (0.058, 0.0085, 0.031)),
+    (POSITIONING, "tool_size", 0.04), (PALPATION, "probe_radius", 0.0065)])
+def test_a_drawn_value_is_the_physics_of_an_env_built_with_it(env_id, name, value):
+    # a range of one value draws that value: the episode must be the env built with it (the tool,
+    # the attached face, the masses, the springs on the scaled block; the grasped nodes; the probe's
+    # contact), bit for bit
+    drawn = gym.make(env_id, **{f"{name}_range": (value, value)})
+    built = gym.make(env_id, **{name: value})
     _, info = drawn.reset(seed=3)
     built.reset(seed=3)
-    np.testing.assert_array_equal(info["size"], size)
+    np.testing.assert_array_equal(info[name], value)
     actions = np.random.default_rng(0).uniform(-1, 1, (8, 3)).astype(np.float32)
+    actions[:, 1] = -np.abs(actions[:, 1])  # down: the probe presses
     measured = _steps(drawn, actions)
     np.testing.assert_array_equal(measured, _steps(built, actions))
     default = gym.make(env_id)  # and the default block's is another
@@ -84,18 +89,20 @@ def test_sizes_and_tool_sizes_are_drawn_per_episode_into_info_and_the_start_stat
     assert len(set(sizes)) == 3 and len(set(tool_sizes)) == 3
 
 
-@pytest.mark.parametrize("env_id, kwargs", [
-    (POSITIONING, dict(size_range=TUMOR_SIZES, tool_size_range=(0.015, 0.035))),
-    (RETRACTION, dict(size_range=FLAP_SIZES)),
+@pytest.mark.parametrize("env_id, kwargs, name", [
+    (POSITIONING, dict(size_range=TUMOR_SIZES, tool_size_range=(0.015, 0.035)), "size"),
+    (RETRACTION, dict(size_range=FLAP_SIZES), "size"),
+    (PALPATION, dict(probe_radius_range=(0.006, 0.012)), "probe_radius"),
 ])
-def test_vector_copies_draw_their_own_sizes_and_equal_single_envs(env_id, kwargs):
+def test_vector_copies_draw_their_own_values_and_equal_single_envs(env_id, kwargs, name):
     vector = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", **kwargs)
     observations, infos = vector.reset(seed=5)
-    assert len({tuple(size) for size in infos["size"]}) == 3
+    assert len({tuple(np.atleast_1d(value)) for value in infos[name]}) == 3
     singles = [gym.make(env_id, **kwargs) for _ in range(3)]
     starts = [env.reset(seed=5 + i) for i, env in enumerate(singles)]
-    np.testing.assert_array_equal(infos["size"], [info["size"] for _, info in starts])
+    np.testing.assert_array_equal(infos[name], [info[name] for _, info in starts])
     actions = np.random.default_rng(1).uniform(-1, 1, (6, 3, 3)).astype(np.float32)
+    actions[..., 1] = -np.abs(actions[..., 1])
     for action in actions:
         observations = vector.step(action)[0]
         single = [env.step(action[i])[0] for i, env in enumerate(singles)]
