@@ -231,7 +231,8 @@ class RetractionEnv(TissueEnv):
     limit near what holding the lifted flap takes, the whole target exposed, and no termination at
     a success, so the flap must be held back under the limit until the episode ends. Measured
     success rates and steps to success per level: the training page of the documentation
-    (``benchmarks/success_rates.py --difficulty``).
+    (``benchmarks/success_rates.py --difficulty``), and SAC's training result at the hard level
+    (``python -m training.benchmark --variant hard``).
 
     ## Arguments
 

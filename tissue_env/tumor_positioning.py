@@ -268,7 +268,8 @@ class TumorPositioningEnv(TissueEnv):
     distance), a tolerance of 1 mm and no termination at a success, so the tumour must be brought
     to the goal and held there until the episode ends (``info["is_success"]`` at its last step). The
     scripted controller's and random actions' success rates and steps to success at each level
-    are on the training page of the documentation (``benchmarks/success_rates.py --difficulty``).
+    are on the training page of the documentation (``benchmarks/success_rates.py --difficulty``), as
+    is SAC's training result at the hard level (``python -m training.benchmark --variant hard``).
 
     ## Episode End
 
