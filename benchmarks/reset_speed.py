@@ -1,17 +1,20 @@
 """Wall time of each task's ``reset`` over many seeds: what an episode costs before its first step.
 
-Usage: python benchmarks/reset_speed.py [--seeds 1000] [--env ID ...]
+Usage: python benchmarks/reset_speed.py [--seeds 1000] [--env ID ...] [--env-kwargs JSON]
        [--output benchmarks/results/reset_speed.json]
 
 One env per task, reset with seeds 1 .. N in turn after a warm-up reset (seed 0), one process: the
 median, mean, 95th percentile and slowest reset (ms), and for TumorPositioning, whose reset solves
 the goal's static equilibrium (``TumorPositioningEnv._start_hook``), the static solves and LU
 factorisations per reset and the seeds whose goal needed a retry (a larger displacement solved
-again) or kept a smaller goal because the retry failed. Results are written to ``--output`` (JSON,
+again) or kept a smaller goal because the retry failed. ``--env-kwargs`` builds the envs with those
+keywords (a JSON object, e.g. a domain randomisation range: every reset that draws a new size or
+material builds its model and solves its start). Results are written to ``--output`` (JSON,
 replaced atomically).
 """
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -52,8 +55,8 @@ class _Counter:
         tumor_positioning.solve_static, static._factorise = self._solve, self._factorise
 
 
-def measure(env_id, seeds):
-    env = gym.make(env_id).unwrapped
+def measure(env_id, seeds, env_kwargs=None):
+    env = gym.make(env_id, **(env_kwargs or {})).unwrapped
     env.reset(seed=0)
     times, solves, factorisations, retried = [], [], [], []
     with _Counter() as counter:
@@ -67,7 +70,7 @@ def measure(env_id, seeds):
             if solves[-1] > 1:
                 retried.append(seed)
     times = np.array(times)
-    row = dict(env_id=env_id, seeds=seeds, median_ms=float(np.median(times)), mean_ms=float(times.mean()),
+    row = dict(env_id=env_id, env_kwargs=env_kwargs or {}, seeds=seeds, median_ms=float(np.median(times)), mean_ms=float(times.mean()),
                p95_ms=float(np.percentile(times, 95)), max_ms=float(times.max()),
                slowest_seed=int(np.argmax(times)) + 1, factorisations_per_reset=float(np.mean(factorisations)))
     if env_id == "tissue_env/TumorPositioning-v0":
@@ -79,6 +82,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=1000)
     parser.add_argument("--env", nargs="*", default=sorted(tissue_env.ENV_IDS))
+    parser.add_argument("--env-kwargs", type=json.loads, default=None,
+                        help="the envs' keywords as a JSON object, e.g. '{\"size_range\": [0.045, 0.055]}'")
     parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results", "reset_speed.json"))
     args = parser.parse_args(argv)
     if args.seeds < 1:
@@ -86,7 +91,7 @@ def main(argv=None):
     rows = []
     print(f"{'env id':34s} {'median':>8s} {'mean':>8s} {'p95':>8s} {'max':>8s}  ms per reset, seeds 1-{args.seeds}")
     for env_id in args.env:
-        row = measure(env_id, args.seeds)
+        row = measure(env_id, args.seeds, args.env_kwargs)
         rows.append(row)
         extra = (f"   {row['goal_solves_per_reset']:.2f} goal solves, {row['factorisations_per_reset']:.2f} "
                  f"factorisations per reset, {row['retried_seeds']} seeds retried"

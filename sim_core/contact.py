@@ -144,18 +144,27 @@ class Probe:
     (a hemispherical end, the lowest point at the tip) or ``"flat"`` (a flat-ended cylinder). The
     tip position (m) is passed to ``surface``: it moves with the tool. ``projection``: None (the
     probe is sampled at the nodes) or a ``SurfaceProjection`` (its indentation is projected on the
-    nodes' basis functions; see the module's docstring)."""
+    nodes' basis functions; see the module's docstring). For stacked copies ``radius`` may be an
+    (N,) array, one radius per copy (a domain-randomised probe)."""
 
-    radius: float
+    radius: float | np.ndarray
     tip: str = "sphere"
     projection: SurfaceProjection | None = None
     #: -1: the obstacle bounds y from above (the admissible side is y <= surface)
     side = -1.0
 
     def __post_init__(self):
-        radius = real_scalar("probe radius", self.radius, "one finite number > 0 (a length in m, e.g. 0.005)")
-        if not np.isfinite(radius) or radius <= 0:
-            raise ValueError(f"probe radius must be one finite number > 0 (a length in m, e.g. 0.005), got {self.radius!r}")
+        if np.ndim(self.radius) == 1:  # one per copy
+            radius = np.array(self.radius, dtype=float)
+            if radius.size == 0 or not np.all(np.isfinite(radius)) or np.any(radius <= 0):
+                raise ValueError(f"probe radii must be finite numbers > 0 (lengths in m), got {self.radius!r}")
+            radius.setflags(write=False)
+            object.__setattr__(self, "radius", radius)
+        else:
+            radius = real_scalar("probe radius", self.radius, "one finite number > 0 (a length in m, e.g. 0.005)")
+            if not np.isfinite(radius) or radius <= 0:
+                raise ValueError(f"probe radius must be one finite number > 0 (a length in m, e.g. 0.005), got "
+                                 f"{self.radius!r}")
         if not isinstance(self.tip, str) or self.tip not in TIPS:
             raise ValueError(f"probe tip must be one of {TIPS}, got {self.tip!r}")
         if self.projection is not None and not isinstance(self.projection, SurfaceProjection):
@@ -165,11 +174,12 @@ class Probe:
         """The probe's lower surface (m) at horizontal points x, z (tip broadcast against them),
         +inf outside its radius."""
         r2 = (x - tip[..., 0]) ** 2 + (z - tip[..., 2]) ** 2
-        inside = r2 <= self.radius**2
+        radius = self.radius if np.ndim(self.radius) == 0 else self.radius[:, None]  # (N,): a copy's per row
+        inside = r2 <= radius**2
         if self.tip == "flat":
             height = np.broadcast_to(tip[..., 1], r2.shape)
         else:
-            height = tip[..., 1] + self.radius - np.sqrt(np.maximum(self.radius**2 - r2, 0.0))
+            height = tip[..., 1] + radius - np.sqrt(np.maximum(radius**2 - r2, 0.0))
         return np.where(inside, height, np.inf)
 
     def surface(self, positions, tip, parallel: bool = False):
@@ -195,8 +205,9 @@ class Probe:
         tips = np.ascontiguousarray(np.broadcast_to(tip, rows.shape[:1] + (3,)), dtype=float)
         out = np.empty(rows.shape[:2])
         kernel = kernels.projected_probe_surfaces_rows if parallel else kernels.projected_probe_surfaces
+        radii = np.ascontiguousarray(np.atleast_1d(self.radius), dtype=float)  # (1,) or one per row
         kernel(np.ascontiguousarray(rows[:, :, 0]), np.ascontiguousarray(rows[:, :, 2]), tips, projection.weights,
-               projection.offsets, reference, float(self.radius), float(projection.reach), self.tip == "flat", out)
+               projection.offsets, reference, radii, float(projection.reach), self.tip == "flat", out)
         return out.reshape(positions.shape[:-1])
 
 

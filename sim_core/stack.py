@@ -29,7 +29,9 @@ STRESS_FIELDS = ARRAY_FIELDS
 class StackedModel(Model):
     """The model of a ``ModelStack``'s N worlds. Unlike any other ``Model`` its per-world values
     change: ``ModelStack.assign`` rewrites a world's slice of the value arrays (``VALUE_FIELDS``,
-    the gravity forces, the masses per dof, the hourglass values) in place, then calls
+    the gravity forces, the masses per dof, the hourglass values, and the rest geometry: the
+    nodes' rest positions and the elements' rest edge directions, so that a world may hold a model
+    of the same topology on another block geometry, e.g. a domain-randomised size) in place, then calls
     ``values_changed``, which drops the data derived from them (``Model.derived``) and advances
     ``ModelStack.version``, which the N-world solvers' own caches compare with theirs. Its topology
     (mesh, springs, patterns) never changes. For "baudet-hyperelastic" its ``stress_correction`` holds
@@ -112,11 +114,19 @@ class ModelStack:
         for name in VALUE_FIELDS:
             single = getattr(model, name)
             getattr(stacked, name)[index * len(single):(index + 1) * len(single)] = single
+        elements = slice(index * self.n_elements, (index + 1) * self.n_elements)
         if model.stress_correction is not None:
-            elements = slice(index * self.n_elements, (index + 1) * self.n_elements)
             for name in STRESS_FIELDS:
                 getattr(stacked.stress_correction, name)[elements] = getattr(model.stress_correction, name)
         nodes = slice(index * self.n_nodes, (index + 1) * self.n_nodes)
+        # the rest geometry (the reference's for a model of the same block; the force passes read it
+        # in place: the hourglass term's rest positions, the fixed corrections' rest directions). The
+        # stacked mesh is the one mesh whose nodes change, as its model is the one whose values do.
+        rest = stacked.mesh.nodes
+        rest.setflags(write=True)
+        rest[nodes] = model.mesh.nodes
+        rest.setflags(write=False)
+        stacked.rest_edge_direction[elements] = model.rest_edge_direction
         stacked.gravity_force[nodes] = model.gravity_force
         stacked.mass_data[self._mass_positions[index]] = np.repeat(model.mass, 3)
         if model.hourglass is not None:

@@ -175,12 +175,19 @@ def test_impose_checks(block):
 
 
 # -- probe ------------------------------------------------------------------------------------
-@pytest.mark.parametrize("radius, got", [("0.01", "str '0.01'"), (np.array([0.01, 0.02]), r"an array of shape \(2,\)"),
+@pytest.mark.parametrize("radius, got", [("0.01", "str '0.01'"), (np.array([[0.01, 0.02]]), r"an array of shape \(1, 2\)"),
                                          (0.0, "0.0"), (-0.01, "-0.01"), (float("nan"), "nan"), (True, "bool True")])
 def test_probe_radius(radius, got):
     with pytest.raises(ValueError, match=rf"probe radius must be one finite number > 0 \(a length in m, e.g. 0.005\), "
                                          rf"got {got}"):
         contact.Probe(radius)
+
+
+@pytest.mark.parametrize("radii", [np.array([0.01, 0.0]), np.array([0.01, np.nan]), np.array([])])
+def test_per_copy_probe_radii(radii):
+    # stacked copies may hold one radius each (a domain-randomised probe): each finite and > 0
+    with pytest.raises(ValueError, match=r"probe radii must be finite numbers > 0 \(lengths in m\)"):
+        contact.Probe(radii)
 
 
 def test_probe_arguments():

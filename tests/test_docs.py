@@ -27,7 +27,7 @@ def test_generated_pages_match_the_committed_ones():
     pages = _generator().pages()
     assert {"docs/tasks/tumor-positioning.md", "docs/tasks/palpation.md", "docs/tasks/retraction.md",
             "docs/generated/validation.md", "docs/generated/performance.md", "docs/generated/training.md",
-            "docs/generated/environment_accuracy.md"} <= set(pages)
+            "docs/generated/environment_accuracy.md", "README.md"} <= set(pages)
     stale = [name for name, text in pages.items()
              if not (ROOT / name).exists() or (ROOT / name).read_text() != text]
     assert not stale, f"run `python docs/gen_pages.py` and commit: {stale}"
@@ -67,6 +67,27 @@ def test_environment_accuracy_page_reads_the_results_files():
     for source in ("env_accuracy.json", "env_models.json", "env_models_reference_x1.5.json", "dynamic_convergence.json",
                    "dynamic_convergence_static.json", "env_speed.json", "vector_env_speed.json", "material_range.json"):
         assert f"*Regenerate `benchmarks/results/{source}`:* `python benchmarks/" in text, source
+
+
+def test_readme_tables_come_from_the_task_classes_and_the_training_results():
+    import json
+
+    import tissue_env
+
+    readme = _generator().pages()["README.md"]
+    tasks = readme.split("<!-- generated: tasks", 1)[1].split("<!-- end generated: tasks -->")[0]
+    for env_id, (entry_point, max_steps) in tissue_env.ENV_IDS.items():
+        cls = getattr(tissue_env, entry_point.split(":")[1])
+        row = next(line for line in tasks.splitlines() if line.startswith(f"| `{env_id}`"))
+        assert f"{max_steps} steps" in row
+        assert all(f"`{kind}`" in row for kind in cls.observation_types())
+        assert ("`goal`" in row) == (cls.goal_features is not None)
+        assert all(f"`{keyword}`" in row for keyword in (*cls.randomised_parameters.values(), *cls.episode_keywords))
+    training = readme.split("<!-- generated: training", 1)[1].split("<!-- end generated: training -->")[0]
+    results = json.loads((ROOT / "benchmarks" / "results" / "training.json").read_text())
+    assert len([line for line in training.splitlines() if line.startswith("| ") and "random / scripted" not in line]) \
+        == len(results) + 1  # a row per entry, and the header
+    assert "{" not in tasks  # every {keyword} of a summary was replaced by its default
 
 
 def test_strict_build(tmp_path):

@@ -22,3 +22,14 @@ def test_reset_speed_counts_goal_solves_and_restores_the_solvers(tmp_path):
     out = tmp_path / "reset.json"
     assert reset_speed.main(["--seeds", "2", "--env", "tissue_env/Retraction-v0", "--output", str(out)]) == 0
     assert out.is_file() and (out.stat().st_mode & 0o777) == 0o644
+
+
+def test_reset_speed_builds_the_envs_with_the_keywords_given(tmp_path):
+    """--env-kwargs: the envs are built with them (a size drawn per reset) and each row records them."""
+    import json
+
+    out = tmp_path / "reset.json"
+    kwargs = {"size_range": [[0.055, 0.007, 0.027], [0.065, 0.009, 0.033]]}
+    assert reset_speed.main(["--seeds", "2", "--env", "tissue_env/Retraction-v0", "--env-kwargs", json.dumps(kwargs),
+                             "--output", str(out)]) == 0
+    assert json.loads(out.read_text())["results"][0]["env_kwargs"] == kwargs

@@ -314,3 +314,21 @@ def test_a_monitor_row_cut_by_a_kill_is_removed_before_the_resume_appends(tmp_pa
     assert repair_monitor_logs(tmp_path) == [cut]
     assert cut.read_text() == whole.read_text()
     assert repair_monitor_logs(tmp_path / "absent") == []
+
+
+def test_a_later_run_in_the_same_process_counts_only_its_own_time(tmp_path):
+    """training.benchmark trains its runs one after the other in one process: a run's wall clock
+    starts at its own start, not at the process's (which would add the earlier runs' time)."""
+    import time
+
+    from training.checkpoints import RunRecord
+
+    first = RunRecord(tmp_path / "first.json")
+    first.open()
+    time.sleep(1.0)
+    first.finish(10)
+    second = RunRecord(tmp_path / "second.json")
+    second.open()
+    second.finish(10)
+    assert json.loads((tmp_path / "first.json").read_text())["wall_clock_s"] >= 1.0
+    assert json.loads((tmp_path / "second.json").read_text())["wall_clock_s"] < 0.5

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import itertools
 import threading
 import warnings
 from collections import OrderedDict
@@ -133,6 +134,22 @@ def check_vector(name, value, unit="m"):
     if not np.all(np.isfinite(array)) or np.any(array <= 0):
         raise ValueError(f"{name} must be finite and > 0 {unit} along every axis, got {value!r}")
     return array
+
+
+def check_vector_range(name, value, unit="m"):
+    """None or a (low, high) pair of ``check_vector`` values (a number or three each, ``unit``) with
+    low <= high along every axis, as a pair of (3,) arrays."""
+    if value is None:
+        return None
+    try:
+        low, high = value
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be None or a (low, high) pair of sizes in {unit} (a number or three each), "
+                         f"got {value!r}") from error
+    low, high = check_vector(name, low, unit), check_vector(name, high, unit)
+    if np.any(low > high):
+        raise ValueError(f"{name} must have low <= high along every axis, got {value!r}")
+    return (low, high)
 
 
 #: The difficulty levels of every task (``difficulty`` keyword; each task's ``DIFFICULTY`` table).
@@ -308,8 +325,22 @@ class TissueEnv(gym.Env):
             episode under ``young_modulus`` / ``poisson_ratio`` / ``density`` (the fixed values
             without a range). A new material is a new model (built on a cache miss: a slower
             reset; ``MODEL_CACHE_SIZE`` models are kept, within the "models" byte budget). The
-            tasks add their own ranges (see their docstrings and the documentation's "Domain
-            randomisation" section).
+            tasks add their own ranges (``randomised_parameters``; see their docstrings and the
+            documentation's "Domain randomisation" section).
+        size_range: None or (low, high), each a size in m (a number or (Lx, Ly, Lz)): the block's
+            extent drawn per episode, each axis uniformly in its range (after the material), for
+            the tasks that list ``size`` in ``randomised_parameters`` (ValueError for the others).
+            The episode's block is the ``size`` block scaled along each axis about the origin
+            (the attached corner): the same ``shape`` of hexahedra, the same nodes in the same
+            roles (attached face, grasped patch, contact candidates), at scaled rest positions,
+            with a model built for it (a new size is a new model, cached as a material). Observed
+            positions stay relative to the centre of the ``size`` block (a frame fixed in space).
+            ``info["size"]`` is the episode's (Lx, Ly, Lz) m.
+        observe_parameters: append the episode's randomised parameters (the
+            ``randomised_parameters`` whose range is given, each axis of a size separately) to the
+            state observation, each normalised to [-1, 1] over its range (``parameters``: a key
+            of the "dict" observation, part of the "goal" observation's ``observation``); for the
+            vector observations only (ValueError with a visual ``observation_type``).
         volume_weight: weight of the |relative volume change| penalty.
         strain_threshold, strain_weight: penalty strain_weight * max(0, max spring strain - threshold)
             (a damage proxy).
@@ -381,6 +412,24 @@ class TissueEnv(gym.Env):
     #: A goal-conditioned task's (achieved goal, desired goal) features of the state observation
     #: (``observation_type="goal"``, ``compute_reward``); None for a task without one.
     goal_features: tuple | None = None
+    #: Domain randomisation: the physical parameters an episode may draw, each name -> the keyword of
+    #: its (low, high) range. The episode's value of each is in every ``info`` under its name, and with
+    #: ``observe_parameters`` those drawn are observed. A task lists its own (the README's task table
+    #: is generated from it, docs/gen_pages.py).
+    randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
+                                 density="density_range", size="size_range")
+    #: The task's other keywords of its episode distribution (goal, target, inclusion place ...).
+    episode_keywords: tuple = ()
+    #: A one-line description of the task and of its success (README's task table; ``{keyword}`` and
+    #: ``{keyword:unit}`` are replaced by the keyword's default, ``readme_summary``).
+    summary = ""
+    success_summary = ""
+
+    @classmethod
+    def observation_types(cls) -> tuple:
+        """The ``observation_type`` values the task takes: every one of OBSERVATION_TYPES, "goal" only
+        for a goal-conditioned task (``goal_features``)."""
+        return tuple(kind for kind in OBSERVATION_TYPES if kind != "goal" or cls.goal_features is not None)
 
     def __init__(self, *, young_modulus=5.0e3, poisson_ratio=0.45, density=1060.0, shape=None, size=None,
                  integrator="implicit", dt=None, substeps=1, max_step=None, model=None,
@@ -388,7 +437,7 @@ class TissueEnv(gym.Env):
                  poisson_ratio_range=None, density_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
                  instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
                  max_nodes=MAX_NODES, image_size=None, camera=None, point_count=512, point_normals=False,
-                 difficulty="default", terminate_on_success=None):
+                 difficulty="default", terminate_on_success=None, size_range=None, observe_parameters=False):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(terminate_on_success=terminate_on_success))
         self.difficulty = difficulty
         self.terminate_on_success = check_flag("terminate_on_success", settings["terminate_on_success"])
@@ -411,10 +460,10 @@ class TissueEnv(gym.Env):
         self.gravity = nonnegative_scalar("gravity", gravity)
         if observation_type not in OBSERVATION_TYPES:
             raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")
-        if observation_type == "goal" and self.goal_features is None:
+        if observation_type not in self.observation_types():
             raise ValueError(f"observation_type='goal' needs a goal-conditioned task (TumorPositioning); "
                              f"{type(self).__name__} has no goal that an achieved state can be relabelled with "
-                             f"(see its docstring); use one of {tuple(t for t in OBSERVATION_TYPES if t != 'goal')}")
+                             f"(see its docstring); use one of {self.observation_types()}")
         self.observation_type = observation_type
         self.young_modulus_range = check_range(
             "young_modulus_range", young_modulus_range, lambda n, v: positive_scalar(n, v, "Pa"))
@@ -422,6 +471,15 @@ class TissueEnv(gym.Env):
         self.density_range = check_range("density_range", density_range,
                                          lambda n, v: positive_scalar(n, v, "kg/m^3"))
         self.episode_density = self.density  # the episode's (drawn from density_range at each reset)
+        self.size_range = check_vector_range("size_range", size_range)
+        self.observe_parameters = check_flag("observe_parameters", observe_parameters)
+        if self.size_range is not None and "size" not in self.randomised_parameters:
+            raise ValueError(f"{type(self).__name__} takes no size_range: its block size is fixed per env (see its "
+                             f"docstring); it randomises {tuple(self.randomised_parameters.values())}")
+        if self.observe_parameters and observation_type in VISUAL_TYPES:
+            raise ValueError(f"observe_parameters appends values to a vector observation; observation_type="
+                             f"{observation_type!r} is an image or point cloud: use one of "
+                             f"{tuple(t for t in self.observation_types() if t not in VISUAL_TYPES)}")
         self.volume_weight = nonnegative_scalar("volume_weight", volume_weight)
         self.strain_threshold = nonnegative_scalar("strain_threshold", strain_threshold)
         self.strain_weight = nonnegative_scalar("strain_weight", strain_weight)
@@ -437,6 +495,9 @@ class TissueEnv(gym.Env):
 
         self.spacing = self.size / np.asarray(self.shape)
         self.mesh = HexMesh.block(self.shape, self.spacing)
+        #: the episode's block (``size_range``): its extent (3,) m and mesh; the ``size`` block's
+        #: until a reset draws another
+        self.episode_size, self.episode_mesh = self.size, self.mesh
         nodes = self.mesh.nodes
         self.centre = 0.5 * (nodes.min(axis=0) + nodes.max(axis=0))
         self.surface_nodes = self.mesh.surface_nodes()
@@ -454,6 +515,14 @@ class TissueEnv(gym.Env):
             self.model = self._model(self.young_modulus, self.poisson_ratio, self._default_task_key())
         except ValueError as error:
             raise ValueError(f"shape/size/poisson_ratio give an invalid model: {error}") from error
+        if self.size_range is not None:  # the extreme aspect ratios are at the range's corners
+            for corner in itertools.product(*zip(*self.size_range)):
+                try:
+                    self._build_model(self._block_mesh(np.array(corner)), self.young_modulus, self.poisson_ratio,
+                                      self._default_task_key(), self.density)
+                except ValueError as error:
+                    raise ValueError(f"size_range corner {list(corner)} m gives an invalid model with shape "
+                                     f"{self.shape}: {error}") from error
 
         self._camera_view = self._camera_setup(image_size, camera, point_count, point_normals)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
@@ -462,6 +531,12 @@ class TissueEnv(gym.Env):
         self._feature_sizes.update(self._task_feature_sizes())
         if observation_type not in ("state", "goal"):
             self._feature_sizes["surface_displacement"] = 3 * len(self.surface_nodes)
+        if self.observe_parameters:
+            count = sum(np.size(low) for _, (low, _) in self._randomised())
+            if not count:
+                raise ValueError(f"observe_parameters observes the randomised parameters, and none is: give one of "
+                                 f"{tuple(self.randomised_parameters.values())}")
+            self._feature_sizes["parameters"] = count
         if observation_type in VISUAL_TYPES:
             self.observation_space = self._visual_space()
         elif observation_type == "dict":
@@ -581,7 +656,7 @@ class TissueEnv(gym.Env):
             raise ValueError(
                 f"the block has no start equilibrium under gravity ({result.message}) with "
                 f"young_modulus={self.episode_young_modulus:g} Pa, density={self.episode_density:g} kg/m^3, "
-                f"gravity={self.gravity:g} m/s^2 and size {self.size.tolist()} m: the tissue cannot carry its "
+                f"gravity={self.gravity:g} m/s^2 and size {self.episode_size.tolist()} m: the tissue cannot carry its "
                 "own weight; use a stiffer or lighter material, a smaller block or less gravity")
         return result.positions
 
@@ -595,22 +670,58 @@ class TissueEnv(gym.Env):
         if self.state is None:
             raise RuntimeError(f"call reset() before {call}")
 
+    # -- domain randomisation ------------------------------------------------------------------------
+    def _randomised(self) -> list:
+        """[(parameter, (low, high))] of the ``randomised_parameters`` whose range is given."""
+        return [(name, getattr(self, keyword)) for name, keyword in self.randomised_parameters.items()
+                if getattr(self, keyword) is not None]
+
+    def observed_parameters(self) -> np.ndarray:
+        """The episode's randomised parameters (``_randomised``, in ``randomised_parameters`` order, a
+        size's axes one by one), each normalised to [-1, 1] over its range (0 for a range of one
+        value): the ``parameters`` feature of ``observe_parameters``."""
+        parts = []
+        for name, (low, high) in self._randomised():
+            value = np.atleast_1d(np.asarray(getattr(self, "episode_" + name), dtype=float))
+            low, high = np.atleast_1d(low), np.atleast_1d(high)
+            span = np.asarray(high, dtype=float) - low
+            parts.append(np.where(span > 0, 2.0 * (value - low) / np.where(span > 0, span, 1.0) - 1.0, 0.0))
+        return np.concatenate(parts)
+
     # -- model building --------------------------------------------------------------------------
-    def _model(self, young_modulus, poisson_ratio, task_key, density=None):
+    def _model(self, young_modulus, poisson_ratio, task_key, density=None, size=None):
         """The cached model of a material (E Pa, nu, the task's layout key, density kg/m^3, default
-        ``density``), built on a miss."""
+        ``density``) on a block of ``size`` (3,) m (default ``size``), built on a miss."""
         density = self.density if density is None else float(density)
-        key = (float(young_modulus), float(poisson_ratio), density, task_key)
+        size = self.size if size is None else np.asarray(size, dtype=float)
+        key = (float(young_modulus), float(poisson_ratio), density, task_key) + (
+            () if np.array_equal(size, self.size) else (tuple(size.tolist()),))
         with self._cache_lock:
             model = self._model_cache.get(key)
             if model is None:
-                options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
-                           if self.model_name == "baudet" else {})
-                model = build_model(
-                    self.mesh, self._material(young_modulus, poisson_ratio, task_key, density), model=self.model_name,
-                    gravity=(0.0, -self.gravity, 0.0), **options)
+                model = self._build_model(self._block_mesh(size), young_modulus, poisson_ratio, task_key, density)
                 self._model_cache.put(key, model)
             return model
+
+    def _build_model(self, mesh, young_modulus, poisson_ratio, task_key, density):
+        options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
+                   if self.model_name == "baudet" else {})
+        return build_model(mesh, self._material(young_modulus, poisson_ratio, task_key, density), model=self.model_name,
+                           gravity=(0.0, -self.gravity, 0.0), **options)
+
+    def _block_mesh(self, size):
+        """The block of ``shape`` with extent ``size`` (3,) m: ``mesh`` itself at ``size``, else the
+        same hexahedra scaled along each axis about the origin (a ``size_range`` draw)."""
+        if np.array_equal(size, self.size):
+            return self.mesh
+        return HexMesh.block(self.shape, np.asarray(size, dtype=float) / np.asarray(self.shape))
+
+    def _place_scene(self, nodes):
+        """The scene's rest geometry on the episode's block of rest ``nodes`` (n, 3) m (``_setup_scene``
+        on the ``size`` block, each reset on the drawn one): the attached nodes held at their rest
+        positions (``base_control``) and the tool's rest (``tool_rest``). Tasks extend it."""
+        self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
+        self.tool_rest = nodes[self.tool_nodes]
 
     def _start_positions(self, model):
         # The start depends only on the model (the tool starts at rest): computed once per model.
@@ -636,10 +747,15 @@ class TissueEnv(gym.Env):
         if self.density_range is not None:
             self.episode_density = float(self.np_random.uniform(*self.density_range))
         self.episode_young_modulus, self.episode_poisson_ratio = young_modulus, poisson_ratio
+        if self.size_range is not None:
+            self.episode_size = self.np_random.uniform(*self.size_range)
+            self.episode_mesh = self._block_mesh(self.episode_size)
+            self._place_scene(self.episode_mesh.nodes)
         self.tool_offset = np.zeros(3)
         self.task_key = self._default_task_key()
         self._reset_task(options)
-        self.model = self._model(young_modulus, poisson_ratio, self.task_key, self.episode_density)
+        self.model = self._model(young_modulus, poisson_ratio, self.task_key, self.episode_density, self.episode_size)
+        self.episode_mesh = self.model.mesh  # the cached model's (shared by snapshots)
         self.rest_volume = float(self.model.rest_volume.sum())
         positions = self._start_positions(self.model)
         self.start_control = self._start_control()
@@ -790,7 +906,7 @@ class TissueEnv(gym.Env):
             self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
                                       human=self.render_mode == "human", fps=self.metadata["render_fps"])
         positions = self.state.positions
-        displacement = np.linalg.norm(positions - self.mesh.nodes, axis=1)
+        displacement = np.linalg.norm(positions - self.episode_mesh.nodes, axis=1)
         frame = self._renderer.draw(positions, displacement, self._markers(), self._extra_drawing())
         return frame if self.render_mode == "rgb_array" else None
 

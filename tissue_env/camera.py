@@ -239,14 +239,14 @@ class SurfaceSampler:
 # -- rigid scene geometry ---------------------------------------------------------------------------
 def floor_tiles(x_breaks, z_breaks, height=0.0):
     """(vertices (..., X Z, 3), triangles (2 (X - 1) (Z - 1), 3)) of a horizontal grid of quads at
-    ``height`` (m) with corner coordinates ``x_breaks`` (..., X) and ``z_breaks`` (Z,) m, facing up;
+    ``height`` (m) with corner coordinates ``x_breaks`` (..., X) and ``z_breaks`` (Z,) or (..., Z) m, facing up;
     tile (p, q) (x between breaks p and p + 1, z between q and q + 1) is triangles 2 (p (Z - 1) + q) and
     the next."""
     x_breaks = np.asarray(x_breaks, dtype=float)
     z_breaks = np.asarray(z_breaks, dtype=float)
-    nx, nz = x_breaks.shape[-1], len(z_breaks)
+    nx, nz = x_breaks.shape[-1], z_breaks.shape[-1]
     x = np.repeat(x_breaks[..., :, None], nz, axis=-1)
-    z = np.broadcast_to(z_breaks, x.shape)
+    z = np.broadcast_to(z_breaks[..., None, :], x.shape)
     vertices = np.stack([x, np.full(x.shape, float(height)), z], axis=-1).reshape(x_breaks.shape[:-1] + (nx * nz, 3))
     p, q = np.meshgrid(np.arange(nx - 1), np.arange(nz - 1), indexing="ij")
     corner = (p * nz + q).ravel()

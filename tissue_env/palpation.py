@@ -6,10 +6,9 @@ import numpy as np
 
 from sim_core import Material
 from sim_core import contact, kernels
-from sim_core.model import Control
 
-from .base import (TissueEnv, check_range, check_region, check_vector, difficulty_settings, nonnegative_scalar,
-                   positive_scalar)
+from .base import (TissueEnv, check_range, check_region, check_vector, check_vector_range, difficulty_settings,
+                   nonnegative_scalar, positive_scalar)
 from .camera import ALBEDO, probe_mesh
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
@@ -72,12 +71,18 @@ class PalpationWorlds(TaskWorlds):
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
         env, count = self.task, self.num_envs
-        self.top_y, self.probe, self._probe_candidates = env.top_y, env.probe, env._probe_candidates
+        self.top_y, self._probe_candidates = env.top_y, env._probe_candidates
         #: (N, n) each copy's start heights (``PalpationEnv.start_heights``), m, updated in place at
         #: its reset: the projected probe's reference
         self.start_heights = np.repeat(env.mesh.nodes[None, :, 1], count, axis=0)
-        if self.probe.projection is not None:
-            self.probe = contact.Probe(env.probe_radius, env.probe_tip, self.probe.projection.with_reference(self.start_heights))
+        #: (N,) each copy's probe radius this episode, m (``probe_radius_range``), and (N, V, 3) its
+        #: probe's vertices (the camera's), m from the tip
+        self.probe_radius = np.full(count, env.probe_radius)
+        self._projection = None if env.probe.projection is None else env.probe.projection.with_reference(
+            self.start_heights)
+        self.probe = contact.Probe(self.probe_radius.copy(), env.probe_tip, self._projection)
+        template, self._probe_triangles = probe_mesh(env.probe_radius, env.probe_tip)
+        self._probe_vertices = np.repeat(template[None], count, axis=0)
         self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
         self.probe_start = np.zeros((count, 3))
         self.inclusion_ratio_of = np.zeros(count)  # each copy's inclusion stiffness ratio this episode
@@ -95,6 +100,10 @@ class PalpationWorlds(TaskWorlds):
             setattr(self, name, getattr(env, name))
 
     def _load_task(self, index, env):
+        if self.probe_radius[index] != env.episode_probe_radius:
+            self.probe_radius[index] = env.episode_probe_radius
+            self.probe = contact.Probe(self.probe_radius.copy(), env.probe_tip, self._projection)
+            self._probe_vertices[index] = probe_mesh(env.episode_probe_radius, env.probe_tip)[0]
         self.inclusion_ratio_of[index] = env.episode_inclusion_ratio
         self.inclusion_size_of[index] = env.episode_inclusion_size
         self.probe_start[index] = env.probe_start
@@ -143,9 +152,9 @@ class PalpationWorlds(TaskWorlds):
 
     def _scene_extras(self):
         """The probe (its end and a shaft) at each world's tip; never the inclusion."""
-        template, triangles = probe_mesh(self.task.probe_radius, self.task.probe_tip)
+        triangles = self._probe_triangles
         albedo = np.broadcast_to(ALBEDO["probe"], (len(triangles), 3))
-        return self._tips()[:, None, :] + template[None], triangles, albedo
+        return self._tips()[:, None, :] + self._probe_vertices, triangles, albedo
 
     def _task_measures(self, positions):
         tip = self._tips()
@@ -164,7 +173,7 @@ class PalpationWorlds(TaskWorlds):
         env = self.task
         indentation = env.start_surface(tips, self.start_heights) - tips[:, 1]
         measures["apparent_modulus"] = apparent_modulus(np.where(self.contact.any(axis=1), pushing, 0.0), indentation,
-                                                        env.probe_radius, env.probe_tip)
+                                                        self.probe_radius, env.probe_tip)
         return measures
 
     def _record(self, measures, rows, fresh):
@@ -184,7 +193,7 @@ class PalpationWorlds(TaskWorlds):
         return dict(depth=measures["depth"][:, None] / self.length_scale,
                     contact_nodes=self.contact.sum(axis=1)[:, None],
                     # F / d of a flat punch of the probe's radius on the tissue: 2 E* R
-                    indentation_stiffness=(measures["indentation_stiffness"] / (2.0 * modulus * self.task.probe_radius))[:, None],
+                    indentation_stiffness=(measures["indentation_stiffness"] / (2.0 * modulus * self.probe_radius))[:, None],
                     hold_progress=np.minimum(measures["press_steps"], self.hold_steps)[:, None] / self.hold_steps,
                     **map_features(self.palpation_map, self.cell_centres, self._tips(), self.length_scale, modulus))
 
@@ -193,7 +202,8 @@ class PalpationWorlds(TaskWorlds):
                     press_steps=measures["press_steps"].copy(), inclusion_centre=self.inclusion_centre.copy(),
                     indentation_stiffness=measures["indentation_stiffness"].copy(),
                     apparent_modulus=measures["apparent_modulus"].copy(),
-                    inclusion_ratio=self.inclusion_ratio_of.copy(), inclusion_size=self.inclusion_size_of.copy())
+                    inclusion_ratio=self.inclusion_ratio_of.copy(), inclusion_size=self.inclusion_size_of.copy(),
+                    probe_radius=self.probe_radius.copy())
 
     def _is_success(self, measures):
         return measures["press_steps"] >= self.hold_steps
@@ -384,6 +394,12 @@ class PalpationEnv(TissueEnv):
     episode; ``info["inclusion_centre"]``) vary the inclusion; ``young_modulus_range``,
     ``poisson_ratio_range`` and ``density_range`` the tissue (``tissue_env.base.TissueEnv``). Each
     inclusion or material drawn is a model of its own (cached, ``MODEL_CACHE_SIZE`` of them).
+    ``probe_radius_range`` (None or (low, high) m) draws the probe's radius per episode (the
+    contact, the apparent modulus of the map and the indentation stiffness's unit 2 E* R follow it;
+    ``info["probe_radius"]``). ``observe_parameters=True`` appends the drawn parameters
+    (``randomised_parameters``), each normalised to [-1, 1] over its range, to the observation. The
+    slab's size is fixed per env (``size_range`` is a ValueError): the probe's surface projection
+    and the candidate cells (the palpation map's length) are built on the slab's geometry.
 
     ## Arguments
 
@@ -430,6 +446,17 @@ class PalpationEnv(TissueEnv):
     #: boxes, so that ``shape`` does not move the candidates (see ``_setup_scene``).
     cell_size = np.array([0.012, 0.01, 0.012])
     reward_names = ("success", "explore", "approach", "time", "force", "volume", "strain")
+    #: The slab's size is fixed per env: the probe's surface projection and the candidate lattice are
+    #: built on its geometry (``_setup_scene``), shared by the worlds; the probe's radius is drawn.
+    randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
+                                 density="density_range", inclusion_ratio="inclusion_ratio_range",
+                                 inclusion_size="inclusion_size_range", probe_radius="probe_radius_range")
+    episode_keywords = ("inclusion_region",)
+    summary = ("indent a {default_size:cm} slab with a probe (random start, at least {start_distance:cm} from the "
+               "inclusion) and find a {inclusion_ratio:x} stiffer inclusion; the observation carries the agent's own "
+               "palpation map (apparent modulus of the latest press on each candidate cell)")
+    success_summary = ("probe at least {success_depth:mm} deep, within {success_radius:cm} of the inclusion "
+                       "horizontally, held for {hold_steps} steps")
     #: Start height of the probe tip above the undeformed surface, m.
     clearance = 0.002
     #: The default camera (``TissueEnv.default_camera``): above the slab and in front, the probe's side.
@@ -453,7 +480,7 @@ class PalpationEnv(TissueEnv):
                  inclusion_region=None, probe_radius=0.009,
                  probe_tip="sphere", probe_sampling="projected", inclusion_size=None, max_depth=0.008, success_depth=0.005, success_radius=None,
                  hold_steps=None, start_distance=None, success_bonus=10.0, time_penalty=0.05, force_limit=2.0, force_weight=1.0, map_depth=0.004,
-                 explore_bonus=0.5, approach_weight=1.0, difficulty="default", **kwargs):
+                 explore_bonus=0.5, approach_weight=1.0, difficulty="default", probe_radius_range=None, **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(
             inclusion_ratio=inclusion_ratio, inclusion_size=inclusion_size, success_radius=success_radius,
             hold_steps=hold_steps, start_distance=start_distance))
@@ -464,6 +491,9 @@ class PalpationEnv(TissueEnv):
         self.inclusion_ratio_range = check_range("inclusion_ratio_range", inclusion_ratio_range, positive_scalar)
         self.inclusion_region = None if inclusion_region is None else check_region("inclusion_region", inclusion_region, "xz")
         self.probe_radius = positive_scalar("probe_radius", probe_radius, "m")
+        self.probe_radius_range = check_range("probe_radius_range", probe_radius_range,
+                                              lambda name, value: positive_scalar(name, value, "m"))
+        self.episode_probe_radius = self.probe_radius
         if probe_tip not in contact.TIPS:
             raise ValueError(f"probe_tip must be one of {contact.TIPS}, got {probe_tip!r}")
         self.probe_tip = probe_tip
@@ -474,19 +504,7 @@ class PalpationEnv(TissueEnv):
         #: face in ``_setup_scene``)
         self.probe = contact.Probe(self.probe_radius, probe_tip)
         self.inclusion_size = check_vector("inclusion_size", inclusion_size)
-        if inclusion_size_range is None:
-            self.inclusion_size_range = None
-        else:
-            try:
-                low, high = inclusion_size_range
-            except (TypeError, ValueError) as error:
-                raise ValueError(f"inclusion_size_range must be None or a (low, high) pair of sizes in m (a number or "
-                                 f"three each), got {inclusion_size_range!r}") from error
-            low, high = check_vector("inclusion_size_range", low), check_vector("inclusion_size_range", high)
-            if np.any(low > high):
-                raise ValueError(f"inclusion_size_range must have low <= high along every axis, got "
-                                 f"{inclusion_size_range!r}")
-            self.inclusion_size_range = (low, high)
+        self.inclusion_size_range = check_vector_range("inclusion_size_range", inclusion_size_range)
         self.episode_inclusion_size = self.inclusion_size.copy()
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
         self.success_depth = positive_scalar("success_depth", success_depth, "m")
@@ -521,7 +539,7 @@ class PalpationEnv(TissueEnv):
         if self.probe_sampling == "projected":
             self.probe = contact.Probe(self.probe_radius, self.probe_tip,
                                        contact.SurfaceProjection.top_face(self.mesh, self.top_nodes))
-        self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
+        self._place_scene(nodes)
         # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
         # surface, the axis over the central 80 % of the top face. ``workspace_low/high`` (what
         # the base class clips ``tool_offset`` to) are relative to the episode's probe start.
@@ -618,6 +636,9 @@ class PalpationEnv(TissueEnv):
         self.contact = np.zeros(self.mesh.n_nodes, bool)
         self.press_steps = 0
         self.palpation_map = np.zeros(len(self.cell_centres))
+        if self.probe_radius_range is not None:  # drawn last: the other draws are those without it
+            self.episode_probe_radius = float(self.np_random.uniform(*self.probe_radius_range))
+            self.probe = contact.Probe(self.episode_probe_radius, self.probe_tip, self.probe.projection)
 
     def _start_hook(self):
         self._sweep = None
@@ -625,7 +646,7 @@ class PalpationEnv(TissueEnv):
         if self.probe.projection is not None:
             # (the reset's control, made before, holds no contact either way: the probe starts
             # ``clearance`` above the rest surface, where every bound is +inf)
-            self.probe = contact.Probe(self.probe_radius, self.probe_tip,
+            self.probe = contact.Probe(self.episode_probe_radius, self.probe_tip,
                                        self.probe.projection.with_reference(self.start_heights))
 
     def start_surface(self, tips, heights):

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import kernels
-from sim_core.model import Control
 
 from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
 from .camera import ALBEDO, Camera, floor_tiles
@@ -32,13 +31,13 @@ class RetractionWorlds(TaskWorlds):
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
         env, count = self.task, self.num_envs
-        self.tool_nodes, self.tool_rest = env.tool_nodes, env.tool_rest
+        self.tool_nodes = env.tool_nodes
         self._footprint = np.ascontiguousarray(env._footprint, dtype=np.int64)
         tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
         tool_mask[self.tool_nodes] = True
         self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
         self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
-        self._base_target = env.base_control.target
+        self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each world's (size_range)
         self.target_x = np.zeros((count, 2))
         self.target_points = np.zeros((count, 12, 2))  # the 4 x 3 grid of each copy's target
         self._floor_candidates = env._floor_candidates
@@ -48,6 +47,7 @@ class RetractionWorlds(TaskWorlds):
             setattr(self, name, getattr(env, name))
 
     def _load_task(self, index, env):
+        self._base_target[index] = env.base_control.target
         self.target_x[index] = env.target_x
         self.target_points[index] = env.target_points
         self.contact[index] = env.contact
@@ -61,13 +61,17 @@ class RetractionWorlds(TaskWorlds):
     def _scene_extras(self):
         """The floor (y = 0) in tiles whose middle one is each world's target rectangle, in its own
         colour: the task's instruction (the state observation has its x range), not hidden."""
-        length, width = self.task.size[0], self.task.size[2]
+        length, width = self.block_size[:, 0], self.block_size[:, 2]
         margin = self.floor_margin
-        x = np.column_stack([np.full(self.num_envs, -margin), self.target_x, np.full(self.num_envs, length + margin)])
-        vertices, triangles = floor_tiles(x, [-margin, 0.25 * width, 0.75 * width, width + margin])
+        x = np.column_stack([np.full(self.num_envs, -margin), self.target_x, length + margin])
+        z = np.column_stack([np.full(self.num_envs, -margin), 0.25 * width, 0.75 * width, width + margin])
+        vertices, triangles = floor_tiles(x, z)
         albedo = np.tile(ALBEDO["floor"], (len(triangles), 1))
         albedo[8:10] = ALBEDO["target"]  # tile (1, 1): floor_tiles' triangles 2 (1 * 3 + 1) and the next
         return vertices, triangles, albedo
+
+    def _constrain_tool(self, offset):
+        return self.task.constrain_tool(offset, self.block_size)  # each world's flap length
 
     def _control(self, rows=None):
         """The tool, and the floor contact: the height of every node on the floor is imposed (y = 0,
@@ -77,8 +81,8 @@ class RetractionWorlds(TaskWorlds):
         if self._node_forces is not None:
             held = self.contact & (self._node_forces[..., 1] <= 0.0)
             self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
-        target = np.repeat(self._base_target[None], self.num_envs, axis=0)
-        target[:, self.tool_nodes] = self.tool_rest[None] + self.tool_offset[:, None, :]
+        target = self._base_target.copy()
+        target[:, self.tool_nodes] = self.rest_positions[:, self.tool_nodes] + self.tool_offset[:, None, :]
         target[..., 1] = np.where(self.contact, 0.0, target[..., 1])
         fixed = np.array(self._fixed)
         fixed[..., 1] |= self.contact
@@ -228,7 +232,8 @@ class RetractionEnv(TissueEnv):
     limit near what holding the lifted flap takes, the whole target exposed, and no termination at
     a success, so the flap must be held back under the limit until the episode ends. Measured
     success rates and steps to success per level: the training page of the documentation
-    (``benchmarks/success_rates.py --difficulty``).
+    (``benchmarks/success_rates.py --difficulty``), and SAC's training result at the hard level
+    (``python -m training.benchmark --variant hard``).
 
     ## Arguments
 
@@ -244,9 +249,13 @@ class RetractionEnv(TissueEnv):
 
     Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
     ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``; shared keywords in
-    ``tissue_env.base.TissueEnv``. Domain randomisation: ``young_modulus_range``,
-    ``poisson_ratio_range``, ``density_range`` (per episode, in ``info``) and ``target_start_range``
-    (the target's place).
+    ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
+    ``young_modulus_range``, ``poisson_ratio_range``, ``density_range`` (the material, in ``info``),
+    ``size_range`` (the flap's extent, each axis in m: the flap scaled about its attached edge's
+    corner, the grasp the whole free edge of the drawn flap, the workspace reaching back over its
+    length; ``info["size"]``) and ``target_start_range`` (the target's place, m from the attached
+    edge, clipped to the flap); ``observe_parameters=True`` appends the drawn parameters, each
+    normalised to [-1, 1] over its range, to the observation.
 
     ## Version History
 
@@ -267,6 +276,9 @@ class RetractionEnv(TissueEnv):
     default_max_step = 0.005
     min_shape = (2, 1, 1)
     reward_names = ("exposure", "tension", "success", "volume", "strain")
+    episode_keywords = ("target_start_range",)
+    summary = "lift the free edge of a flap lying on a rigid floor to expose a target strip, under a tension limit"
+    success_summary = "at least {success_exposure:%} exposed with tool force at most {force_limit:N}"
 
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them):
     #: the tension limit (N at E = 5 kPa), the exposed share that counts as a success and whether a
@@ -300,16 +312,19 @@ class RetractionEnv(TissueEnv):
         nodes = self.mesh.nodes
         self.fixed_nodes = np.flatnonzero(np.isclose(nodes[:, 0], 0.0))
         self.tool_nodes = np.flatnonzero(np.isclose(nodes[:, 0], self.size[0]))
-        self.tool_rest = nodes[self.tool_nodes]
-        self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
         #: nodes the floor may hold (neither attached nor grasped), and those it holds now
         self._floor_candidates = np.ones(self.mesh.n_nodes, bool)
         self._floor_candidates[np.union1d(self.fixed_nodes, self.tool_nodes)] = False
         self.contact = self._floor_candidates & np.isclose(nodes[:, 1], 0.0)
-        self.workspace_low = np.array([-self.size[0], 0.0, -0.01])
-        self.workspace_high = np.array([0.01, 0.06, 0.01])
+        self._place_scene(nodes)
         elements = self.mesh.elements
         self._footprint = np.concatenate([elements[:, _BOTTOM], elements[:, _TOP]])  # (2M, 4) quads
+
+    def _place_scene(self, nodes):
+        # the grasped edge may come back to the attached one: the workspace spans the flap's length
+        super()._place_scene(nodes)
+        self.workspace_low = np.array([-self.episode_size[0], 0.0, -0.01])
+        self.workspace_high = np.array([0.01, 0.06, 0.01])
 
     def default_camera(self, width=64, height=64):
         """In front of the flap (+z) and above it, looking at its middle, high enough to see the
@@ -337,23 +352,25 @@ class RetractionEnv(TissueEnv):
     def _reset_task(self, options):
         self.contact = self._floor_candidates & np.isclose(self.mesh.nodes[:, 1], 0.0)  # flat on the floor
         start = float(self.np_random.uniform(*self.target_start_range))
-        self.target_x = np.array([start, min(start + self.target_length, self.size[0])])
-        width = self.size[2]
+        self.target_x = np.array([start, min(start + self.target_length, self.episode_size[0])])
+        width = self.episode_size[2]
         x = np.linspace(self.target_x[0], self.target_x[1], 4)
         z = np.linspace(0.25 * width, 0.75 * width, 3)
         self.target_points = np.stack(np.meshgrid(x, z, indexing="ij"), axis=-1).reshape(-1, 2)
 
-    def constrain_tool(self, offset):
+    def constrain_tool(self, offset, size=None):
         """Keep the grasped edge where the coarse flap deforms without inverting elements: it
         may come back towards the attached edge only as far as it is lifted (x offset >=
         -max(dy, 2 dy - L/3), L the flap length) and move sideways only as far as it is lifted
         (|dz| <= min(1 cm, dy / 2)). Measured (scripted straight moves to a grid of offsets, 40
         steps each): flat pushes back of 1 cm or more and sideways moves at floor level buckle the
         one-element-thick flap into inverted elements (an ``unstable`` episode end); every offset
-        inside this set stayed valid. Offsets in m, shape (..., 3)."""
+        inside this set stayed valid. Offsets in m, shape (..., 3); ``size``: the flaps' extents
+        (..., 3) m (None: this episode's)."""
         offset = np.array(offset, dtype=np.float64, copy=True)
+        length = (self.episode_size if size is None else np.asarray(size, dtype=float))[..., 0]
         lift = np.maximum(offset[..., 1], 0.0)
-        back = np.maximum(lift, 2.0 * lift - self.size[0] / 3.0)
+        back = np.maximum(lift, 2.0 * lift - length / 3.0)
         offset[..., 0] = np.maximum(offset[..., 0], -back)
         side = np.minimum(0.01, 0.5 * lift)
         offset[..., 2] = np.clip(offset[..., 2], -side, side)
@@ -372,10 +389,10 @@ class RetractionEnv(TissueEnv):
 
     def _markers(self):
         return dict(tool=self.state.positions[self.tool_nodes].mean(axis=0),
-                    target=np.array([self.target_x.mean(), 0.0, 0.5 * self.size[2]]))
+                    target=np.array([self.target_x.mean(), 0.0, 0.5 * self.episode_size[2]]))
 
     def _extra_drawing(self):
-        width = self.size[2]
+        width = self.episode_size[2]
         return [("rectangle", (self.target_x[0], self.target_x[1], 0.25 * width, 0.75 * width, 0.0))]
 
 

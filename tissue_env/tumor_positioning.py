@@ -7,10 +7,10 @@ import numpy as np
 from sim_core import solve_static
 from sim_core.static import FactorCache
 from sim_core.mesh import LOCAL_CORNERS
-from sim_core.model import Control
 
 from .base import (TissueEnv, check_range, check_region, check_vector, difficulty_settings, nonnegative_scalar,
                    positive_scalar)
+from .camera import VISUAL_TYPES
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
 
@@ -55,30 +55,62 @@ class TumorPositioningWorlds(TaskWorlds):
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
         env, count = self.task, self.num_envs
-        self.tool_nodes = env.tool_nodes
-        self.tool_rest = env.tool_rest
-        # the imposed dofs (attached bottom, grasped patch) do not change during an episode
-        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
-        tool_mask[self.tool_nodes] = True
-        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
-        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
-        self._base_target = env.base_control.target
+        # the imposed dofs (attached bottom, grasped patch) do not change during an episode; each
+        # world's grasped patch (``tool_size_range``) and the targets of its attached face (its block,
+        # ``size_range``), set at its reset
+        self._base_fixed = env.base_control.fixed
+        self._fixed = np.zeros((count,) + self._base_fixed.shape, bool)
+        self._tool_mask = np.zeros_like(self._fixed)
+        self._base_target = np.zeros((count,) + self._base_fixed.shape)
+        #: the distinct grasped patches (node indices), by content, and each world's
+        self._patches, self._patch_of, self._groups = {}, [None] * count, None
+        for index in range(count):
+            self._set_patch(index, env.tool_nodes, env.base_control.target)
         self.tumor_nodes = np.zeros((count, 8), dtype=int)
         self.tumor_weights = np.zeros((count, 8))
         self.tumor_start = np.zeros((count, 3))
+        self.tool_size_of = np.zeros(count)  # each world's grasped square's side this episode, m
         self.goal = np.zeros((count, 3))
         self.success_distance, self.success_bonus = env.success_distance, env.success_bonus
 
+    def _set_patch(self, index, nodes, base_target):
+        key = np.asarray(nodes).tobytes()
+        self._patches.setdefault(key, np.asarray(nodes))
+        if self._patch_of[index] != key:
+            self._patch_of[index], self._groups = key, None
+        self._tool_mask[index] = False
+        self._tool_mask[index, nodes] = True
+        self._fixed[index] = self._base_fixed | self._tool_mask[index]
+        self._base_target[index] = base_target
+
+    def _patch_groups(self):
+        """[(grasped nodes, worlds holding that patch)]: one pass per distinct patch (one by default)."""
+        if self._groups is None:
+            keys = self._patch_of
+            self._groups = [(self._patches[key], np.array([i for i, k in enumerate(keys) if k == key]))
+                            for key in dict.fromkeys(keys)]
+            self._patches = {key: self._patches[key] for key in dict.fromkeys(keys)}
+        return self._groups
+
     def _load_task(self, index, env):
+        self._set_patch(index, env.tool_nodes, env.base_control.target)
         self.tumor_nodes[index] = env.tumor_nodes
         self.tumor_weights[index] = env.tumor_weights
         self.tumor_start[index] = env.tumor_start
+        self.tool_size_of[index] = env.episode_tool_size
         self.goal[index] = env.goal
 
     def _control(self, rows=None):
-        target = np.repeat(self._base_target[None], self.num_envs, axis=0)
-        target[:, self.tool_nodes] = self.tool_rest[None] + self.tool_offset[:, None, :]
+        target = self._base_target.copy()
+        for nodes, rows in self._patch_groups():  # the patch at its rest (each world's block) + the tool's offset
+            target[rows[:, None], nodes] = self.rest_positions[rows][:, nodes] + self.tool_offset[rows, None, :]
         return self._fixed, target, self._tool_mask
+
+    def _tool_position(self, positions):
+        position = np.empty((self.num_envs, 3))
+        for nodes, rows in self._patch_groups():
+            position[rows] = positions[rows][:, nodes].mean(axis=1)
+        return position
 
     def _task_measures(self, positions):
         corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8, 3)
@@ -110,7 +142,7 @@ class TumorPositioningWorlds(TaskWorlds):
 
     def _task_info(self, measures):
         return dict(distance=measures["distance"].copy(), tumor_position=measures["tumor"].copy(),
-                    goal=self.goal.copy())
+                    goal=self.goal.copy(), tool_size=self.tool_size_of.copy())
 
     def _is_success(self, measures):
         return measures["distance"] < self.success_distance
@@ -242,7 +274,8 @@ class TumorPositioningEnv(TissueEnv):
     distance), a tolerance of 1 mm and no termination at a success, so the tumour must be brought
     to the goal and held there until the episode ends (``info["is_success"]`` at its last step). The
     scripted controller's and random actions' success rates and steps to success at each level
-    are on the training page of the documentation (``benchmarks/success_rates.py --difficulty``).
+    are on the training page of the documentation (``benchmarks/success_rates.py --difficulty``), as
+    is SAC's training result at the hard level (``python -m training.benchmark --variant hard``).
 
     ## Episode End
 
@@ -272,11 +305,16 @@ class TumorPositioningEnv(TissueEnv):
     ``substeps``, ``young_modulus_range``, ``poisson_ratio_range``, ``density_range``,
     ``terminate_on_success``, ``render_mode``, ...).
 
-    Domain randomisation: ``young_modulus_range``, ``poisson_ratio_range``, ``density_range``
-    (the material, per episode; ``info["young_modulus"]``, ``["poisson_ratio"]``, ``["density"]``),
-    ``tumor_region`` (the tumour's rest position) and ``goal_scale_range`` (the goal's tool
-    displacement); the block size and the grasped patch (``size``, ``tool_size``) are fixed per env
-    (see the documentation's "Domain randomisation" section).
+    Domain randomisation (per episode, ``randomised_parameters``): ``young_modulus_range``,
+    ``poisson_ratio_range``, ``density_range`` (the material; ``info["young_modulus"]``,
+    ``["poisson_ratio"]``, ``["density"]``), ``size_range`` (the block's extent, each axis in m: the
+    block scaled about its attached corner, the tumour at the same fraction of it; ``info["size"]``)
+    and ``tool_size_range`` (the grasped square's side, m: the grasped nodes chosen anew on the
+    episode's block; ``info["tool_size"]``; vector observations only, since the camera colours the
+    patch of ``tool_size``), besides ``tumor_region`` (the tumour's rest position) and
+    ``goal_scale_range`` (the goal's tool displacement). ``observe_parameters=True`` appends the drawn
+    parameters, each normalised to [-1, 1] over its range, to the observation (see the
+    documentation's "Domain randomisation" section).
 
     ## Version History
 
@@ -295,6 +333,10 @@ class TumorPositioningEnv(TissueEnv):
     #: The default camera (``TissueEnv.default_camera``): above the grasped top, in front.
     camera_target = (0.5, 0.6, 0.5)
     goal_features = ("tumor_position", "goal_position")
+    randomised_parameters = dict(TissueEnv.randomised_parameters, tool_size="tool_size_range")
+    episode_keywords = ("tumor_region", "goal_scale_range")
+    summary = "move a grasped top patch so that a tumour inside a {default_size:cm} block reaches a reachable goal"
+    success_summary = "tumour within {success_distance:mm} of the goal"
 
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them):
     #: the goal's tool displacement (m) and the least tumour-goal distance a goal is scaled up to
@@ -310,11 +352,14 @@ class TumorPositioningEnv(TissueEnv):
 
     def __init__(self, *, tool_size=0.025, workspace=0.02, goal_displacement=None, goal_scale_range=(0.5, 1.0),
                  tumor_region=((0.25, 0.25, 0.25), (0.75, 0.75, 0.75)),
-                 success_distance=None, success_bonus=5.0, goal_min_distance=None, difficulty="default", **kwargs):
+                 success_distance=None, success_bonus=5.0, goal_min_distance=None, difficulty="default",
+                 tool_size_range=None, **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(
             goal_displacement=goal_displacement, success_distance=success_distance, goal_min_distance=goal_min_distance))
         goal_displacement, success_distance = settings["goal_displacement"], settings["success_distance"]
         self.tool_size = positive_scalar("tool_size", tool_size, "m")
+        self.tool_size_range = check_range("tool_size_range", tool_size_range, lambda n, v: positive_scalar(n, v, "m"))
+        self.episode_tool_size = self.tool_size
         self.workspace = check_vector("workspace", workspace)
         self.goal_displacement = check_vector("goal_displacement", goal_displacement)
         if goal_scale_range is None:
@@ -330,24 +375,36 @@ class TumorPositioningEnv(TissueEnv):
                              f"nearer goal would be a success at reset, got {goal_min_distance!r}")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
         self._goal_factors = FactorCache(size=2)  # start tangent LUs of the goal solves, per model
+        if self.tool_size_range is not None and kwargs.get("observation_type") in VISUAL_TYPES:
+            raise ValueError(f"tool_size_range draws the grasped patch per episode, and the camera's images colour "
+                             f"the patch of tool_size (shared by the worlds): observation_type="
+                             f"{kwargs['observation_type']!r} is not supported with it; use a vector observation")
         super().__init__(difficulty=difficulty, **kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):
         nodes = self.mesh.nodes
         self.fixed_nodes = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
-        top = np.flatnonzero(np.isclose(nodes[:, 1], self.size[1]))
-        # the grasped square: top nodes within tool_size / 2 of the centre along x and z (a physical
-        # size, so a finer mesh grasps the same patch with more nodes)
-        offset = np.abs(nodes[top][:, [0, 2]] - self.centre[[0, 2]])
-        inside = np.all(offset <= 0.5 * self.tool_size + 1e-9 * self.size[[0, 2]], axis=1)
-        if np.count_nonzero(inside) < 1:
-            raise ValueError(f"tool_size = {self.tool_size} m grasps no top node of the {self.shape} mesh; "
-                             f"use at least the element width {min(self.spacing[0], self.spacing[2]):.4g} m")
-        self.tool_nodes = top[inside]
-        self.tool_rest = nodes[self.tool_nodes]
-        self.base_control = Control.free(self.mesh.n_nodes).impose(self.fixed_nodes, nodes[self.fixed_nodes])
+        self.tool_nodes = self._grasped_patch(nodes, self.size, self.tool_size, "tool_size")
+        if self.tool_size_range is not None:  # its smallest patch grasps a node too
+            self._grasped_patch(nodes, self.size, self.tool_size_range[0], "tool_size_range's low end")
+        self._place_scene(nodes)
         self.workspace_low, self.workspace_high = -self.workspace, self.workspace
+
+    def _grasped_patch(self, nodes, size, tool_size, name):
+        """The grasped square on the block of rest ``nodes`` (n, 3) and extent ``size`` (3,) m: the top
+        nodes within ``tool_size`` / 2 m of the top face's centre along x and z (a physical size, so a
+        finer mesh grasps the same patch with more nodes); ValueError naming ``name`` when it grasps
+        none."""
+        top = np.flatnonzero(np.isclose(nodes[:, 1], size[1]))
+        centre = 0.5 * (nodes.min(axis=0) + nodes.max(axis=0))
+        offset = np.abs(nodes[top][:, [0, 2]] - centre[[0, 2]])
+        inside = np.all(offset <= 0.5 * tool_size + 1e-9 * size[[0, 2]], axis=1)
+        if np.count_nonzero(inside) < 1:
+            spacing = size / np.asarray(self.shape)
+            raise ValueError(f"{name} = {tool_size} m grasps no top node of the {self.shape} mesh; "
+                             f"use at least the element width {min(spacing[0], spacing[2]):.4g} m")
+        return top[inside]
 
     shared_attributes = ("_goal_factors",)
 
@@ -366,6 +423,12 @@ class TumorPositioningEnv(TissueEnv):
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
+        if self.tool_size_range is not None:  # the grasped patch of this episode, on its block
+            self.episode_tool_size = float(self.np_random.uniform(*self.tool_size_range))
+            self.tool_nodes = self._grasped_patch(self.episode_mesh.nodes, self.episode_size, self.episode_tool_size,
+                                                  "the drawn tool size")
+            self._place_scene(self.episode_mesh.nodes)
+        # the tumour: a material point at a fraction of the block (the same at any size_range draw)
         low, high = self.tumor_region * self.size
         rest = self.np_random.uniform(low, high)
         cell = np.minimum((rest // self.spacing).astype(int), np.asarray(self.shape) - 1)

@@ -137,6 +137,11 @@ class TaskWorlds:
         self.workspace_low = np.zeros((count, 3))
         self.workspace_high = np.zeros((count, 3))
         self.rest_volume = np.ones(count)
+        #: (N, 3) each world's block extent, m, and (N, n, 3) its rest positions (``size_range``)
+        self.block_size = np.tile(env.size, (count, 1))
+        self.rest_positions = self.positions.copy()
+        #: (N, P) each world's observed parameters (``observe_parameters``; P = 0 without)
+        self.parameters = np.zeros((count, env._feature_sizes.get("parameters", 0)))
         self.episode_young_modulus = np.zeros(count)  # each world's material this episode (Pa, -)
         self.episode_poisson_ratio = np.zeros(count)
         self.episode_density = np.zeros(count)  # kg/m^3
@@ -177,6 +182,11 @@ class TaskWorlds:
 
     def _after_substep(self, positions, velocities, rows):
         """Contact projection and the like on the worlds ``rows`` (N,) bool of the new state (in place)."""
+
+    def _constrain_tool(self, offset):
+        """The worlds' tool offsets (N, 3) m, clipped to their workspaces, projected on the task's
+        admissible set (``TissueEnv.constrain_tool``)."""
+        return self.task.constrain_tool(offset)
 
     def _tool_position(self, positions):
         """(N, 3) tool positions, m (default: the mean of the grasped nodes)."""
@@ -222,6 +232,10 @@ class TaskWorlds:
         self.workspace_low[index] = env.workspace_low
         self.workspace_high[index] = env.workspace_high
         self.rest_volume[index] = env.rest_volume
+        self.block_size[index] = env.episode_size
+        self.rest_positions[index] = env.episode_mesh.nodes
+        if self.parameters.shape[1]:
+            self.parameters[index] = env.observed_parameters()
         self.episode_young_modulus[index] = env.episode_young_modulus
         self.episode_poisson_ratio[index] = env.episode_poisson_ratio
         self.episode_density[index] = env.episode_density
@@ -258,8 +272,8 @@ class TaskWorlds:
         clipped = np.clip(np.where(active[:, None], actions, 0.0), -1.0, 1.0)
         self.tool_offset = np.where(
             active[:, None],
-            self.task.constrain_tool(np.clip(self.tool_offset + self.max_step * clipped, self.workspace_low,
-                                             self.workspace_high)),
+            self._constrain_tool(np.clip(self.tool_offset + self.max_step * clipped, self.workspace_low,
+                                         self.workspace_high)),
             self.tool_offset)
         fixed, target, tool_mask = self._control()
         reasons, tool_mask, self.fixed, self.target = self._advance(fixed, target, tool_mask, active)
@@ -467,8 +481,10 @@ class TaskWorlds:
         features.update(self._task_features(measures))
         if env.observation_type not in ("state", "goal"):
             surface = env.surface_nodes
-            displacement = positions[:, surface] - env.mesh.nodes[surface]
+            displacement = positions[:, surface] - self.rest_positions[:, surface]
             features["surface_displacement"] = displacement.reshape(self.num_envs, -1) / self.length_scale
+        if self.parameters.shape[1]:
+            features["parameters"] = self.parameters
         return features
 
     def scaled_force(self, force):
@@ -522,6 +538,7 @@ class TaskWorlds:
             young_modulus=self.episode_young_modulus.copy(),
             poisson_ratio=self.episode_poisson_ratio.copy(),
             density=self.episode_density.copy(),
+            size=self.block_size.copy(),
             out_of_range=np.array([reason is not None for reason in outside]),
             out_of_range_reason=outside,
             observation_clipped=self.clipped.copy(),

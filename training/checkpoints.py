@@ -290,6 +290,20 @@ def process_start_time() -> float:
     return time.time()
 
 
+#: Whether a run's session has started in this process: the first one's wall clock counts from the
+#: process's start (the interpreter and the imports are its cost), a later one's (``training.benchmark``
+#: trains its runs one after the other in one process) from its own start, not the earlier runs' time.
+_SESSION_STARTED = False
+
+
+def session_start_time() -> float:
+    """The start (seconds since the epoch) of a run's session made now: ``process_start_time`` for
+    the process's first session, the current time for the next ones."""
+    global _SESSION_STARTED
+    first, _SESSION_STARTED = not _SESSION_STARTED, True
+    return process_start_time() if first else time.time()
+
+
 class RunRecord:
     """result.json, kept current while the run trains: ``timesteps`` (the latest checkpoint, the
     final count once finished), ``wall_clock_s`` (the sum over the run's sessions, a killed one
@@ -317,7 +331,7 @@ class RunRecord:
         self.resumes = list(previous.get("resumes", []))
         self.timesteps = previous.get("timesteps", 0)
         self.resumed_from = previous.get("resumed_from")
-        self.start = process_start_time()
+        self.start = session_start_time()
         self.session = dict(started=time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(self.start)), wall_s=0.0,
                             start_step=0, end_step=0, status="running")
         self.sessions.append(self.session)

@@ -36,8 +36,9 @@ def _projected_bound(x, z, tip_x, tip_y, tip_z, weights, offsets, level, radius,
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _projected_probe_row(x, z, tips, weights, offsets, reference, radius, reach, flat, out, m):
+def _projected_probe_row(x, z, tips, weights, offsets, reference, radii, reach, flat, out, m):
     """Row ``m`` of ``projected_probe_surfaces``."""
+    radius = radii[0] if radii.shape[0] == 1 else radii[m]
     near2 = (radius + reach) ** 2
     tip_x, tip_y, tip_z = tips[m, 0], tips[m, 1], tips[m, 2]
     levels = reference[0] if reference.shape[0] == 1 else reference[m]
@@ -52,19 +53,19 @@ def _projected_probe_row(x, z, tips, weights, offsets, reference, radius, reach,
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def projected_probe_surfaces_rows(x, z, tips, weights, offsets, reference, radius, reach, flat, out):
+def projected_probe_surfaces_rows(x, z, tips, weights, offsets, reference, radii, reach, flat, out):
     """``projected_probe_surfaces`` with its rows (the vector envs' copies) on numba's threads (the
     same floats)."""
     for m in prange(x.shape[0]):
-        _projected_probe_row(x, z, tips, weights, offsets, reference, radius, reach, flat, out, np.int64(m))
+        _projected_probe_row(x, z, tips, weights, offsets, reference, radii, reach, flat, out, np.int64(m))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def projected_probe_surfaces(x, z, tips, weights, offsets, reference, radius, reach, flat, out):
+def projected_probe_surfaces(x, z, tips, weights, offsets, reference, radii, reach, flat, out):
     """``contact.Probe.surface``'s projected bound of every node of M probe / node-set pairs in one
     pass: ``x``, ``z`` (M, n) the nodes' horizontal coordinates, m, ``tips`` (M, 3) m, ``weights``
-    (n, Q), ``reference`` (M, n) or (1, n) m (the same for every row); a node farther than
-    ``radius`` + ``reach`` m from its row's probe axis gets +inf (no quadrature point can be under
+    (n, Q), ``reference`` (M, n) or (1, n) m (the same for every row), ``radii`` (M,) or (1,) the
+    probes' radii, m; a node farther than its radius + ``reach`` m from its row's probe axis gets +inf (no quadrature point can be under
     the probe), the others ``_projected_bound``. Writes ``out`` (M, n) m."""
     for m in range(x.shape[0]):
-        _projected_probe_row(x, z, tips, weights, offsets, reference, radius, reach, flat, out, m)
+        _projected_probe_row(x, z, tips, weights, offsets, reference, radii, reach, flat, out, m)
