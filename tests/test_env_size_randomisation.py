@@ -24,7 +24,8 @@ FLAP_SIZES = ((0.055, 0.007, 0.027), (0.065, 0.009, 0.033))
     (POSITIONING, dict(size_range=0.05), "size_range must be None or a (low, high) pair"),
     (POSITIONING, dict(size_range=((0.05, 0.05, 0.05), (0.04, 0.06, 0.06))), "low <= high along every axis"),
     (POSITIONING, dict(size_range=(-0.01, 0.05)), "size_range must be finite and > 0"),
-    (POSITIONING, dict(size_range=((0.05, 0.05, 0.05), (0.05, 0.5, 0.05))), "size_range corner"),
+    # Baudet's springs refuse the 1:10:1 elements of that corner (baudet-hyperelastic takes any box)
+    (POSITIONING, dict(model="baudet", size_range=((0.05, 0.05, 0.05), (0.05, 0.5, 0.05))), "size_range corner"),
     (PALPATION, dict(size_range=(0.05, 0.06)), "PalpationEnv takes no size_range"),
     (POSITIONING, dict(tool_size_range=(0.03, 0.02)), "tool_size_range must have low <= high"),
     (POSITIONING, dict(tool_size_range=(0.001, 0.02)), "tool_size_range's low end = 0.001 m grasps no top node"),
@@ -149,8 +150,10 @@ def test_a_stacked_copy_on_another_block_geometry_has_that_blocks_forces():
     from sim_core.stack import ModelStack, StackedForceWorkspace
 
     def model(spacing, young):
+        # baudet, for its hourglass term's rest positions; the bound on its boxes' shear error is
+        # about accuracy, not the stacking checked here
         return build_model(HexMesh.block((3, 2, 3), spacing), Material(young, 0.45, 1060.0), gravity=(0, -9.81, 0),
-                           hourglass_control=1.0, volume_stiffness=100.0)
+                           hourglass_control=1.0, volume_stiffness=100.0, max_shear_error=None)
 
     models = [model(0.01, 5e3), model(np.array([0.012, 0.009, 0.011]), 7e3), model(0.01, 5e3)]
     stack = ModelStack(models[0], 3)
