@@ -240,10 +240,10 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     #: least distance of the path from the tumour's start (m; None: 2 success_distance), the
     #: success tolerance (m) and whether a success ends the episode).
     DIFFICULTY = dict(
-        easy=dict(goal_displacement=0.01, goal_min_distance=0.004, success_distance=0.003, terminate_on_success=True),
-        default=dict(goal_displacement=0.015, goal_min_distance=None, success_distance=0.002,
+        easy=dict(goal_displacement=0.012, goal_min_distance=0.004, success_distance=0.002, terminate_on_success=True),
+        default=dict(goal_displacement=0.015, goal_min_distance=0.005, success_distance=0.001,
                      terminate_on_success=True),
-        hard=dict(goal_displacement=0.02, goal_min_distance=0.006, success_distance=0.001,
+        hard=dict(goal_displacement=0.02, goal_min_distance=0.006, success_distance=0.00075,
                   terminate_on_success=False),
     )
 
