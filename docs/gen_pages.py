@@ -38,6 +38,7 @@ TASK_PAGES = {  # registered id -> page name (the class, the vector class and th
     "tissue_env/TumorPositioning-v0": "tumor-positioning",
     "tissue_env/Palpation-v0": "palpation",
     "tissue_env/Retraction-v0": "retraction",
+    "tissue_env/LiverNeedleAlignment-v0": "liver-needle-alignment",
 }
 
 
@@ -349,6 +350,19 @@ def env_accuracy_sections():
                              pct(errors["force"]), pct(errors["target"]), pct(errors["volume"])])
     out += [table(["task", "default shape", "dt (s)", "error source", "force (%)", "target (%)", "volume (%)"], rows),
             "\n", figure("env_accuracy.png", "environment accuracy"), "\n"]
+
+    if (RESULTS / "organ_accuracy.json").is_file():
+        organ = load("organ_accuracy.json")
+        out += ["## Organ task: voxel grid of LiverNeedleAlignment\n\n",
+                f"Error definition: {organ['error_definition']}. Reference: the "
+                f"{'x'.join(map(str, organ['reference_shape']))} grid ({organ['reference_nodes']} nodes). Speed: env "
+                f"steps per CPU second with resets (floor {organ['speed_floor']:.0f}: {organ['issue_floor']:.0f} with "
+                "the 1.25x margin).\n\n", caption(organ["command"], "organ_accuracy.json"), "\n"]
+        rows = [["x".join(map(str, r["shape"])) + (" (default)" if r["shape"] == organ["env_default"] else ""),
+                 r["nodes"], r["tumour_elements"], r["tool_nodes"], pct(r["errors"]["force"]), pct(r["errors"]["target"]),
+                 pct(r["errors"]["volume"]), num(r["steps_per_cpu_s"])] for r in organ["results"]]
+        out += [table(["voxel grid", "nodes", "tumour voxels", "tool nodes", "force (%)", "tumour (%)", "volume (%)",
+                       "steps per CPU s"], rows), "\n"]
 
     out += ["## Environments: dynamic convergence with the mesh\n\n",
             "Observation errors of a tool moving at full speed against the finest mesh (`errors`), and the "
