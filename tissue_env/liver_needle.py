@@ -237,7 +237,7 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     """
 
     worlds_class = LiverNeedleAlignmentWorlds
-    default_shape = (10, 5, 7)
+    default_shape = (10, 5, 8)
     default_size = (0.08, 0.04, 0.06)
     min_shape = (4, 2, 3)
     #: The default camera (``TissueEnv.default_camera``): above the lobe, in front of it.
