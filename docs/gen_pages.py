@@ -157,7 +157,7 @@ def validation_page():
     summary = load("validation_summary.json")
     validate = command_for("validation.py")
     out = [HEADER.format(source="benchmarks/results/validation_summary.json, validation_*.csv, "
-                                "env_accuracy.json and dynamic_convergence*.json"),
+                                "env_accuracy.json, organ_accuracy.json and dynamic_convergence*.json"),
            "# Validation\n\n",
            "The mass-spring model against finite elements on the same nodes (the experiments and metrics "
            "of [physics section 7](../physics.md#7-experiments-and-metrics), the floors of "
@@ -358,7 +358,13 @@ def env_accuracy_sections():
                 f"{'x'.join(map(str, organ['reference_shape']))} grid ({organ['reference_nodes']} nodes). Speed: env "
                 f"steps per CPU second with resets (floor {organ['speed_floor']:.0f}: {organ['issue_floor']:.0f} with "
                 "the 1.25x margin).\n\n", caption(organ["command"], "organ_accuracy.json"), "\n"]
-        rows = [["x".join(map(str, r["shape"])) + (" (default)" if r["shape"] == organ["env_default"] else ""),
+        import tissue_env
+
+        default = list(tissue_env.LiverNeedleAlignmentEnv.default_shape)
+        marks = lambda shape: "".join(  # noqa: E731
+            mark for mark, on in ((" (default)", shape == default), (" (budgeted choice)", shape == organ["budget_choice"]))
+            if on)
+        rows = [["x".join(map(str, r["shape"])) + marks(r["shape"]),
                  r["nodes"], r["tumour_elements"], r["tool_nodes"], pct(r["errors"]["force"]), pct(r["errors"]["target"]),
                  pct(r["errors"]["volume"]), num(r["steps_per_cpu_s"])] for r in organ["results"]]
         out += [table(["voxel grid", "nodes", "tumour voxels", "tool nodes", "force (%)", "tumour (%)", "volume (%)",
