@@ -287,6 +287,9 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
                          success_bonus=success_bonus, goal_min_distance=goal_min_distance, difficulty=difficulty,
                          **kwargs)
 
+    #: the phantom (its label volume, materials and geometry) never changes: snapshots share it
+    shared_attributes = TumorPositioningEnv.shared_attributes + ("phantom",)
+
     # -- scene ---------------------------------------------------------------------------------------
     def _build_mesh(self) -> HexMesh:
         """The lobe's mesh: ``liver_lobe`` sampled on ``shape`` voxels of size / shape over its box
