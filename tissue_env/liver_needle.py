@@ -125,8 +125,10 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     steadily with the voxel size (10-28% for the other grids of 5-9 mm): the grasped patch and the
     attached set are the voxel nodes inside fixed regions and the surface is a staircase, so each
     grid grasps and holds a slightly different patch. Random actions can still push the tool to
-    combined moves of 15-28 mm that invert an element (``info["unstable"]``, the episode ends;
-    ``benchmarks/success_rates.py --stability``).
+    combined moves of 15-28 mm that invert an element: 20 of 215 random-action episodes (10310
+    steps, no exception, no non-finite observation) ended so, flagged ``info["unstable"]``
+    (``python benchmarks/success_rates.py --env tissue_env/LiverNeedleAlignment-v0 --stability
+    215``).
 
     ## Action Space
 
