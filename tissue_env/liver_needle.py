@@ -118,7 +118,7 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     solves to a relative residual of 1e-2, gravity on, hourglass control 1 as phantom meshes need
     under gravity, volume stiffness x100). The default voxel grid is the most accurate candidate
     (10 to 5 mm voxels) that keeps 300 env steps/s on one core with the 1.25x margin of the other
-    tasks (``benchmarks/organ_accuracy.py``: 437 steps per CPU second, resets included; the
+    tasks (``benchmarks/organ_accuracy.py``: 457 steps per CPU second, resets included; the
     validation page of the documentation): against the 24 x 12 x 18 grid (3.3 mm voxels, 3316
     nodes) its static tool force, tumour displacement and volume change are within 7.7%, 9.0% and
     2.3% over six tool moves (the 20 x 10 x 15 grid: 5.4%, 5.8%, 4.7%). The errors do not fall
