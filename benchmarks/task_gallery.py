@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 import tissue_env  # noqa: E402,F401  (registers the tasks)
 from sim_core.files import save_figure  # noqa: E402
 
-TASKS = ("TumorPositioning", "Palpation", "Retraction")
+TASKS = ("TumorPositioning", "Palpation", "Retraction", "LiverNeedleAlignment")
 
 
 def episode_frames(task, seed=0):

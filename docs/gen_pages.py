@@ -45,6 +45,7 @@ TASK_PAGES = {  # registered id -> page name (the class, the vector class and th
     "tissue_env/TumorPositioning-v0": "tumor-positioning",
     "tissue_env/Palpation-v0": "palpation",
     "tissue_env/Retraction-v0": "retraction",
+    "tissue_env/LiverNeedleAlignment-v0": "liver-needle-alignment",
 }
 
 
@@ -342,7 +343,8 @@ def large_deformation_sections(validate):
 
 
 # -- environment accuracy page ---------------------------------------------------------------------
-ENV_ACCURACY_SOURCES = ("env_accuracy.json, env_models.json, env_models_reference_x1.5.json, dynamic_convergence*.json, "
+ENV_ACCURACY_SOURCES = ("env_accuracy.json, env_models.json, env_models_reference_x1.5.json, organ_accuracy.json, "
+                        "dynamic_convergence*.json, "
                         "env_speed.json, vector_env_speed.json and material_range.json")
 QUANTITIES = ("force", "target", "volume")
 
@@ -389,6 +391,7 @@ def environment_accuracy_page():
     out += env_stepping_section(accuracy)
     out += env_dynamic_section(accuracy)
     out += env_constitutive_section(accuracy)
+    out += organ_accuracy_section()
     out += env_model_choice_section()
     out += env_contact_section()
     out += env_vector_section()
@@ -630,6 +633,31 @@ def env_constitutive_section(accuracy):
                 + " (a model that refuses a mesh is given with its reason):\n\n", caption(command, name), "\n",
                 table(["task", "model", "shape", "FEM mesh", "force / target / volume (%)", "equilibria",
                        "lowest tangent eigenvalue (N/m)", "refused"], env_models_rows(data)), "\n"]
+    return out
+
+
+def organ_accuracy_section():
+    """The organ task's voxel grids against a fine grid (organ_accuracy.json), when it exists."""
+    out = []
+    if (RESULTS / "organ_accuracy.json").is_file():
+        organ = load("organ_accuracy.json")
+        out += ["## The organ task: voxel grid of LiverNeedleAlignment\n\n",
+                f"Error definition: {organ['error_definition']}. Reference: the "
+                f"{'x'.join(map(str, organ['reference_shape']))} grid ({organ['reference_nodes']} nodes). Speed: env "
+                f"steps per CPU second with resets (floor {organ['speed_floor']:.0f}: {organ['issue_floor']:.0f} with "
+                "the 1.25x margin).\n\n", caption(organ["command"], "organ_accuracy.json"), "\n"]
+        import tissue_env
+
+        default = list(tissue_env.LiverNeedleAlignmentEnv.default_shape)
+        marks = lambda shape: "".join(  # noqa: E731
+            mark for mark, on in ((" (default)", shape == default), (" (budgeted choice)", shape == organ["budget_choice"]))
+            if on)
+        rows = [["x".join(map(str, r["shape"])) + marks(r["shape"]),
+                 r["nodes"], r["tumour_elements"], r["tool_nodes"], pct(r["errors"]["force"]), pct(r["errors"]["target"]),
+                 pct(r["errors"]["volume"]), num(r["steps_per_cpu_s"])] for r in organ["results"]]
+        out += [table(["voxel grid", "nodes", "tumour voxels", "tool nodes", "force (%)", "tumour (%)", "volume (%)",
+                       "steps per CPU s"], rows), "\n"]
+
     return out
 
 

@@ -260,8 +260,10 @@ def liver_lobe(voxel_size=0.002, *, materials=None, **shape) -> Phantom:
     """A liver-lobe phantom voxelised at ``voxel_size`` m (default 2 mm).
 
     Args:
-        voxel_size: edge of the cubic voxels in m (> 0); the tumour needs a few voxels across its
-            radius and the vessel at least one (the default 3 mm vessel radius: <= 1.5 mm).
+        voxel_size: edge of the cubic voxels in m (> 0), or the three edges (dx, dy, dz) of
+            box-shaped voxels (a task's voxel grid: its bounding box over a number of voxels per
+            axis); the tumour needs a few voxels across its radius and the vessel at least one
+            (the default 3 mm vessel radius: <= 1.5 mm).
         materials: {label: Material} overriding ``LIVER_MATERIALS`` entries.
         **shape: ``LiverLobe`` arguments (size, tumour_radius, tumour_centre, vessel_radius, ...).
     Returns:
@@ -269,7 +271,12 @@ def liver_lobe(voxel_size=0.002, *, materials=None, **shape) -> Phantom:
         each labelled at its centre.
     """
     geometry = LiverLobe(**shape)
-    voxel_size = positive_scalar("voxel_size", voxel_size, "m")
+    if np.ndim(voxel_size) == 0:
+        voxel_size = np.full(3, positive_scalar("voxel_size", voxel_size, "m"))
+    else:
+        voxel_size = finite_array("voxel_size", voxel_size, shape=(3,))
+        if np.any(voxel_size <= 0):
+            raise ValueError(f"voxel_size must be a length > 0 m or three of them, got {voxel_size.tolist()}")
     table = dict(LIVER_MATERIALS)
     for label, material in (materials or {}).items():
         if label not in (PARENCHYMA, TUMOUR, VESSEL) or not isinstance(material, Material):
@@ -278,8 +285,8 @@ def liver_lobe(voxel_size=0.002, *, materials=None, **shape) -> Phantom:
         table[label] = material
     counts = np.ceil(np.asarray(geometry.size) / voxel_size - 1e-9).astype(int)
     if np.prod(counts) > 5e7:
-        raise ValueError(f"voxel_size {voxel_size} m makes {int(np.prod(counts))} voxels; use a larger one")
-    centres = [(np.arange(n) + 0.5) * voxel_size for n in counts]
+        raise ValueError(f"voxel_size {voxel_size.tolist()} m makes {int(np.prod(counts))} voxels; use a larger one")
+    centres = [(np.arange(n) + 0.5) * step for n, step in zip(counts, voxel_size)]
     grid = np.stack(np.meshgrid(*centres, indexing="ij"), axis=-1)
-    return Phantom(mask=geometry.labels(grid), spacing=np.full(3, voxel_size), origin=np.zeros(3),
+    return Phantom(mask=geometry.labels(grid), spacing=voxel_size.copy(), origin=np.zeros(3),
                    materials=table, geometry=geometry)

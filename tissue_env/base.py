@@ -184,11 +184,12 @@ MAX_NODES = 4_000
 SLOW_NODES = 2_500
 
 
-def check_work(shape, max_nodes):
+def check_work(shape, max_nodes, nodes=None):
     """Refuse (ValueError) a mesh ``shape`` (elements per axis) with more nodes than ``max_nodes``
     (None: no limit), naming the limit and the alternatives; warn past SLOW_NODES nodes, saying why
-    a reset will take long."""
-    nodes = int(np.prod(np.asarray(shape) + 1))
+    a reset will take long. ``nodes``: the mesh's node count (None: a full block's, (nx + 1)
+    (ny + 1) (nz + 1); a mesh from a mask over a grid of ``shape`` voxels has fewer)."""
+    nodes = int(np.prod(np.asarray(shape) + 1)) if nodes is None else int(nodes)
     if max_nodes is not None:
         max_nodes = positive_scalar("max_nodes", max_nodes, "nodes")
         if nodes > max_nodes:
@@ -445,7 +446,7 @@ class TissueEnv(gym.Env):
         self.poisson_ratio = check_poisson_ratio("poisson_ratio", poisson_ratio)
         self.density = positive_scalar("density", density, "kg/m^3")
         self.shape = check_shape("shape", self.default_shape if shape is None else shape, self.min_shape)
-        check_work(self.shape, max_nodes)
+        self.max_nodes = max_nodes
         self.size = check_vector("size", self.default_size if size is None else size)
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
@@ -494,7 +495,7 @@ class TissueEnv(gym.Env):
         self.render_mode = render_mode
 
         self.spacing = self.size / np.asarray(self.shape)
-        self.mesh = HexMesh.block(self.shape, self.spacing)
+        self.mesh = self._build_mesh()
         #: the episode's block (``size_range``): its extent (3,) m and mesh; the ``size`` block's
         #: until a reset draws another
         self.episode_size, self.episode_mesh = self.size, self.mesh
@@ -620,6 +621,15 @@ class TissueEnv(gym.Env):
         return self._camera_view.space(self.observation_type)
 
     # -- hooks a task implements -------------------------------------------------------------
+    def _build_mesh(self) -> HexMesh:
+        """The undeformed mesh (m) of the tissue, from the checked ``shape``, ``size`` and
+        ``spacing`` (= size / shape), after ``check_work`` with ``max_nodes``. Default: the
+        structured block ``HexMesh.block(shape, spacing)`` over [0, Lx] x [0, Ly] x [0, Lz]. A task
+        on another mesh (an organ from a mask: ``LiverNeedleAlignmentEnv``) returns it here; the
+        rest of the base class reads only the mesh (its nodes, surface, bounding box)."""
+        check_work(self.shape, self.max_nodes)
+        return HexMesh.block(self.shape, self.spacing)
+
     def _setup_scene(self):
         """Set ``self.fixed_nodes`` (nodes attached to the body) and ``self.tool_nodes``."""
         raise NotImplementedError

@@ -73,6 +73,11 @@ class Renderer:
                 x0, x1, z0, z1, y = data
                 (line,) = self.axes.plot([x0, x1, x1, x0, x0], [z0, z0, z1, z1, z0], [y] * 5, color="red", lw=1.5, zorder=0)
                 self.extras.append(line)
+            elif kind == "segment":  # ((3,), (3,)) m: a straight path, e.g. a planned needle path
+                start, end = np.asarray(data, dtype=float)
+                (line,) = self.axes.plot([start[0], end[0]], [start[2], end[2]], [start[1], end[1]], color="red",
+                                         lw=1.5, zorder=11)
+                self.extras.append(line)
         self.canvas.draw()
         frame = np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
         if self.human:

@@ -112,9 +112,13 @@ class TumorPositioningWorlds(TaskWorlds):
             position[rows] = positions[rows][:, nodes].mean(axis=1)
         return position
 
-    def _task_measures(self, positions):
+    def _tumor(self, positions):
+        """(N, 3) the tumour's positions, m: trilinear in its element's nodes of ``positions`` (N, n, 3)."""
         corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8, 3)
-        tumor = (self.tumor_weights[:, None, :] @ corners)[:, 0]
+        return (self.tumor_weights[:, None, :] @ corners)[:, 0]
+
+    def _task_measures(self, positions):
+        tumor = self._tumor(positions)
         if self.goal_observed:  # the distance of the observed goals, the one compute_reward recomputes
             achieved, desired = self._goal_vectors(tumor)
             return dict(tumor=tumor, achieved_goal=achieved, desired_goal=desired,
@@ -448,7 +452,7 @@ class TumorPositioningEnv(TissueEnv):
         # success at reset: another direction is drawn, GOAL_ATTEMPTS in all, then ValueError.
         for _ in range(GOAL_ATTEMPTS):
             goal, displacement = self._draw_goal(start)
-            if np.linalg.norm(goal - self.tumor_start) >= self.success_distance:
+            if self._start_distance(goal) >= self.success_distance:
                 break
         else:
             raise ValueError(
@@ -460,14 +464,21 @@ class TumorPositioningEnv(TissueEnv):
         self.goal_tool_displacement = displacement
         self.measures = None
 
-    def _draw_goal(self, start):
+    def _start_distance(self, goal):
+        """The task's error (m) at the episode's start for the drawn ``goal``: the tumour-goal
+        distance (a goal nearer than ``success_distance`` would be a success at reset)."""
+        return np.linalg.norm(goal - self.tumor_start)
+
+    def _draw_goal(self, start, minimum=None):
         """(goal (3,) m, tool displacement (3,) m) of one random direction from ``start`` (n, 3) m:
-        the tumour at the last converged equilibrium (the start where none converged)."""
+        the tumour at the last converged equilibrium (the start where none converged), scaled up
+        to at least ``minimum`` m from the tumour's start (None: ``goal_min_distance``)."""
         direction = self.np_random.normal(size=3)
         direction /= max(np.abs(direction).max(), 1e-12)
         displacement = self.np_random.uniform(*self.goal_scale_range) * direction * self.goal_displacement
         displacement = np.clip(displacement, self.workspace_low, self.workspace_high)
-        positions, minimum = start, self.goal_min_distance
+        positions = start
+        minimum = self.goal_min_distance if minimum is None else minimum
         reached = np.zeros(3)  # the tool displacement of the last converged solve
         for _ in range(3):
             control = self.base_control.copy().impose(self.tool_nodes, self.tool_rest + displacement)

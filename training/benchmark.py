@@ -33,7 +33,8 @@ from .train import train
 ROOT = Path(__file__).resolve().parents[1]
 #: The tasks benchmarked by default. The training budget (env steps) per task and algorithm, chosen
 #: from pilot runs, is the n_timesteps of the task's entry in hyperparams/<algo>.yml.
-ENVS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
+ENVS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0",
+        "tissue_env/LiverNeedleAlignment-v0")
 #: where --publish writes the summary and the learning curves (committed)
 PUBLISHED_RESULTS = ROOT / "benchmarks" / "results"
 PUBLISHED_FIGURES = ROOT / "docs" / "figures"
