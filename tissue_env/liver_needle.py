@@ -116,16 +116,16 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
 
     Physics: as TumorPositioning (one implicit Euler step of ``dt`` = 40 ms per env step, linear
     solves to a relative residual of 1e-2, gravity on, hourglass control 1 as phantom meshes need
-    under gravity, volume stiffness x100). The default voxel grid is the most accurate candidate
-    (10 to 5 mm voxels) that keeps 300 env steps/s on one core with the 1.25x margin of the other
-    tasks (``benchmarks/organ_accuracy.py``: 457 steps per CPU second, resets included; the
-    validation page of the documentation): against the 24 x 12 x 18 grid (3.3 mm voxels, 3316
-    nodes) its static tool force, tumour displacement and volume change are within 7.7%, 9.0% and
-    2.3% (the 20 x 10 x 15 grid: 5.4%, 5.8%, 4.7%), over the three of six tool moves that the
-    reference grid solves (a 12 mm pull, a 5 mm press, a 12 mm drag along x; its static solves of
-    the drag along z and the diagonal moves do not converge). The errors do not fall
-    steadily with the voxel size (10-28% for the other grids of 5-9 mm): the grasped patch and the
-    attached set are the voxel nodes inside fixed regions and the surface is a staircase, so each
+    under gravity, volume stiffness x100). The voxels are 8 mm cubes: the box's sides (8, 4 and
+    6.4 cm) admit cubic voxels of 8 mm and its divisors only, and 4 mm (2145 nodes) is far below
+    the 300 env steps/s on one core that every task keeps, so (10, 5, 8) is the one candidate
+    (``benchmarks/organ_accuracy.py``: the steps per CPU second, resets included, and the errors
+    are on the environment accuracy page of the documentation, with the command). Its static tool
+    force, tumour displacement and volume change are compared with the 4 mm grid over the tool
+    moves that grid solves (a 12 mm pull, a 5 mm press, 12 mm drags along x and z; its static
+    solves of the diagonal moves do not converge); no finer reference was run. The grasped patch
+    and the attached set are the voxel nodes inside fixed regions and the surface is a staircase,
+    so each
     grid grasps and holds a slightly different patch. Random actions can still push the tool to
     combined moves of 15-28 mm that invert an element: 8 of 100 random-action episodes (4804
     steps, no exception, no non-finite observation) ended so, flagged ``info["unstable"]``
