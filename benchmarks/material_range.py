@@ -29,7 +29,8 @@ import tissue_env  # noqa: E402,F401
 from tissue_env.worlds import OBS_LIMIT  # noqa: E402
 from training.common import write_json  # noqa: E402
 
-TASKS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
+#: every registered task
+TASKS = tuple(tissue_env.ENV_IDS)
 #: The state observation's maximum spring strain (%): entry 10 of every task (their docstrings'
 #: Observation Space tables)
 MAX_STRAIN_ENTRY = 10
