@@ -123,9 +123,10 @@ class ModelStack:
         # in place: the hourglass term's rest positions, the fixed corrections' rest directions). The
         # stacked mesh is the one mesh whose nodes change, as its model is the one whose values do.
         rest = stacked.mesh.nodes
-        rest.setflags(write=True)
-        rest[nodes] = model.mesh.nodes
-        rest.setflags(write=False)
+        if not np.array_equal(rest[nodes], model.mesh.nodes):  # a model of another block (a size draw)
+            rest.setflags(write=True)
+            rest[nodes] = model.mesh.nodes
+            rest.setflags(write=False)
         stacked.rest_edge_direction[elements] = model.rest_edge_direction
         stacked.gravity_force[nodes] = model.gravity_force
         stacked.mass_data[self._mass_positions[index]] = np.repeat(model.mass, 3)
