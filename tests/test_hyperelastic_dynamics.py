@@ -214,7 +214,7 @@ def test_env_model_keyword_is_validated():
         TumorPositioningEnv(model=MODEL, volume_stiffness=100.0)
     env = TumorPositioningEnv(model=MODEL, shape=(3, 3, 3), hourglass_control=0)
     assert env.model.name == MODEL and env.model.hourglass is None and not env.model.has_volume_forces
-    baudet = TumorPositioningEnv(shape=(3, 3, 3))
+    baudet = TumorPositioningEnv(model="baudet", shape=(3, 3, 3))
     assert (baudet.hourglass_control, baudet.volume_stiffness) == (1.0, 100.0) and baudet.model.name == "baudet"
 
 
