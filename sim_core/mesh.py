@@ -533,6 +533,13 @@ def cell_blocks(mesh, path, cell_type: str, content: str, need: str) -> list:
     return blocks
 
 
+def signed_volumes(positions: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """(M,) signed volumes det[x1 - x0, x2 - x0, x3 - x0] / 6 of tetrahedra, m^3 (here, below
+    ``sim_core.tetmesh`` and ``sim_core.meshing``, which both use it)."""
+    corners = positions[elements]
+    return np.linalg.det(corners[:, 1:] - corners[:, :1]) / 6.0
+
+
 def hex_jacobians(positions: np.ndarray, elements: np.ndarray, gradients=GAUSS_GRADIENTS) -> np.ndarray:
     """(M, P, 3, 3) Jacobians dx/dxi at the given reference points (rows: x, columns: xi)."""
     corners = positions[elements]  # (M, 8, 3)

@@ -18,8 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import finite_array
-from .mesh import read_mesh_file
-from .tetmesh import signed_volumes
+from .mesh import read_mesh_file, signed_volumes
 
 #: The 6 tetrahedra of a grid cell around its diagonal (0,0,0)-(1,1,1) (Kuhn's subdivision):
 #: one per order of the axes. Neighbouring cells cut their shared face along the same diagonal,
@@ -196,7 +195,7 @@ MESH_EXTRA = "pip install 'tissue-gym[mesh]'  (pytetwild: fTetWild, MPL-2.0)"
 
 def tet_volumes(nodes, tets) -> np.ndarray:
     """(T,) signed volumes (m^3) of tetrahedra (positive when (1-0, 2-0, 3-0) is right-handed):
-    ``tetmesh.signed_volumes`` of the arrays."""
+    ``mesh.signed_volumes`` of the arrays."""
     return signed_volumes(np.asarray(nodes, dtype=float), np.asarray(tets))
 
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from .elements import nodes_per_element, quadrature
 from .laws import baudet_stiffness, first_piola_stress, lame_parameters, material_tangent
-from .tetmesh import signed_volumes
+from .mesh import signed_volumes
 from .topology import DIAGONALS, EDGES, FACES, GAUSS_GRADIENTS
 
 #: the two diagonals of each face (FACES order): 12, grouped by the plane they lie in

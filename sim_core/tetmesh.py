@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ._validate import finite_array
-from .mesh import LOCAL_CORNERS, HexMesh, block_node_index, boundary_faces, cell_blocks, read_mesh_file, write_mesh_file
+from .mesh import (
+    LOCAL_CORNERS, HexMesh, block_node_index, boundary_faces, cell_blocks, read_mesh_file, signed_volumes, write_mesh_file,
+)
 
 #: The 6 edges of a tetrahedron (local node pairs).
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
@@ -52,12 +54,6 @@ def _kuhn_tetrahedra() -> np.ndarray:
 
 #: The Kuhn split of a hexahedron's 8 VTK corners into 6 positively oriented tetrahedra.
 KUHN_TETRAHEDRA = _kuhn_tetrahedra()
-
-
-def signed_volumes(positions: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """(M,) signed volumes det[x1 - x0, x2 - x0, x3 - x0] / 6 of tetrahedra, m^3."""
-    corners = positions[elements]
-    return np.linalg.det(corners[:, 1:] - corners[:, :1]) / 6.0
 
 
 def check_tetrahedra(positions: np.ndarray, elements: np.ndarray, name: str = "tetrahedron") -> None:
