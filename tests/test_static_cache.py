@@ -13,8 +13,8 @@ from sim_core.static import FactorCache
 from tissue_env.tumor_positioning import GOAL_SOLVER
 
 
-def _goal_problem(displacement=(0.006, 0.004, -0.008)):
-    env = gym.make("tissue_env/TumorPositioning-v0").unwrapped
+def _goal_problem(displacement=(0.006, 0.004, -0.008), **kwargs):
+    env = gym.make("tissue_env/TumorPositioning-v0", **kwargs).unwrapped
     env.reset(seed=0)
     control = env.base_control.copy().impose(env.tool_nodes, env.tool_rest + np.asarray(displacement))
     return env, control, env.state.positions.copy()
@@ -126,7 +126,7 @@ def test_compiled_tangent_is_the_numpy_tangent():
     from sim_core.forces import stiffness_data
     from sim_core.static import tangent_stiffness
 
-    env, control, start = _goal_problem((0.004, -0.01, 0.006))
+    env, control, start = _goal_problem((0.004, -0.01, 0.006), model="baudet")
     result = solve_static(env.model, control, initial=start, tolerance=1e-6)
     positions = result.positions + np.random.default_rng(0).normal(scale=2e-4, size=start.shape)
     model = env.model
