@@ -118,7 +118,7 @@ def test_stacked_force_workspace_equals_the_stacked_models_force_pass(env_id, gr
     (ForceWorkspace) to rounding."""
     from sim_core.forces import ForceWorkspace
     from sim_core.stack import StackedForceWorkspace
-    envs = _stepped(env_id, count=4, steps=6, seed=0)
+    envs = _stepped(env_id, count=4, steps=6, seed=0, model="baudet")  # the model with hourglass control
     stack = envs.worlds.stack
     # Palpation's copies draw different inclusions (hourglass matrices), TumorPositioning's share one
     assert (len(stack.hourglass_groups()) > 1) == (groups == "several")
