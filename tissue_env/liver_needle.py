@@ -9,7 +9,7 @@ from sim_core import HexMesh, Material
 from sim_core.phantoms import PARENCHYMA, TUMOUR, VESSEL, liver_lobe
 from sim_core.model import Control
 
-from .base import check_range, check_work, difficulty_settings, positive_scalar
+from .base import check_range, check_work, positive_scalar
 from .tumor_positioning import TumorPositioningEnv, TumorPositioningWorlds, trilinear_weights
 from .vector import TissueVectorEnv
 
