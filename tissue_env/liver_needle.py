@@ -10,7 +10,7 @@ from sim_core.phantoms import PARENCHYMA, TUMOUR, VESSEL, liver_lobe
 from sim_core.model import Control
 
 from .base import check_range, check_work, positive_scalar
-from .tumor_positioning import TumorPositioningEnv, TumorPositioningWorlds, trilinear_weights
+from .tumor_positioning import TumorPositioningEnv, TumorPositioningWorlds, square_patch, trilinear_weights
 from .vector import TissueVectorEnv
 
 #: Candidate needle directions a reset draws at once (a fixed count of random numbers per reset):
@@ -342,9 +342,7 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
         self.tumor_weights = trilinear_weights((centre - element_low[element])
                                                / (element_high[element] - element_low[element]))
         # the grasped patch: upper-surface nodes within tool_size / 2 of the point above the tumour
-        offset = np.abs(nodes[upper][:, [0, 2]] - centre[[0, 2]])
-        inside = np.all(offset <= 0.5 * self.tool_size + 1e-9, axis=1)
-        self.tool_nodes = np.setdiff1d(upper[inside], self.fixed_nodes)
+        self.tool_nodes = np.setdiff1d(square_patch(nodes, upper, centre, self.tool_size, 1e-9), self.fixed_nodes)
         if len(self.tool_nodes) < 1:
             raise ValueError(f"tool_size = {self.tool_size} m grasps no upper-surface node of the {self.shape} "
                              f"mesh; use at least the voxel width {min(self.spacing[0], self.spacing[2]):.4g} m")

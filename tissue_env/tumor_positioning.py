@@ -33,6 +33,14 @@ GOAL_RETRY_SOLVER = dict(GOAL_SOLVER, max_load_steps=2, max_iterations=20)
 GOAL_ATTEMPTS = 5
 
 
+def square_patch(nodes, candidates, centre, tool_size, tolerance):
+    """The ``candidates`` (node indices) whose rest position among ``nodes`` (n, 3) m lies within
+    ``tool_size`` / 2 (+ ``tolerance``) m of ``centre`` (3,) m along x and along z: a grasped square
+    of physical size, so a finer mesh grasps the same patch with more nodes."""
+    offset = np.abs(nodes[candidates][:, [0, 2]] - np.asarray(centre)[[0, 2]])
+    return candidates[np.all(offset <= 0.5 * tool_size + tolerance, axis=1)]
+
+
 def trilinear_weights(local):
     """(8,) weights of the VTK corners of a hexahedron at local coordinates ``local`` in [0, 1]^3."""
     local = np.asarray(local, dtype=float)
@@ -402,13 +410,12 @@ class TumorPositioningEnv(TissueEnv):
         none."""
         top = np.flatnonzero(np.isclose(nodes[:, 1], size[1]))
         centre = 0.5 * (nodes.min(axis=0) + nodes.max(axis=0))
-        offset = np.abs(nodes[top][:, [0, 2]] - centre[[0, 2]])
-        inside = np.all(offset <= 0.5 * tool_size + 1e-9 * size[[0, 2]], axis=1)
-        if np.count_nonzero(inside) < 1:
+        patch = square_patch(nodes, top, centre, tool_size, 1e-9 * size[[0, 2]])
+        if len(patch) < 1:
             spacing = size / np.asarray(self.shape)
             raise ValueError(f"{name} = {tool_size} m grasps no top node of the {self.shape} mesh; "
                              f"use at least the element width {min(spacing[0], spacing[2]):.4g} m")
-        return top[inside]
+        return patch
 
     shared_attributes = ("_goal_factors",)
 
