@@ -107,12 +107,7 @@ def test_vector_copies_draw_their_own_values_and_equal_single_envs(env_id, kwarg
     for action in actions:
         observations = vector.step(action)[0]
         single = [env.step(action[i])[0] for i, env in enumerate(singles)]
-    if env_id == RETRACTION:
-        # the hyperelastic flap on blocks of three sizes agrees to rounding (a tool force component
-        # that is zero by symmetry reads 1e-16 apart, with its floor contact); the other tasks bit for bit
-        np.testing.assert_allclose(observations, np.stack(single), rtol=1e-12, atol=1e-12)
-    else:
-        np.testing.assert_array_equal(observations, np.stack(single))
+    np.testing.assert_array_equal(observations, np.stack(single))
 
 
 def test_observed_parameters_are_the_drawn_values_normalised_over_their_ranges():

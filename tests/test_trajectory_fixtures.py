@@ -10,7 +10,6 @@ with (BLAS and numba pick their instructions per CPU); elsewhere the test is ski
 import sys
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -39,12 +38,7 @@ def test_single_env_replays_its_fixture_bit_for_bit(env_id, seed):
 @pytest.mark.parametrize("env_id", sorted(tissue_env.ENV_IDS))
 def test_vector_env_replays_its_fixture_bit_for_bit(env_id):
     name = env_id.split("/")[1]
-    if gym.make(env_id).unwrapped.model_name != "baudet":
-        pytest.skip("open defect: the hyperelastic tasks' vector runs are not reproducible bit for bit from one "
-                    "process to another (their stacked stress correction differs in the last bits)")
     obs, rewards, done = trajectories.vector_run(env_id)
-    # to rounding: the hyperelastic tasks' stacked pass has differed in the last bits in the full
-    # suite's process (tests/test_env_vector.py; an open defect), bit for bit when run alone
-    np.testing.assert_allclose(obs, FIXTURES[f"{name}/vector/obs"], rtol=0, atol=1e-9)
-    np.testing.assert_allclose(rewards, FIXTURES[f"{name}/vector/reward"], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(obs, FIXTURES[f"{name}/vector/obs"])
+    np.testing.assert_array_equal(rewards, FIXTURES[f"{name}/vector/reward"])
     np.testing.assert_array_equal(done, FIXTURES[f"{name}/vector/done"])

@@ -21,3 +21,12 @@ FAST = {"nsz", "arcp", "contract"}
 #: the copies' kernels call too, has none): their vectorised reductions keep the bare lattice's
 #: CG step faster than without.
 FAST_REDUCE = FAST | {"reassoc"}
+#: ``FAST`` without contraction, for the stress correction's kernels (``kernels.stress``), whose
+#: per-element bodies a threaded pass (``stress_correction_tangent_add_copies``) inlines. With
+#: "contract", whether LLVM fused a product into an FMA depended on the code it had inlined the body
+#: into, and that on which kernels numba had loaded from its cache: in a process whose callees came
+#: from the cache, the threaded tangent differed from the serial one by 1e-34 (N/m m^2) and
+#: Retraction's vector copies from its single envs by 1e-15 in the observation (both equal in a
+#: process that compiled everything; tests/test_numba_cache.py). Without it the passes run as fast
+#: (benchmarks/step_speed.py).
+FAST_EXACT = FAST - {"contract"}

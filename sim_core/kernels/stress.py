@@ -15,10 +15,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .fastmath import FAST
+from .fastmath import FAST_EXACT
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
                     spring_stiffness, linear, m, f, c, p):
     """Element ``m`` (of mean_gradient.shape[1] nodes): f (3, 3) = F, c (3, 3) = cof F = det F F^-T,
@@ -76,7 +76,7 @@ def _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_
     return det, log_j
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _scatter_stress(elements, mean_gradient, volume, m, p, forces):
     """forces (N, 3) -= V0 p b_a on the nodes of element ``m``."""
     v = volume[m]
@@ -87,7 +87,7 @@ def _scatter_stress(elements, mean_gradient, volume, m, p, forces):
             forces[node, i] -= v * (p[i, 0] * b0 + p[i, 1] * b1 + p[i, 2] * b2)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, m,
                      t, w):
     """t (9, 9) = V0 (A_NH(F) - A_S(F)) of element ``m`` (row 3 i + J: dP_iJ; column 3 k + L: dF_kL),
@@ -158,7 +158,7 @@ def _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_le
         t[b + 2, b + 2] -= g22
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _symmetric_eigen3(a, values, vectors):
     """Eigenvalues (3,) and eigenvectors (columns of (3, 3)) of the symmetric 3 x 3 ``a`` (overwritten),
     cyclic Jacobi rotations to rounding."""
@@ -194,7 +194,7 @@ def _symmetric_eigen3(a, values, vectors):
         values[i] = a[i, i]
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _positive_definite(t, lower):
     """Whether the symmetric (9, 9) t is positive semi-definite to rounding: the Cholesky
     factorisation of t + 1e-12 tr(t) I (the exact null space of the rotations passes). lower scratch."""
@@ -218,7 +218,7 @@ def _positive_definite(t, lower):
     return True
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _congruence(root, m, source, target):
     """target (9, 9) = S source S with S = I_3 (x) root[m] (root[m] symmetric 3 x 3): the change of
     metric of ``_clamp_tangent``, in both directions."""
@@ -233,7 +233,7 @@ def _congruence(root, m, source, target):
                     target[3 * i + jj, 3 * k + ll] = total
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _clamp_tangent(t, c, det, p, volume, root, root_inverse, linear, m, w, lower, small, values, vectors):
     """The implicit step's SPD treatment of element ``m``'s tangent t (9, 9) (docs/physics.md 11),
     in place; returns 0 (t kept), 1 (geometric term clamped) or 2 (positive part taken).
@@ -273,7 +273,7 @@ def _clamp_tangent(t, c, det, p, volume, root, root_inverse, linear, m, w, lower
     return 2
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _clamp_geometric(t, c, det, p, volume, m, small, values, vectors):
     """Step 1 of ``_clamp_tangent``: t += V0 I (x) [dS]_-; returns 1 where it changed t, else 0."""
     inverse_det = 1.0 / det
@@ -302,7 +302,7 @@ def _clamp_geometric(t, c, det, p, volume, m, small, values, vectors):
     return changed
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
 def stress_correction_add(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
                           spring_stiffness, linear, forces):
     """forces (N, 3) N += every element's stress correction.
@@ -322,7 +322,7 @@ def stress_correction_add(positions, elements, mean_gradient, volume, mu, lam, s
         _scatter_stress(elements, mean_gradient, volume, m, p, forces)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
 def stress_correction_tangent_add(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
                                   spring_stiffness, linear, root, root_inverse, clamp, forces, tangent):
     """``stress_correction_add`` that also writes each element's stiffness on F, tangent (M, 9, 9)
@@ -354,7 +354,7 @@ def stress_correction_tangent_add(positions, elements, mean_gradient, volume, mu
     return clamped
 
 
-@njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
+@njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
 def stress_correction_add_copies(count, positions, elements, mean_gradient, volume, mu, lam, spring_vector,
                                  spring_length, spring_stiffness, linear, forces):
     """``stress_correction_add`` of a stacked model of ``count`` copies (copies first), one copy per numba
@@ -370,7 +370,7 @@ def stress_correction_add_copies(count, positions, elements, mean_gradient, volu
                               linear, forces[c * n:(c + 1) * n])
 
 
-@njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
+@njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
 def stress_correction_tangent_add_copies(count, positions, elements, mean_gradient, volume, mu, lam, spring_vector,
                                          spring_length, spring_stiffness, linear, root, root_inverse, clamp, forces,
                                          tangent):
