@@ -187,6 +187,34 @@ def test_observation_arrays_sanitise_and_split():
     assert list(split) == ["a", "b"]
     assert np.array_equal(split["a"], expected[:, :2]) and np.array_equal(split["b"], expected[:, 2:])
     assert all(value.flags.c_contiguous and value.dtype == np.float32 for value in split.values())
+    limits = np.array([OBS_LIMIT, OBS_LIMIT, 10 * OBS_LIMIT])  # one bound per entry
+    clipped = np.zeros(2, dtype=bool)
+    flat = observation_arrays(parts, ["a", "b"], False, clipped, limits)
+    expected[:, 2] = [-10 * OBS_LIMIT, 3 * OBS_LIMIT]
+    assert np.array_equal(flat, expected) and list(clipped) == [True, True]  # NaN, inf: reported
+    beyond = [np.zeros((2, 2)), np.array([[9.0 * OBS_LIMIT], [11.0 * OBS_LIMIT]])]
+    flat = observation_arrays(beyond, ["a", "b"], False, clipped, limits)
+    assert list(clipped) == [False, True] and list(flat[:, 2]) == [9 * OBS_LIMIT, 10 * OBS_LIMIT]
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_the_strain_entry_reads_beyond_100_percent(env_id):
+    """The state observation's bounds: +-OBS_LIMIT for every entry but the maximum spring strain (%),
+    whose bound is FEATURE_LIMITS' 1000% (a soft tissue can stretch past 100%); the dict form's
+    per-feature boxes and the goal form's ``observation`` have the same bounds."""
+    from tissue_env.worlds import FEATURE_LIMITS, OBS_LIMIT
+
+    state = gym.make(env_id).observation_space
+    high = np.full(state.shape, OBS_LIMIT, dtype=np.float32)
+    high[10] = FEATURE_LIMITS["max_strain"]  # index 10: every task's Observation Space table
+    assert np.array_equal(state.high, high) and np.array_equal(state.low, -high)
+    spaces = gym.make(env_id, observation_type="dict").observation_space
+    assert float(spaces["max_strain"].high[0]) == FEATURE_LIMITS["max_strain"]
+    assert float(spaces["tool_position"].high[0]) == OBS_LIMIT
+    env = gym.make(env_id)
+    if "goal" in env.unwrapped.observation_types():
+        goal = gym.make(env_id, observation_type="goal").observation_space["observation"]
+        assert np.array_equal(goal.high, high) and np.array_equal(goal.low, -high)
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)

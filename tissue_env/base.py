@@ -43,7 +43,7 @@ from sim_core.model import Control, State
 
 from .camera import VISUAL_TYPES, Camera, CameraView
 from .rendering import Renderer
-from .worlds import OBS_LIMIT, TaskWorlds
+from .worlds import FEATURE_LIMITS, OBS_LIMIT, TaskWorlds, observation_limits
 
 OBSERVATION_TYPES = ("state", "deformation", "dict", "goal") + VISUAL_TYPES
 #: The image sizes (pixels per side) a visual observation accepts: the range its speed is measured in
@@ -542,11 +542,11 @@ class TissueEnv(gym.Env):
             self.observation_space = self._visual_space()
         elif observation_type == "dict":
             self.observation_space = spaces.Dict({
-                name: spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(n,), dtype=np.float32)
+                name: spaces.Box(-FEATURE_LIMITS.get(name, OBS_LIMIT), FEATURE_LIMITS.get(name, OBS_LIMIT), shape=(n,),
+                                 dtype=np.float32)
                 for name, n in self._feature_sizes.items()})
         else:
-            total = sum(self._feature_sizes.values())
-            self.observation_space = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(total,), dtype=np.float32)
+            self.observation_space = self._state_space()
         if observation_type == "goal":
             self.observation_space = self._goal_space()
         self._renderer = None
@@ -854,6 +854,12 @@ class TissueEnv(gym.Env):
         (N, 3) offsets (their copies share size and workspace)."""
         return offset
 
+    def _state_space(self) -> spaces.Box:
+        """The ``"state"`` observation space: every feature's entries within their bounds
+        (``worlds.observation_limits``: +-OBS_LIMIT, the strain's +-FEATURE_LIMITS), float32."""
+        limits = observation_limits(self._feature_sizes).astype(np.float32)
+        return spaces.Box(-limits, limits, dtype=np.float32)
+
     # -- goal-conditioned API (observation_type="goal") --------------------------------------------
     def _goal_space(self) -> spaces.Dict:
         """The ``"goal"`` observation space: ``observation`` (the ``"state"`` vector, float32),
@@ -864,7 +870,7 @@ class TissueEnv(gym.Env):
         size = self._feature_sizes[achieved]
         goal = spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(size,), dtype=np.float64)
         return spaces.Dict(dict(
-            observation=spaces.Box(-OBS_LIMIT, OBS_LIMIT, shape=(sum(self._feature_sizes.values()),), dtype=np.float32),
+            observation=self._state_space(),
             achieved_goal=goal, desired_goal=copy.deepcopy(goal)))
 
     @property

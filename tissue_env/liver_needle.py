@@ -146,9 +146,10 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
 
     ## Observation Space
 
-    ``observation_type="state"`` (default): ``Box(-100, 100, (27,), float32)``. Positions are
-    relative to the centre of the undeformed mesh's bounding box. Values are clipped to +-100
-    (never reached).
+    ``observation_type="state"`` (default): ``Box(-100, 100, (27,), float32)``, every entry within
+    +-100 but the maximum spring strain's, within +-1000 (the tissue can stretch past 100%). Positions
+    are relative to the centre of the undeformed mesh's bounding box. Values are clipped to their
+    bounds (never reached; ``info["observation_clipped"]`` says when).
 
     | Index | Observation                                    | Unit (normalised)        |
     |-------|------------------------------------------------|--------------------------|

@@ -280,7 +280,8 @@ class PalpationEnv(TissueEnv):
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (15 + C + 4,), float32)``, C the number of
+    ``observation_type="state"``: ``Box(-100, 100, (15 + C + 4,), float32)`` (the maximum
+    spring strain within +-1000, every other entry within +-100), C the number of
     candidate inclusion cells (9 at the defaults: 28 values; it depends on ``size`` and
     ``inclusion_region``, not on ``shape``).
 

@@ -176,7 +176,9 @@ class RetractionEnv(TissueEnv):
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (17,), float32)``.
+    ``observation_type="state"``: ``Box(-100, 100, (17,), float32)``, the maximum spring
+    strain within +-1000 (a soft flap stretches past 100%: 127% at 1 kPa), every other entry within
+    +-100.
 
     | Index | Observation                                         | Unit (normalised)     |
     |-------|-----------------------------------------------------|-----------------------|

@@ -221,8 +221,10 @@ class TumorPositioningEnv(TissueEnv):
 
     ## Observation Space
 
-    ``observation_type="state"`` (default): ``Box(-100, 100, (24,), float32)``. Positions are
-    relative to the centre of the undeformed block. Values are clipped to +-100 (never reached).
+    ``observation_type="state"`` (default): ``Box(-100, 100, (24,), float32)``, every entry within
+    +-100 but the maximum spring strain's, within +-1000 (the tissue can stretch past 100%). Positions
+    are relative to the centre of the undeformed block. Values are clipped to their bounds (never
+    reached; ``info["observation_clipped"]`` says when).
 
     | Index | Observation                                   | Unit (normalised)        |
     |-------|-----------------------------------------------|--------------------------|

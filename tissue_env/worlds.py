@@ -36,23 +36,36 @@ from .camera import VISUAL_TYPES
 #: Observation values are clipped to +-OBS_LIMIT (normalised units): a safety net, never reached
 #: by a healthy simulation, that keeps every observation inside the observation space.
 OBS_LIMIT = 100.0
+#: The bounds of the features whose physical range passes +-OBS_LIMIT: ``max_strain`` (%), a spring's
+#: abs(L - L0) / L0, passes 100% when soft tissue is stretched to more than twice its length
+#: (Retraction's flap at E = 1 kPa reaches 127%, as neo-Hookean FEM on its mesh does:
+#: benchmarks/material_range.py); beyond 1000% an element has folded.
+FEATURE_LIMITS = {"max_strain": 1000.0}
+
+
+def observation_limits(feature_sizes) -> np.ndarray:
+    """(total,) float64: the bound of every entry of the state observation whose features have the
+    sizes ``feature_sizes`` (name -> entries, in order): ``FEATURE_LIMITS``, else ``OBS_LIMIT``."""
+    return np.concatenate([np.full(size, FEATURE_LIMITS.get(name, OBS_LIMIT)) for name, size in feature_sizes.items()]
+                          or [np.zeros(0)])
 #: The tissue stiffness (Pa) at which the tasks' force units and force limits are stated: an episode's
 #: forces are observed, and its force limits applied, in units scaled by E / REFERENCE_YOUNG_MODULUS,
 #: so the same strains read the same from a 1 kPa to a 1 MPa tissue (the default young_modulus).
 REFERENCE_YOUNG_MODULUS = 5.0e3
 
 
-def observation_arrays(parts, names, as_dict: bool, clipped=None):
+def observation_arrays(parts, names, as_dict: bool, clipped=None, limits=OBS_LIMIT):
     """The observation from its features ``parts`` (float64 arrays, the feature index last): one
     float32 array (their concatenation) or a dict ``names`` -> array, with NaN set to 0 and every
-    value clipped to +-OBS_LIMIT in one pass over the concatenation (a pass per feature was a
-    noticeable share of a step). ``clipped``: None, or a bool array of the leading shape that
-    receives where an entry was NaN or beyond the bound (what the infos report: never silent)."""
+    value clipped to +-``limits`` (a number, or one per entry: ``observation_limits``) in one pass
+    over the concatenation (a pass per feature was a noticeable share of a step). ``clipped``: None,
+    or a bool array of the leading shape that receives where an entry was NaN or beyond its bound
+    (what the infos report: never silent)."""
     flat = np.concatenate(parts, axis=-1)
     if clipped is not None:
-        clipped[...] = ~np.all(np.abs(flat) <= OBS_LIMIT, axis=-1)
-    np.nan_to_num(flat, copy=False, nan=0.0, posinf=OBS_LIMIT, neginf=-OBS_LIMIT)
-    np.clip(flat, -OBS_LIMIT, OBS_LIMIT, out=flat)
+        clipped[...] = ~np.all(np.abs(flat) <= limits, axis=-1)
+    np.nan_to_num(flat, copy=False, nan=0.0)
+    np.clip(flat, -limits, limits, out=flat)
     flat = flat.astype(np.float32)
     if not as_dict:
         return flat
@@ -156,6 +169,7 @@ class TaskWorlds:
         self.target = self.positions.copy()
         self.measures = None
         self._feature_sizes = env._feature_sizes
+        self._limits = observation_limits(self._feature_sizes)  # each state-observation entry's bound
         #: observation_type "goal": the task measures its goal distance on the observed goals
         #: (``measures["achieved_goal"]``, ``["desired_goal"]``), what ``compute_reward`` reads
         self.goal_observed = env.observation_type == "goal"
@@ -500,11 +514,12 @@ class TaskWorlds:
         return self._feature_observation(measures, as_dict=self.task.observation_type == "dict")
 
     def _feature_observation(self, measures, as_dict):
-        """The worlds' feature vectors (or dicts of them), clipped to +-OBS_LIMIT; resets ``self.clipped``."""
+        """The worlds' feature vectors (or dicts of them), clipped to their bounds (``observation_limits``);
+        resets ``self.clipped``."""
         features = self._features(measures)
         parts = [np.asarray(features[name], dtype=np.float64).reshape(self.num_envs, -1) for name in self._feature_sizes]
         self.clipped = np.zeros(self.num_envs, dtype=bool)
-        return observation_arrays(parts, list(self._feature_sizes), as_dict, self.clipped)
+        return observation_arrays(parts, list(self._feature_sizes), as_dict, self.clipped, self._limits)
 
     # -- visual observations (tissue_env.camera) -----------------------------------------------------
     def _scene_extras(self):
