@@ -124,6 +124,8 @@ def main(argv=None) -> int:
             variant = f"_{args.variant}" if args.variant else ""
             plot(dirs, figures / f"learning_{task}_{algo}{suffix}{variant}.png")
             key = f"{env_id} {algo}" + (f" {args.variant}" if args.variant else "")
+            # read again: another benchmark process may have written its entries since the start
+            summary = json.loads(out.read_text()) if out.is_file() else {}
             summary[key] = dict(
                 env=env_id, algo=algo, seeds=args.seeds, timesteps=json.loads((dirs[0] / "config.json").read_text())["timesteps"],
                 train_wall_clock_s=float(np.mean(walls)),
