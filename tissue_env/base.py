@@ -43,7 +43,7 @@ from sim_core.model import Control, State
 
 from .camera import VISUAL_TYPES, Camera, CameraView
 from .rendering import Renderer
-from .worlds import FEATURE_LIMITS, OBS_LIMIT, TaskWorlds, observation_limits
+from .worlds import OBS_LIMIT, TaskWorlds, feature_limit, observation_limits
 
 OBSERVATION_TYPES = ("state", "deformation", "dict", "goal") + VISUAL_TYPES
 #: The image sizes (pixels per side) a visual observation accepts: the range its speed is measured in
@@ -542,8 +542,7 @@ class TissueEnv(gym.Env):
             self.observation_space = self._visual_space()
         elif observation_type == "dict":
             self.observation_space = spaces.Dict({
-                name: spaces.Box(-FEATURE_LIMITS.get(name, OBS_LIMIT), FEATURE_LIMITS.get(name, OBS_LIMIT), shape=(n,),
-                                 dtype=np.float32)
+                name: spaces.Box(-feature_limit(name), feature_limit(name), shape=(n,), dtype=np.float32)
                 for name, n in self._feature_sizes.items()})
         else:
             self.observation_space = self._state_space()
@@ -856,7 +855,7 @@ class TissueEnv(gym.Env):
 
     def _state_space(self) -> spaces.Box:
         """The ``"state"`` observation space: every feature's entries within their bounds
-        (``worlds.observation_limits``: +-OBS_LIMIT, the strain's +-FEATURE_LIMITS), float32."""
+        (``worlds.observation_limits``), float32."""
         limits = observation_limits(self._feature_sizes).astype(np.float32)
         return spaces.Box(-limits, limits, dtype=np.float32)
 

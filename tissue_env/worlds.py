@@ -41,17 +41,23 @@ OBS_LIMIT = 100.0
 #: (Retraction's flap at E = 1 kPa reaches 127%, as neo-Hookean FEM on its mesh does:
 #: benchmarks/material_range.py); beyond 1000% an element has folded.
 FEATURE_LIMITS = {"max_strain": 1000.0}
-
-
-def observation_limits(feature_sizes) -> np.ndarray:
-    """(total,) float64: the bound of every entry of the state observation whose features have the
-    sizes ``feature_sizes`` (name -> entries, in order): ``FEATURE_LIMITS``, else ``OBS_LIMIT``."""
-    return np.concatenate([np.full(size, FEATURE_LIMITS.get(name, OBS_LIMIT)) for name, size in feature_sizes.items()]
-                          or [np.zeros(0)])
 #: The tissue stiffness (Pa) at which the tasks' force units and force limits are stated: an episode's
 #: forces are observed, and its force limits applied, in units scaled by E / REFERENCE_YOUNG_MODULUS,
 #: so the same strains read the same from a 1 kPa to a 1 MPa tissue (the default young_modulus).
 REFERENCE_YOUNG_MODULUS = 5.0e3
+
+
+def feature_limit(name: str) -> float:
+    """The bound of every entry of the observation feature ``name``: ``FEATURE_LIMITS``, else
+    ``OBS_LIMIT``."""
+    return FEATURE_LIMITS.get(name, OBS_LIMIT)
+
+
+def observation_limits(feature_sizes) -> np.ndarray:
+    """(total,) float64: the bound (``feature_limit``) of every entry of the state observation
+    whose features have the sizes ``feature_sizes`` (name -> entries, in order)."""
+    return np.concatenate([np.full(size, feature_limit(name)) for name, size in feature_sizes.items()]
+                          or [np.zeros(0)])
 
 
 def observation_arrays(parts, names, as_dict: bool, clipped=None, limits=OBS_LIMIT):
