@@ -83,19 +83,21 @@ class SurfaceProjection:
     structured block's top face (``top_face``), for ``Probe``'s projected sampling.
 
     Attributes:
-        offsets: (Q, 2) quadrature points (x, z) relative to the node, m (rest spacing).
+        offsets: (Q, 2) quadrature points (x, z) relative to the node, m (rest spacing); for
+            stacked copies on blocks of different spacings (a vector env's drawn sizes), (N, Q, 2),
+            one set per copy (``stacked``).
         weights: (n, Q) the hat function's weights, zero outside the face, each face node's row
             summing to 1; zero rows for the nodes the probe does not touch.
         reference: (n,) heights of the nodes, m, from which the probe's indentation is measured
             (the surface's height where the probe is above it): the rest heights, or those of
             ``with_reference`` ((N, n) for stacked copies).
-        reach: the farthest quadrature point from its node, m.
+        reach: the farthest quadrature point from its node, m ((N,) with (N, Q, 2) offsets).
     """
 
     offsets: np.ndarray
     weights: np.ndarray
     reference: np.ndarray
-    reach: float
+    reach: float | np.ndarray
 
     @classmethod
     def top_face(cls, mesh, nodes=None, points: int = 4) -> "SurfaceProjection":
@@ -132,10 +134,31 @@ class SurfaceProjection:
         gravity: measured from the rest heights, a probe pressed into a sagging slab (Palpation's:
         0.67 mm at its centre) pushes only once its averaged indentation exceeds the sag)."""
         heights = np.asarray(heights, dtype=float)
-        if heights.shape[-1:] != self.reference.shape or not np.all(np.isfinite(heights)):
-            raise ValueError(f"heights must be finite with a last axis of {self.reference.shape[0]} nodes, "
+        if heights.shape[-1:] != self.reference.shape[-1:] or not np.all(np.isfinite(heights)):
+            raise ValueError(f"heights must be finite with a last axis of {self.reference.shape[-1]} nodes, "
                              f"got shape {heights.shape}")
         return SurfaceProjection(self.offsets, self.weights, heights, self.reach)
+
+    def stacked(self, count: int) -> "SurfaceProjection":
+        """The projection for ``count`` stacked copies, each with its own quadrature offsets
+        ((count, Q, 2), m), reach ((count,), m) and reference heights ((count, n), m), all
+        starting as this one's: a copy on a block of other spacings (the same structured block
+        scaled along its axes, whose weights are the same) sets its row of each array in place
+        (``set_row``)."""
+        offsets = np.array(np.broadcast_to(self.offsets, (count,) + self.offsets.shape[-2:]), dtype=float)
+        reference = np.array(np.broadcast_to(self.reference, (count,) + self.reference.shape[-1:]), dtype=float)
+        return SurfaceProjection(offsets, self.weights, reference, np.array(np.broadcast_to(self.reach, (count,)),
+                                                                            dtype=float))
+
+    def set_row(self, index: int, projection: "SurfaceProjection") -> None:
+        """Copy ``projection``'s offsets and reach (a block of the same topology, of its own
+        spacings) into row ``index`` of this ``stacked`` projection, in place."""
+        if np.ndim(self.reach) != 1 or projection.weights.shape != self.weights.shape:
+            raise ValueError(f"set_row takes a projection of the same nodes and quadrature ({self.weights.shape}) into a "
+                             f"stacked projection; got {projection.weights.shape} into reach of shape "
+                             f"{np.shape(self.reach)}")
+        self.offsets[index] = projection.offsets
+        self.reach[index] = projection.reach
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,8 +229,10 @@ class Probe:
         out = np.empty(rows.shape[:2])
         kernel = kernels.projected_probe_surfaces_rows if parallel else kernels.projected_probe_surfaces
         radii = np.ascontiguousarray(np.atleast_1d(self.radius), dtype=float)  # (1,) or one per row
+        offsets = np.ascontiguousarray(projection.offsets, dtype=float).reshape((-1,) + projection.offsets.shape[-2:])
+        reach = np.ascontiguousarray(np.atleast_1d(projection.reach), dtype=float)  # (1,) or one per row
         kernel(np.ascontiguousarray(rows[:, :, 0]), np.ascontiguousarray(rows[:, :, 2]), tips, projection.weights,
-               projection.offsets, reference, radii, float(projection.reach), self.tip == "flat", out)
+               offsets, reference, radii, reach, self.tip == "flat", out)
         return out.reshape(positions.shape[:-1])
 
 

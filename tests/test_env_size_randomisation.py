@@ -13,11 +13,13 @@ from gymnasium.utils.env_checker import check_env
 
 import tissue_env  # noqa: F401  (registers the ids)
 
-PALPATION, POSITIONING, RETRACTION = ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0",
-                                      "tissue_env/Retraction-v0")
+PALPATION, POSITIONING, RETRACTION, LIVER = ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0",
+                                             "tissue_env/Retraction-v0", "tissue_env/LiverNeedleAlignment-v0")
 #: TumorPositioning's default block is 5 cm cubed, Retraction's flap 6 x 0.8 x 3 cm
 TUMOR_SIZES = ((0.045, 0.045, 0.045), (0.055, 0.055, 0.055))
 FLAP_SIZES = ((0.055, 0.007, 0.027), (0.065, 0.009, 0.033))
+#: Palpation's slab is 6 x 3 x 6 cm; its default model (baudet) takes near-cubic elements only
+SLAB_SIZES = ((0.05, 0.026, 0.055), (0.07, 0.034, 0.065))
 
 
 @pytest.mark.parametrize("env_id, kwargs, message", [
@@ -26,7 +28,10 @@ FLAP_SIZES = ((0.055, 0.007, 0.027), (0.065, 0.009, 0.033))
     (POSITIONING, dict(size_range=(-0.01, 0.05)), "size_range must be finite and > 0"),
     # Baudet's springs refuse the 1:10:1 elements of that corner (baudet-hyperelastic takes any box)
     (POSITIONING, dict(model="baudet", size_range=((0.05, 0.05, 0.05), (0.05, 0.5, 0.05))), "size_range corner"),
-    (PALPATION, dict(size_range=(0.05, 0.06)), "PalpationEnv takes no size_range"),
+    (LIVER, dict(size_range=(0.05, 0.06)), "LiverNeedleAlignmentEnv takes no size_range"),
+    (PALPATION, dict(size_range=SLAB_SIZES), "size_range corner"),
+    (PALPATION, dict(cell_size=(0.012, 0.0, 0.012)), "cell_size must be finite and > 0"),
+    (PALPATION, dict(cell_size=0.025), "too small for the palpation scene"),
     (POSITIONING, dict(tool_size_range=(0.03, 0.02)), "tool_size_range must have low <= high"),
     (POSITIONING, dict(tool_size_range=(0.001, 0.02)), "tool_size_range's low end = 0.001 m grasps no top node"),
     (POSITIONING, dict(tool_size_range=(0.02, 0.03), observation_type="rgb"), "tool_size_range draws the grasped"),
@@ -94,6 +99,7 @@ def test_sizes_and_tool_sizes_are_drawn_per_episode_into_info_and_the_start_stat
     (POSITIONING, dict(size_range=TUMOR_SIZES, tool_size_range=(0.015, 0.035)), "size"),
     (RETRACTION, dict(size_range=FLAP_SIZES), "size"),
     (PALPATION, dict(probe_radius_range=(0.006, 0.012)), "probe_radius"),
+    (PALPATION, dict(size_range=SLAB_SIZES, model="baudet-hyperelastic"), "size"),
 ])
 def test_vector_copies_draw_their_own_values_and_equal_single_envs(env_id, kwargs, name):
     vector = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point", **kwargs)
@@ -165,3 +171,39 @@ def test_a_stacked_copy_on_another_block_geometry_has_that_blocks_forces():
     for index, single in enumerate(models):
         expected = ForceWorkspace(single, implicit=False).compute(positions[index], velocities[index])
         np.testing.assert_array_equal(forces.reshape(3, -1, 3)[index], expected)
+
+
+def test_a_drawn_slab_is_the_palpation_scene_built_at_that_size():
+    # Palpation keeps its candidate lattice on a drawn slab, each cell scaled with the slab (the
+    # palpation map keeps its length): the drawn episode is the env built at that size with the
+    # cells scaled so. A size draw takes random numbers the built env does not, so the probe starts
+    # elsewhere: both probes are moved over the inclusion (no contact), then press it; the press
+    # is the same physics to the rounding of the probe's path (measured: 5e-11 relative).
+    from tissue_env.palpation import PalpationEnv
+
+    size, default = np.array([0.057, 0.0285, 0.057]), np.array(PalpationEnv.default_size)
+    region = ((0.5, 0.5), (0.5, 0.5))  # the centre cell only: the same inclusion in both
+    drawn = gym.make(PALPATION, size_range=(size, size), inclusion_region=region)
+    built = gym.make(PALPATION, size=size, inclusion_region=region,
+                     cell_size=np.array(PalpationEnv.default_cell_size) * size / default)
+    _, info = drawn.reset(seed=3)
+    _, expected = built.reset(seed=3)
+    np.testing.assert_array_equal(info["size"], size)
+    np.testing.assert_array_equal(info["inclusion_centre"], expected["inclusion_centre"])
+    np.testing.assert_array_equal(drawn.unwrapped.state.positions, built.unwrapped.state.positions)
+
+    def press(env):
+        unwrapped, records = env.unwrapped, []
+        goal, moves = unwrapped.inclusion_centre, 8
+        for k in range(moves):  # above the surface, in as many steps in both envs
+            tip = unwrapped.probe_start + unwrapped.tool_offset
+            env.step(((np.array([goal[0], tip[1], goal[2]]) - tip) / (unwrapped.max_step * (moves - k))).astype(np.float32))
+        for k in range(5):
+            _, reward, terminated, _, info = env.step(np.array([0.0, -0.6 if k < 4 else 0.0, 0.0], np.float32))
+            records.append([*info["reaction_force"], info["apparent_modulus"], info["depth"], info["press_steps"],
+                            info["max_strain"], reward, terminated])
+        return np.array(records)
+
+    measured = press(drawn)
+    assert measured[-1, 5] == 3 and measured[-1, -1]  # the press held over the inclusion: success
+    np.testing.assert_allclose(measured, press(built), rtol=1e-9, atol=1e-12)

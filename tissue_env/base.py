@@ -519,7 +519,7 @@ class TissueEnv(gym.Env):
         if self.size_range is not None:  # the extreme aspect ratios are at the range's corners
             for corner in itertools.product(*zip(*self.size_range)):
                 try:
-                    self._build_model(self._block_mesh(np.array(corner)), self.young_modulus, self.poisson_ratio,
+                    self._build_model(np.array(corner), self.young_modulus, self.poisson_ratio,
                                       self._default_task_key(), self.density)
                 except ValueError as error:
                     raise ValueError(f"size_range corner {list(corner)} m gives an invalid model with shape "
@@ -640,7 +640,9 @@ class TissueEnv(gym.Env):
         """Key of the task's material layout (e.g. the inclusion cell), None when homogeneous."""
         return None
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density) -> Material:
+    def _material(self, young_modulus, poisson_ratio, task_key, density, size) -> Material:
+        """The material (E Pa, nu, density kg/m^3, per element where the task's layout ``task_key``
+        varies it) of the block of extent ``size`` (3,) m (``size``, or a ``size_range`` draw)."""
         return Material(young_modulus, poisson_ratio, density)
 
     def _reset_task(self, options):
@@ -708,14 +710,16 @@ class TissueEnv(gym.Env):
         with self._cache_lock:
             model = self._model_cache.get(key)
             if model is None:
-                model = self._build_model(self._block_mesh(size), young_modulus, poisson_ratio, task_key, density)
+                model = self._build_model(size, young_modulus, poisson_ratio, task_key, density)
                 self._model_cache.put(key, model)
             return model
 
-    def _build_model(self, mesh, young_modulus, poisson_ratio, task_key, density):
+    def _build_model(self, size, young_modulus, poisson_ratio, task_key, density):
+        """The model of a material on the block of extent ``size`` (3,) m (``_block_mesh``)."""
         options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
                    if self.model_name == "baudet" else {})
-        return build_model(mesh, self._material(young_modulus, poisson_ratio, task_key, density), model=self.model_name,
+        material = self._material(young_modulus, poisson_ratio, task_key, density, size)
+        return build_model(self._block_mesh(size), material, model=self.model_name,
                            gravity=(0.0, -self.gravity, 0.0), **options)
 
     def _block_mesh(self, size):

@@ -363,7 +363,7 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     def _default_task_key(self):
         return self.tumor_stiffness_ratio
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density):
+    def _material(self, young_modulus, poisson_ratio, task_key, density, size):
         """Per-element material: the parenchyma's E, the tumour's ``task_key`` times it, the vessel's
         ``vessel_stiffness_ratio`` times it; one Poisson's ratio and density for all."""
         table = {label: Material(ratio * float(young_modulus), poisson_ratio, density)

@@ -16,15 +16,16 @@ from .worlds import TaskWorlds
 
 def update_palpation_map(palpation_map, centres, tips, depth, reading, map_depth, radius, rows):
     """Record presses in the palpation maps (N, C) in place and return which rows (N,) probed a
-    cell for the first time. A row probes the candidate cell whose centre (``centres`` (C, 2),
-    x and z in m) is nearest its tip (``tips`` (N, 3), m) when that centre is within ``radius``
+    cell for the first time. A row probes the candidate cell whose centre (``centres`` (C, 2) or,
+    one lattice per row, (N, C, 2), x and z in m) is nearest its tip (``tips`` (N, 3), m) when that centre is within ``radius``
     (m), the tip is at least ``map_depth`` (m) deep (``depth`` (N,)) and the probe touches
     (``reading`` (N,) > 0: the apparent modulus, Pa, depth-normalised so that a deeper press
     reads the same tissue alike); the cell keeps the reading of its latest probe, so that a
     press held still replaces the first step's (the first step of a press at full speed reads
     0.96-3.87x the held reading at the same place at the default shape: the damping of the tissue
     it sets moving, a contact still forming). Only ``rows`` (N,) bool are updated."""
-    distance = np.hypot(centres[None, :, 0] - tips[:, None, 0], centres[None, :, 1] - tips[:, None, 2])
+    centres = np.broadcast_to(centres, palpation_map.shape + (2,))
+    distance = np.hypot(centres[..., 0] - tips[:, None, 0], centres[..., 1] - tips[:, None, 2])
     cell = np.argmin(distance, axis=1)
     index = np.arange(len(cell))
     probed = rows & (depth >= map_depth - 1e-9) & (distance[index, cell] <= radius) & (reading > 0)
@@ -48,11 +49,12 @@ def apparent_modulus(force, indentation, radius, tip):
 
 
 def map_features(palpation_map, centres, tips, length_scale, modulus):
-    """Observation features of palpation maps (N, C) in Pa: the map in units of ``modulus`` (N,) Pa
+    """Observation features of palpation maps (N, C) in Pa (``centres`` (C, 2) or (N, C, 2) m, as
+    ``update_palpation_map`` takes them): the map in units of ``modulus`` (N,) Pa
     (the tissue's apparent modulus E / (1 - nu^2): the surrounding tissue reads about 1 at any
     stiffness; 0 where not probed yet), the horizontal offset (cm) from the tip to the stiffest
     probed cell and to the nearest cell not probed yet (zeros when there is none)."""
-    offsets = (centres[None] - tips[:, None][..., [0, 2]]) / length_scale  # (N, C, 2)
+    offsets = (np.broadcast_to(centres, palpation_map.shape + (2,)) - tips[:, None][..., [0, 2]]) / length_scale
     index = np.arange(len(palpation_map))
     probed = palpation_map > 0
     stiffest = np.where(probed.any(axis=1)[:, None], offsets[index, np.argmax(palpation_map, axis=1)], 0.0)
@@ -71,19 +73,27 @@ class PalpationWorlds(TaskWorlds):
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
         env, count = self.task, self.num_envs
-        self.top_y, self._probe_candidates = env.top_y, env._probe_candidates
+        self._probe_candidates = env._probe_candidates
+        #: (N,) each copy's top face height, m, and (N, C, 2) its candidate cells' centres (x, z), m:
+        #: its episode's slab (``size_range``)
+        self.top_y = np.full(count, env.top_y)
+        self.cell_centres = np.repeat(env.cell_centres[None], count, axis=0)
         #: (N, n) each copy's start heights (``PalpationEnv.start_heights``), m, updated in place at
         #: its reset: the projected probe's reference
         self.start_heights = np.repeat(env.mesh.nodes[None, :, 1], count, axis=0)
         #: (N,) each copy's probe radius this episode, m (``probe_radius_range``), and (N, V, 3) its
         #: probe's vertices (the camera's), m from the tip
         self.probe_radius = np.full(count, env.probe_radius)
+        # one row of quadrature offsets per copy: its slab's spacing (size_range)
         self._projection = None if env.probe.projection is None else env.probe.projection.with_reference(
-            self.start_heights)
+            self.start_heights).stacked(count)
+        if self._projection is not None:
+            self.start_heights = self._projection.reference
         self.probe = contact.Probe(self.probe_radius.copy(), env.probe_tip, self._projection)
         template, self._probe_triangles = probe_mesh(env.probe_radius, env.probe_tip)
         self._probe_vertices = np.repeat(template[None], count, axis=0)
-        self._base_fixed, self._base_target = env.base_control.fixed, env.base_control.target
+        self._base_fixed = env.base_control.fixed
+        self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each copy's slab
         self.probe_start = np.zeros((count, 3))
         self.inclusion_ratio_of = np.zeros(count)  # each copy's inclusion stiffness ratio this episode
         self.inclusion_size_of = np.zeros((count, 3))  # and its inclusion's size, m
@@ -92,8 +102,7 @@ class PalpationWorlds(TaskWorlds):
         self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's probe holds
         self._node_forces = None  # (N, n, 3) net forces of the last measurement
         self._tool_mask = None  # (N, n, 3) the step's contact dofs (projected nodes join after the step)
-        self.cell_centres = env.cell_centres
-        self.palpation_map = np.zeros((count, len(self.cell_centres)))
+        self.palpation_map = np.zeros((count, len(env.cell_centres)))
         self.distance = np.zeros(count)
         for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
                      "force_weight", "map_depth", "explore_bonus", "approach_weight"):
@@ -104,6 +113,11 @@ class PalpationWorlds(TaskWorlds):
             self.probe_radius[index] = env.episode_probe_radius
             self.probe = contact.Probe(self.probe_radius.copy(), env.probe_tip, self._projection)
             self._probe_vertices[index] = probe_mesh(env.episode_probe_radius, env.probe_tip)[0]
+        if self._projection is not None:
+            self._projection.set_row(index, env.probe.projection)
+        self.top_y[index] = env.top_y
+        self.cell_centres[index] = env.cell_centres
+        self._base_target[index] = env.base_control.target
         self.inclusion_ratio_of[index] = env.episode_inclusion_ratio
         self.inclusion_size_of[index] = env.episode_inclusion_size
         self.probe_start[index] = env.probe_start
@@ -130,7 +144,7 @@ class PalpationWorlds(TaskWorlds):
                               surface=surface)
         self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
         fixed = np.repeat(self._base_fixed[None], count, axis=0)
-        target = np.repeat(self._base_target[None], count, axis=0)
+        target = self._base_target.copy()
         fixed[..., 1] |= self.contact
         target[..., 1] = np.where(self.contact,
                                   contact.targets(self.probe, positions, self.contact, tips, surface=surface),
@@ -171,7 +185,7 @@ class PalpationWorlds(TaskWorlds):
         measures["indentation_stiffness"] = np.where(touching, pushing / np.where(touching, depth, 1.0), 0.0)
         tips = self._tips()
         env = self.task
-        indentation = env.start_surface(tips, self.start_heights) - tips[:, 1]
+        indentation = env.start_surface(tips, self.start_heights, self.block_size / np.asarray(env.mesh.shape)) - tips[:, 1]
         measures["apparent_modulus"] = apparent_modulus(np.where(self.contact.any(axis=1), pushing, 0.0), indentation,
                                                         self.probe_radius, env.probe_tip)
         return measures
@@ -359,7 +373,7 @@ class PalpationEnv(TissueEnv):
 
     The slab at static equilibrium under gravity. The inclusion is centred on one of the candidate
     cells, drawn uniformly. The candidate cells are physical: the slab is tiled by cells of
-    ``cell_size`` = 1.2 x 1 x 1.2 cm (whole cells, centred on the top face, layers counted from the
+    ``cell_size`` (default 1.2 x 1 x 1.2 cm) (whole cells, centred on the top face, layers counted from the
     surface; at the default size, the elements of a 5 x 3 x 5 mesh) and the candidates are
     the cells of the second layer (centres 1.5 cm under the surface): the interior ones by default (9
     positions at the default size: x, z in {0.018, 0.030, 0.042} m, y = 0.015 m), or, with
@@ -397,10 +411,15 @@ class PalpationEnv(TissueEnv):
     inclusion or material drawn is a model of its own (cached, ``MODEL_CACHE_SIZE`` of them).
     ``probe_radius_range`` (None or (low, high) m) draws the probe's radius per episode (the
     contact, the apparent modulus of the map and the indentation stiffness's unit 2 E* R follow it;
-    ``info["probe_radius"]``). ``observe_parameters=True`` appends the drawn parameters
-    (``randomised_parameters``), each normalised to [-1, 1] over its range, to the observation. The
-    slab's size is fixed per env (``size_range`` is a ValueError): the probe's surface projection
-    and the candidate cells (the palpation map's length) are built on the slab's geometry.
+    ``info["probe_radius"]``). ``size_range`` draws the slab's extent per episode (``info["size"]``;
+    ``tissue_env.base.TissueEnv``): the candidate cells are the ``size`` slab's lattice scaled with
+    the drawn slab (cells of ``cell_size`` x drawn / ``size``: the palpation map keeps its C cells),
+    the inclusion box, probe, depths and radii keep their sizes in m, and the probe's surface
+    projection is the drawn slab's. With the default ``baudet`` model the elements must stay
+    near-cubic (a ValueError at construction names the range's corner that is not): draw the axes
+    together, or use ``model="baudet-hyperelastic"``. ``observe_parameters=True`` appends the drawn
+    parameters (``randomised_parameters``), each normalised to [-1, 1] over its range, to the
+    observation.
 
     ## Arguments
 
@@ -417,6 +436,8 @@ class PalpationEnv(TissueEnv):
     Task keywords: ``inclusion_ratio``, ``probe_radius`` (m, default 0.009), ``probe_tip``
     ("sphere", default, or "flat"), ``probe_sampling`` ("projected", default, or "node"),
     ``inclusion_size`` (m, a number or (x, y, z), default (0.012, 0.01, 0.012): the inclusion box),
+    ``cell_size`` (m, a number or (x, y, z), default (0.012, 0.01, 0.012): the candidate lattice's
+    cells),
     ``inclusion_ratio_range`` (None or (low, high): a ratio drawn per reset, the model is rebuilt;
     the episode's ratio is ``info["inclusion_ratio"]``), ``inclusion_size_range`` (see Domain
     randomisation), ``difficulty``,
@@ -443,14 +464,15 @@ class PalpationEnv(TissueEnv):
     default_solver_tolerance = 1e-2
     default_max_step = 0.004
     min_shape = (3, 2, 3)
-    #: Cells (x, y, z) of the candidate lattice, m: the elements of a 5 x 3 x 5 mesh, as physical
-    #: boxes, so that ``shape`` does not move the candidates (see ``_setup_scene``).
-    cell_size = np.array([0.012, 0.01, 0.012])
+    #: The default cells (x, y, z) of the candidate lattice, m (keyword ``cell_size``): the elements
+    #: of a 5 x 3 x 5 mesh, as physical boxes, so that ``shape`` does not move the candidates (see
+    #: ``_setup_scene``).
+    default_cell_size = (0.012, 0.01, 0.012)
     reward_names = ("success", "explore", "approach", "time", "force", "volume", "strain")
-    #: The slab's size is fixed per env: the probe's surface projection and the candidate lattice are
-    #: built on its geometry (``_setup_scene``), shared by the worlds; the probe's radius is drawn.
+    #: A drawn slab (``size_range``) keeps the ``size`` slab's candidate lattice, scaled with it
+    #: (``_candidate_centres``), and gets its own surface projection (``_place_scene``).
     randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
-                                 density="density_range", inclusion_ratio="inclusion_ratio_range",
+                                 density="density_range", size="size_range", inclusion_ratio="inclusion_ratio_range",
                                  inclusion_size="inclusion_size_range", probe_radius="probe_radius_range")
     episode_keywords = ("inclusion_region",)
     summary = ("indent a {default_size:cm} slab with a probe (random start, at least {start_distance:cm} from the "
@@ -481,7 +503,8 @@ class PalpationEnv(TissueEnv):
                  inclusion_region=None, probe_radius=0.009,
                  probe_tip="sphere", probe_sampling="projected", inclusion_size=None, max_depth=0.008, success_depth=0.005, success_radius=None,
                  hold_steps=None, start_distance=None, success_bonus=10.0, time_penalty=0.05, force_limit=2.0, force_weight=1.0, map_depth=0.004,
-                 explore_bonus=0.5, approach_weight=1.0, difficulty="default", probe_radius_range=None, **kwargs):
+                 explore_bonus=0.5, approach_weight=1.0, difficulty="default", probe_radius_range=None, cell_size=None,
+                 **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(
             inclusion_ratio=inclusion_ratio, inclusion_size=inclusion_size, success_radius=success_radius,
             hold_steps=hold_steps, start_distance=start_distance))
@@ -505,6 +528,8 @@ class PalpationEnv(TissueEnv):
         #: face in ``_setup_scene``)
         self.probe = contact.Probe(self.probe_radius, probe_tip)
         self.inclusion_size = check_vector("inclusion_size", inclusion_size)
+        #: (3,) the candidate lattice's cells, m
+        self.cell_size = check_vector("cell_size", self.default_cell_size if cell_size is None else cell_size)
         self.inclusion_size_range = check_vector_range("inclusion_size_range", inclusion_size_range)
         self.episode_inclusion_size = self.inclusion_size.copy()
         self.max_depth = positive_scalar("max_depth", max_depth, "m")
@@ -537,34 +562,21 @@ class PalpationEnv(TissueEnv):
         #: (n,) node heights at the episode's start (equilibrium under gravity; the rest heights
         #: until the first reset), m: the surface the indentation is measured from
         self.start_heights = nodes[:, 1].copy()
-        if self.probe_sampling == "projected":
-            self.probe = contact.Probe(self.probe_radius, self.probe_tip,
-                                       contact.SurfaceProjection.top_face(self.mesh, self.top_nodes))
-        self._place_scene(nodes)
-        # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
-        # surface, the axis over the central 80 % of the top face. ``workspace_low/high`` (what
-        # the base class clips ``tool_offset`` to) are relative to the episode's probe start.
-        half = 0.4 * self.size
-        self.workspace_box = (
-            np.array([self.centre[0] - half[0], self.top_y - self.max_depth, self.centre[2] - half[2]]),
-            np.array([self.centre[0] + half[0], self.top_y + 0.01, self.centre[2] + half[2]]),
-        )
-        self._place_probe(np.array([self.centre[0], self.top_y + self.clearance, self.centre[2]]))
         # Candidate inclusion cells: a lattice of cell_size cells over the slab (whole cells, centred
         # on the top face, layers counted down from the surface; at the default size, the elements of
         # a 5 x 3 x 5 mesh), the cells of its second layer under the surface: the interior ones by
         # default, else those whose centre lies in inclusion_region. Physical, whatever the shape.
-        nx, ny, nz = count = np.floor(self.size / self.cell_size + 1e-9).astype(int)
+        nx, ny, nz = self._lattice_count = np.floor(self.size / self.cell_size + 1e-9).astype(int)
         if nx < 3 or ny < 2 or nz < 3:
             raise ValueError(f"size {self.size.tolist()} m is too small for the palpation scene: it needs at least "
                              f"3 x 2 x 3 candidate cells of {self.cell_size.tolist()} m")
-        offset = 0.5 * (self.size - count * self.cell_size)  # centred in x and z
-        offset[1] = self.size[1] - count[1] * self.cell_size[1]  # layers counted from the surface
         first = 0 if self.inclusion_region is not None else 1
         i, k = np.meshgrid(np.arange(first, nx - first), np.arange(first, nz - first), indexing="ij")
-        cells = np.stack([i.ravel(), np.full(i.size, ny - 2), k.ravel()], axis=1)
-        centres = (cells + 0.5) * self.cell_size + offset
+        #: (C, 3) int lattice indices (i, j, k) of the candidate cells (the element indices of a
+        #: 5 x 3 x 5 mesh at the default size)
+        self.inclusion_cells = np.stack([i.ravel(), np.full(i.size, ny - 2), k.ravel()], axis=1)
         if self.inclusion_region is not None:
+            centres = self._candidate_centres(self.size)
             fraction = centres[:, [0, 2]] / self.size[[0, 2]]
             low, high = self.inclusion_region
             inside = np.all((fraction >= low - 1e-9) & (fraction <= high + 1e-9), axis=1)
@@ -573,20 +585,59 @@ class PalpationEnv(TissueEnv):
                                  f"{nx} x {nz} cells of {self.cell_size[0]} x {self.cell_size[2]} m across the top "
                                  f"face, centres at fractions {np.unique(fraction[:, 0]).round(3).tolist()} in x and "
                                  f"{np.unique(fraction[:, 1]).round(3).tolist()} in z)")
-            cells, centres = cells[inside], centres[inside]
-        #: (C, 3) int lattice indices (i, j, k) of the candidate cells (the element indices of a
-        #: 5 x 3 x 5 mesh at the default size) and (C, 3) their centres, m: the candidate inclusion centres.
-        self.inclusion_cells, self.inclusion_centres = cells, centres
-        #: (C, 2) horizontal (x, z) centres of the candidate cells, m: the palpation map's cells.
-        self.cell_centres = self.inclusion_centres[:, [0, 2]]
+            self.inclusion_cells = self.inclusion_cells[inside]
+        self._place_scene(nodes)
+        self._place_probe(np.array([self.centre[0], self.top_y + self.clearance, self.centre[2]]))
         # The inclusion: each element stiffened by the share of its volume inside the inclusion_size
         # box around the candidate centre (C, n_elements), so that the inclusion's size and place
         # do not depend on where the mesh's nodes fall.
-        self.inclusion_shares = np.stack([
-            self.mesh.box_shares(centre - 0.5 * self.inclusion_size, centre + 0.5 * self.inclusion_size)
-            for centre in self.inclusion_centres])
+        #: (C, n_elements) each candidate inclusion's share of each element's volume on the ``size``
+        #: slab (a drawn slab's are computed with its model)
+        self.inclusion_shares = np.stack([self._inclusion_shares(self.mesh, centre, self.inclusion_size)
+                                          for centre in self.inclusion_centres])
         #: (C, n_elements) bool: the elements each candidate inclusion stiffens (wholly or partly)
         self.inclusion_elements = self.inclusion_shares > 0
+
+    def _place_scene(self, nodes):
+        """The episode slab's geometry (``size``'s at construction, a ``size_range`` draw's at each
+        reset): the top face's height, the probe's surface projection on its mesh, the workspace
+        and the candidate cells' centres (the ``size`` slab's lattice scaled with the slab: the
+        palpation map keeps its cells)."""
+        super()._place_scene(nodes)
+        size = np.asarray(self.episode_size, dtype=float)
+        self.top_y = float(size[1])
+        if self.probe_sampling == "projected":
+            self.probe = contact.Probe(self.episode_probe_radius, self.probe_tip,
+                                       contact.SurfaceProjection.top_face(self.episode_mesh, self.top_nodes))
+        # The workspace is fixed in space: the tip between 10 mm above and max_depth below the
+        # surface, the axis over the central 80 % of the top face. ``workspace_low/high`` (what
+        # the base class clips ``tool_offset`` to) are relative to the episode's probe start.
+        half, centre = 0.4 * size, 0.5 * (nodes.min(axis=0) + nodes.max(axis=0))
+        self.workspace_box = (
+            np.array([centre[0] - half[0], self.top_y - self.max_depth, centre[2] - half[2]]),
+            np.array([centre[0] + half[0], self.top_y + 0.01, centre[2] + half[2]]),
+        )
+        #: (C, 3) the candidate cells' centres on the episode's slab, m: the candidate inclusion
+        #: centres, and (C, 2) their horizontal (x, z): the palpation map's cells
+        self.inclusion_centres = self._candidate_centres(size)
+        self.cell_centres = self.inclusion_centres[:, [0, 2]]
+
+    def _candidate_centres(self, size):
+        """(C, 3) centres (m) of the candidate cells on a slab of extent ``size`` (3,) m: the lattice
+        of ``cell_size`` cells on the ``size`` slab, each cell scaled with the slab (cells of
+        cell_size x size / ``size``): whole cells centred on the top face in x and z, layers counted
+        from the surface."""
+        size = np.asarray(size, dtype=float)
+        cell = self.cell_size if np.array_equal(size, self.size) else self.cell_size * size / self.size
+        offset = 0.5 * (size - self._lattice_count * cell)  # centred in x and z
+        offset[1] = size[1] - self._lattice_count[1] * cell[1]  # layers counted from the surface
+        return (self.inclusion_cells + 0.5) * cell + offset
+
+    @staticmethod
+    def _inclusion_shares(mesh, centre, size):
+        """(n_elements,) the share of each element's volume inside the inclusion box of ``size``
+        (3,) m around ``centre`` (3,) m."""
+        return mesh.box_shares(centre - 0.5 * np.asarray(size), centre + 0.5 * np.asarray(size))
 
     def _place_probe(self, start):
         self.probe_start = start
@@ -598,13 +649,13 @@ class PalpationEnv(TissueEnv):
         # the element stiffnesses follow from its box's shares, what the model depends on
         return (len(self.inclusion_cells) // 2, self.inclusion_ratio, None)
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density):
-        index, ratio, size = task_key
-        if size is None:  # the inclusion_size box
+    def _material(self, young_modulus, poisson_ratio, task_key, density, size):
+        index, ratio, box = task_key
+        if box is None and np.array_equal(size, self.size):  # the inclusion_size box on the size slab
             shares = self.inclusion_shares[index]
-        else:  # a drawn size (inclusion_size_range): its box around the candidate centre
-            centre = self.inclusion_centres[index]
-            shares = self.mesh.box_shares(centre - 0.5 * np.asarray(size), centre + 0.5 * np.asarray(size))
+        else:  # a drawn box (inclusion_size_range) or slab (size_range): the box around its candidate centre
+            shares = self._inclusion_shares(self._block_mesh(size), self._candidate_centres(size)[index],
+                                            self.inclusion_size if box is None else box)
         young = float(young_modulus) * (1.0 + (ratio - 1.0) * shares)
         return Material(young, poisson_ratio, density)
 
@@ -650,13 +701,14 @@ class PalpationEnv(TissueEnv):
             self.probe = contact.Probe(self.episode_probe_radius, self.probe_tip,
                                        self.probe.projection.with_reference(self.start_heights))
 
-    def start_surface(self, tips, heights):
+    def start_surface(self, tips, heights, spacing=None):
         """Height (m) of the start surface under each tip: bilinear in the top nodes' start
-        ``heights`` ((n,) or (N, n) m) at the tips' rest (x, z) ((N, 3) m)."""
+        ``heights`` ((n,) or (N, n) m) at the tips' rest (x, z) ((N, 3) m), on a slab of element
+        ``spacing`` ((3,) or (N, 3) m; default the episode slab's)."""
         nx, ny, nz = self.mesh.shape
-        spacing = self.mesh.spacing
-        u = np.clip(tips[:, 0] / spacing[0], 0.0, nx)
-        w = np.clip(tips[:, 2] / spacing[2], 0.0, nz)
+        spacing = np.broadcast_to(self.episode_mesh.spacing if spacing is None else spacing, (len(tips), 3))
+        u = np.clip(tips[:, 0] / spacing[:, 0], 0.0, nx)
+        w = np.clip(tips[:, 2] / spacing[:, 2], 0.0, nz)
         i, k = np.minimum(u.astype(int), nx - 1), np.minimum(w.astype(int), nz - 1)
         fu, fw = u - i, w - k
         rows = np.arange(len(tips))

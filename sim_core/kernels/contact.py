@@ -39,14 +39,15 @@ def _projected_bound(x, z, tip_x, tip_y, tip_z, weights, offsets, level, radius,
 def _projected_probe_row(x, z, tips, weights, offsets, reference, radii, reach, flat, out, m):
     """Row ``m`` of ``projected_probe_surfaces``."""
     radius = radii[0] if radii.shape[0] == 1 else radii[m]
-    near2 = (radius + reach) ** 2
+    row_offsets = offsets[0] if offsets.shape[0] == 1 else offsets[m]
+    near2 = (radius + (reach[0] if reach.shape[0] == 1 else reach[m])) ** 2
     tip_x, tip_y, tip_z = tips[m, 0], tips[m, 1], tips[m, 2]
     levels = reference[0] if reference.shape[0] == 1 else reference[m]
     for k in range(x.shape[1]):
         dx = x[m, k] - tip_x
         dz = z[m, k] - tip_z
         if dx * dx + dz * dz <= near2:
-            out[m, k] = _projected_bound(x[m, k], z[m, k], tip_x, tip_y, tip_z, weights[k], offsets, levels[k],
+            out[m, k] = _projected_bound(x[m, k], z[m, k], tip_x, tip_y, tip_z, weights[k], row_offsets, levels[k],
                                          radius, flat)
         else:
             out[m, k] = np.inf
@@ -64,8 +65,10 @@ def projected_probe_surfaces_rows(x, z, tips, weights, offsets, reference, radii
 def projected_probe_surfaces(x, z, tips, weights, offsets, reference, radii, reach, flat, out):
     """``contact.Probe.surface``'s projected bound of every node of M probe / node-set pairs in one
     pass: ``x``, ``z`` (M, n) the nodes' horizontal coordinates, m, ``tips`` (M, 3) m, ``weights``
-    (n, Q), ``reference`` (M, n) or (1, n) m (the same for every row), ``radii`` (M,) or (1,) the
-    probes' radii, m; a node farther than its radius + ``reach`` m from its row's probe axis gets +inf (no quadrature point can be under
-    the probe), the others ``_projected_bound``. Writes ``out`` (M, n) m."""
+    (n, Q), ``offsets`` (M, Q, 2) or (1, Q, 2) m the quadrature points relative to their node,
+    ``reference`` (M, n) or (1, n) m, ``radii`` (M,) or (1,) the probes' radii, m, ``reach`` (M,) or
+    (1,) m (a (1, ...) array is the same for every row); a node farther than its radius + reach
+    from its row's probe axis gets +inf (no quadrature point can be under the probe), the others
+    ``_projected_bound``. Writes ``out`` (M, n) m."""
     for m in range(x.shape[0]):
         _projected_probe_row(x, z, tips, weights, offsets, reference, radii, reach, flat, out, m)
