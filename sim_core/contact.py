@@ -143,22 +143,22 @@ class SurfaceProjection:
         """The projection for ``count`` stacked copies, each with its own quadrature offsets
         ((count, Q, 2), m), reach ((count,), m) and reference heights ((count, n), m), all
         starting as this one's: a copy on a block of other spacings (the same structured block
-        scaled along its axes, whose weights are the same) sets its row of each array in place
-        (``set_row``)."""
+        scaled along its axes, whose weights are the same) sets its rows in place (``set_row``)."""
         offsets = np.array(np.broadcast_to(self.offsets, (count,) + self.offsets.shape[-2:]), dtype=float)
         reference = np.array(np.broadcast_to(self.reference, (count,) + self.reference.shape[-1:]), dtype=float)
         return SurfaceProjection(offsets, self.weights, reference, np.array(np.broadcast_to(self.reach, (count,)),
                                                                             dtype=float))
 
     def set_row(self, index: int, projection: "SurfaceProjection") -> None:
-        """Copy ``projection``'s offsets and reach (a block of the same topology, of its own
-        spacings) into row ``index`` of this ``stacked`` projection, in place."""
+        """Copy ``projection``'s offsets, reach and reference heights (a block of the same topology,
+        of its own spacings) into row ``index`` of this ``stacked`` projection, in place."""
         if np.ndim(self.reach) != 1 or projection.weights.shape != self.weights.shape:
             raise ValueError(f"set_row takes a projection of the same nodes and quadrature ({self.weights.shape}) into a "
                              f"stacked projection; got {projection.weights.shape} into reach of shape "
                              f"{np.shape(self.reach)}")
         self.offsets[index] = projection.offsets
         self.reach[index] = projection.reach
+        self.reference[index] = projection.reference
 
 
 @dataclass(frozen=True, eq=False)

@@ -173,3 +173,29 @@ def test_projected_surface_kernel_equals_its_definition(tip):
         average = (projection.weights * np.where(below, heights, reference)).sum(axis=1)
         expected = np.where((projection.weights * below).sum(axis=1) > 0, average, np.inf)
         np.testing.assert_allclose(probe.surface(positions, tip_position), expected, rtol=0, atol=1e-15)
+
+
+def test_a_stacked_projection_gives_each_row_its_own_blocks_surface():
+    """``SurfaceProjection.stacked`` / ``set_row``: copies on blocks of other spacings (the same
+    structured block scaled along its axes: the same weights) in one pass, threaded or not, give
+    each row the bound of its own block's projection, bit for bit."""
+    from sim_core.mesh import HexMesh
+
+    spacings = [(0.0075, 0.0075, 0.0075), (0.0068, 0.008, 0.0083), (0.0082, 0.007, 0.0071)]
+    meshes = [HexMesh.block((8, 4, 8), spacing) for spacing in spacings]
+    singles = [contact.SurfaceProjection.top_face(mesh) for mesh in meshes]
+    stacked = singles[0].stacked(len(meshes))
+    for index, single in enumerate(singles):
+        stacked.set_row(index, single)
+    rng = np.random.default_rng(2)
+    positions = np.stack([mesh.nodes + rng.normal(0.0, 3e-4, mesh.nodes.shape) for mesh in meshes])
+    tips = np.array([[0.031, 0.027, 0.029], [0.02, 0.029, 0.035], [0.04, 0.026, 0.022]])
+    for tip in ("sphere", "flat"):
+        for parallel in (False, True):
+            rows = contact.Probe(0.009, tip, stacked).surface(positions, tips, parallel=parallel)
+            for index, single in enumerate(singles):
+                expected = contact.Probe(0.009, tip, single).surface(positions[index], tips[index])
+                assert np.isfinite(expected).sum() > 4  # the probe is over some nodes
+                np.testing.assert_array_equal(rows[index], expected)
+    with pytest.raises(ValueError, match="same nodes and quadrature"):
+        stacked.set_row(0, contact.SurfaceProjection.top_face(HexMesh.block((6, 4, 6), 0.01)))
