@@ -640,9 +640,10 @@ class TissueEnv(gym.Env):
         """Key of the task's material layout (e.g. the inclusion cell), None when homogeneous."""
         return None
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density, size) -> Material:
+    def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size) -> Material:
         """The material (E Pa, nu, density kg/m^3, per element where the task's layout ``task_key``
-        varies it) of the block of extent ``size`` (3,) m (``size``, or a ``size_range`` draw)."""
+        varies it) of ``mesh``, the block of extent ``size`` (3,) m (``size``, or a ``size_range``
+        draw; ``_block_mesh``)."""
         return Material(young_modulus, poisson_ratio, density)
 
     def _reset_task(self, options):
@@ -718,8 +719,9 @@ class TissueEnv(gym.Env):
         """The model of a material on the block of extent ``size`` (3,) m (``_block_mesh``)."""
         options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
                    if self.model_name == "baudet" else {})
-        material = self._material(young_modulus, poisson_ratio, task_key, density, size)
-        return build_model(self._block_mesh(size), material, model=self.model_name,
+        mesh = self._block_mesh(size)
+        material = self._material(young_modulus, poisson_ratio, task_key, density, mesh, size)
+        return build_model(mesh, material, model=self.model_name,
                            gravity=(0.0, -self.gravity, 0.0), **options)
 
     def _block_mesh(self, size):

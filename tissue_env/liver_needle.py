@@ -363,12 +363,12 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     def _default_task_key(self):
         return self.tumor_stiffness_ratio
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density, size):
+    def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
         """Per-element material: the parenchyma's E, the tumour's ``task_key`` times it, the vessel's
         ``vessel_stiffness_ratio`` times it; one Poisson's ratio and density for all."""
         table = {label: Material(ratio * float(young_modulus), poisson_ratio, density)
                  for label, ratio in ((PARENCHYMA, 1.0), (TUMOUR, task_key), (VESSEL, self.vessel_stiffness_ratio))}
-        return Material.from_labels(self.mesh.element_labels, table)
+        return Material.from_labels(mesh.element_labels, table)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):

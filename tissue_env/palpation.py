@@ -649,12 +649,12 @@ class PalpationEnv(TissueEnv):
         # the element stiffnesses follow from its box's shares, what the model depends on
         return (len(self.inclusion_cells) // 2, self.inclusion_ratio, None)
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density, size):
+    def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
         index, ratio, box = task_key
         if box is None and np.array_equal(size, self.size):  # the inclusion_size box on the size slab
             shares = self.inclusion_shares[index]
         else:  # a drawn box (inclusion_size_range) or slab (size_range): the box around its candidate centre
-            shares = self._inclusion_shares(self._block_mesh(size), self._candidate_centres(size)[index],
+            shares = self._inclusion_shares(mesh, self._candidate_centres(size)[index],
                                             self.inclusion_size if box is None else box)
         young = float(young_modulus) * (1.0 + (ratio - 1.0) * shares)
         return Material(young, poisson_ratio, density)
