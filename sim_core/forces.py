@@ -222,9 +222,7 @@ class ForceWorkspace:
         if geometric and len(self.stress_tangent):
             correction = self.model.stress_correction
             self.clamped_elements = kernels.stress_correction_tangent_add(
-                positions, self.model.mesh.elements, correction.mean_gradient, correction.volume,
-                correction.shear_modulus, correction.lame, correction.spring_vector, correction.spring_length,
-                correction.spring_stiffness, correction.linear, correction.metric_root, correction.metric_root_inverse,
+                positions, *stress_arguments(self.model), correction.metric_root, correction.metric_root_inverse,
                 not exact, self.forces, self.stress_tangent)
         else:
             add_stress_correction(self.model, positions, self.forces)
@@ -241,12 +239,23 @@ class ForceWorkspace:
 def add_stress_correction(model: Model, positions: np.ndarray, forces: np.ndarray) -> np.ndarray:
     """forces (N, 3) N += the finite-strain stress correction of "baudet-hyperelastic" [11] at
     ``positions`` (N, 3) m (compiled, ``kernels.stress_correction_add``); a no-op for other models."""
-    correction = model.stress_correction
-    if correction is not None:
-        kernels.stress_correction_add(positions, model.mesh.elements, correction.mean_gradient, correction.volume,
-                                      correction.shear_modulus, correction.lame, correction.spring_vector,
-                                      correction.spring_length, correction.spring_stiffness, correction.linear, forces)
+    if model.stress_correction is not None:
+        kernels.stress_correction_add(positions, *stress_arguments(model), forces)
     return forces
+
+
+def stress_arguments(model: Model, elements_of: Model | None = None) -> tuple:
+    """The arguments of the compiled stress-correction passes after the positions: the element
+    nodes (n, M) of ``elements_of`` (default ``model``; a stacked model's reference copy for the
+    per-copy passes), then ``model``'s correction arrays, element-last
+    (``stress_correction.stress_lanes``, kept in ``model.derived``; its per-element volume, mu and
+    lambda as they are) and its law."""
+    correction = model.stress_correction
+    lanes = model.derived.get("stress_lanes", lambda: _stress.stress_lanes(correction))
+    owner = model if elements_of is None else elements_of
+    elements = owner.derived.get("element_lanes", lambda: np.ascontiguousarray(owner.mesh.elements.T))
+    return (elements, lanes["mean_gradient"], correction.volume, correction.shear_modulus, correction.lame,
+            lanes["spring_vector"], lanes["spring_length"], lanes["spring_stiffness"], correction.linear)
 
 
 def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None,

@@ -12,10 +12,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import kernels
-from .forces import ForceWorkspace, hourglass_block_map
+from .forces import ForceWorkspace, hourglass_block_map, stress_arguments
 from .model import Model
 from .preconditioners import digest
-from .stress_correction import ARRAY_FIELDS, StressCorrection
+from .stress_correction import ARRAY_FIELDS, StressCorrection, write_lanes
 
 
 #: Model arrays that hold one value per node, spring or element of a copy (its material and rest
@@ -118,6 +118,9 @@ class ModelStack:
         if model.stress_correction is not None:
             for name in STRESS_FIELDS:
                 getattr(stacked.stress_correction, name)[elements] = getattr(model.stress_correction, name)
+            lanes = stacked.derived.peek("stress_lanes")
+            if lanes is not None:  # the compiled passes' element-last copy of the same arrays
+                write_lanes(lanes, model.stress_correction, elements)
         nodes = slice(index * self.n_nodes, (index + 1) * self.n_nodes)
         # the rest geometry (the reference's for a model of the same block; the force passes read it
         # in place: the hourglass term's rest positions, the fixed corrections' rest directions). The
@@ -261,9 +264,7 @@ class StackedForceWorkspace(ForceWorkspace):
             self.volume_coefficient, self.volume_direction, self.volume_gradient)
         correction = model.stress_correction
         if correction is not None:  # the stress correction, copy by copy (kernels.stress_correction_add's floats)
-            arguments = (self.stack.count, positions, reference.mesh.elements, correction.mean_gradient,
-                         correction.volume, correction.shear_modulus, correction.lame, correction.spring_vector,
-                         correction.spring_length, correction.spring_stiffness, correction.linear)
+            arguments = (self.stack.count, positions, *stress_arguments(model, elements_of=reference))
             if geometric and len(self.stress_tangent):
                 self.clamped_elements = kernels.stress_correction_tangent_add_copies(
                     *arguments, correction.metric_root, correction.metric_root_inverse, True, self.forces,

@@ -110,6 +110,24 @@ ARRAY_FIELDS = ("mean_gradient", "volume", "spring_vector", "spring_length", "sp
                 "lame", "metric_root", "metric_root_inverse")
 
 
+#: the per-element arrays the compiled passes read element-last (``stress_lanes``)
+LANE_FIELDS = ("mean_gradient", "spring_vector", "spring_length", "spring_stiffness")
+
+
+def stress_lanes(correction: StressCorrection) -> dict:
+    """The correction's ``LANE_FIELDS`` in the compiled passes' element-last layout (``kernels.stress``
+    runs a block of elements in the lanes of vector instructions): mean_gradient (n, 3, M) 1/m,
+    spring_vector (S_e, 3, M) m, spring_length (S_e, M) m, spring_stiffness (S_e, M) N/m."""
+    return {name: np.ascontiguousarray(np.moveaxis(getattr(correction, name), 0, -1)) for name in LANE_FIELDS}
+
+
+def write_lanes(lanes: dict, correction: StressCorrection, elements: slice) -> None:
+    """Write ``correction``'s arrays into the rows ``elements`` of ``stress_lanes`` arrays (a stacked
+    model's copy, ``ModelStack.assign``)."""
+    for name in LANE_FIELDS:
+        lanes[name][..., elements] = np.moveaxis(getattr(correction, name), 0, -1)
+
+
 def linear_stress(deformation_gradient, mu, lam):
     """P_lin(F) = lam tr(eps) I + 2 mu eps in Pa, eps = sym(F) - I: the small-strain Hooke stress
     (the tensor form of ``elements.elasticity_matrices``' law), F (..., 3, 3)."""

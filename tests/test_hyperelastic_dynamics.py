@@ -87,6 +87,38 @@ def test_clamped_correction_stiffness_matches_its_reference_and_is_exact_where_p
             assert np.abs(clamped - exact).max() <= 1e-12 * top
 
 
+
+@pytest.mark.parametrize("stretch, shear", [
+    ((0.8, 0.8, 0.8), 0.0),  # three equal negative eigenvalues
+    ((0.8, 1.0, 1.0), 0.0),  # three negative, two of them equal
+    ((0.9, 0.9, 1.24), 0.0),  # two equal negative, one positive
+    ((0.85, 0.9, 1.3), 0.1),  # two distinct negative, one positive
+    ((0.7, 1.2, 1.2), 0.0),  # one negative, two equal positive
+    ((0.8, 1.05, 1.2), 0.1),  # one negative, two distinct positive
+    ((1.1, 1.2, 1.15), 0.1),  # none negative
+], ids=["3-equal", "3-negative", "2-equal", "2-distinct", "1-equal-rest", "1-distinct", "0"])
+def test_clamped_stiffness_matches_its_reference_for_every_sign_pattern(stretch, shear):
+    """Under homogeneous deformations of a block of cubes (stretches along the axes, a shear, a
+    rotation) whose correction stress dS has three, two, one or no negative eigenvalues, repeated
+    or distinct (the ids), the compiled pass's clamped stiffness (its negative part of dS in closed
+    form) equals the numpy reference's (LAPACK's eigen-decomposition) to 1e-12 of its largest entry
+    in every element, and differs from the unclamped stiffness in every element where dS has a
+    negative eigenvalue."""
+    model = build_model(HexMesh.block((4, 3, 5), 0.01), Material(5e3, 0.45, 1060.0), model=MODEL)
+    angle = 0.3
+    rotation = np.array([[np.cos(angle), -np.sin(angle), 0.0], [np.sin(angle), np.cos(angle), 0.0], [0.0, 0.0, 1.0]])
+    # the shear turns dS's eigenvectors off the axes (every entry of its negative part nonzero)
+    gradient = rotation @ np.diag(stretch) @ (np.eye(3) + shear * np.array([[0, 1, 0.6], [0, 0, 0.8], [0, 0, 0]]))
+    positions = model.mesh.nodes @ gradient.T
+    workspace = ForceWorkspace(model)
+    workspace.compute(positions, None, geometric=True)
+    correction, elements = model.stress_correction, model.mesh.elements
+    reference = tangent_matrices(correction, elements, positions, clamp=True)
+    top = np.abs(reference).max(axis=(1, 2))
+    assert np.all(np.abs(workspace.stress_tangent - reference).max(axis=(1, 2)) <= 1e-12 * top)
+    changed = np.abs(reference - tangent_matrices(correction, elements, positions)).max(axis=(1, 2)) > 1e-6 * top
+    assert np.all(changed) or stretch[0] > 1.0
+
 def test_unclamped_operator_equals_finite_differences_of_the_forces():
     """Unclamped (Newton's tangent, ForceWorkspace.compute(exact=True)), the operator's stiffness
     product K v equals central finite differences of the internal forces (step 1e-7 m) to 1e-6 of
@@ -168,6 +200,8 @@ def test_stacked_copies_each_their_material_equal_the_single_models():
     models = [build_model(mesh, Material(e, nu, 1060.0), model=MODEL, gravity=(0.0, -9.81, 0.0))
               for e, nu in ((2e3, 0.3), (5e3, 0.49), (1e4, 0.45))]
     stack = ModelStack(models[0], 3)
+    # a first pass builds the passes' element-last arrays of the stack: assign must rewrite them too
+    StackedForceWorkspace(stack, implicit=True, threads=1).compute(stack.model.mesh.nodes, None, geometric=True)
     for index, model in enumerate(models):
         stack.assign(index, model)
     positions = [_perturbed(model, 3e-4, seed=i) for i, model in enumerate(models)]

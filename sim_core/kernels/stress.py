@@ -2,12 +2,23 @@
 element, f_a = -V0 (P_NH(F) - P_S(F)) b_a with F the element's mean deformation gradient, and its
 stiffness, the 9 x 9 matrix T = V0 (A_NH(F) - A_S(F)) on the entries of F (the element block is
 K_e = B^T T B, B the map from the element's nodal displacements to F), for the implicit step. The
-numpy reference is ``sim_core.stress_correction.element_forces`` / ``tangent_blocks``.
+numpy reference is ``sim_core.stress_correction.element_forces`` / ``tangent_matrices``.
 
-One formula for every pass: ``_element_stress`` (F, its cofactor, P_NH - P_S) and
-``_element_tangent`` are inlined into the forces-only pass (``stress_correction_add``), the pass that
-also fills the tangent (``stress_correction_tangent_add``) and their per-copy threaded versions
-(``*_copies``: a stacked model's copies, one per numba thread at a time, the same floats).
+The passes take the elements ``LANES`` at a time, one lane per element: every per-element quantity of
+a block (F, its cofactor, the stress, the 81 entries of T, ...) is a row of a (., LANES) scratch
+array, and the per-element inputs are read in the element-last layout of
+``stress_correction.stress_lanes`` (b (n, 3, M), D (S_e, 3, M), L and k (S_e, M); the element
+nodes (n, M)), so that each formula is a loop over the lanes that LLVM turns into vector
+instructions. Each element sees the same operations in the same order as one element at a time
+would (no reassociation), so the floats do not depend on the block size. The rare per-element
+branches (the eigen-decomposition of a compressed element's stress, the positive part of an
+indefinite tangent) run lane by lane.
+
+One body for every pass: ``_block_stress`` (F, its cofactor, P_NH - P_S), ``_block_tangent`` and
+``_block_clamp`` are inlined into ``stress_correction_range`` (forces, and with ``tangent`` the
+stiffness), which the single-model passes (``stress_correction_add``,
+``stress_correction_tangent_add``) and their per-copy threaded versions (``*_copies``: a stacked
+model's copies, one per numba thread at a time, the same floats) call on their elements.
 """
 
 from __future__ import annotations
@@ -17,145 +28,213 @@ from numba import njit, prange
 
 from .fastmath import FAST_EXACT
 
+#: elements per block of the passes: the scratch of a tangent block (about 26 KB) stays in L1
+LANES = 16
+
+
+#: row of the symmetric 3 x 3 entry (J, L) in the six-row form 00 01 02 11 12 22
+_SYMMETRIC = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
+
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
-def _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                    spring_stiffness, linear, m, f, c, p):
-    """Element ``m`` (of mean_gradient.shape[1] nodes): f (3, 3) = F, c (3, 3) = cof F = det F F^-T,
-    p (3, 3) = P_NH(F) - P_S(F) in Pa, or with ``linear`` P_lin(F) - P_S(F), P_lin the small-strain
-    Hooke stress lam tr(eps) I + 2 mu eps of eps = sym(F) - I. Returns (det F, ln det F; 0 if linear)."""
-    for i in range(3):
-        for j in range(3):
-            f[i, j] = 0.0
-    for a in range(mean_gradient.shape[1]):
-        node = elements[m, a]
-        for i in range(3):
-            x = positions[node, i]
-            for j in range(3):
-                f[i, j] += x * mean_gradient[m, a, j]
-    c[0, 0] = f[1, 1] * f[2, 2] - f[1, 2] * f[2, 1]
-    c[0, 1] = f[1, 2] * f[2, 0] - f[1, 0] * f[2, 2]
-    c[0, 2] = f[1, 0] * f[2, 1] - f[1, 1] * f[2, 0]
-    c[1, 0] = f[0, 2] * f[2, 1] - f[0, 1] * f[2, 2]
-    c[1, 1] = f[0, 0] * f[2, 2] - f[0, 2] * f[2, 0]
-    c[1, 2] = f[0, 1] * f[2, 0] - f[0, 0] * f[2, 1]
-    c[2, 0] = f[0, 1] * f[1, 2] - f[0, 2] * f[1, 1]
-    c[2, 1] = f[0, 2] * f[1, 0] - f[0, 0] * f[1, 2]
-    c[2, 2] = f[0, 0] * f[1, 1] - f[0, 1] * f[1, 0]
-    det = f[0, 0] * c[0, 0] + f[0, 1] * c[0, 1] + f[0, 2] * c[0, 2]
+def _block_stress(positions, elements, offset, start, n, gradient, volume, mu, lam, spring_vector, spring_length,
+                  spring_stiffness, linear, f, c, p, det, log_j, inverse_volume):
+    """Elements start .. start + n - 1 of ``elements`` (n, M_local) (lane j: local element start + j,
+    row offset + start + j of the per-element arrays): f, c, p (9, LANES) rows 3 i + J of F,
+    cof F = det F F^-T and P_NH(F) - P_S(F) in Pa, or with ``linear`` P_lin(F) - P_S(F), P_lin the
+    small-strain Hooke stress lam tr(eps) I + 2 mu eps of eps = sym(F) - I; det, log_j (LANES,)
+    det F and ln det F (0 if linear); inverse_volume (LANES,) scratch."""
+    for r in range(9):
+        for j in range(n):
+            f[r, j] = 0.0
+    for a in range(gradient.shape[0]):
+        for j in range(n):
+            m = offset + start + j
+            node = elements[a, start + j]
+            x0, x1, x2 = positions[node, 0], positions[node, 1], positions[node, 2]
+            b0, b1, b2 = gradient[a, 0, m], gradient[a, 1, m], gradient[a, 2, m]
+            f[0, j] += x0 * b0
+            f[1, j] += x0 * b1
+            f[2, j] += x0 * b2
+            f[3, j] += x1 * b0
+            f[4, j] += x1 * b1
+            f[5, j] += x1 * b2
+            f[6, j] += x2 * b0
+            f[7, j] += x2 * b1
+            f[8, j] += x2 * b2
+    for j in range(n):
+        f00, f01, f02 = f[0, j], f[1, j], f[2, j]
+        f10, f11, f12 = f[3, j], f[4, j], f[5, j]
+        f20, f21, f22 = f[6, j], f[7, j], f[8, j]
+        c00 = f11 * f22 - f12 * f21
+        c01 = f12 * f20 - f10 * f22
+        c02 = f10 * f21 - f11 * f20
+        c[0, j], c[1, j], c[2, j] = c00, c01, c02
+        c[3, j] = f02 * f21 - f01 * f22
+        c[4, j] = f00 * f22 - f02 * f20
+        c[5, j] = f01 * f20 - f00 * f21
+        c[6, j] = f01 * f12 - f02 * f11
+        c[7, j] = f02 * f10 - f00 * f12
+        c[8, j] = f00 * f11 - f01 * f10
+        det[j] = f00 * c00 + f01 * c01 + f02 * c02
     if linear:
-        log_j = 0.0
-        volumetric = lam[m] * (f[0, 0] + f[1, 1] + f[2, 2] - 3.0)
-        for i in range(3):
-            for j in range(3):
-                p[i, j] = mu[m] * (f[i, j] + f[j, i])
-            p[i, i] += volumetric - 2.0 * mu[m]
+        for j in range(n):
+            m = offset + start + j
+            log_j[j] = 0.0
+            volumetric = lam[m] * (f[0, j] + f[4, j] + f[8, j] - 3.0)
+            for i in range(3):
+                for k in range(3):
+                    p[3 * i + k, j] = mu[m] * (f[3 * i + k, j] + f[3 * k + i, j])
+                p[4 * i, j] += volumetric - 2.0 * mu[m]
     else:
-        log_j = np.log(det)
-        inverse_scale = (lam[m] * log_j - mu[m]) / det  # P = mu F + (lam ln J - mu) F^-T
-        for i in range(3):
-            for j in range(3):
-                p[i, j] = mu[m] * f[i, j] + inverse_scale * c[i, j]
-    inverse_volume = 1.0 / volume[m]
-    for s in range(spring_vector.shape[1]):  # minus the springs' own stress under F
-        d0, d1, d2 = spring_vector[m, s, 0], spring_vector[m, s, 1], spring_vector[m, s, 2]
-        u0 = f[0, 0] * d0 + f[0, 1] * d1 + f[0, 2] * d2
-        u1 = f[1, 0] * d0 + f[1, 1] * d1 + f[1, 2] * d2
-        u2 = f[2, 0] * d0 + f[2, 1] * d1 + f[2, 2] * d2
-        length = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
-        t = spring_stiffness[m, s] * (length - spring_length[m, s]) / length * inverse_volume
-        p[0, 0] -= t * u0 * d0
-        p[0, 1] -= t * u0 * d1
-        p[0, 2] -= t * u0 * d2
-        p[1, 0] -= t * u1 * d0
-        p[1, 1] -= t * u1 * d1
-        p[1, 2] -= t * u1 * d2
-        p[2, 0] -= t * u2 * d0
-        p[2, 1] -= t * u2 * d1
-        p[2, 2] -= t * u2 * d2
-    return det, log_j
+        for j in range(n):  # the logarithm has no vector form here: its own loop, so the others vectorise
+            log_j[j] = np.log(det[j])
+        for j in range(n):
+            m = offset + start + j
+            inverse_scale = (lam[m] * log_j[j] - mu[m]) / det[j]  # P = mu F + (lam ln J - mu) F^-T
+            for r in range(9):
+                p[r, j] = mu[m] * f[r, j] + inverse_scale * c[r, j]
+    for j in range(n):
+        inverse_volume[j] = 1.0 / volume[offset + start + j]
+    for s in range(spring_vector.shape[0]):  # minus the springs' own stress under F
+        for j in range(n):
+            m = offset + start + j
+            d0, d1, d2 = spring_vector[s, 0, m], spring_vector[s, 1, m], spring_vector[s, 2, m]
+            u0 = f[0, j] * d0 + f[1, j] * d1 + f[2, j] * d2
+            u1 = f[3, j] * d0 + f[4, j] * d1 + f[5, j] * d2
+            u2 = f[6, j] * d0 + f[7, j] * d1 + f[8, j] * d2
+            length = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+            t = spring_stiffness[s, m] * (length - spring_length[s, m]) / length * inverse_volume[j]
+            p[0, j] -= t * u0 * d0
+            p[1, j] -= t * u0 * d1
+            p[2, j] -= t * u0 * d2
+            p[3, j] -= t * u1 * d0
+            p[4, j] -= t * u1 * d1
+            p[5, j] -= t * u1 * d2
+            p[6, j] -= t * u2 * d0
+            p[7, j] -= t * u2 * d1
+            p[8, j] -= t * u2 * d2
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
-def _scatter_stress(elements, mean_gradient, volume, m, p, forces):
-    """forces (N, 3) -= V0 p b_a on the nodes of element ``m``."""
-    v = volume[m]
-    for a in range(mean_gradient.shape[1]):
-        node = elements[m, a]
-        b0, b1, b2 = mean_gradient[m, a, 0], mean_gradient[m, a, 1], mean_gradient[m, a, 2]
-        for i in range(3):
-            forces[node, i] -= v * (p[i, 0] * b0 + p[i, 1] * b1 + p[i, 2] * b2)
+def _block_scatter(elements, offset, start, n, gradient, volume, p, forces):
+    """forces (N, 3) -= V0 p b_a on the nodes of the block's elements, element by element."""
+    for j in range(n):
+        m = offset + start + j
+        v = volume[m]
+        for a in range(gradient.shape[0]):
+            node = elements[a, start + j]
+            b0, b1, b2 = gradient[a, 0, m], gradient[a, 1, m], gradient[a, 2, m]
+            for i in range(3):
+                forces[node, i] -= v * (p[3 * i, j] * b0 + p[3 * i + 1, j] * b1 + p[3 * i + 2, j] * b2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
-def _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, m,
-                     t, w):
-    """t (9, 9) = V0 (A_NH(F) - A_S(F)) of element ``m`` (row 3 i + J: dP_iJ; column 3 k + L: dF_kL),
-    with f, c, det, log_j from ``_element_stress``:
+def _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, f, c,
+                   det, log_j, t, products, row, g, scalars):
+    """t (81, LANES): row 9 r + q of lane j the entry (r, q) of T = V0 (A_NH(F) - A_S(F)) of the lane's
+    element (r = 3 i + J: dP_iJ; q = 3 k + L: dF_kL), with f, c, det, log_j from ``_block_stress``:
     A_NH = mu d_ik d_JL + (mu - lam ln J) G_kJ G_iL + lam G_iJ G_kL (G = F^-T = c / det), or with
     ``linear`` the constant A_lin = lam d_iJ d_kL + mu (d_ik d_JL + d_iL d_kJ), and
     A_S = (1/V0) sum_s k_s [(1 - L_s/l_s) d_ik D_J D_L + (L_s / l_s^3) (F D_s)_i D_J (F D_s)_k D_L].
-    w (9, 9) scratch (its first row: the spring's u (x) D)."""
-    v = volume[m]
-    vmu = v * mu[m]
+    Both are symmetric, A_NH filled on and above the diagonal and mirrored; the springs' second
+    term is a sum of Kronecker products [(F D)(F D)^T]_ik [D D^T]_JL of two symmetric 3 x 3, summed
+    as its 6 x 6 distinct products (``_SYMMETRIC`` pairs).
+    products (54, LANES): rows 6 a + b the springs' sum over the pairs a = (i, k), b = (J, L), rows
+    36 .. 53 the cofactor times the two coefficients of A_NH; row (12, LANES): one spring's
+    (F D)(F D)^T L/l^3 k and D D^T; g (6, LANES): sum_s k_s (1 - L_s / l_s) D D^T; scalars
+    (4, LANES) scratch."""
+    for j in range(n):
+        m = offset + start + j
+        v = volume[m]
+        scalars[0, j] = v * mu[m]
+        if not linear:
+            inverse_det = 1.0 / det[j]
+            scalars[1, j] = v * (mu[m] - lam[m] * log_j[j]) * inverse_det * inverse_det
+            scalars[2, j] = v * lam[m] * inverse_det * inverse_det
+        else:
+            scalars[1, j] = v * lam[m]
     if linear:
-        for r in range(9):
-            for q in range(9):
-                t[r, q] = 0.0
+        for r in range(81):
+            for j in range(n):
+                t[r, j] = 0.0
         for i in range(3):
             for k in range(3):
-                t[4 * i, 4 * k] = v * lam[m]  # d_iJ d_kL: rows and columns of the diagonal of F
-                t[3 * i + k, 3 * k + i] += vmu  # d_iL d_kJ
+                for j in range(n):
+                    t[9 * (4 * i) + 4 * k, j] = scalars[1, j]  # d_iJ d_kL: rows and columns of the diagonal of F
+                    t[9 * (3 * i + k) + 3 * k + i, j] += scalars[0, j]  # d_iL d_kJ
             for jj in range(3):
-                t[3 * i + jj, 3 * i + jj] += vmu  # d_ik d_JL
+                for j in range(n):
+                    t[10 * (3 * i + jj), j] += scalars[0, j]  # d_ik d_JL
     else:
-        inverse_det = 1.0 / det
-        coefficient = v * (mu[m] - lam[m] * log_j) * inverse_det * inverse_det
-        vlam = v * lam[m] * inverse_det * inverse_det
+        for r in range(9):
+            for j in range(n):
+                products[36 + r, j] = scalars[1, j] * c[r, j]
+                products[45 + r, j] = scalars[2, j] * c[r, j]
         for i in range(3):
             for jj in range(3):
                 r = 3 * i + jj
                 for k in range(3):
                     for ll in range(3):
-                        t[r, 3 * k + ll] = coefficient * c[k, jj] * c[i, ll] + vlam * c[i, jj] * c[k, ll]
-                t[r, r] += vmu
-    g00 = g01 = g02 = g11 = g12 = g22 = 0.0  # sum_s k_s (1 - L_s / l_s) D D^T
-    row = w[0]
-    for s in range(spring_vector.shape[1]):
-        d0, d1, d2 = spring_vector[m, s, 0], spring_vector[m, s, 1], spring_vector[m, s, 2]
-        u0 = f[0, 0] * d0 + f[0, 1] * d1 + f[0, 2] * d2
-        u1 = f[1, 0] * d0 + f[1, 1] * d1 + f[1, 2] * d2
-        u2 = f[2, 0] * d0 + f[2, 1] * d1 + f[2, 2] * d2
-        squared = u0 * u0 + u1 * u1 + u2 * u2
-        length = np.sqrt(squared)
-        ratio = spring_length[m, s] / length
-        k = spring_stiffness[m, s]
-        across = k * (1.0 - ratio)
-        g00 += across * d0 * d0
-        g01 += across * d0 * d1
-        g02 += across * d0 * d2
-        g11 += across * d1 * d1
-        g12 += across * d1 * d2
-        g22 += across * d2 * d2
-        along = k * ratio / squared
-        row[0], row[1], row[2] = u0 * d0, u0 * d1, u0 * d2
-        row[3], row[4], row[5] = u1 * d0, u1 * d1, u1 * d2
-        row[6], row[7], row[8] = u2 * d0, u2 * d1, u2 * d2
+                        q = 3 * k + ll
+                        if q < r:
+                            continue
+                        for j in range(n):
+                            value = (products[36 + 3 * k + jj, j] * c[3 * i + ll, j]
+                                     + products[45 + 3 * i + jj, j] * c[3 * k + ll, j])
+                            t[9 * r + q, j] = value
+                            t[9 * q + r, j] = value
         for r in range(9):
-            value = along * row[r]
-            for q in range(9):
-                t[r, q] -= value * row[q]
+            for j in range(n):
+                t[10 * r, j] += scalars[0, j]
+    for a in range(36):
+        for j in range(n):
+            products[a, j] = 0.0
+    for a in range(6):
+        for j in range(n):
+            g[a, j] = 0.0
+    for s in range(spring_vector.shape[0]):
+        for j in range(n):
+            m = offset + start + j
+            d0, d1, d2 = spring_vector[s, 0, m], spring_vector[s, 1, m], spring_vector[s, 2, m]
+            u0 = f[0, j] * d0 + f[1, j] * d1 + f[2, j] * d2
+            u1 = f[3, j] * d0 + f[4, j] * d1 + f[5, j] * d2
+            u2 = f[6, j] * d0 + f[7, j] * d1 + f[8, j] * d2
+            squared = u0 * u0 + u1 * u1 + u2 * u2
+            length = np.sqrt(squared)
+            ratio = spring_length[s, m] / length
+            k = spring_stiffness[s, m]
+            across = k * (1.0 - ratio)
+            along = k * ratio / squared
+            dd0, dd1, dd2, dd3, dd4, dd5 = d0 * d0, d0 * d1, d0 * d2, d1 * d1, d1 * d2, d2 * d2
+            g[0, j] += across * dd0
+            g[1, j] += across * dd1
+            g[2, j] += across * dd2
+            g[3, j] += across * dd3
+            g[4, j] += across * dd4
+            g[5, j] += across * dd5
+            a0, a1, a2 = along * u0, along * u1, along * u2
+            row[0, j], row[1, j], row[2, j] = a0 * u0, a0 * u1, a0 * u2
+            row[3, j], row[4, j], row[5, j] = a1 * u1, a1 * u2, a2 * u2
+            row[6, j], row[7, j], row[8, j] = dd0, dd1, dd2
+            row[9, j], row[10, j], row[11, j] = dd3, dd4, dd5
+        for a in range(6):
+            for b in range(6):
+                for j in range(n):
+                    products[6 * a + b, j] += row[a, j] * row[6 + b, j]
     for i in range(3):
-        b = 3 * i
-        t[b, b] -= g00
-        t[b, b + 1] -= g01
-        t[b, b + 2] -= g02
-        t[b + 1, b] -= g01
-        t[b + 1, b + 1] -= g11
-        t[b + 1, b + 2] -= g12
-        t[b + 2, b] -= g02
-        t[b + 2, b + 1] -= g12
-        t[b + 2, b + 2] -= g22
+        for jj in range(3):
+            r = 3 * i + jj
+            for k in range(3):
+                for ll in range(3):
+                    q = 3 * k + ll
+                    a, b = _SYMMETRIC[i, k], _SYMMETRIC[jj, ll]
+                    if i == k:
+                        for j in range(n):
+                            t[9 * r + q, j] -= products[6 * a + b, j] + g[b, j]
+                    else:
+                        for j in range(n):
+                            t[9 * r + q, j] -= products[6 * a + b, j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
@@ -195,26 +274,72 @@ def _symmetric_eigen3(a, values, vectors):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
-def _positive_definite(t, lower):
-    """Whether the symmetric (9, 9) t is positive semi-definite to rounding: the Cholesky
-    factorisation of t + 1e-12 tr(t) I (the exact null space of the rotations passes). lower scratch."""
-    trace = 0.0
-    for r in range(9):
-        trace += t[r, r]
-    shift = 1e-12 * abs(trace)
-    for j in range(9):
-        total = t[j, j] + shift
-        for q in range(j):
-            total -= lower[j, q] * lower[j, q]
-        if not total > 0.0:
+def _negative_part(s00, s01, s02, s11, s12, s22, part, small, values, vectors):
+    """part (6,) (rows 00 01 02 11 12 22) = [S]_- = sum over the eigenvalues l_e < 0 of S of
+    -l_e v_e v_e^T, S the symmetric 3 x 3 of the six entries; False (part untouched) where S has no
+    negative eigenvalue. The eigenvalues in closed form (the trigonometric solution of the
+    characteristic cubic), the one eigenvector needed (the smallest's, or with two negative
+    eigenvalues the largest's: [S]_- = l_1 v_1 v_1^T - S) as the longest cross product of two rows of
+    S - l I, whose error, an rounding error of S over the eigenvalue gap, the gap bounds the weight
+    of; ``_symmetric_eigen3`` where those rows are parallel (a repeated eigenvalue).
+    small, vectors (3, 3), values (3,) scratch."""
+    q = (s00 + s11 + s22) / 3.0
+    a, b, c = s00 - q, s11 - q, s22 - q
+    squared = a * a + b * b + c * c + 2.0 * (s01 * s01 + s02 * s02 + s12 * s12)
+    if squared == 0.0:  # S = q I
+        if q >= 0.0:
             return False
-        pivot = np.sqrt(total)
-        lower[j, j] = pivot
-        for i in range(j + 1, 9):
-            total = 0.5 * (t[i, j] + t[j, i])
-            for q in range(j):
-                total -= lower[i, q] * lower[j, q]
-            lower[i, j] = total / pivot
+        part[0], part[1], part[2], part[3], part[4], part[5] = -q, 0.0, 0.0, -q, 0.0, -q
+        return True
+    radius = np.sqrt(squared / 6.0)
+    cosine = (a * (b * c - s12 * s12) - s01 * (s01 * c - s12 * s02) + s02 * (s01 * s12 - b * s02)) / (
+        2.0 * radius * radius * radius)
+    cosine = min(max(cosine, -1.0), 1.0)
+    angle = np.arccos(cosine) / 3.0
+    largest = q + 2.0 * radius * np.cos(angle)
+    smallest = q + 2.0 * radius * np.cos(angle + 2.0 * np.pi / 3.0)
+    if smallest >= 0.0:
+        return False
+    if largest < 0.0:  # every eigenvalue negative: [S]_- = -S
+        part[0], part[1], part[2], part[3], part[4], part[5] = -s00, -s01, -s02, -s11, -s12, -s22
+        return True
+    middle = 3.0 * q - largest - smallest
+    value = largest if middle < 0.0 else smallest
+    r00, r11, r22 = s00 - value, s11 - value, s22 - value  # the rows of S - l I: (r00 s01 s02), (s01 r11 s12), (s02 s12 r22)
+    x0, x1, x2 = s01 * s12 - s02 * r11, s02 * s01 - r00 * s12, r00 * r11 - s01 * s01  # row 0 x row 1
+    y0, y1, y2 = s01 * r22 - s02 * s12, s02 * s02 - r00 * r22, r00 * s12 - s01 * s02  # row 0 x row 2
+    z0, z1, z2 = r11 * r22 - s12 * s12, s12 * s02 - s01 * r22, s01 * s12 - r11 * s02  # row 1 x row 2
+    nx, ny, nz = x0 * x0 + x1 * x1 + x2 * x2, y0 * y0 + y1 * y1 + y2 * y2, z0 * z0 + z1 * z1 + z2 * z2
+    if ny > nx and ny >= nz:
+        x0, x1, x2, nx = y0, y1, y2, ny
+    elif nz > nx:
+        x0, x1, x2, nx = z0, z1, z2, nz
+    if nx == 0.0:  # a repeated eigenvalue: the rows are parallel
+        small[0, 0], small[0, 1], small[0, 2] = s00, s01, s02
+        small[1, 0], small[1, 1], small[1, 2] = s01, s11, s12
+        small[2, 0], small[2, 1], small[2, 2] = s02, s12, s22
+        _symmetric_eigen3(small, values, vectors)
+        if not (values[0] < 0.0 or values[1] < 0.0 or values[2] < 0.0):
+            return False
+        for row in range(6):
+            part[row] = 0.0
+        for e in range(3):
+            if values[e] < 0.0:
+                u0, u1, u2 = vectors[0, e], vectors[1, e], vectors[2, e]
+                part[0] -= values[e] * u0 * u0
+                part[1] -= values[e] * u0 * u1
+                part[2] -= values[e] * u0 * u2
+                part[3] -= values[e] * u1 * u1
+                part[4] -= values[e] * u1 * u2
+                part[5] -= values[e] * u2 * u2
+        return True
+    weight = value / nx  # l v v^T with v = x / |x|
+    if middle < 0.0:  # two negative eigenvalues: l_1 v_1 v_1^T - S
+        part[0], part[1], part[2] = weight * x0 * x0 - s00, weight * x0 * x1 - s01, weight * x0 * x2 - s02
+        part[3], part[4], part[5] = weight * x1 * x1 - s11, weight * x1 * x2 - s12, weight * x2 * x2 - s22
+    else:  # one: -l_3 v_3 v_3^T
+        part[0], part[1], part[2] = -weight * x0 * x0, -weight * x0 * x1, -weight * x0 * x2
+        part[3], part[4], part[5] = -weight * x1 * x1, -weight * x1 * x2, -weight * x2 * x2
     return True
 
 
@@ -234,155 +359,215 @@ def _congruence(root, m, source, target):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
-def _clamp_tangent(t, c, det, p, volume, root, root_inverse, linear, m, w, lower, small, values, vectors):
-    """The implicit step's SPD treatment of element ``m``'s tangent t (9, 9) (docs/physics.md 11),
-    in place; returns 0 (t kept), 1 (geometric term clamped) or 2 (positive part taken).
+def _block_clamp(offset, start, n, volume, root, root_inverse, linear, det, c, p, t, lower, sym, shift, total, pivot,
+                 good, part, small, values, vectors, square, w):
+    """The implicit step's SPD treatment of the block's tangents t (81, LANES) (docs/physics.md 11), in
+    place, on the lanes with det F > 0; returns the number of lanes whose positive part was taken.
 
-    1. Its geometric (initial-stress) term V0 d_ik dS_JL, dS = F^-1 (P_NH - P_S) the second
-       Piola-Kirchhoff stress the correction adds, loses its negative part, as the springs'
+    1. Each element's geometric (initial-stress) term V0 d_ik dS_JL, dS = F^-1 (P_NH - P_S) the
+       second Piola-Kirchhoff stress the correction adds, loses its negative part, as the springs'
        geometric term t/l does where a spring is compressed: t += V0 I (x) [dS]_-  (|negative
-       eigenvalues| of dS). What remains is the material term F F (C_NH - C_S), positive
+       eigenvalues| of dS, ``_negative_part``, where dS is not positive definite by its leading
+       minors). What remains is the material term F F (C_NH - C_S), positive
        semi-definite at rest for nu >= 0 and at moderate strain.
-    2. Where that is still not positive semi-definite (``_positive_definite``; a large strain),
-       t := its positive part in the metric of the element's nodal displacements (with ``linear``,
-       the small-strain law, whose correction has no geometric term, this step only): with
-       S = I_3 (x) R, R = (sum_a b_a b_a^T)^(1/2) (``root[m]``; B = S Q with Q's rows orthonormal),
+    2. Where that is still not positive semi-definite (the Cholesky factorisation of
+       t + 1e-12 tr(t) I fails; the exact null space of the rotations passes), t := its positive
+       part in the metric of the element's nodal displacements (with ``linear``, the small-strain
+       law, whose correction has no geometric term, this step only): with S = I_3 (x) R,
+       R = (sum_a b_a b_a^T)^(1/2) (``root[m]``; B = S Q with Q's rows orthonormal),
        B^T t B = Q^T (S t S) Q, so the positive part of the 24 x 24 block B^T t B is
        B^T S^-1 (S t S)_+ S^-1 B.
-    w, lower (9, 9), small (3, 3), values (3,), vectors (3, 3) scratch."""
-    changed = 0
+    lower (81, LANES), sym (6, LANES), shift, total, pivot (LANES,) float and good (LANES,) int
+    scratch; part (6,), small, vectors (3, 3), values (3,), square, w (9, 9) scratch of the lane-by-lane steps."""
     if not linear:
-        changed = _clamp_geometric(t, c, det, p, volume, m, small, values, vectors)
-    if _positive_definite(t, lower):
-        return changed
-    _congruence(root, m, t, w)  # w = S t S
-    for r in range(9):  # symmetrise against rounding before the decomposition
-        for q in range(r):
-            mean = 0.5 * (w[r, q] + w[q, r])
-            w[r, q] = mean
-            w[q, r] = mean
-    eigenvalues, eigenvectors = np.linalg.eigh(w)
-    for r in range(9):
-        for q in range(9):
-            total = 0.0
-            for e in range(9):
-                if eigenvalues[e] > 0.0:
-                    total += eigenvalues[e] * eigenvectors[r, e] * eigenvectors[q, e]
-            w[r, q] = total
-    _congruence(root_inverse, m, w, t)  # t = S^-1 w_+ S^-1
-    return 2
-
-
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
-def _clamp_geometric(t, c, det, p, volume, m, small, values, vectors):
-    """Step 1 of ``_clamp_tangent``: t += V0 I (x) [dS]_-; returns 1 where it changed t, else 0."""
-    inverse_det = 1.0 / det
-    for jj in range(3):  # dS = F^-1 p = c^T p / det, symmetrised
-        for ll in range(3):
-            small[jj, ll] = (c[0, jj] * p[0, ll] + c[1, jj] * p[1, ll] + c[2, jj] * p[2, ll]) * inverse_det
-    for jj in range(3):
-        for ll in range(jj):
-            mean = 0.5 * (small[jj, ll] + small[ll, jj])
-            small[jj, ll] = mean
-            small[ll, jj] = mean
-    _symmetric_eigen3(small, values, vectors)
-    changed = 0
-    if values[0] < 0.0 or values[1] < 0.0 or values[2] < 0.0:
-        changed = 1
-        v = volume[m]
-        for jj in range(3):
-            for ll in range(3):
-                total = 0.0
-                for e in range(3):
-                    if values[e] < 0.0:
-                        total -= values[e] * vectors[jj, e] * vectors[ll, e]
-                total *= v
-                for i in range(3):
-                    t[3 * i + jj, 3 * i + ll] += total
-    return changed
-
-
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
-def stress_correction_add(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                          spring_stiffness, linear, forces):
-    """forces (N, 3) N += every element's stress correction.
-
-    mean_gradient (M, n, 3) 1/m (n nodes per element: 8 hexahedra, 4 tetrahedra), volume (M,) m^3,
-    mu and lam (M,) Pa, spring_vector (M, S_e, 3) m, spring_length and spring_stiffness (M, S_e) m
-    and N/m, ``linear`` the law (False: neo-Hookean, True: small-strain Hooke;
-    ``stress_correction.StressCorrection``).
-    An inverted element (det F <= 0) gives NaN forces, which the solvers' inversion checks reject.
-    """
-    f = np.empty((3, 3))
-    c = np.empty((3, 3))
-    p = np.empty((3, 3))
-    for m in range(elements.shape[0]):
-        _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                        spring_stiffness, linear, m, f, c, p)
-        _scatter_stress(elements, mean_gradient, volume, m, p, forces)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
-def stress_correction_tangent_add(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                                  spring_stiffness, linear, root, root_inverse, clamp, forces, tangent):
-    """``stress_correction_add`` that also writes each element's stiffness on F, tangent (M, 9, 9)
-    N/m * m^2 = V0 (A_NH - A_S) (``_element_tangent``), with ``clamp`` the implicit step's SPD
-    treatment (``_clamp_tangent``: the negative part of its geometric term dropped, and its positive
-    part in the element's displacement metric where that is not enough; root, root_inverse
-    (M, 3, 3) the metric's square root and its inverse, ``StressCorrection.metric_root``;
-    docs/physics.md section 11). Returns the number of elements whose positive part was taken."""
-    f = np.empty((3, 3))
-    c = np.empty((3, 3))
-    p = np.empty((3, 3))
-    w = np.empty((9, 9))
-    lower = np.empty((9, 9))
-    small = np.empty((3, 3))
-    values = np.empty(3)
-    vectors = np.empty((3, 3))
+        for j in range(n):  # dS = F^-1 p = c^T p / det, symmetrised: rows 00 01 02 11 12 22
+            inverse_det = 1.0 / det[j]
+            row = 0
+            for jj in range(3):
+                for ll in range(jj, 3):
+                    upper = (c[jj, j] * p[ll, j] + c[3 + jj, j] * p[3 + ll, j] + c[6 + jj, j] * p[6 + ll, j]) * inverse_det
+                    if ll == jj:
+                        sym[row, j] = upper
+                    else:
+                        lower_entry = (c[ll, j] * p[jj, j] + c[3 + ll, j] * p[3 + jj, j]
+                                       + c[6 + ll, j] * p[6 + jj, j]) * inverse_det
+                        sym[row, j] = 0.5 * (lower_entry + upper)
+                    row += 1
+        for j in range(n):
+            s00, s01, s02, s11, s12, s22 = sym[0, j], sym[1, j], sym[2, j], sym[3, j], sym[4, j], sym[5, j]
+            minor = s00 * s11 - s01 * s01
+            determinant = s00 * (s11 * s22 - s12 * s12) - s01 * (s01 * s22 - s12 * s02) + s02 * (s01 * s12 - s11 * s02)
+            if not (det[j] > 0.0 and not (s00 > 0.0 and minor > 0.0 and determinant > 0.0)):
+                continue  # positive definite by its leading minors: no negative part
+            if _negative_part(s00, s01, s02, s11, s12, s22, part, small, values, vectors):
+                v = volume[offset + start + j]
+                for jj in range(3):
+                    for ll in range(3):
+                        entry = part[_SYMMETRIC[jj, ll]] * v
+                        for i in range(3):
+                            t[9 * (3 * i + jj) + 3 * i + ll, j] += entry
+    for j in range(n):
+        trace = 0.0
+        for r in range(9):
+            trace += t[10 * r, j]
+        shift[j] = 1e-12 * abs(trace)
+        good[j] = 1
+    for col in range(9):  # Cholesky, lane by lane in step
+        for j in range(n):
+            total[j] = t[10 * col, j] + shift[j]
+        for q in range(col):
+            for j in range(n):
+                total[j] -= lower[9 * col + q, j] * lower[9 * col + q, j]
+        for j in range(n):
+            if not total[j] > 0.0:
+                good[j] = 0
+            pivot[j] = np.sqrt(total[j])
+            lower[10 * col, j] = pivot[j]
+        for i in range(col + 1, 9):
+            for j in range(n):
+                total[j] = 0.5 * (t[9 * i + col, j] + t[9 * col + i, j])
+            for q in range(col):
+                for j in range(n):
+                    total[j] -= lower[9 * i + q, j] * lower[9 * col + q, j]
+            for j in range(n):
+                lower[9 * i + col, j] = total[j] / pivot[j]
     clamped = 0
-    for m in range(elements.shape[0]):
-        det, log_j = _element_stress(positions, elements, mean_gradient, volume, mu, lam, spring_vector, spring_length,
-                                     spring_stiffness, linear, m, f, c, p)
-        _scatter_stress(elements, mean_gradient, volume, m, p, forces)
-        t = tangent[m]
-        _element_tangent(f, c, det, log_j, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, m,
-                         t, w)
-        if clamp and det > 0.0:
-            if _clamp_tangent(t, c, det, p, volume, root, root_inverse, linear, m, w, lower, small, values,
-                              vectors) == 2:
-                clamped += 1
+    for j in range(n):
+        if det[j] > 0.0 and good[j] == 0:
+            m = offset + start + j
+            for r in range(9):
+                for q in range(9):
+                    square[r, q] = t[9 * r + q, j]
+            _congruence(root, m, square, w)  # w = S t S
+            for r in range(9):  # symmetrise against rounding before the decomposition
+                for q in range(r):
+                    mean = 0.5 * (w[r, q] + w[q, r])
+                    w[r, q] = mean
+                    w[q, r] = mean
+            eigenvalues, eigenvectors = np.linalg.eigh(w)
+            for r in range(9):
+                for q in range(9):
+                    entry = 0.0
+                    for e in range(9):
+                        if eigenvalues[e] > 0.0:
+                            entry += eigenvalues[e] * eigenvectors[r, e] * eigenvectors[q, e]
+                    w[r, q] = entry
+            _congruence(root_inverse, m, w, square)  # t = S^-1 w_+ S^-1
+            for r in range(9):
+                for q in range(9):
+                    t[9 * r + q, j] = square[r, q]
+            clamped += 1
     return clamped
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
+def stress_correction_range(positions, elements, offset, gradient, volume, mu, lam, spring_vector, spring_length,
+                            spring_stiffness, linear, root, root_inverse, clamp, with_tangent, forces, tangent):
+    """The correction of the elements ``elements`` (n, M_local) (node indices into ``positions``)
+    whose per-element rows start at ``offset``: forces (N, 3) N += their nodal forces and, with
+    ``with_tangent``, tangent[offset + e] (9, 9) N m = their stiffness on F (``_block_tangent``), with
+    ``clamp`` the implicit step's SPD treatment (``_block_clamp``). The per-element arrays are
+    element-last (``stress_correction.stress_lanes``): gradient (n, 3, M) b_a in 1/m, volume (M,)
+    m^3, mu, lam (M,) Pa, spring_vector (S_e, 3, M) m, spring_length and spring_stiffness (S_e, M)
+    m and N/m; root, root_inverse (M, 3, 3) (``StressCorrection.metric_root``). An inverted element
+    (det F <= 0) gives NaN forces, which the solvers' inversion checks reject. Returns the number of
+    elements whose positive part was taken."""
+    f = np.empty((9, LANES))
+    c = np.empty((9, LANES))
+    p = np.empty((9, LANES))
+    det = np.empty(LANES)
+    log_j = np.empty(LANES)
+    inverse_volume = np.empty(LANES)
+    t = np.empty((81, LANES))
+    lower = np.empty((81, LANES))
+    row = np.empty((12, LANES))
+    products = np.empty((54, LANES))
+    g = np.empty((6, LANES))
+    sym = np.empty((6, LANES))
+    scalars = np.empty((4, LANES))
+    shift = np.empty(LANES)
+    total = np.empty(LANES)
+    pivot = np.empty(LANES)
+    good = np.empty(LANES, dtype=np.int64)
+    part = np.empty(6)
+    small = np.empty((3, 3))
+    values = np.empty(3)
+    vectors = np.empty((3, 3))
+    square = np.empty((9, 9))
+    w = np.empty((9, 9))
+    clamped = 0
+    n_elements = elements.shape[1]
+    for start in range(0, n_elements, LANES):
+        n = min(LANES, n_elements - start)
+        _block_stress(positions, elements, offset, start, n, gradient, volume, mu, lam, spring_vector, spring_length,
+                      spring_stiffness, linear, f, c, p, det, log_j, inverse_volume)
+        _block_scatter(elements, offset, start, n, gradient, volume, p, forces)
+        if with_tangent:
+            _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear,
+                           f, c, det, log_j, t, products, row, g, scalars)
+            if clamp:
+                clamped += _block_clamp(offset, start, n, volume, root, root_inverse, linear, det, c, p, t, lower, sym,
+                                        shift, total, pivot, good, part, small, values, vectors, square, w)
+            for j in range(n):
+                m = offset + start + j
+                for r in range(9):
+                    for q in range(9):
+                        tangent[m, r, q] = t[9 * r + q, j]
+    return clamped
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
+def stress_correction_add(positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
+                          spring_stiffness, linear, forces):
+    """forces (N, 3) N += every element's stress correction (``stress_correction_range``'s arrays,
+    ``elements`` (n, M) the element nodes, element-last; ``linear`` the law: False neo-Hookean, True
+    small-strain Hooke, ``stress_correction.StressCorrection``)."""
+    stress_correction_range(positions, elements, 0, gradient, volume, mu, lam, spring_vector, spring_length,
+                            spring_stiffness, linear, np.empty((0, 3, 3)), np.empty((0, 3, 3)), False, False, forces,
+                            np.empty((0, 9, 9)))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
+def stress_correction_tangent_add(positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
+                                  spring_stiffness, linear, root, root_inverse, clamp, forces, tangent):
+    """``stress_correction_add`` that also writes each element's stiffness on F, tangent (M, 9, 9)
+    N/m * m^2 = V0 (A_NH - A_S), with ``clamp`` the implicit step's SPD treatment (the negative part
+    of its geometric term dropped, and its positive part in the element's displacement metric where
+    that is not enough; docs/physics.md section 11). Returns the number of elements whose positive
+    part was taken."""
+    return stress_correction_range(positions, elements, 0, gradient, volume, mu, lam, spring_vector, spring_length,
+                                   spring_stiffness, linear, root, root_inverse, clamp, True, forces, tangent)
+
+
 @njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
-def stress_correction_add_copies(count, positions, elements, mean_gradient, volume, mu, lam, spring_vector,
-                                 spring_length, spring_stiffness, linear, forces):
+def stress_correction_add_copies(count, positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
+                                 spring_stiffness, linear, forces):
     """``stress_correction_add`` of a stacked model of ``count`` copies (copies first), one copy per numba
-    thread at a time: ``elements`` is ONE copy's (local node indices), every other array the stacked
-    model's. The copies are disjoint, so each writes only its own nodes, in the stacked pass's
-    order: the same floats as ``stress_correction_add`` on the stacked model."""
+    thread at a time: ``elements`` (n, M_copy) is ONE copy's (local node indices), every other array
+    the stacked model's. The copies are disjoint, so each writes only its own nodes, in the stacked
+    pass's order: the same floats as ``stress_correction_add`` on the stacked model."""
     n = positions.shape[0] // count
-    n_elements = elements.shape[0]
-    for c in prange(count):
-        e0, e1 = c * n_elements, (c + 1) * n_elements
-        stress_correction_add(positions[c * n:(c + 1) * n], elements, mean_gradient[e0:e1], volume[e0:e1], mu[e0:e1],
-                              lam[e0:e1], spring_vector[e0:e1], spring_length[e0:e1], spring_stiffness[e0:e1],
-                              linear, forces[c * n:(c + 1) * n])
+    n_elements = elements.shape[1]
+    empty_root = np.empty((0, 3, 3))
+    empty_tangent = np.empty((0, 9, 9))
+    for copy in prange(count):
+        stress_correction_range(positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu,
+                                lam, spring_vector, spring_length, spring_stiffness, linear, empty_root, empty_root,
+                                False, False, forces[copy * n:(copy + 1) * n], empty_tangent)
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
-def stress_correction_tangent_add_copies(count, positions, elements, mean_gradient, volume, mu, lam, spring_vector,
+def stress_correction_tangent_add_copies(count, positions, elements, gradient, volume, mu, lam, spring_vector,
                                          spring_length, spring_stiffness, linear, root, root_inverse, clamp, forces,
                                          tangent):
     """``stress_correction_tangent_add`` per copy on numba's threads (``stress_correction_add_copies``'
     layout; the same floats as the stacked pass)."""
     n = positions.shape[0] // count
-    n_elements = elements.shape[0]
+    n_elements = elements.shape[1]
     clamped = np.zeros(count, dtype=np.int64)
-    for c in prange(count):
-        e0, e1 = c * n_elements, (c + 1) * n_elements
-        clamped[c] = stress_correction_tangent_add(
-            positions[c * n:(c + 1) * n], elements, mean_gradient[e0:e1], volume[e0:e1], mu[e0:e1], lam[e0:e1],
-            spring_vector[e0:e1], spring_length[e0:e1], spring_stiffness[e0:e1], linear, root[e0:e1],
-            root_inverse[e0:e1], clamp, forces[c * n:(c + 1) * n], tangent[e0:e1])
+    for copy in prange(count):
+        clamped[copy] = stress_correction_range(
+            positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu, lam, spring_vector,
+            spring_length, spring_stiffness, linear, root, root_inverse, clamp, True, forces[copy * n:(copy + 1) * n],
+            tangent)
     return clamped.sum()
