@@ -37,6 +37,16 @@ _SYMMETRIC = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _spring_image(f, spring_vector, s, m, j):
+    """(D, F D) of spring ``s`` of element ``m`` in lane ``j`` (f (9, LANES) rows 3 i + J of F), m."""
+    d0, d1, d2 = spring_vector[s, 0, m], spring_vector[s, 1, m], spring_vector[s, 2, m]
+    u0 = f[0, j] * d0 + f[1, j] * d1 + f[2, j] * d2
+    u1 = f[3, j] * d0 + f[4, j] * d1 + f[5, j] * d2
+    u2 = f[6, j] * d0 + f[7, j] * d1 + f[8, j] * d2
+    return d0, d1, d2, u0, u1, u2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _block_stress(positions, elements, offset, start, n, gradient, volume, mu, lam, spring_vector, spring_length,
                   spring_stiffness, linear, f, c, p, det, log_j, inverse_volume):
     """Elements start .. start + n - 1 of ``elements`` (n, M_local) (lane j: local element start + j,
@@ -99,10 +109,7 @@ def _block_stress(positions, elements, offset, start, n, gradient, volume, mu, l
     for s in range(spring_vector.shape[0]):  # minus the springs' own stress under F
         for j in range(n):
             m = offset + start + j
-            d0, d1, d2 = spring_vector[s, 0, m], spring_vector[s, 1, m], spring_vector[s, 2, m]
-            u0 = f[0, j] * d0 + f[1, j] * d1 + f[2, j] * d2
-            u1 = f[3, j] * d0 + f[4, j] * d1 + f[5, j] * d2
-            u2 = f[6, j] * d0 + f[7, j] * d1 + f[8, j] * d2
+            d0, d1, d2, u0, u1, u2 = _spring_image(f, spring_vector, s, m, j)
             length = np.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
             t = spring_stiffness[s, m] * (length - spring_length[s, m]) / length * inverse_volume[j]
             p[0, j] -= t * u0 * d0
@@ -196,10 +203,7 @@ def _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_leng
     for s in range(spring_vector.shape[0]):
         for j in range(n):
             m = offset + start + j
-            d0, d1, d2 = spring_vector[s, 0, m], spring_vector[s, 1, m], spring_vector[s, 2, m]
-            u0 = f[0, j] * d0 + f[1, j] * d1 + f[2, j] * d2
-            u1 = f[3, j] * d0 + f[4, j] * d1 + f[5, j] * d2
-            u2 = f[6, j] * d0 + f[7, j] * d1 + f[8, j] * d2
+            d0, d1, d2, u0, u1, u2 = _spring_image(f, spring_vector, s, m, j)
             squared = u0 * u0 + u1 * u1 + u2 * u2
             length = np.sqrt(squared)
             ratio = spring_length[s, m] / length
