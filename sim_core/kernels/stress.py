@@ -9,9 +9,9 @@ a block (F, its cofactor, the stress, the 81 entries of T, ...) is a row of a (.
 array, and the per-element inputs are read in the element-last layout of
 ``stress_correction.stress_lanes`` (b (n, 3, M), D (S_e, 3, M), L and k (S_e, M); the element
 nodes (n, M)), so that each formula is a loop over the lanes that LLVM turns into vector
-instructions. Each element sees the same operations in the same order as one element at a time
-would (no reassociation), so the floats do not depend on the block size. The rare per-element
-branches (the eigen-decomposition of a compressed element's stress, the positive part of an
+instructions. Each element's floats come from its own lane's operations alone (no reassociation
+across lanes), so they do not depend on the block size. The per-element branches (the negative
+part of a compressed element's stress, with its arccos and cosines, and the positive part of an
 indefinite tangent) run lane by lane.
 
 One body for every pass: ``_block_stress`` (F, its cofactor, P_NH - P_S), ``_block_tangent`` and
@@ -150,7 +150,7 @@ def _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_leng
     products (54, LANES): rows 6 a + b the springs' sum over the pairs a = (i, k), b = (J, L), rows
     36 .. 53 the cofactor times the two coefficients of A_NH; row (12, LANES): one spring's
     (F D)(F D)^T L/l^3 k and D D^T; g (6, LANES): sum_s k_s (1 - L_s / l_s) D D^T; scalars
-    (4, LANES) scratch."""
+    (3, LANES) scratch: V0 mu and the two coefficients of A_NH (with ``linear``, V0 lam)."""
     for j in range(n):
         m = offset + start + j
         v = volume[m]
@@ -284,8 +284,10 @@ def _negative_part(s00, s01, s02, s11, s12, s22, part, small, values, vectors):
     negative eigenvalue. The eigenvalues in closed form (the trigonometric solution of the
     characteristic cubic), the one eigenvector needed (the smallest's, or with two negative
     eigenvalues the largest's: [S]_- = l_1 v_1 v_1^T - S) as the longest cross product of two rows of
-    S - l I, whose error, an rounding error of S over the eigenvalue gap, the gap bounds the weight
-    of; ``_symmetric_eigen3`` where those rows are parallel (a repeated eigenvalue).
+    S - l I. That vector's error is the rounding of S over the gap between l and the nearest other
+    eigenvalue, and the gap is at least |l| (l and its neighbour lie on either side of 0), so its
+    term l v v^T is off by no more than the rounding of S. ``_symmetric_eigen3`` where those rows
+    are parallel (a repeated eigenvalue).
     small, vectors (3, 3), values (3,) scratch."""
     q = (s00 + s11 + s22) / 3.0
     a, b, c = s00 - q, s11 - q, s22 - q
@@ -350,7 +352,7 @@ def _negative_part(s00, s01, s02, s11, s12, s22, part, small, values, vectors):
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _congruence(root, m, source, target):
     """target (9, 9) = S source S with S = I_3 (x) root[m] (root[m] symmetric 3 x 3): the change of
-    metric of ``_clamp_tangent``, in both directions."""
+    metric of ``_block_clamp``'s positive part, in both directions."""
     for i in range(3):
         for jj in range(3):
             for k in range(3):
@@ -401,8 +403,8 @@ def _block_clamp(offset, start, n, volume, root, root_inverse, linear, det, c, p
             s00, s01, s02, s11, s12, s22 = sym[0, j], sym[1, j], sym[2, j], sym[3, j], sym[4, j], sym[5, j]
             minor = s00 * s11 - s01 * s01
             determinant = s00 * (s11 * s22 - s12 * s12) - s01 * (s01 * s22 - s12 * s02) + s02 * (s01 * s12 - s11 * s02)
-            if not (det[j] > 0.0 and not (s00 > 0.0 and minor > 0.0 and determinant > 0.0)):
-                continue  # positive definite by its leading minors: no negative part
+            if not det[j] > 0.0 or (s00 > 0.0 and minor > 0.0 and determinant > 0.0):
+                continue  # inverted, or positive definite by its leading minors: no negative part
             if _negative_part(s00, s01, s02, s11, s12, s22, part, small, values, vectors):
                 v = volume[offset + start + j]
                 for jj in range(3):
@@ -488,7 +490,7 @@ def stress_correction_range(positions, elements, offset, gradient, volume, mu, l
     products = np.empty((54, LANES))
     g = np.empty((6, LANES))
     sym = np.empty((6, LANES))
-    scalars = np.empty((4, LANES))
+    scalars = np.empty((3, LANES))
     shift = np.empty(LANES)
     total = np.empty(LANES)
     pivot = np.empty(LANES)
