@@ -54,24 +54,25 @@ def _block_stress(positions, elements, offset, start, n, gradient, volume, mu, l
     cof F = det F F^-T and P_NH(F) - P_S(F) in Pa, or with ``linear`` P_lin(F) - P_S(F), P_lin the
     small-strain Hooke stress lam tr(eps) I + 2 mu eps of eps = sym(F) - I; det, log_j (LANES,)
     det F and ln det F (0 if linear); inverse_volume (LANES,) scratch."""
-    for r in range(9):
-        for j in range(n):
-            f[r, j] = 0.0
-    for a in range(gradient.shape[0]):
-        for j in range(n):
-            m = offset + start + j
+    for j in range(n):  # F lane by lane in scalars: in the rows of f every term went through memory
+        m = offset + start + j
+        g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
+        for a in range(gradient.shape[0]):
             node = elements[a, start + j]
             x0, x1, x2 = positions[node, 0], positions[node, 1], positions[node, 2]
             b0, b1, b2 = gradient[a, 0, m], gradient[a, 1, m], gradient[a, 2, m]
-            f[0, j] += x0 * b0
-            f[1, j] += x0 * b1
-            f[2, j] += x0 * b2
-            f[3, j] += x1 * b0
-            f[4, j] += x1 * b1
-            f[5, j] += x1 * b2
-            f[6, j] += x2 * b0
-            f[7, j] += x2 * b1
-            f[8, j] += x2 * b2
+            g00 += x0 * b0
+            g01 += x0 * b1
+            g02 += x0 * b2
+            g10 += x1 * b0
+            g11 += x1 * b1
+            g12 += x1 * b2
+            g20 += x2 * b0
+            g21 += x2 * b1
+            g22 += x2 * b2
+        f[0, j], f[1, j], f[2, j] = g00, g01, g02
+        f[3, j], f[4, j], f[5, j] = g10, g11, g12
+        f[6, j], f[7, j], f[8, j] = g20, g21, g22
     for j in range(n):
         f00, f01, f02 = f[0, j], f[1, j], f[2, j]
         f10, f11, f12 = f[3, j], f[4, j], f[5, j]
@@ -129,11 +130,13 @@ def _block_scatter(elements, offset, start, n, gradient, volume, p, forces):
     for j in range(n):
         m = offset + start + j
         v = volume[m]
+        p0, p1, p2, p3, p4, p5, p6, p7, p8 = p[0, j], p[1, j], p[2, j], p[3, j], p[4, j], p[5, j], p[6, j], p[7, j], p[8, j]
         for a in range(gradient.shape[0]):
             node = elements[a, start + j]
             b0, b1, b2 = gradient[a, 0, m], gradient[a, 1, m], gradient[a, 2, m]
-            for i in range(3):
-                forces[node, i] -= v * (p[3 * i, j] * b0 + p[3 * i + 1, j] * b1 + p[3 * i + 2, j] * b2)
+            forces[node, 0] -= v * (p0 * b0 + p1 * b1 + p2 * b2)
+            forces[node, 1] -= v * (p3 * b0 + p4 * b1 + p5 * b2)
+            forces[node, 2] -= v * (p6 * b0 + p7 * b1 + p8 * b2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
