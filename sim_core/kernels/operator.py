@@ -11,6 +11,7 @@ from numba import njit, prange
 
 from ..topology import EDGES
 from .fastmath import FAST, FAST_REDUCE
+from .stress import add_outer
 
 _EDGES = np.ascontiguousarray(EDGES)
 
@@ -68,20 +69,12 @@ def _stress_product(elements, stress_gradient, stress_tangent, scale, vector, ou
     through memory, and the pass took 1.6x as long."""
     n_nodes = stress_gradient.shape[1]
     for m in range(elements.shape[0]):
-        d0 = d1 = d2 = d3 = d4 = d5 = d6 = d7 = d8 = 0.0
+        d = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         for a in range(n_nodes):
             node = elements[m, a]
-            v0, v1, v2 = vector[3 * node], vector[3 * node + 1], vector[3 * node + 2]
-            b0, b1, b2 = stress_gradient[m, a, 0], stress_gradient[m, a, 1], stress_gradient[m, a, 2]
-            d0 += v0 * b0
-            d1 += v0 * b1
-            d2 += v0 * b2
-            d3 += v1 * b0
-            d4 += v1 * b1
-            d5 += v1 * b2
-            d6 += v2 * b0
-            d7 += v2 * b1
-            d8 += v2 * b2
+            d = add_outer(d, vector[3 * node], vector[3 * node + 1], vector[3 * node + 2], stress_gradient[m, a, 0],
+                          stress_gradient[m, a, 1], stress_gradient[m, a, 2])
+        d0, d1, d2, d3, d4, d5, d6, d7, d8 = d
         t = stress_tangent[m]
         p0 = scale * _row_product(t, 0, d0, d1, d2, d3, d4, d5, d6, d7, d8)
         p1 = scale * _row_product(t, 1, d0, d1, d2, d3, d4, d5, d6, d7, d8)

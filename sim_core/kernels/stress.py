@@ -36,6 +36,15 @@ LANES = 16
 _SYMMETRIC = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def add_outer(g, x0, x1, x2, b0, b1, b2):
+    """g + x (x) b for g a 9-tuple of rows 3 i + J: one node's term of a nodal field's gradient
+    sum_a x_a (x) b_a (F from the positions, dF from a displacement), summed in the caller's
+    registers and under the caller's fastmath flags (numba inlines it in the caller's IR)."""
+    return (g[0] + x0 * b0, g[1] + x0 * b1, g[2] + x0 * b2, g[3] + x1 * b0, g[4] + x1 * b1, g[5] + x1 * b2,
+            g[6] + x2 * b0, g[7] + x2 * b1, g[8] + x2 * b2)
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
 def _spring_image(f, spring_vector, s, m, j):
     """(D, F D) of spring ``s`` of element ``m`` in lane ``j`` (f (9, LANES) rows 3 i + J of F), m."""
@@ -56,23 +65,13 @@ def _block_stress(positions, elements, offset, start, n, gradient, volume, mu, l
     det F and ln det F (0 if linear); inverse_volume (LANES,) scratch."""
     for j in range(n):  # F lane by lane in scalars: in the rows of f every term went through memory
         m = offset + start + j
-        g00 = g01 = g02 = g10 = g11 = g12 = g20 = g21 = g22 = 0.0
+        g = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         for a in range(gradient.shape[0]):
             node = elements[a, start + j]
-            x0, x1, x2 = positions[node, 0], positions[node, 1], positions[node, 2]
-            b0, b1, b2 = gradient[a, 0, m], gradient[a, 1, m], gradient[a, 2, m]
-            g00 += x0 * b0
-            g01 += x0 * b1
-            g02 += x0 * b2
-            g10 += x1 * b0
-            g11 += x1 * b1
-            g12 += x1 * b2
-            g20 += x2 * b0
-            g21 += x2 * b1
-            g22 += x2 * b2
-        f[0, j], f[1, j], f[2, j] = g00, g01, g02
-        f[3, j], f[4, j], f[5, j] = g10, g11, g12
-        f[6, j], f[7, j], f[8, j] = g20, g21, g22
+            g = add_outer(g, positions[node, 0], positions[node, 1], positions[node, 2], gradient[a, 0, m],
+                          gradient[a, 1, m], gradient[a, 2, m])
+        for r in range(9):
+            f[r, j] = g[r]
     for j in range(n):
         f00, f01, f02 = f[0, j], f[1, j], f[2, j]
         f10, f11, f12 = f[3, j], f[4, j], f[5, j]
