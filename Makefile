@@ -63,6 +63,8 @@ bench: $(STAMP)
 bench-peers: $(STAMP)
 	$(PY) -m pip install --quiet -e ".[bench]"
 	$(PY) benchmarks/peers.py
+	$(PY) benchmarks/speed_accuracy_peers.py
+	$(PY) benchmarks/speed_accuracy.py --replot
 
 $(RLLIB_STAMP): pyproject.toml Makefile
 	python3 -m venv $(RLLIB_VENV)

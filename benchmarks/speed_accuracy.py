@@ -1,6 +1,6 @@
 """Speed against accuracy: node-position error against wall time per simulated second.
 
-    python benchmarks/speed_accuracy.py [--quick] [--resolutions 2 4 8 12 16] [--reference 20]
+    python benchmarks/speed_accuracy.py [--quick] [--resolutions 2 4 8 12 16] [--reference 20] [--replot]
 
 The block: a 4 cm cube of soft tissue (E = 5 kPa, nu = 0.45, rho = 1060 kg/m^3), bottom face y = 0
 fixed, no gravity (its 8% sag would mix a second load into the comparison). The tool is the set of
@@ -61,6 +61,10 @@ default run near 20-30 minutes on 2 shared cores; ``--budget`` raises it.
 Pareto front (per scene): the successful configurations that no other successful one beats on
 both wall time and error (``pareto_front``).
 
+Peer: MuJoCo's flex on the same scenes (``benchmarks/speed_accuracy_peers.py``, which needs the
+``bench`` extra) is drawn as points of its own where its results file exists; they are not on the
+front. ``--replot`` only redraws the figure from the results files.
+
 Writes benchmarks/results/speed_accuracy.csv, benchmarks/results/speed_accuracy.json and
 docs/figures/speed_accuracy.png (written to temporary files, then moved into place).
 ``--quick``: n = 2 and 4, reference n = 8, a subset of the implicit settings, budget 10 s (< 2 min).
@@ -73,6 +77,7 @@ import argparse
 import csv
 import functools
 import io
+import json
 import math
 import signal
 import sys
@@ -728,6 +733,28 @@ def write_csv(rows, path: Path):
     atomic_write(path, buffer.getvalue().encode())
 
 
+#: CSV columns read back as numbers by ``read_csv`` (the others stay strings)
+_INTEGER_COLUMNS = ("resolution", "n_nodes", "repeats", "steps")
+_FLOAT_COLUMNS = ("dt_s", "error_pct", "error_max_pct", "wall_per_sim_s", "wall_s", "sim_time_s", "mean_iterations",
+                  "setup_s", "predicted_wall_s")
+
+
+def read_csv(path: Path) -> list[dict]:
+    """The rows ``write_csv`` wrote, with its numbers as numbers (an empty cell: NaN, or None for an
+    integer) and ``on_pareto`` as a bool."""
+    lines = [line for line in Path(path).read_text().splitlines() if not line.startswith("#")]
+    rows = []
+    for raw in csv.DictReader(lines):
+        row = dict(raw)
+        for key in _INTEGER_COLUMNS:
+            row[key] = int(row[key]) if row[key] else None
+        for key in _FLOAT_COLUMNS:
+            row[key] = float(row[key]) if row[key] else float("nan")
+        row["on_pareto"] = row["on_pareto"] == "True"
+        rows.append(row)
+    return rows
+
+
 def write_summary(summary, path: Path):
     """The run's summary as JSON (atomic; numpy scalars as floats)."""
     write_json(path, summary, indent=1, default=lambda v: None if v is None else float(v))
@@ -737,8 +764,14 @@ MARKERS = {"explicit": "^", "implicit": "o", "quasi-static": "s"}
 METHOD_MARKERS = {"baudet-original": "P", "uniform-springs": "X", HYPER: "h", "fem-linear": "D", "fem-neohookean": "*"}
 
 
-def figure(rows, summary, path: Path):
-    """Two panels, log-log error against wall time per simulated second, Pareto front as a step line."""
+PEERS = ROOT / "benchmarks" / "results" / "speed_accuracy_peers.json"
+PEER_MARKER = "v"
+
+
+def figure(rows, summary, path: Path, peers: dict | None = None):
+    """Two panels, log-log error against wall time per simulated second, Pareto front as a step line.
+    ``peers``: benchmarks/speed_accuracy_peers.json's content (MuJoCo flex on the same scenes), drawn
+    as points of their own (not on the front: their scene match is the peers' file's)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -749,7 +782,7 @@ def figure(rows, summary, path: Path):
     resolutions = summary["resolutions"]
     cmap = plt.get_cmap("viridis")
     colour = {n: cmap(i / max(len(resolutions) - 1, 1)) for i, n in enumerate(resolutions)}
-    fig, axes = plt.subplots(1, len(scenes), figsize=(7.5 * len(scenes), 6.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(scenes), figsize=(7.5 * len(scenes), 6.9), squeeze=False)
     for ax, name in zip(axes[0], scenes):
         scene_rows = [r for r in rows if r["scene"] == name]
         for row in scene_rows:
@@ -760,6 +793,11 @@ def figure(rows, summary, path: Path):
                 ax.scatter(row["wall_per_sim_s"], max(row["error_pct"], 1e-3), s=size, marker=marker,
                            facecolors="none" if hollow else colour[row["resolution"]], edgecolors=colour[row["resolution"]],
                            linewidths=1.0, alpha=0.85, zorder=3)
+        for row in (peers or {}).get("rows", []):
+            if row["scene"] == name and row["status"] == "ok" and row["resolution"] in colour:
+                ax.scatter(row["wall_per_sim_s"], max(row["error_pct"], 1e-3), s=18 + 10 * resolutions.index(row["resolution"]),
+                           marker=PEER_MARKER, facecolors="none" if row["damping"] == "none" else colour[row["resolution"]],
+                           edgecolors=colour[row["resolution"]], linewidths=1.0, alpha=0.85, zorder=3)
         ok = [r for r in scene_rows if r["status"] == "ok"]
         front = sorted((r for r in ok if r["on_pareto"]), key=lambda r: r["wall_per_sim_s"])
         if front:
@@ -788,12 +826,15 @@ def figure(rows, summary, path: Path):
     handles = [Line2D([], [], ls="", marker=m, color="grey", label=f"baudet {s}") for s, m in MARKERS.items()]
     handles.append(Line2D([], [], ls="", marker="o", mfc="none", color="grey", label="implicit, 15-iteration cap"))
     handles += [Line2D([], [], ls="", marker=m, color="grey", label=k) for k, m in METHOD_MARKERS.items()]
+    if peers:
+        handles.append(Line2D([], [], ls="", marker=PEER_MARKER, color="grey",
+                              label=f"MuJoCo {peers.get('mujoco_version', '')} flex (hollow: undamped)"))
     handles += [Line2D([], [], ls="", marker="o", color=colour[n], label=f"n = {n}") for n in resolutions]
     handles.append(Line2D([], [], color="crimson", label="Pareto front"))
-    axes[0][-1].legend(handles=handles, fontsize=7, loc="upper right", ncol=2)
+    fig.legend(handles=handles, fontsize=7, loc="lower center", ncol=8)  # below the panels: no point hidden
     fig.suptitle(f"4 cm cube, E = {YOUNG / 1e3:g} kPa, nu = {POISSON}: final positions after 1 s (tool ramp 0.5 s) "
                  "against static neo-Hookean FEM", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
     save_figure(fig, path, dpi=110)
     plt.close(fig)
 
@@ -805,7 +846,17 @@ def main(argv=None):
     parser.add_argument("--reference", type=int, help="reference resolution (finer than every resolution)")
     parser.add_argument("--budget", type=float, help=f"wall-time cap per run in s (default {BUDGET:g})")
     parser.add_argument("--out", type=Path, default=ROOT, help="root under which results/ and figures/ are written")
+    parser.add_argument("--replot", action="store_true",
+                        help="only redraw the figure from the results files under --out (with MuJoCo's points of "
+                             "benchmarks/speed_accuracy_peers.py where its results file exists)")
     args = parser.parse_args(argv)
+    results = args.out / "benchmarks" / "results"
+    peers = json.loads(PEERS.read_text()) if PEERS.exists() else None
+    if args.replot:
+        summary = json.loads((results / "speed_accuracy.json").read_text())
+        rows = read_csv(results / "speed_accuracy.csv")
+        figure(rows, summary, args.out / "docs" / "figures" / "speed_accuracy.png", peers)
+        return rows, summary
     options = dict(resolutions=RESOLUTIONS, reference_resolution=REFERENCE_RESOLUTION)
     if args.quick:
         options = dict(QUICK)
@@ -819,7 +870,7 @@ def main(argv=None):
     summary["quick"] = bool(args.quick)
     write_csv(rows, args.out / "benchmarks" / "results" / "speed_accuracy.csv")
     write_summary(summary, args.out / "benchmarks" / "results" / "speed_accuracy.json")
-    figure(rows, summary, args.out / "docs" / "figures" / "speed_accuracy.png")
+    figure(rows, summary, args.out / "docs" / "figures" / "speed_accuracy.png", peers)
     for name, scene in summary["scenes"].items():
         print(f"\n{name}: Pareto front")
         for p in scene["pareto"]:

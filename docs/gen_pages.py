@@ -775,6 +775,23 @@ def env_rejected_section():
             "gain in the vector env, a worse tail and more factorisations.\n\n"]
 
 
+def speed_accuracy_peers_section():
+    """MuJoCo flex on the speed-accuracy scenes (speed_accuracy_peers.json, the optional bench extra)."""
+    if not (RESULTS / "speed_accuracy_peers.json").exists():
+        return []
+    peers = load("speed_accuracy_peers.json")
+    out = [f"### MuJoCo flex on the same scenes\n\nMuJoCo {peers['mujoco_version']}'s 3-D flex, the triangles of the "
+           "figure. " + peers["scene_match"][:1].upper() + peers["scene_match"][1:].rstrip(".") + ".\n\nWhere it differs from the chart's runs: "
+           + "; ".join(peers["deviations"]) + ".\n\n",
+           caption(command_for("speed_accuracy_peers.py"), "speed_accuracy_peers.json"),
+           "(`make bench-peers` installs MuJoCo first.)\n\n"]
+    rows = [[row["scene"], row["damping"], row["resolution"], num(row.get("dt_s")), num(row.get("wall_per_sim_s")),
+             num(row.get("error_pct")), num(row.get("error_max_pct")), row["status"]] for row in peers["rows"]]
+    out += [table(["scene", "damping", "n", "dt (s)", "wall s per simulated s", "error (%)", "max error (%)", "status"],
+                  rows), "\n"]
+    return out
+
+
 # -- performance page ----------------------------------------------------------------------------
 def performance_page():
     out = [HEADER.format(source="benchmarks/results/step_speed.json, env_speed*.json, reset_speed.json, "
@@ -854,6 +871,7 @@ def performance_page():
                     table(["method", "configuration", "wall s per simulated s", "error (%)"],
                           [[method, best["configuration"], num(best["wall_per_sim_s"]), num(best["error_pct"])] if best
                            else [method, "never", "-", "-"] for method, best in reach["by_method"].items()]), "\n"]
+    out += speed_accuracy_peers_section()
     out += [figure("speed_accuracy.png", "speed against accuracy"), "\n"]
 
     peers = load("peers.json")

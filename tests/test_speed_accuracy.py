@@ -81,7 +81,8 @@ def test_tool_path_and_ramp():
 def test_tiny_run(tmp_path):
     configs = [sa.Config("baudet", "quasi-static", 2), sa.Config("baudet", "implicit", 2, "bicgstab", 0.05),
                sa.Config("fem-linear", "static-per-step", 2, "LU once"),
-               sa.Config("fem-neohookean", "static-per-step", 2, "Newton"), sa.Config(sa.HYPER, "quasi-static", 2)]
+               sa.Config("fem-neohookean", "static-per-step", 2, "Newton"), sa.Config(sa.HYPER, "quasi-static", 2),
+               sa.Config(sa.HYPER, "implicit", 2, "bicgstab", 0.05)]
     rows, summary = sa.benchmark(resolutions=(2,), reference_resolution=4, configs=configs, scenes=("indentation",),
                                  budget=20.0, verbose=False)
     assert len(rows) == len(configs)
@@ -112,8 +113,14 @@ def test_tiny_run(tmp_path):
     assert lines[0].startswith("# error_pct")
     read = list(csv.DictReader(lines[1:]))
     assert len(read) == len(rows) and float(read[0]["error_pct"]) == pytest.approx(rows[0]["error_pct"], rel=1e-5)
+    back = sa.read_csv(path)  # what --replot draws from
+    assert [(r["method"], r["stepping"], r["resolution"], r["on_pareto"]) for r in back] == \
+        [(r["method"], r["stepping"], r["resolution"], bool(r["on_pareto"])) for r in rows]
+    assert [r["error_pct"] for r in back] == pytest.approx([r["error_pct"] for r in rows], rel=1e-5)
     sa.write_summary(summary, tmp_path / "out.json")
-    sa.figure(rows, summary, tmp_path / "out.png")
+    peers = {"mujoco_version": "test", "rows": [dict(scene="indentation", status="ok", resolution=2, damping="none",
+                                                     wall_per_sim_s=0.1, error_pct=5.0)]}
+    sa.figure(back, summary, tmp_path / "out.png", peers)
     assert (tmp_path / "out.png").stat().st_size > 1000
     assert not list(tmp_path.glob(".*.tmp")) and not list(tmp_path.glob("*.tmp"))
 
