@@ -178,6 +178,12 @@ def ramp(t: float) -> float:
     return r * r * (3.0 - 2.0 * r)
 
 
+def ramp_rate(t: float) -> float:
+    """ds/dt (1/s) of ``ramp`` at time t (s): 6 r (1 - r) / RAMP_TIME, 0 outside the ramp."""
+    r = min(max(t / RAMP_TIME, 0.0), 1.0)
+    return 6.0 * r * (1.0 - r) / RAMP_TIME
+
+
 def tool_positions(scene: SceneSpec, rest: np.ndarray, s: float) -> np.ndarray:
     """(K, 3) tool node positions (m) at path parameter s: rotated by s * angle about the z axis
     through the patch centre (L/2, L, L/2), then translated by s * translation."""
@@ -782,22 +788,23 @@ def figure(rows, summary, path: Path, peers: dict | None = None):
     resolutions = summary["resolutions"]
     cmap = plt.get_cmap("viridis")
     colour = {n: cmap(i / max(len(resolutions) - 1, 1)) for i, n in enumerate(resolutions)}
+
+    def point(ax, row, marker, hollow):
+        """One run: its marker, sized and coloured by its resolution (hollow: unfilled)."""
+        ax.scatter(row["wall_per_sim_s"], max(row["error_pct"], 1e-3), s=18 + 10 * resolutions.index(row["resolution"]),
+                   marker=marker, facecolors="none" if hollow else colour[row["resolution"]],
+                   edgecolors=colour[row["resolution"]], linewidths=1.0, alpha=0.85, zorder=3)
+
     fig, axes = plt.subplots(1, len(scenes), figsize=(7.5 * len(scenes), 6.9), squeeze=False)
     for ax, name in zip(axes[0], scenes):
         scene_rows = [r for r in rows if r["scene"] == name]
         for row in scene_rows:
-            marker = METHOD_MARKERS.get(row["method"], MARKERS.get(row["stepping"], "o"))
-            size = 18 + 10 * resolutions.index(row["resolution"])
             if row["status"] == "ok":
                 hollow = row["method"] in ("baudet", HYPER) and row["stepping"] == "implicit" and row["solver"] != "bicgstab"
-                ax.scatter(row["wall_per_sim_s"], max(row["error_pct"], 1e-3), s=size, marker=marker,
-                           facecolors="none" if hollow else colour[row["resolution"]], edgecolors=colour[row["resolution"]],
-                           linewidths=1.0, alpha=0.85, zorder=3)
+                point(ax, row, METHOD_MARKERS.get(row["method"], MARKERS.get(row["stepping"], "o")), hollow)
         for row in (peers or {}).get("rows", []):
             if row["scene"] == name and row["status"] == "ok" and row["resolution"] in colour:
-                ax.scatter(row["wall_per_sim_s"], max(row["error_pct"], 1e-3), s=18 + 10 * resolutions.index(row["resolution"]),
-                           marker=PEER_MARKER, facecolors="none" if row["damping"] == "none" else colour[row["resolution"]],
-                           edgecolors=colour[row["resolution"]], linewidths=1.0, alpha=0.85, zorder=3)
+                point(ax, row, PEER_MARKER, row["damping"] == "none")
         ok = [r for r in scene_rows if r["status"] == "ok"]
         front = sorted((r for r in ok if r["on_pareto"]), key=lambda r: r["wall_per_sim_s"])
         if front:
@@ -868,8 +875,8 @@ def main(argv=None):
         options["budget"] = args.budget
     rows, summary = benchmark(**options)
     summary["quick"] = bool(args.quick)
-    write_csv(rows, args.out / "benchmarks" / "results" / "speed_accuracy.csv")
-    write_summary(summary, args.out / "benchmarks" / "results" / "speed_accuracy.json")
+    write_csv(rows, results / "speed_accuracy.csv")
+    write_summary(summary, results / "speed_accuracy.json")
     figure(rows, summary, args.out / "docs" / "figures" / "speed_accuracy.png", peers)
     for name, scene in summary["scenes"].items():
         print(f"\n{name}: Pareto front")

@@ -131,9 +131,7 @@ class FlexScene:
 
     def _targets(self, t: float):
         """(imposed displacements, their velocities) at time t, flattened like qpos_index."""
-        s = sa.ramp(t)
-        r = min(max(t / sa.RAMP_TIME, 0.0), 1.0)
-        ds_dt = 6.0 * r * (1.0 - r) / sa.RAMP_TIME if 0.0 < t < sa.RAMP_TIME else 0.0
+        s, ds_dt = sa.ramp(t), sa.ramp_rate(t)
         comps = self.path.components
         position = sa.tool_positions(self.scene, self._tool_rest, s)[:, comps].ravel()
         eps = 1e-6

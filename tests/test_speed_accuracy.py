@@ -67,6 +67,10 @@ def test_matmul_tangent_matches_the_einsum_definition():
 
 def test_tool_path_and_ramp():
     assert sa.ramp(0.0) == 0.0 and sa.ramp(sa.RAMP_TIME) == 1.0 and sa.ramp(sa.END_TIME) == 1.0
+    # its rate (the peers' imposed tool velocity): the derivative of the ramp, zero before and after it
+    for t in np.linspace(0.01, sa.RAMP_TIME - 0.01, 7):
+        assert sa.ramp_rate(t) == pytest.approx((sa.ramp(t + 1e-6) - sa.ramp(t - 1e-6)) / 2e-6, rel=1e-6)
+    assert sa.ramp_rate(-0.1) == 0.0 and sa.ramp_rate(sa.RAMP_TIME) == 0.0 and sa.ramp_rate(sa.END_TIME) == 0.0
     mesh = sa.block(4)
     path = sa.ScenePath(sa.SCENES["pull"], mesh)
     assert len(path.tool) == 9  # the [1, 3] cm square at 1 cm spacing
