@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet "torch==2.13.0"
 	$(PY) -m pip install --quiet -e ".[train,dev,docs]"
 	# compile every numba kernel once (about 100 s on 2 cores), so a first env step takes 0.1 s, not 12 s
-	$(VENV)/bin/tissue-sim warmup
+	$(VENV)/bin/tissue-gym-warmup
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -8,6 +8,9 @@ Quick start::
     model = build_model(mesh, Material(5e3, 0.45, 1060), gravity=(0, -9.81, 0))
     control = model.new_control().impose(bottom_nodes, mesh.nodes[bottom_nodes])
     equilibrium = solve_static(model, control)
+    solver = make_solver("implicit", model)                    # or a ModelStack(model, N): N worlds
+    state, next_state = model.new_state(), model.new_state()
+    report = solver.step(state, next_state, control, 0.01)    # 10 ms
 
 All quantities are SI: m, kg, s, Pa, N. Formulas follow docs/physics.md.
 """
@@ -19,6 +22,9 @@ from .mesh import HexMesh
 from .tetmesh import TetMesh
 from .model import Control, Model, State, build_model
 from .static import StaticResult, solve_static, zero_energy_modes
+from .stack import ModelStack
+from .solver import StepReport
+from .worlds import make_solver
 
 #: The version of pyproject.toml; used when the package runs from a clone that is not installed.
 _SOURCE_VERSION = "0.1.0"
@@ -29,6 +35,6 @@ except _metadata.PackageNotFoundError:  # a clone on sys.path, not installed
     __version__ = _SOURCE_VERSION
 
 __all__ = [
-    "__version__", "Control", "HexMesh", "Material", "Model", "State", "StaticResult", "build_model",
-    "solve_static", "TetMesh", "zero_energy_modes",
+    "__version__", "Control", "HexMesh", "Material", "Model", "ModelStack", "State", "StaticResult", "StepReport",
+    "build_model", "make_solver", "solve_static", "TetMesh", "zero_energy_modes",
 ]

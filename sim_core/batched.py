@@ -77,7 +77,7 @@ from .caches import BudgetCache
 from .forces import stiffness_data
 from .integrators import SymplecticEuler
 from .model import Control, Model, State
-from .solver import DivergenceMonitors, WorldsReport
+from .solver import WorldsSolver
 from .preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
                               node_block_factor)
 from .sparse import NodeBlockLU, block_structure, symmetric_structure
@@ -258,42 +258,6 @@ def _edge_incidence(model: Model):
     return node_edge, node_sign
 
 
-class WorldsSolver:
-    """The solver contract (``sim_core.solver``) for the N worlds of a ``ModelStack``: ``prepare``
-    a world at the start of its episode, then ``step(state_in, state_out, control, dt, active)``
-    with states and controls of shape (N, n, 3) and ``active`` an (N,) world mask, which returns a
-    ``WorldsReport`` whose divergence reasons come from the worlds' ``DivergenceMonitors``. A
-    subclass provides ``simulate(positions, velocities, fixed, target, dt, active)`` -> (positions,
-    velocities), new (N, n, 3) arrays in which the inactive worlds keep their state."""
-
-    def _start_worlds(self, stack: ModelStack, threads: int):
-        self.stack = stack
-        self.monitors = DivergenceMonitors(stack.count, stack.n_nodes, stack.reference.mesh.elements,
-                                           threads=threads)
-        self.last_iterations = np.zeros(stack.count, dtype=int)
-        self.last_residual = np.zeros(stack.count)
-
-    def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
-        """World ``index`` starts an episode of ``model`` at ``positions`` (n, 3) m with the imposed
-        components ``fixed`` (n, 3) bool and time step ``dt`` s: its divergence history starts again."""
-        self.monitors.assign(index, model)
-
-    def step(self, state_in: State, state_out: State, control: Control, dt: float, active=None) -> WorldsReport:
-        """Advance the ``active`` worlds (None: all) by ``dt`` s from ``state_in`` into ``state_out``
-        under ``control`` (``fixed``, ``target`` (N, n, 3); its forces must be zero: the worlds'
-        external loads are their models' gravity). The other worlds keep their state."""
-        count = self.stack.count
-        active = np.ones(count, dtype=bool) if active is None else np.asarray(active, dtype=bool)
-        if active.shape != (count,):
-            raise ValueError(f"active must be None or an ({count},) bool world mask, got shape {active.shape}")
-        positions, velocities = self.simulate(state_in.positions, state_in.velocities, control.fixed,
-                                              control.target, dt, active)
-        reasons = np.full(count, None, dtype=object)
-        reasons[active] = self.monitors.check(positions, velocities, active)[active]
-        state_out.positions, state_out.velocities, state_out.time = positions, velocities, state_in.time + dt
-        return WorldsReport(self.last_iterations.copy(), self.last_residual.copy(), reasons)
-
-
 class BatchedImplicitEuler(WorldsSolver):
     """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
     copy, run one copy at a time on numba's threads (solver "factorised"), in lockstep per thread
@@ -403,13 +367,18 @@ class BatchedImplicitEuler(WorldsSolver):
         self.__dict__.update({name: _typed(value, memo) for name, value in state.items()})
 
     # -- preconditioner ------------------------------------------------------------------------------
-    def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
+    def _options(self):
+        return dict(tolerance=self.tolerance, max_iterations=self.max_iterations,
+                    refresh_iterations=self.refresh_iterations, solver=self.solver, amortise=self.amortise,
+                    threads=self.threads)
+
+    def _prepare_shared(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
         """Start an episode of copy ``index``: clear its warm start and (solver "reference") set its
         preconditioner, the sparse LU of its system matrix M + dt D + dt^2 K (K at ``positions``
         (n, 3) m, the episode's start; geometric terms clamped as the integrator does) on the dofs
         not in ``fixed`` (n, 3) (``_system_factor``). Shared (cached) between copies and episodes that
         start alike: the copies holding the same factor form one group, solved together."""
-        super().prepare(index, model, positions, dt, fixed)
+        super()._prepare_shared(index, model, positions, dt, fixed)
         self.warm[index] = 0.0
         if self.solver == "jacobi":
             return
@@ -454,7 +423,8 @@ class BatchedImplicitEuler(WorldsSolver):
         if self._groups is None:
             groups = {}
             for index, entry in enumerate(self._preconditioners):
-                groups.setdefault(id(entry), (entry, []))[1].append(index)
+                if entry is not None:  # None: a world not stepped on the stacked arrays (its own topology)
+                    groups.setdefault(id(entry), (entry, []))[1].append(index)
             self._groups = [(entry, np.array(indices)) for entry, indices in groups.values()]
         return self._groups
 
@@ -848,12 +818,13 @@ class BatchedImplicitEuler(WorldsSolver):
         self._linearised = (stack.version, positions.copy())
         return forces
 
-    def simulate(self, positions, velocities, fixed, target, dt, active):
+    def simulate(self, positions, velocities, fixed, target, dt, active, force=None):
         """One step of every copy in ``active`` (N,) bool; the others keep their state.
 
         Args:
             positions, velocities: (N, n, 3) m, m/s.  fixed: (N, n, 3) bool imposed components.
             target: (N, n, 3) imposed positions, m (read where fixed).  dt: s.
+            force: None or (N, n, 3) external nodal forces, N.
         Returns: (positions, velocities) (N, n, 3), new arrays.
         """
         stack = self.stack
@@ -868,6 +839,8 @@ class BatchedImplicitEuler(WorldsSolver):
         # one fused pass over the stacked model: forces without damping, clamped geometric stiffness,
         # volume terms
         forces = self.linearise(x0) + model.gravity_force
+        if force is not None and np.any(force):  # (zero forces add nothing: the floats stay the same)
+            forces += np.asarray(force, dtype=float).reshape(-1, 3)
 
         def scales(mass, damping, stiffness):  # (mass, damping, stiffness, coupling, volume, hourglass)
             return (float(mass), float(damping), float(stiffness), stiffness if coupled else 0.0,
@@ -958,15 +931,21 @@ class BatchedSymplecticEuler(WorldsSolver):
     stacked step is exactly N single steps)."""
 
     def __init__(self, stack: ModelStack, threads: int = 1):
-        self._start_worlds(stack, int(threads))
+        self.threads = int(threads)
+        self._start_worlds(stack, self.threads)
         self._integrator = SymplecticEuler(monitor=False)
 
-    def simulate(self, positions, velocities, fixed, target, dt, active):
+    def _options(self):
+        return dict(threads=self.threads)
+
+    def simulate(self, positions, velocities, fixed, target, dt, active, force=None):
         count, n_nodes = positions.shape[:2]
         state = State(np.ascontiguousarray(positions.reshape(-1, 3), dtype=float),
                       np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float))
         out = state.copy()
-        control = Control(fixed.reshape(-1, 3), target.reshape(-1, 3), np.zeros((count * n_nodes, 3)))
+        force = (np.zeros((count * n_nodes, 3)) if force is None
+                 else np.ascontiguousarray(force, dtype=float).reshape(-1, 3))
+        control = Control(fixed.reshape(-1, 3), target.reshape(-1, 3), force)
         self._integrator.simulate(self.stack.model, state, out, dt, control)
         new_positions = out.positions.reshape(count, n_nodes, 3)
         new_velocities = out.velocities.reshape(count, n_nodes, 3)
@@ -974,4 +953,3 @@ class BatchedSymplecticEuler(WorldsSolver):
         new_positions[keep] = positions[keep]
         new_velocities[keep] = velocities[keep]
         return new_positions, new_velocities
-

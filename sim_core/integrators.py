@@ -43,6 +43,9 @@ class SymplecticEuler(OneWorldSolver):
         self._monitors: dict[Model, DivergenceMonitor] = {}
         self._workspaces: dict[Model, ForceWorkspace] = {}
 
+    def _options(self):
+        return dict(monitor=self.monitor)
+
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None) -> StepReport:
         dt = check_dt(dt)
         control = model.new_control() if control is None else control
@@ -141,6 +144,10 @@ class ImplicitEuler(SymplecticEuler):
         self._threshold = REFACTOR_MIN  # re-factorise when a solve needs more iterations (_set_baseline)
         self._step_positions = None  # the current step's linearisation positions (for factor_store)
         self._linearised = None  # (model, positions) of the workspace's force pass made by ``linearise``
+
+    def _options(self):
+        return dict(corrections=self.corrections, tolerance=self.tolerance, max_iterations=self.max_iterations,
+                    monitor=self.monitor, preconditioner=self.preconditioner)
 
     def _implicit_volume(self, model: Model) -> bool:
         """Whether the step treats the volume forces implicitly (their rank-one stiffness in the system)."""

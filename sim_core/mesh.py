@@ -36,8 +36,34 @@ def _parse_shape(shape) -> tuple[int, int, int]:
     return values
 
 
+class MeshGeometry:
+    """What ``HexMesh`` and ``TetMesh`` share: counts, extent, boundary nodes and the structured
+    block's node index (a subclass has ``nodes``, ``elements``, ``shape`` and ``surface_faces``)."""
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.nodes)
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.elements)
+
+    @property
+    def size(self) -> np.ndarray:
+        """Extent of the bounding box in m."""
+        return self.nodes.max(axis=0) - self.nodes.min(axis=0)
+
+    def surface_nodes(self) -> np.ndarray:
+        """Sorted indices of the nodes on the boundary surface."""
+        return np.unique(self.surface_faces())
+
+    def node_index(self, i, j, k):
+        """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
+        return block_node_index(self.shape, i, j, k, f"{type(self).__name__}.block")
+
+
 @dataclass(frozen=True)
-class HexMesh:
+class HexMesh(MeshGeometry):
     """An unstructured mesh of trilinear hexahedra.
 
     Args:
@@ -181,19 +207,6 @@ class HexMesh:
                    element_labels=element_labels)
 
     # -- geometry --------------------------------------------------------------------------
-    @property
-    def n_nodes(self) -> int:
-        return len(self.nodes)
-
-    @property
-    def n_elements(self) -> int:
-        return len(self.elements)
-
-    @property
-    def size(self) -> np.ndarray:
-        """Extent of the bounding box in m."""
-        return self.nodes.max(axis=0) - self.nodes.min(axis=0)
-
     def box_shares(self, low, high) -> np.ndarray:
         """(M,) share of each element's volume inside the axis-aligned box [low, high] (m): exact
         for axis-aligned hexahedra (a block's), computed on the elements' bounding boxes otherwise.
@@ -216,14 +229,6 @@ class HexMesh:
     def surface_faces(self) -> np.ndarray:
         """(F, 4) node indices of the boundary quads, outward oriented (faces used by one element)."""
         return boundary_faces(self.elements, FACES)
-
-    def surface_nodes(self) -> np.ndarray:
-        """Sorted indices of the nodes on the boundary surface."""
-        return np.unique(self.surface_faces())
-
-    def node_index(self, i, j, k):
-        """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
-        return block_node_index(self.shape, i, j, k, "HexMesh.block")
 
     # -- files -----------------------------------------------------------------------------
     def write(self, path, point_data: dict | None = None, positions=None) -> None:

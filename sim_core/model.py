@@ -537,6 +537,10 @@ def _masses_and_damping(mesh, density, rest_volume, springs, stiffness, damping_
     mass = np.bincount(
         mesh.elements.ravel(), weights=np.repeat(density * rest_volume / n, n), minlength=mesh.n_nodes
     )
+    if not np.all(mass > 0):
+        orphans = np.flatnonzero(~(mass > 0))
+        raise ValueError(f"nodes {orphans[:10].tolist()}{' ...' if len(orphans) > 10 else ''} belong to no element: "
+                         "a node of no element has no mass; remove it from the mesh (every node must be in an element)")
     reduced_mass = mass[springs[:, 0]] * mass[springs[:, 1]] / (mass[springs[:, 0]] + mass[springs[:, 1]])
     damping = damping_ratio * 2.0 * np.sqrt(reduced_mass * np.abs(stiffness))
     return mass, damping

@@ -1,14 +1,16 @@
 """The solvers' shared contract.
 
 Every solver has one verb, ``solver.step(state_in, state_out, control, dt, active=None)``: it
-advances the worlds of its model by ``dt`` seconds under ``control`` (imposed positions, forces)
-from ``state_in`` into ``state_out`` and reports what it did and whether a world diverged. A solver
-of one world (``sim_core.integrators``' explicit and implicit Euler, ``sim_core.static.QuasiStatic``;
-``bind`` gives it its model) returns a ``StepReport``; a solver of N worlds (``sim_core.batched``:
-states and controls of shape (N, n, 3), ``active`` an (N,) world mask) a ``WorldsReport``, the same
-fields per world. Both run the same divergence checks (``DivergenceMonitors``, of which
-``DivergenceMonitor`` is the one-world case). Here also: the time step check and the imposed
-components of a control. SI units."""
+advances the worlds of its model by ``dt`` seconds under ``control`` (imposed positions, external
+forces) from ``state_in`` into ``state_out`` and returns a ``StepReport`` of what it did and whether
+a world diverged; ``reset(world_mask)`` starts worlds again and ``model_changed(index)`` follows a
+changed model. A solver of one world (``OneWorldSolver``: ``sim_core.integrators``' explicit and
+implicit Euler, ``sim_core.static.QuasiStatic``; ``bind`` gives it its model) steps (n, 3) states; a
+solver of N worlds (``WorldsSolver``, ``sim_core.batched``; ``sim_core.worlds.PerWorld``) steps the
+(N, n, 3) states of a ``ModelStack`` with ``active`` an (N,) world mask, and reports per world. Both
+run the same divergence checks (``DivergenceMonitors``, of which ``DivergenceMonitor`` is the
+one-world case). ``sim_core.make_solver`` builds either. Here also: the time step check and the
+imposed components of a control. SI units."""
 
 from __future__ import annotations
 
@@ -23,32 +25,26 @@ from .model import Control, Model, State
 
 @dataclass
 class StepReport:
-    """What one ``simulate`` call did: ``iterations`` of the linear solver (0 for explicit),
-    its relative ``residual``, and ``unstable_reason`` (None while the run is healthy)."""
+    """What one ``step`` did. One world: ``iterations`` of the linear solver (0 for explicit), its
+    relative ``residual`` and ``unstable_reason`` (None while the run is healthy). N worlds: the same
+    fields per world, ``iterations`` (N,) int, ``residual`` (N,) float and ``unstable_reason`` (N,)
+    object (None where the world is healthy, and for the worlds the step left alone); ``unstable``
+    is then an (N,) bool array."""
 
-    iterations: int = 0
-    residual: float = 0.0
-    unstable_reason: str | None = None
+    iterations: int | np.ndarray = 0
+    residual: float | np.ndarray = 0.0
+    unstable_reason: str | None | np.ndarray = None
 
     @property
-    def unstable(self) -> bool:
+    def unstable(self):
+        """bool (one world) or (N,) bool: the worlds that diverged in this step."""
+        if isinstance(self.unstable_reason, np.ndarray):
+            return np.array([reason is not None for reason in self.unstable_reason], dtype=bool)
         return self.unstable_reason is not None
 
 
-@dataclass
-class WorldsReport:
-    """What one step of N worlds did, per world: ``iterations`` (N,) of the linear solver,
-    ``residual`` (N,) its relative residual and ``unstable_reason`` (N,) object (None where the
-    world is healthy, and for the worlds the step left alone)."""
-
-    iterations: np.ndarray
-    residual: np.ndarray
-    unstable_reason: np.ndarray
-
-    @property
-    def unstable(self) -> np.ndarray:
-        """(N,) bool: the worlds that diverged in this step."""
-        return np.array([reason is not None for reason in self.unstable_reason], dtype=bool)
+#: The N-world form of ``StepReport`` (the same class; its fields are per-world arrays).
+WorldsReport = StepReport
 
 
 class OneWorldSolver:
@@ -64,6 +60,23 @@ class OneWorldSolver:
             raise ValueError(f"bind takes a sim_core Model (build_model), got {type(model).__name__}")
         self.model = model
         return self
+
+    def reset(self, world_mask=None):
+        """Start a new episode (``world_mask`` None or True; False leaves it as it is): the
+        divergence history, warm starts and kept factors start again, as with a fresh solver."""
+        if world_mask is None or bool(np.all(world_mask)):
+            kept = {name: self.__dict__[name] for name in ("model", "factor_store") if name in self.__dict__}
+            self.__dict__.update(type(self)(**self._options()).__dict__)
+            self.__dict__.update(kept)  # what the user set: the model and a shared factor store
+
+    def model_changed(self, index: int = 0, model: Model | None = None):
+        """The world's model changed: step ``model`` from now on (None: the bound one), from a fresh
+        history (``reset``). ``index`` must be 0 (one world)."""
+        if int(index) != 0:
+            raise ValueError(f"a solver of one world has world 0 only, got index {index}")
+        self.reset()
+        if model is not None:
+            self.bind(model)
 
     def step(self, state_in: State, state_out: State, control: Control | None, dt: float, active=None) -> StepReport:
         """Advance the bound model's world by ``dt`` s from ``state_in`` into ``state_out`` under
@@ -220,3 +233,111 @@ class DivergenceMonitors:
                               else _INVERTED if kind == 4
                               else _oscillation(self.oscillation_steps[index]))
         return reasons
+
+
+class WorldsSolver:
+    """The solver contract (``sim_core.solver``) for the N worlds of a ``ModelStack``:
+    ``step(state_in, state_out, control, dt, active)`` with states and controls of shape (N, n, 3)
+    and ``active`` an (N,) world mask, which returns a ``StepReport`` of per-world arrays whose
+    divergence reasons come from the worlds' ``DivergenceMonitors``. A world starts an episode
+    (``prepare``, or ``reset(world_mask)``: then at its next step, from the state and control it
+    gets) and is told when its model changed (``model_changed(index)``; a changed model is also
+    noticed at the next step). A world whose model has another topology than the stack's block
+    (``ModelStack.shared`` False: a cut) is stepped on its own model by a solver of the same class
+    and options on a stack of that one world. A subclass provides ``simulate(positions, velocities,
+    fixed, target, dt, active, force)`` -> (positions, velocities), new (N, n, 3) arrays in which
+    the inactive worlds keep their state, and ``_options`` (the keywords that rebuild it)."""
+
+    def _start_worlds(self, stack, threads: int):
+        self.stack = stack
+        self.monitors = DivergenceMonitors(stack.count, stack.n_nodes, stack.reference.mesh.elements,
+                                           threads=threads)
+        self.last_iterations = np.zeros(stack.count, dtype=int)
+        self.last_residual = np.zeros(stack.count)
+        #: the model each world's episode was prepared with (None: prepare at its next step)
+        self._prepared = [None] * stack.count
+        #: the one-world solvers of the worlds that hold a model of their own topology
+        self._own = {}
+
+    def prepare(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
+        """World ``index`` starts an episode of ``model`` (the one ``stack.assign`` gave it) at
+        ``positions`` (n, 3) m with the imposed components ``fixed`` (n, 3) bool and time step
+        ``dt`` s: its divergence history (and the warm start and factors of the implicit solver)
+        start again."""
+        padded = self.stack.models[index]
+        self._prepared[index] = padded
+        if not self.stack.shared[index]:
+            own = self._own.get(index)
+            if own is None or own.stack.models[0] is not padded:
+                from .stack import ModelStack  # the stack builds on the force passes, which build on this module
+
+                own = self._own[index] = type(self)(ModelStack(padded, 1), **self._options())
+            own.prepare(0, padded, positions, dt, fixed)
+            return
+        self._own.pop(index, None)
+        self._prepare_shared(index, padded, positions, dt, fixed)
+
+    def _prepare_shared(self, index, model, positions, dt, fixed):
+        self.monitors.assign(index, model)
+
+    def reset(self, world_mask=None):
+        """The worlds in ``world_mask`` ((N,) bool; None: all) start a new episode at their next
+        step, from the state and control it gets."""
+        mask = self._world_mask(world_mask)
+        for index in np.flatnonzero(mask):
+            self._prepared[index] = None
+
+    def model_changed(self, index: int):
+        """World ``index``'s model changed (``stack.assign``: material or topology): it starts again
+        at its next step on its new model."""
+        self._prepared[int(index)] = None
+
+    def _world_mask(self, mask):
+        count = self.stack.count
+        mask = np.ones(count, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+        if mask.shape != (count,):
+            raise ValueError(f"a world mask must be None or an ({count},) bool array, got shape {mask.shape}")
+        return mask
+
+    def step(self, state_in: State, state_out: State, control: Control, dt: float, active=None) -> StepReport:
+        """Advance the ``active`` worlds (None: all) by ``dt`` s from ``state_in`` into ``state_out``
+        under ``control`` (``fixed``, ``target``, ``force`` (N, n, 3): imposed components, their
+        positions in m, external nodal forces in N added to gravity). The other worlds keep their
+        state."""
+        dt = check_dt(dt)
+        stack, count = self.stack, self.stack.count
+        active = self._world_mask(active)
+        shape = (count, stack.n_nodes, 3)
+        for name, array in (("positions", state_in.positions), ("velocities", state_in.velocities),
+                            ("control.fixed", control.fixed), ("control.target", control.target)):
+            if np.shape(array) != shape:
+                raise ValueError(f"{name} must have shape {shape} (worlds, node rows, 3), got {np.shape(array)}")
+        force = control.force
+        if force is not None and np.shape(force) != shape:
+            raise ValueError(f"control.force must be None or of shape {shape} in N, got {np.shape(force)}")
+        for index in np.flatnonzero(active):
+            if self._prepared[index] is not stack.models[index]:
+                self.prepare(index, stack.models[index], np.asarray(state_in.positions[index], dtype=float), dt,
+                             np.asarray(control.fixed[index], dtype=bool))
+        shared = active & stack.shared
+        if shared.any():
+            positions, velocities = self.simulate(state_in.positions, state_in.velocities, control.fixed,
+                                                  control.target, dt, shared, force)
+        else:
+            positions = np.array(state_in.positions, dtype=float)
+            velocities = np.array(state_in.velocities, dtype=float)
+            self.last_iterations, self.last_residual = np.zeros(count, dtype=int), np.zeros(count)
+        reasons = np.full(count, None, dtype=object)
+        reasons[shared] = self.monitors.check(positions, velocities, shared)[shared]
+        iterations, residual = self.last_iterations.copy(), self.last_residual.copy()
+        for index in np.flatnonzero(active & ~stack.shared):
+            one = slice(index, index + 1)
+            out = State(positions[one], velocities[one])
+            report = self._own[index].step(
+                State(state_in.positions[one], state_in.velocities[one], state_in.time), out,
+                Control(control.fixed[one], control.target[one], None if force is None else force[one]), dt)
+            positions[index], velocities[index] = out.positions[0], out.velocities[0]
+            iterations[index], residual[index] = report.iterations[0], report.residual[0]
+            reasons[index] = report.unstable_reason[0]
+        state_out.positions, state_out.velocities, state_out.time = positions, velocities, state_in.time + dt
+        return StepReport(iterations, residual, reasons)

@@ -29,7 +29,8 @@ class BlockPattern:
     Args:
         n_nodes: number of nodes N.
         elements: (M, n) node indices (n = 8 hexahedra, 4 tetrahedra); every pair of nodes within an
-            element is coupled.
+            element is coupled, and every node with itself (a node of no element too: a stack's
+            parked node rows, a node a cut left alone).
     """
 
     def __init__(self, n_nodes: int, elements: np.ndarray):
@@ -39,7 +40,8 @@ class BlockPattern:
         pairs = np.stack(
             [np.repeat(elements, n, axis=1).ravel(), np.tile(elements, (1, n)).ravel()], axis=1
         )
-        pairs = np.unique(pairs, axis=0)
+        own = np.repeat(np.arange(n_nodes), 2).reshape(-1, 2)
+        pairs = np.unique(np.concatenate([pairs, own]), axis=0)
         rows = (3 * pairs[:, 0, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
         cols = (3 * pairs[:, 1, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
         matrix = sp.csr_matrix(

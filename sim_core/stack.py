@@ -2,10 +2,19 @@
 material) into one sim_core ``Model`` on a mesh made of N disjoint copies of the block: node ``j`` of
 world ``i`` is node ``i * n_nodes + j`` of the stacked model, and every per-spring, per-element and
 per-node array is the concatenation of the worlds' arrays. ``StackedForceWorkspace`` is the fused
-force pass over the stacked model, world by world on numba's threads. SI units."""
+force pass over the stacked model, world by world on numba's threads.
+
+Topology: every world has ``n_nodes`` node rows, the block's nodes plus ``spare_nodes`` fixed when
+the stack is built. A world may hold a model of another topology (elements removed, nodes
+duplicated into the spare rows: a cut) on at most ``n_nodes`` nodes; such a world leaves the
+stacked arrays (``ModelStack.shared`` is False for it) and the N-world solvers step it on its own
+model, with the same method and options. Unused node rows are parked: a node of no element, no
+spring and no gravity, which no force moves. SI units."""
 
 from __future__ import annotations
 
+
+import dataclasses
 
 import numba
 import numpy as np
@@ -13,7 +22,7 @@ import scipy.sparse as sp
 
 from . import kernels
 from .forces import ForceWorkspace, hourglass_block_map, stress_arguments
-from .model import Model
+from .model import Control, Model, State
 from .preconditioners import digest
 from .stress_correction import ARRAY_FIELDS, StressCorrection, write_lanes
 
@@ -43,16 +52,70 @@ class StackedModel(Model):
             self.derived.forget(name)
 
 
+def with_spare_nodes(model: Model, n_nodes: int) -> Model:
+    """``model`` on ``n_nodes`` node rows: its nodes, then parked ones (at its node 0's rest
+    position, of the mean node mass, in no element and no spring, without gravity: nothing moves
+    them). ``model`` itself when it has ``n_nodes`` nodes."""
+    extra = int(n_nodes) - model.n_nodes
+    if extra < 0:
+        raise ValueError(f"the model has {model.n_nodes} nodes, more than the {n_nodes} node rows of a world")
+    if extra == 0:
+        return model
+    nodes = np.concatenate([model.mesh.nodes, np.repeat(model.mesh.nodes[:1], extra, axis=0)])
+    mesh = dataclasses.replace(model.mesh, nodes=nodes)
+    hourglass = model.hourglass
+    if hourglass is not None:
+        rows = 3 * int(n_nodes)
+        indptr = np.concatenate([hourglass.indptr, np.full(3 * extra, hourglass.indptr[-1])])
+        hourglass = sp.csr_matrix((hourglass.data, hourglass.indices, indptr), shape=(rows, rows))
+    fields = {field.name: getattr(model, field.name) for field in dataclasses.fields(Model)}
+    fields.update(mesh=mesh, hourglass=hourglass,
+                  mass=np.concatenate([model.mass, np.full(extra, float(np.mean(model.mass)))]))
+    padded = Model(**fields)
+    padded.gravity_force[model.n_nodes:] = 0.0  # parked nodes carry no load
+    return padded
+
+
+def same_topology(model: Model, reference: Model) -> bool:
+    """Whether ``model`` has the nodes, springs, elements and force terms of ``reference`` (its
+    values, material and rest geometry may differ): a model the stacked arrays can hold."""
+    return (model.n_nodes == reference.n_nodes and len(model.springs) == len(reference.springs)
+            and model.mesh.elements.shape == reference.mesh.elements.shape
+            and model.correction_mode == reference.correction_mode
+            and (model.hourglass is None) == (reference.hourglass is None)
+            and (model.hourglass is None or model.hourglass.nnz == reference.hourglass.nnz)
+            and (model.stress_correction is None) == (reference.stress_correction is None)
+            and (model.stress_correction is None or (model.stress_correction.spring_vector.shape
+                 == reference.stress_correction.spring_vector.shape
+                 and model.stress_correction.law == reference.stress_correction.law))
+            and np.array_equal(model.springs, reference.springs)
+            and np.array_equal(model.edge_spring, reference.edge_spring)
+            and np.array_equal(model.mesh.elements, reference.mesh.elements))
+
+
 class ModelStack:
     """N copies of one block as one ``StackedModel`` (``self.model``); ``assign(i, model)``
-    puts a model of the same block (any material) into copy ``i``.
+    puts a model into world ``i``: of the same block (any material, any rest geometry), written
+    into the stacked arrays, or of another topology on at most ``n_nodes`` nodes (a cut world),
+    held on its own (``shared[i]`` False).
 
     Args:
         model: a model of the block (copied into every slot).
         count: number of copies N.
+        spare_nodes: node rows per world beyond the block's, for nodes a topology change adds
+            (a cut duplicates the nodes along it); fixed for the stack's life.
     """
 
-    def __init__(self, model: Model, count: int):
+    def __init__(self, model: Model, count: int, spare_nodes: int = 0):
+        if int(count) < 1:
+            raise ValueError(f"count must be >= 1 world, got {count}")
+        if int(spare_nodes) < 0:
+            raise ValueError(f"spare_nodes must be >= 0, got {spare_nodes}")
+        #: the node rows a world's model may add (a cut's duplicated nodes)
+        self.spare_nodes = int(spare_nodes)
+        #: the models the worlds were given (``assign``), before their parked rows
+        self.given = [model] * int(count)
+        model = with_spare_nodes(model, model.n_nodes + self.spare_nodes)
         self.count = int(count)
         self.n_nodes = model.n_nodes
         self.n_springs = len(model.springs)
@@ -83,33 +146,62 @@ class ModelStack:
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
             options=dict(model.options), stress_correction=stress, **values,
         )
+        self.model.gravity_force[:] = np.tile(model.gravity_force, (count, 1))  # parked rows carry none
         # slots of each copy in the per-dof arrays the Model derived at construction
         self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
+        #: each world's model on the stack's ``n_nodes`` rows (the given one, its unused rows parked)
         self.models = [model] * count
+        #: (N,) bool: the worlds whose model the stacked arrays hold (the block's topology); the
+        #: others hold a model of their own (``models[i]``) and are stepped on it
+        self.shared = np.ones(count, dtype=bool)
         self._hourglass_keys = [digest(model.hourglass.data) if model.hourglass is not None else None] * count
         self._hourglass_by_key = {self._hourglass_keys[0]: model.hourglass}
         self._hourglass_groups = None
         self.version = 0
         self._copies_last = None
 
-    def _check(self, model: Model):
-        same = (model.n_nodes == self.n_nodes and len(model.springs) == self.n_springs
-                and model.mesh.n_elements == self.n_elements and model.correction_mode == self.reference.correction_mode
-                and (model.hourglass is None) == (self.reference.hourglass is None)
-                and (model.stress_correction is None) == (self.reference.stress_correction is None)
-                and (model.stress_correction is None or (model.stress_correction.spring_vector.shape
-                     == self.reference.stress_correction.spring_vector.shape
-                     and model.stress_correction.law == self.reference.stress_correction.law))
-                and np.array_equal(model.springs, self.reference.springs)
-                and np.array_equal(model.mesh.elements, self.reference.mesh.elements))
-        if not same:
-            raise ValueError("ModelStack.assign needs a model of the same block (mesh, springs, options)")
+    def new_state(self) -> State:
+        """The worlds at rest: positions (N, n, 3) m each world's rest positions (parked rows at
+        their parking place), velocities zero, time 0."""
+        rest = np.stack([model.rest_positions for model in self.models])
+        return State(rest, np.zeros_like(rest))
+
+    def new_control(self) -> Control:
+        """A control of the N worlds with nothing imposed and no external force: fixed (N, n, 3)
+        bool, target (N, n, 3) m, force (N, n, 3) N."""
+        shape = (self.count, self.n_nodes, 3)
+        return Control(np.zeros(shape, bool), np.zeros(shape), np.zeros(shape))
 
     def assign(self, index: int, model: Model):
-        """Copy ``model``'s values into copy ``index`` (a no-op when it is already there)."""
-        if self.models[index] is model:
+        """World ``index`` holds ``model`` from now on (a no-op when it already does): its values
+        are written into the stacked arrays when it has the block's topology, else the world holds
+        it on its own (``shared[index]`` False). A model of more than ``n_nodes`` nodes is a
+        ValueError (build the stack with more ``spare_nodes``). Tell the solvers
+        (``solver.model_changed(index)``) unless they step this world next with a fresh episode
+        (they notice a changed model at their next step)."""
+        index = int(index)
+        if not 0 <= index < self.count:
+            raise ValueError(f"world index must lie in [0, {self.count - 1}], got {index}")
+        if self.given[index] is model:
             return
-        self._check(model)
+        if not isinstance(model, Model):
+            raise ValueError(f"assign takes a sim_core Model (build_model), got {type(model).__name__}")
+        if model.n_nodes > self.n_nodes:
+            raise ValueError(f"world {index}'s model has {model.n_nodes} nodes; a world of this stack holds at most "
+                             f"{self.n_nodes} ({self.n_nodes - self.spare_nodes} block nodes + {self.spare_nodes} "
+                             "spare_nodes): build the ModelStack with more spare_nodes")
+        padded = with_spare_nodes(model, self.n_nodes)
+        self.given[index] = model
+        if not same_topology(padded, self.reference):
+            self.models[index] = padded
+            self.shared[index] = False
+            self.version += 1
+            return
+        self.shared[index] = True
+        self._write(index, padded)
+
+    def _write(self, index: int, model: Model):
+        """Write ``model`` (of the block's topology) into world ``index``'s slice of the stacked arrays."""
         stacked = self.model
         for name in VALUE_FIELDS:
             single = getattr(model, name)

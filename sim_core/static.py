@@ -460,6 +460,10 @@ class QuasiStatic(OneWorldSolver):
         self._factors = _KeptTangent()
         self._monitor = None  # the integrators' DivergenceMonitor of the last model stepped
 
+    def _options(self):
+        return dict(tolerance=self.tolerance, max_iterations=self.max_iterations, max_load_steps=self.max_load_steps,
+                    monitor=self.monitor)
+
     def simulate(self, model: Model, state_in: State, state_out: State, dt: float, control: Control | None = None):
         dt = check_dt(dt)
         control = model.new_control() if control is None else control

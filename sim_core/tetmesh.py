@@ -17,7 +17,7 @@ import numpy as np
 
 from ._validate import finite_array
 from .mesh import (
-    LOCAL_CORNERS, HexMesh, block_node_index, boundary_faces, cell_blocks, read_mesh_file, signed_volumes, write_mesh_file,
+    LOCAL_CORNERS, HexMesh, MeshGeometry, boundary_faces, cell_blocks, read_mesh_file, signed_volumes, write_mesh_file,
 )
 
 #: The 6 edges of a tetrahedron (local node pairs).
@@ -74,7 +74,7 @@ def check_tetrahedra(positions: np.ndarray, elements: np.ndarray, name: str = "t
 
 
 @dataclass(frozen=True)
-class TetMesh:
+class TetMesh(MeshGeometry):
     """An unstructured mesh of linear (4-node) tetrahedra.
 
     Args:
@@ -153,19 +153,6 @@ class TetMesh:
         return cls(nodes, tets)
 
     # -- geometry --------------------------------------------------------------------------
-    @property
-    def n_nodes(self) -> int:
-        return len(self.nodes)
-
-    @property
-    def n_elements(self) -> int:
-        return len(self.elements)
-
-    @property
-    def size(self) -> np.ndarray:
-        """Extent of the bounding box in m."""
-        return self.nodes.max(axis=0) - self.nodes.min(axis=0)
-
     def element_volumes(self, positions=None) -> np.ndarray:
         """(M,) signed volumes in m^3 (exact for linear tetrahedra; negative where inverted)."""
         positions = self.nodes if positions is None else np.asarray(positions, dtype=float)
@@ -177,14 +164,6 @@ class TetMesh:
         """(F, 3) node indices of the boundary triangles (faces used by one tetrahedron), outward
         oriented: (x1 - x0) x (x2 - x0) points out of the mesh."""
         return boundary_faces(self.elements, TET_FACES)
-
-    def surface_nodes(self) -> np.ndarray:
-        """Sorted indices of the nodes on the boundary surface."""
-        return np.unique(self.surface_faces())
-
-    def node_index(self, i, j, k):
-        """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
-        return block_node_index(self.shape, i, j, k, "TetMesh.block")
 
     # -- files -----------------------------------------------------------------------------
     def write(self, path, point_data: dict | None = None, positions=None) -> None:

@@ -102,16 +102,3 @@ def test_save_formats_keep_the_hexahedra_and_the_displacement(tmp_path):
         back = meshio.read(path)
         assert [cells.type for cells in back.cells] == ["hexahedron"], extension
         assert back.point_data["displacement"].shape == (27, 3), extension
-
-
-def test_warmup_steps_every_task_and_vector_env(capsys):
-    import tissue_env
-
-    assert main(["warmup", "--steps", "1"]) == 0
-    out = capsys.readouterr().out
-    for env_id in tissue_env.ENV_IDS:
-        assert f"{env_id}: built, reset and stepped 1 times in" in out
-        assert f"{env_id} vector env (N = 2)" in out
-    assert out.strip().splitlines()[-1].startswith("warmup done in")
-    code, out, err = run_cli("warmup", "--steps", "0")
-    assert code == 2 and "--steps" in err

@@ -241,6 +241,9 @@ class TaskWorlds:
         """World ``index`` plays the episode its task env has just drawn (``TissueEnv._reset_episode``)."""
         env = self.envs[index]
         self.stack.assign(index, env.model)
+        if not self.stack.shared[index]:  # the measurements read the stacked arrays of the block's topology
+            raise ValueError(f"world {index}'s model does not have the task's block topology (a changed mesh); "
+                             "the vector env steps worlds of the block's topology only")
         self.positions[index] = env.state.positions
         self.velocities[index] = env.state.velocities
         kernels.spring_lengths(np.ascontiguousarray(env.state.positions, dtype=float), self.stack.reference.springs,

@@ -4,7 +4,6 @@
     tissue-sim shear --angle-deg 5 --compare fem-linear --json
     tissue-sim flexion --shape 10 5 4 --density 1500 --gravity 0.04 --save bent.vtu
     tissue-sim bench --shape 10 10 10 --json
-    tissue-sim warmup          # compile every kernel once (numba's cache), so a first env step is fast
     tissue-sim --version
 
 Bad arguments end with exit code 2 and a one-line message.
@@ -70,44 +69,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--shape", type=int, nargs=3, default=[10, 10, 10], metavar=("NX", "NY", "NZ"))
     bench.add_argument("--repeats", type=int, default=100)
     bench.add_argument("--json", action="store_true", help="one JSON object on stdout")
-    warmup = commands.add_parser("warmup", help="compile every kernel once (build and step each registered "
-                                                "env and its vector env), so that a first env step is fast")
-    warmup.add_argument("--steps", type=int, default=3, help="steps per env (default 3)")
-    warmup.add_argument("--num-envs", type=int, default=2, help="copies of each vector env (default 2)")
     return parser
-
-
-def _warmup(args) -> int:
-    """Build every registered tissue_env task and its batched vector env, reset and step them, so
-    that numba compiles (and caches) every kernel they call; prints what it did and how long."""
-    if args.steps < 1 or args.num_envs < 1:
-        sys.stderr.write("tissue-sim: error: --steps and --num-envs must be >= 1\n")
-        return 2
-    import gymnasium as gym
-
-    import tissue_env
-
-    total = time.perf_counter()
-    for env_id in tissue_env.ENV_IDS:
-        start = time.perf_counter()
-        env = gym.make(env_id)
-        env.reset(seed=0)
-        for _ in range(args.steps):
-            env.step(env.action_space.sample())
-        env.close()
-        print(f"{env_id}: built, reset and stepped {args.steps} times in {time.perf_counter() - start:.1f} s",
-              flush=True)
-        if env_id in tissue_env.VECTOR_ENTRY_POINTS:
-            start = time.perf_counter()
-            envs = gym.make_vec(env_id, num_envs=args.num_envs, vectorization_mode="vector_entry_point")
-            envs.reset(seed=0)
-            for _ in range(args.steps):
-                envs.step(envs.action_space.sample())
-            envs.close()
-            print(f"{env_id} vector env (N = {args.num_envs}): built, reset and stepped {args.steps} times in "
-                  f"{time.perf_counter() - start:.1f} s", flush=True)
-    print(f"warmup done in {time.perf_counter() - total:.1f} s: the kernels are compiled and cached", flush=True)
-    return 0
 
 
 def _check_save(path: str) -> None:
@@ -151,8 +113,6 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     if args.experiment == "bench":
         return _bench(args)
-    if args.experiment == "warmup":
-        return _warmup(args)
     try:
         if args.save:
             _check_save(args.save)
