@@ -14,14 +14,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 
+from . import terms
 from ._validate import finite_array
-from .elements import element_block_positions, element_blocks, element_stiffness
-from .laws import baudet_shear_ratio, baudet_stiffness, lame_parameters
+from .elements import element_block_positions
+from .laws import baudet_stiffness  # noqa: F401  (re-exported: the formulas' users import it from here)
 from .material import Material
-from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
+from .mesh import EDGES, HexMesh
 from .sparse import BlockPattern
-from .stress_correction import (SPRING_CHOICES, StressCorrection, element_spring_pairs, element_spring_stiffness,
-                                mean_gradients, merge_parallel_springs, tetrahedron_spring_stiffness)
+from .stress_correction import SPRING_CHOICES, StressCorrection
+from .terms import (SPRING_SHEAR_MODELS, check_shear_error, correction_coefficients,  # noqa: F401  (re-exported)
+                    correction_matrix, hourglass_matrix, hourglass_projectors)
 from .tetmesh import TET_EDGES, TetMesh
 
 #: Mass-spring model names accepted by ``build_model``.
@@ -33,8 +35,6 @@ TET_MODELS = ("baudet", "baudet-hyperelastic")
 #: ``laws.baudet_shear_ratio``): elements 1:1:a with a in about [0.96, 1.04]. 5% is the project's
 #: accuracy floor in shear against FEM (docs/physics.md section 2).
 MAX_SHEAR_ERROR = 0.05
-#: The models whose shear modulus on a box element is that of Baudet's springs (``max_shear_error``).
-SPRING_SHEAR_MODELS = ("baudet", "baudet-original")
 
 
 @dataclass(frozen=True, eq=False)
@@ -274,45 +274,6 @@ def _edge_directions(positions, elements):
     return vectors / np.linalg.norm(vectors, axis=2, keepdims=True)
 
 
-# -- stiffness formulas (docs/physics.md sections 2 and 3) ----------------------------------
-def correction_coefficients(axis_lengths: np.ndarray, poisson_ratio) -> np.ndarray:
-    """(M, 3, 3) C[i, j] of docs/physics.md section 3 (zero on the diagonal); cube: -(4 nu - 1) / 2."""
-    nu = poisson_ratio
-    d2 = (axis_lengths**2).sum(axis=1)
-    coefficients = np.zeros((len(axis_lengths), 3, 3))
-    for i_axis in range(3):
-        for j_axis in range(3):
-            if i_axis == j_axis:
-                continue
-            k_axis = 3 - i_axis - j_axis
-            i, j, k = (axis_lengths[:, a] for a in (i_axis, j_axis, k_axis))
-            coefficients[:, i_axis, j_axis] = -(
-                d2 * (nu * (i**2 + k**2) - i**2) + 6.0 * nu * i**2 * k**2
-            ) / (6.0 * i * j * k**2)
-    return coefficients
-
-
-def correction_matrix(axis_lengths, young_modulus, poisson_ratio, *, stress_based=True, scale=1.0):
-    """(M, 3, 3) W mapping element strains eps_m to the push T_j on each j-edge (N) [3].
-
-    T_j = 1/4 sum_{i != j} C_ij F_i, F_i = A_i sigma_i (stress-based, A_i = V / i0) or
-    F_i = E A_i eps_i (strain-based, the published variant). ``scale`` multiplies everything
-    (0.5 reproduces the report's /48 form).
-    """
-    coefficients = correction_coefficients(axis_lengths, poisson_ratio)
-    volume = np.prod(axis_lengths, axis=1)
-    area = volume[:, None] / axis_lengths  # A_i, (M, 3)
-    nu = poisson_ratio
-    if stress_based:
-        lame = young_modulus * nu / ((1 + nu) * (1 - 2 * nu))
-        shear = young_modulus / (2 * (1 + nu))
-        stress = lame[:, None, None] * np.ones((1, 3, 3)) + 2 * shear[:, None, None] * np.eye(3)
-    else:
-        stress = young_modulus[:, None, None] * np.eye(3)[None]
-    # W_jm = 1/4 sum_i C_ij A_i S_im
-    return 0.25 * scale * np.einsum("mij,mi,mik->mjk", coefficients, area, stress)
-
-
 # -- builder -------------------------------------------------------------------------------------
 def build_model(
     mesh: HexMesh | TetMesh,
@@ -375,22 +336,61 @@ def build_model(
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
     if isinstance(mesh, TetMesh):
-        return _build_tet_model(mesh, material, model=model, corrections=corrections,
-                                volume_conservation=volume_conservation, volume_stiffness=volume_stiffness,
-                                nu_factor=nu_factor, damping_ratio=damping_ratio, gravity=gravity,
-                                hourglass_control=hourglass_control, springs=springs)
-    if not isinstance(mesh, HexMesh):
+        options = _tet_options(model, volume_conservation, volume_stiffness, nu_factor, damping_ratio,
+                               hourglass_control, springs)
+    elif isinstance(mesh, HexMesh):
+        options = _hex_options(model, volume_conservation, volume_stiffness, nu_factor, damping_ratio,
+                               hourglass_control, springs)
+    else:
         raise ValueError(f"mesh must be a HexMesh or a TetMesh, got {type(mesh).__name__}")
-    damping_ratio = float(finite_array("damping_ratio", damping_ratio))
-    if damping_ratio < 0:
-        raise ValueError(f"damping_ratio must be >= 0, got {damping_ratio}")
-    volume_stiffness = float(finite_array("volume_stiffness", volume_stiffness))
-    if volume_stiffness < 0:
-        raise ValueError(f"volume_stiffness must be >= 0, got {volume_stiffness}")
     gravity = finite_array("gravity", gravity, shape=(3,))
-    hourglass_control = float(finite_array("hourglass_control", hourglass_control))
-    if hourglass_control < 0:
-        raise ValueError(f"hourglass_control must be >= 0, got {hourglass_control}")
+    tetrahedra = isinstance(mesh, TetMesh)
+    hyperelastic = model == "baudet-hyperelastic"
+    props = material.per_element(mesh.n_elements)
+    young_modulus, poisson_ratio, density = props["young_modulus"], props["poisson_ratio"], props["density"]
+
+    axis_rest_length = terms.axis_rest_lengths(mesh)
+    local_pairs, values = terms.element_springs(mesh, model, young_modulus, poisson_ratio, axis_rest_length,
+                                                springs, max_shear_error)
+    spring_pairs, stiffness, edge_spring, rest_length = terms.merge_springs(mesh, local_pairs, values)
+    rest_volume = mesh.element_volumes()
+    mass, damping = terms.masses_and_damping(mesh, density, rest_volume, spring_pairs, stiffness,
+                                             options["damping_ratio"])
+    w, correction_mode = terms.baudet_corrections(model if corrections and not tetrahedra else "none",
+                                                  axis_rest_length, young_modulus, poisson_ratio, nu_factor)
+    correction = None
+    if corrections and (hyperelastic or tetrahedra):
+        correction = terms.stress_correction(mesh, local_pairs, values, young_modulus, poisson_ratio,
+                                             "neo-hookean" if hyperelastic else "linear")
+    kappa = (terms.volume_stiffness(young_modulus, poisson_ratio, rest_volume, options["volume_stiffness"])
+             if options["volume_conservation"] else np.zeros(mesh.n_elements))
+    hourglass = None
+    if options["hourglass_control"] > 0:
+        hourglass = terms.hourglass_matrix(mesh, young_modulus, poisson_ratio, options["hourglass_control"])
+    return Model(
+        mesh=mesh, name=model, hourglass=hourglass, mass=mass, springs=spring_pairs, rest_length=rest_length,
+        stiffness=stiffness, damping=damping, edge_spring=edge_spring,
+        axis_rest_length=axis_rest_length, correction_matrix=w, correction_mode=correction_mode,
+        rest_volume=rest_volume, volume_stiffness=kappa, gravity=gravity,
+        young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
+        options=dict(corrections=corrections, **options), stress_correction=correction,
+    )
+
+
+def _nonnegative(name, value) -> float:
+    value = float(finite_array(name, value))
+    if value < 0:
+        raise ValueError(f"{name} must be >= 0, got {value}")
+    return value
+
+
+def _hex_options(model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, hourglass_control,
+                 springs) -> dict:
+    """``build_model``'s options of a hexahedral model, checked (ValueError naming what is wrong and
+    what is allowed), with the defaults filled in: the ``Model.options`` it records."""
+    damping_ratio = _nonnegative("damping_ratio", damping_ratio)
+    volume_stiffness = _nonnegative("volume_stiffness", volume_stiffness)
+    hourglass_control = _nonnegative("hourglass_control", hourglass_control)
     if nu_factor and model != "baudet-original":
         raise ValueError("nu_factor only applies to model='baudet-original'")
     hyperelastic = model == "baudet-hyperelastic"
@@ -406,152 +406,15 @@ def build_model(
                          "correction already holds the volume (ln J pressure); leave volume_conservation unset")
     if volume_conservation is None:
         volume_conservation = model == "baudet"
-
-    elements = mesh.elements
-    n_elements = mesh.n_elements
-    props = material.per_element(n_elements)
-    young_modulus, poisson_ratio, density = props["young_modulus"], props["poisson_ratio"], props["density"]
-    nodes = mesh.nodes
-
-    edge_vectors = nodes[elements[:, EDGES[:, 1]]] - nodes[elements[:, EDGES[:, 0]]]
-    edge_lengths = np.linalg.norm(edge_vectors, axis=2)  # (M, 12)
-    axis_rest_length = edge_lengths.reshape(n_elements, 3, 4).mean(axis=2)
-
-    # Springs [2]: 12 edges + 4 inner diagonals per element, merged across elements.
-    if model == "uniform-springs":
-        size = axis_rest_length.mean(axis=1)
-        edge_k = np.repeat((young_modulus * size / 4.0)[:, None], 3, axis=1)
-        diagonal_k = young_modulus * size / 4.0
-    elif hyperelastic:
-        local_pairs = element_spring_pairs(springs)
-        values = element_spring_stiffness(axis_rest_length, young_modulus, poisson_ratio, springs)
-        if np.any(values <= 0):
-            bad = int(np.argmax(np.any(values <= 0, axis=1)))
-            raise ValueError(
-                f"springs={springs!r} with poisson_ratio {poisson_ratio[bad]:g} and element {bad} of edge lengths "
-                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive spring stiffness "
-                f"{np.round(values[bad], 6).tolist()} N/m: the springs would not resist the hourglass modes. "
-                "Use springs='faces' or 'isotropic' (positive for every box and nu)")
-    else:
-        edge_k, diagonal_k = baudet_stiffness(axis_rest_length, young_modulus, poisson_ratio)
-        if np.any(edge_k <= 0):
-            bad = int(np.argmax(np.any(edge_k <= 0, axis=1)))
-            raise ValueError(
-                f"poisson_ratio {poisson_ratio[bad]:g} with element {bad} of edge lengths "
-                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive edge "
-                f"stiffness {np.round(edge_k[bad], 6).tolist()} N/m, which makes the element "
-                "unstable (negative-energy modes). Baudet's formula needs "
-                "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
-                "poisson_ratio > -0.25 and near-cubic elements, or model='baudet-hyperelastic' for box-shaped "
-                "elements (its springs are positive on every box)"
-            )
-        if model in SPRING_SHEAR_MODELS and max_shear_error is not None:
-            check_shear_error(model, axis_rest_length, max_shear_error)
-    if not hyperelastic:
-        local_pairs = np.concatenate([EDGES, DIAGONALS])
-        values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
-    pairs = elements[:, local_pairs]  # (M, 16 or 24, 2), the 12 edges first
-    sorted_pairs = np.sort(pairs.reshape(-1, 2), axis=1)
-    springs, inverse = np.unique(sorted_pairs, axis=0, return_inverse=True)
-    inverse = inverse.ravel()
-    stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(springs))
-    edge_spring = inverse.reshape(n_elements, len(local_pairs))[:, :12].copy()
-    rest_length = np.linalg.norm(nodes[springs[:, 1]] - nodes[springs[:, 0]], axis=1)
-
-    rest_volume = mesh.element_volumes()
-    mass, damping = _masses_and_damping(mesh, density, rest_volume, springs, stiffness, damping_ratio)
-
-    # Corrections [3].
-    correction_mode = None
-    w = np.zeros((n_elements, 3, 3))
-    stress_correction = None
-    if corrections and hyperelastic:  # [11]
-        gradient, volume = mean_gradients(nodes, elements)
-        vectors = nodes[elements[:, local_pairs[:, 1]]] - nodes[elements[:, local_pairs[:, 0]]]
-        shear, lame = lame_parameters(young_modulus, poisson_ratio)
-        vectors, merged = merge_parallel_springs(vectors, values)
-        stress_correction = StressCorrection(
-            mean_gradient=np.ascontiguousarray(gradient), volume=volume, spring_vector=np.ascontiguousarray(vectors),
-            spring_length=np.linalg.norm(vectors, axis=2), spring_stiffness=np.ascontiguousarray(merged),
-            shear_modulus=np.asarray(shear, float), lame=np.asarray(lame, float))
-    elif corrections and model not in ("uniform-springs", "baudet-hyperelastic"):
-        if model == "baudet":
-            w = correction_matrix(axis_rest_length, young_modulus, poisson_ratio)
-            correction_mode = "projected"
-        else:
-            scale = 0.5 * (poisson_ratio if nu_factor else 1.0)
-            w = correction_matrix(axis_rest_length, young_modulus, poisson_ratio, stress_based=False, scale=1.0)
-            w = w * (scale[:, None, None] if np.ndim(scale) else scale)
-            correction_mode = "fixed"
-
-    # Volume conservation [4]: kappa = K V0^(2/3).
-    kappa = np.zeros(n_elements)
-    if volume_conservation:
-        bulk = young_modulus / (3.0 * (1.0 - 2.0 * poisson_ratio))
-        kappa = volume_stiffness * bulk * rest_volume ** (2.0 / 3.0)
-
-    hourglass = None
-    if hourglass_control > 0:
-        hourglass = hourglass_matrix(mesh, young_modulus, poisson_ratio, hourglass_control)
-
-    return Model(
-        mesh=mesh, name=model, hourglass=hourglass, mass=mass, springs=springs, rest_length=rest_length,
-        stiffness=stiffness, damping=damping, edge_spring=edge_spring,
-        axis_rest_length=axis_rest_length, correction_matrix=w, correction_mode=correction_mode,
-        rest_volume=rest_volume, volume_stiffness=kappa, gravity=gravity,
-        young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
-        options=dict(corrections=corrections, volume_conservation=bool(volume_conservation),
-                     volume_stiffness=volume_stiffness, nu_factor=nu_factor,
-                     damping_ratio=damping_ratio, hourglass_control=hourglass_control,
-                     **(dict(springs=springs) if hyperelastic else {})),
-        stress_correction=stress_correction,
-    )
+    return dict(volume_conservation=bool(volume_conservation), volume_stiffness=volume_stiffness,
+                nu_factor=nu_factor, damping_ratio=damping_ratio, hourglass_control=hourglass_control,
+                **(dict(springs=springs) if hyperelastic else {}))
 
 
-def check_shear_error(model: str, axis_lengths: np.ndarray, max_shear_error: float) -> None:
-    """ValueError when the springs of ``model`` ("baudet", "baudet-original") give an element of
-    rest edge lengths ``axis_lengths`` (M, 3) m a shear modulus more than ``max_shear_error``
-    (relative, >= 0) off in some plane (docs/physics.md section 2)."""
-    max_shear_error = float(finite_array("max_shear_error", max_shear_error))
-    if max_shear_error < 0:
-        raise ValueError(f"max_shear_error must be None or >= 0 (a relative error), got {max_shear_error}")
-    error = np.abs(baudet_shear_ratio(axis_lengths) - 1.0)  # (M, 3)
-    if np.all(error <= max_shear_error):
-        return
-    bad = int(np.argmax(error.max(axis=1)))
-    plane = int(np.argmax(error[bad]))
-    raise ValueError(
-        f"model={model!r} gives element {bad} of edge lengths {np.round(axis_lengths[bad], 6).tolist()} m a shear "
-        f"modulus {baudet_shear_ratio(axis_lengths[bad])[plane]:.3f} times the material's in the plane normal to "
-        f"axis {'xyz'[plane]} (Baudet's springs give D^2 / (3 k^2) G: exact on cubes only, docs/physics.md "
-        f"section 2), beyond max_shear_error={max_shear_error:g}. For box-shaped elements use "
-        f"model='baudet-hyperelastic' (its stress correction gives the exact shear modulus on every box), or the "
-        f"tetrahedral path (a TetMesh, element='tet' in the experiments); or mesh with near-cubic elements "
-        f"(1:1:a with a in about [0.96, 1.04] at 5%); max_shear_error=None accepts the error")
-
-
-def _masses_and_damping(mesh, density, rest_volume, springs, stiffness, damping_ratio):
-    """Lumped masses (N,) kg, rho V / n to each of an element's n nodes, and spring damping (S,)
-    N s/m, ``damping_ratio`` times the critical 2 sqrt(mu k) of each spring's two nodes [5]."""
-    n = mesh.elements.shape[1]
-    mass = np.bincount(
-        mesh.elements.ravel(), weights=np.repeat(density * rest_volume / n, n), minlength=mesh.n_nodes
-    )
-    if not np.all(mass > 0):
-        orphans = np.flatnonzero(~(mass > 0))
-        raise ValueError(f"nodes {orphans[:10].tolist()}{' ...' if len(orphans) > 10 else ''} belong to no element: "
-                         "a node of no element has no mass; remove it from the mesh (every node must be in an element)")
-    reduced_mass = mass[springs[:, 0]] * mass[springs[:, 1]] / (mass[springs[:, 0]] + mass[springs[:, 1]])
-    damping = damping_ratio * 2.0 * np.sqrt(reduced_mass * np.abs(stiffness))
-    return mass, damping
-
-
-def _build_tet_model(mesh: TetMesh, material: Material, *, model, corrections, volume_conservation, volume_stiffness,
-                     nu_factor, damping_ratio, gravity, hourglass_control, springs) -> Model:
-    """``build_model`` of a ``TetMesh`` (docs/physics.md section 12): per tetrahedron its 6 edge springs
-    (``stress_correction.tetrahedron_spring_stiffness``) merged across elements, and the stress
-    correction f_a = -V0 (P(F) - P_S(F)) b_a on its exact (constant) deformation gradient, P the
-    small-strain Hooke stress ("baudet") or the neo-Hookean one ("baudet-hyperelastic")."""
+def _tet_options(model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, hourglass_control,
+                 springs) -> dict:
+    """``build_model``'s options of a tetrahedral model (docs/physics.md section 12), checked: a
+    ``TetMesh`` takes ``TET_MODELS`` and none of the hexahedral options."""
     if model not in TET_MODELS:
         raise ValueError(f"model={model!r} needs hexahedra (its springs and corrections are written for a hexahedron's "
                          f"axes); a TetMesh takes model in {TET_MODELS}")
@@ -565,63 +428,5 @@ def _build_tet_model(mesh: TetMesh, material: Material, *, model, corrections, v
     for bad, what in refused:
         if bad:
             raise ValueError(f"{what} does not apply to a TetMesh (model={model!r})")
-    damping_ratio = float(finite_array("damping_ratio", damping_ratio))
-    if damping_ratio < 0:
-        raise ValueError(f"damping_ratio must be >= 0, got {damping_ratio}")
-    gravity = finite_array("gravity", gravity, shape=(3,))
-    elements, nodes, n_elements = mesh.elements, mesh.nodes, mesh.n_elements
-    props = material.per_element(n_elements)
-    young_modulus, poisson_ratio, density = props["young_modulus"], props["poisson_ratio"], props["density"]
-
-    values = tetrahedron_spring_stiffness(nodes, elements, young_modulus, poisson_ratio)  # (M, 6)
-    pairs = np.sort(elements[:, TET_EDGES].reshape(-1, 2), axis=1)
-    spring_pairs, inverse = np.unique(pairs, axis=0, return_inverse=True)
-    inverse = inverse.ravel()
-    stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(spring_pairs))
-    rest_length = np.linalg.norm(nodes[spring_pairs[:, 1]] - nodes[spring_pairs[:, 0]], axis=1)
-    rest_volume = mesh.element_volumes()
-    mass, damping = _masses_and_damping(mesh, density, rest_volume, spring_pairs, stiffness, damping_ratio)
-
-    stress_correction = None
-    if corrections:
-        gradient, volume = mean_gradients(nodes, elements)
-        vectors = nodes[elements[:, TET_EDGES[:, 1]]] - nodes[elements[:, TET_EDGES[:, 0]]]
-        shear, lame = lame_parameters(young_modulus, poisson_ratio)
-        stress_correction = StressCorrection(
-            mean_gradient=np.ascontiguousarray(gradient), volume=volume, spring_vector=np.ascontiguousarray(vectors),
-            spring_length=np.linalg.norm(vectors, axis=2), spring_stiffness=np.ascontiguousarray(values),
-            shear_modulus=np.asarray(shear, float), lame=np.asarray(lame, float),
-            law="neo-hookean" if model == "baudet-hyperelastic" else "linear")
-    return Model(
-        mesh=mesh, name=model, hourglass=None, mass=mass, springs=spring_pairs, rest_length=rest_length,
-        stiffness=stiffness, damping=damping, edge_spring=inverse.reshape(n_elements, 6).copy(),
-        axis_rest_length=np.zeros((n_elements, 0)), correction_matrix=np.zeros((n_elements, 3, 3)),
-        correction_mode=None, rest_volume=rest_volume, volume_stiffness=np.zeros(n_elements), gravity=gravity,
-        young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
-        options=dict(corrections=corrections, volume_conservation=False, volume_stiffness=1.0, nu_factor=False,
-                     damping_ratio=damping_ratio, hourglass_control=0.0),
-        stress_correction=stress_correction,
-    )
-
-
-def hourglass_projectors(nodes: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """(M, 8, 8) orthogonal projectors on each element's hourglass space: the nodal fields
-    orthogonal to 1, X, Y, Z of its rest corners (4-dimensional for any valid hexahedron)."""
-    if elements.shape[1] != 8:
-        raise ValueError(f"hourglass projectors need (M, 8) hexahedra, got elements of shape {elements.shape}: "
-                         "a linear tetrahedron's displacements are all affine (it has no hourglass space)")
-    corners = nodes[elements]  # (M, 8, 3)
-    affine = np.concatenate([np.ones((len(elements), 8, 1)), corners - corners.mean(axis=1, keepdims=True)], axis=2)
-    q, _ = np.linalg.qr(affine)  # (M, 8, 4) orthonormal basis of the affine fields
-    return np.eye(8)[None] - q @ q.transpose(0, 2, 1)
-
-
-def hourglass_matrix(mesh: HexMesh, young_modulus, poisson_ratio, alpha: float) -> sp.csr_matrix:
-    """alpha sum_e (P_e x I3) K_e^FEM (P_e x I3): FEM stiffness restricted to hourglass modes (N/m)."""
-    projector = hourglass_projectors(mesh.nodes, mesh.elements)
-    full = np.einsum("mab,ij->maibj", projector, np.eye(3)).reshape(-1, 24, 24)
-    stiffness = element_stiffness(mesh.nodes, mesh.elements, young_modulus, poisson_ratio)
-    matrices = alpha * full @ stiffness @ full
-    pattern = BlockPattern(mesh.n_nodes, mesh.elements)
-    positions = element_block_positions(pattern, mesh.elements)
-    return pattern.matrix(pattern.assemble(positions, element_blocks(matrices, 8)))
+    return dict(volume_conservation=False, volume_stiffness=1.0, nu_factor=False,
+                damping_ratio=_nonnegative("damping_ratio", damping_ratio), hourglass_control=0.0)

@@ -164,3 +164,21 @@ def test_reset_starts_worlds_again_as_fresh_solvers():
         solver.reset()
         again, _ = _run(solver, start, ctrl, 0.02, 3)
         np.testing.assert_array_equal(again.positions, first.positions)
+
+
+@pytest.mark.parametrize("element, name, options", [
+    ("hex", "baudet", dict(hourglass_control=0.5, damping_ratio=0.3)), ("hex", "baudet-original", dict(nu_factor=True)),
+    ("hex", "baudet-hyperelastic", dict(springs="isotropic")), ("hex", "uniform-springs", {}),
+    ("tet", "baudet", {}), ("tet", "baudet-hyperelastic", dict(corrections=False))])
+def test_a_model_rebuilds_from_its_options(element, name, options):
+    """``Model.options`` are the keywords that build it again: what a changed mesh (a cut) is rebuilt
+    with. Every array of the rebuilt model equals the original's."""
+    mesh = HexMesh.block((2, 2, 1), 0.01)
+    mesh = mesh if element == "hex" else TetMesh.from_hex(mesh)
+    material = Material(np.linspace(5e3, 2e4, mesh.n_elements), 0.45, 1060)
+    model = build_model(mesh, material, model=name, gravity=(0, -9.81, 0), **options)
+    again = build_model(mesh, material, model=model.name, gravity=model.gravity, **model.options)
+    for field in ("mass", "springs", "stiffness", "damping", "rest_length", "edge_spring", "correction_matrix",
+                  "volume_stiffness", "gravity_force"):
+        np.testing.assert_array_equal(getattr(again, field), getattr(model, field), err_msg=field)
+    assert again.options == model.options and again.correction_mode == model.correction_mode
