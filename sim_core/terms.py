@@ -42,13 +42,11 @@ def element_springs(mesh, model: str, young_modulus, poisson_ratio, axis_rest_le
         return TET_EDGES, tetrahedron_spring_stiffness(mesh.nodes, mesh.elements, young_modulus, poisson_ratio)
     if model == "baudet-hyperelastic":
         values = element_spring_stiffness(axis_rest_length, young_modulus, poisson_ratio, springs)
-        if np.any(values <= 0):
-            bad = int(np.argmax(np.any(values <= 0, axis=1)))
-            raise ValueError(
-                f"springs={springs!r} with poisson_ratio {poisson_ratio[bad]:g} and element {bad} of edge lengths "
-                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive spring stiffness "
-                f"{np.round(values[bad], 6).tolist()} N/m: the springs would not resist the hourglass modes. "
-                "Use springs='faces' or 'isotropic' (positive for every box and nu)")
+        _refuse_non_positive(values, lambda bad: (
+            f"springs={springs!r} with poisson_ratio {poisson_ratio[bad]:g} and element {bad} of edge lengths "
+            f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive spring stiffness "
+            f"{np.round(values[bad], 6).tolist()} N/m: the springs would not resist the hourglass modes. "
+            "Use springs='faces' or 'isotropic' (positive for every box and nu)"))
         return element_spring_pairs(springs), values
     if model == "uniform-springs":
         size = axis_rest_length.mean(axis=1)
@@ -56,21 +54,24 @@ def element_springs(mesh, model: str, young_modulus, poisson_ratio, axis_rest_le
         diagonal_k = young_modulus * size / 4.0
     else:
         edge_k, diagonal_k = baudet_stiffness(axis_rest_length, young_modulus, poisson_ratio)
-        if np.any(edge_k <= 0):
-            bad = int(np.argmax(np.any(edge_k <= 0, axis=1)))
-            raise ValueError(
-                f"poisson_ratio {poisson_ratio[bad]:g} with element {bad} of edge lengths "
-                f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive edge "
-                f"stiffness {np.round(edge_k[bad], 6).tolist()} N/m, which makes the element "
-                "unstable (negative-energy modes). Baudet's formula needs "
-                "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
-                "poisson_ratio > -0.25 and near-cubic elements, or model='baudet-hyperelastic' for box-shaped "
-                "elements (its springs are positive on every box)"
-            )
+        _refuse_non_positive(edge_k, lambda bad: (
+            f"poisson_ratio {poisson_ratio[bad]:g} with element {bad} of edge lengths "
+            f"{np.round(axis_rest_length[bad], 6).tolist()} m gives a non-positive edge "
+            f"stiffness {np.round(edge_k[bad], 6).tolist()} N/m, which makes the element "
+            "unstable (negative-energy modes). Baudet's formula needs "
+            "6 j^2 k^2 (1+nu) + (nu (j^2+k^2) - i^2) D^2 > 0 for every axis i: use "
+            "poisson_ratio > -0.25 and near-cubic elements, or model='baudet-hyperelastic' for box-shaped "
+            "elements (its springs are positive on every box)"))
         if model in SPRING_SHEAR_MODELS and max_shear_error is not None:
             check_shear_error(model, axis_rest_length, max_shear_error)
     values = np.concatenate([edge_k[:, EDGE_AXIS], np.repeat(diagonal_k[:, None], 4, axis=1)], axis=1)
     return np.concatenate([EDGES, DIAGONALS]), values
+
+
+def _refuse_non_positive(values: np.ndarray, message) -> None:
+    """ValueError(``message(element)``) for the first element (row of ``values``) with a stiffness <= 0."""
+    if np.any(values <= 0):
+        raise ValueError(message(int(np.argmax(np.any(values <= 0, axis=1)))))
 
 
 def merge_springs(mesh, local_pairs: np.ndarray, values: np.ndarray):
