@@ -132,9 +132,8 @@ class DivergenceMonitor:
     the previous step's below -0.5) and grows, for ``oscillation_steps`` consecutive checks, with
     an RMS node speed above ``oscillation_floor`` times the wave speed. That is the signature of
     a time step beyond the explicit stability limit (the highest mode flips sign every step); it
-    catches a run at the very edge of the limit while its amplitude is still small (measured:
-    a 4x4x4 block at 0.9x the estimated limit, 0.997x the measured one, was 12x its static
-    displacement after 500 steps before the speed check fired; this check fires at about step 415).
+    catches a run at the very edge of the limit while its amplitude is still small, long before the
+    speed check would (docs/performance_notes.md, "Divergence checks").
     The checks assume consecutive states of one trajectory (one monitor per trajectory).
     """
 

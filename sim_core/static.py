@@ -657,11 +657,8 @@ def _newton(model, positions, free, applied, tolerance, max_iterations, factor=N
     steps with the same LU (the plain step is tried when the mixed one is rejected).
 
     A step rejected with a fresh tangent ends the load step unconverged (``solve_static`` then
-    halves it); the diagonal damping only grows while the tangent is singular. Escalating it after
-    a rejected step as well (up to |diag K|, near-gradient steps) made a failing TumorPositioning
-    goal retry factorise 20-27 times before giving up; over seeds 1-1000 it never turned a failure
-    into a converged solve (the same goals, bit for bit), and stopping instead makes resets faster,
-    the slowest ones most (``benchmarks/reset_speed.py``, the performance page)."""
+    halves it); the diagonal damping only grows while the tangent is singular: escalating it after a
+    rejected step as well only delays a failure (docs/performance_notes.md, "Static solves")."""
     force = _residual(model, positions, applied)
     residual = _relative(force, free, applied)
     norm = np.linalg.norm(force.ravel()[free])
