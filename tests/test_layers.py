@@ -117,3 +117,11 @@ def test_the_physics_does_not_import_the_studies():
                  and name not in ("sim_core.experiments", "sim_core.resolution")  # the studies' public names
                  for module, _, _ in GRAPH[name] if module.startswith("sim_core.studies")]
     assert not offending, "; ".join(offending)
+
+
+def test_the_physics_does_not_import_the_environments():
+    """sim_core (its studies and commands included) stands below tissue_env: the kernels' warm-up over
+    the environments is tissue_env's own command (``tissue-gym-warmup``)."""
+    offending = [f"{name} imports {module}" for name in MODULES if name.startswith("sim_core")
+                 for module, _, _ in GRAPH[name] if module.split(".")[0] in ("tissue_env", "training")]
+    assert not offending, "; ".join(offending)
