@@ -25,6 +25,7 @@ even when it alone passes the budget.
 
 from __future__ import annotations
 
+import hashlib
 import threading
 import weakref
 from collections import OrderedDict
@@ -184,3 +185,8 @@ class BudgetCache:
 
     def __setstate__(self, state):
         self.__init__(state["kind"], state["max_entries"])
+
+
+def digest(array) -> bytes:
+    """A 16-byte hash of an array's bytes (cache keys: imposed sets, hourglass matrices)."""
+    return hashlib.blake2b(np.ascontiguousarray(array).view(np.uint8), digest_size=16).digest()

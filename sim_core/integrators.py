@@ -19,11 +19,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels
+from .caches import digest
 from .forces import ForceWorkspace, hourglass_blocks, stiffness_data
 from .krylov import apply_system, krylov_solve
 from .model import Control, Model, State
 from .preconditioners import (AUTO_MAX_DOFS, PRECONDITIONERS, REFACTOR_MIN, RESTRICTED_MAX_CHANGED, Factor,
-                              FactorStore, auto_switch_iterations, digest, free_structure, pattern_arrays)
+                              FactorStore, auto_switch_iterations, free_structure, pattern_arrays)
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt, impose_control
 from .static import QuasiStatic
 

@@ -6,7 +6,6 @@ one state for many episodes (``FactorStore``)."""
 
 from __future__ import annotations
 
-import hashlib
 import threading
 from collections import OrderedDict
 
@@ -15,6 +14,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from . import kernels
+from .caches import digest
 from .model import Model
 from .sparse import NodeBlockLU
 
@@ -47,11 +47,6 @@ AUTO_MAX_DOFS = 30000
 RESTRICTED_MAX_CHANGED = 0.01
 #: Re-factorise when a solve needs more than max(REFACTOR_MIN, 2 x the count right after factorising).
 REFACTOR_MIN = 8
-
-
-def digest(array) -> bytes:
-    """A 16-byte hash of an array's bytes (cache keys of imposed sets)."""
-    return hashlib.blake2b(np.ascontiguousarray(array).view(np.uint8), digest_size=16).digest()
 
 
 class FreeStructure:

@@ -23,7 +23,7 @@ import scipy.sparse as sp
 from . import kernels
 from .forces import ForceWorkspace, hourglass_block_map, stress_arguments
 from .model import Control, Model, State
-from .preconditioners import digest
+from .caches import digest
 from .stress_correction import ARRAY_FIELDS, StressCorrection, write_lanes
 
 
