@@ -17,6 +17,16 @@ def run(*args, cwd=None):
     return process.returncode, process.stdout, process.stderr
 
 
+def run_main(capsys, module, *argv):
+    """(exit code, stderr) of ``module``'s main(argv), as ``python -m module`` runs it, in this
+    process: an exception other than SystemExit (a traceback) propagates and fails the test."""
+    import importlib
+
+    with pytest.raises(SystemExit) as ended:
+        importlib.import_module(module).main(list(argv))
+    return ended.value.code, capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     runs = tmp_path_factory.mktemp("runs")
@@ -82,9 +92,9 @@ def test_evaluate_json_and_plot(trained, tmp_path):
     (("training.train", "--env", ENV, "--timesteps", "10", "--vec-env", "batched", "--env-threads", "0"),
      "--env-threads must be an integer from 1 to"),
 ])
-def test_bad_arguments_exit_2(args, word):
-    code, out, err = run(*args)
-    assert code == 2, (out, err)
+def test_bad_arguments_exit_2(args, word, capsys):
+    code, err = run_main(capsys, *args)
+    assert code == 2, err
     assert word in err and "Traceback" not in err
 
 
@@ -287,7 +297,7 @@ def test_demo_and_benchmark_write_under_runs_unless_published(tmp_path):
             module.parse_args(["--publish", "--output-dir", str(tmp_path)])
 
 
-def test_train_takes_the_budget_and_the_noise_from_the_hyperparameter_file(tmp_path):
+def test_train_takes_the_budget_and_the_noise_from_the_hyperparameter_file(tmp_path, capsys):
     """Without --timesteps a run trains for the entry's n_timesteps; rl_zoo3's noise_type /
     noise_std become the off-policy algorithm's action noise; rl_zoo3 keys the scripts do not
     implement, or Python strings where a mapping is needed, are refused with exit code 2."""
@@ -314,5 +324,5 @@ def test_train_takes_the_budget_and_the_noise_from_the_hyperparameter_file(tmp_p
                        ("other/Env-v0:\n  gamma: 0.9\n", "has no entry for"),
                        ("default:\n  policy: MlpPolicy\n", "--timesteps is required")):
         config.write_text(text)
-        code, out, err = run("training.train", "--env", ENV, "--algo", "td3", "--config", str(config))
+        code, err = run_main(capsys, "training.train", "--env", ENV, "--algo", "td3", "--config", str(config))
         assert code == 2 and word in err and "Traceback" not in err, (text, err)
