@@ -222,8 +222,7 @@ def test_copies_share_models_and_caches():
     assert others
     for copy in others:
         assert copy.model is first.model
-        # the env base class has no public view of its model, start and factor caches
-        assert copy._model_cache is first._model_cache
+        assert copy.model_cache is first.model_cache
         assert copy.goal_factors is first.goal_factors
     vector.close()
 
@@ -293,7 +292,7 @@ def test_measurement_shares_the_next_steps_force_pass():
     for _ in range(4):
         vector.step(rng.uniform(-1, 1, (3, 3)))
     flat = np.ascontiguousarray(env.positions.reshape(-1, 3))
-    measured = env._measure(env._tool_mask)["forces"].reshape(-1, 3)
+    measured = env.measures["forces"].reshape(-1, 3)  # the last step's measurement
     full = ForceWorkspace(env.stack.model, implicit=False).compute(
         flat, np.ascontiguousarray(env.velocities.reshape(-1, 3))) + env.stack.model.gravity_force
     np.testing.assert_allclose(measured, full, rtol=0, atol=1e-12 * np.abs(full).max())
@@ -340,11 +339,10 @@ def test_threaded_resets_give_the_serial_resets():
         (serial, serial_info), (threaded, threaded_info) = (envs[t].reset(seed=seed) for t in (1, 2))
         np.testing.assert_array_equal(serial, threaded)
         np.testing.assert_array_equal(serial_info["goal"], threaded_info["goal"])
-    # whether the reset thread pool exists has no public view on the vector env
-    assert envs[2].unwrapped._pool is not None and envs[1].unwrapped._pool is None
+    assert envs[2].unwrapped.reset_pool_running and not envs[1].unwrapped.reset_pool_running
     for vector in envs.values():
         vector.close()
-    assert envs[2].unwrapped._pool is None
+    assert not envs[2].unwrapped.reset_pool_running
 
 
 _FORK_AFTER_RESETS = """
@@ -352,7 +350,7 @@ import multiprocessing, numpy as np, gymnasium as gym, tissue_env
 envs = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=3, vectorization_mode="vector_entry_point",
                     threads=2, max_episode_steps=3)
 envs.reset(seed=1)
-assert envs.unwrapped._pool is not None
+assert envs.unwrapped.reset_pool_running
 def child():
     for _ in range(4):
         envs.step(np.zeros((3, 3), np.float32))
@@ -362,7 +360,7 @@ process.start()
 process.join(120)
 assert process.exitcode == 0, process.exitcode
 envs.reset(seed=2)  # the parent's pool restarts
-assert envs.unwrapped._pool is not None
+assert envs.unwrapped.reset_pool_running
 envs.close()
 """
 
