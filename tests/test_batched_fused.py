@@ -102,10 +102,10 @@ def test_points_covered_by_quads_kernel_matches_covered():
 
 def test_vector_retraction_exposure_equals_the_single_envs():
     envs = _stepped("tissue_env/Retraction-v0", count=3, steps=20, seed=5)
-    measures = envs.worlds._task_measures(envs.worlds.positions)
     worlds = envs.worlds
+    measures = worlds.measures  # the last step's, at the current positions
     for index in range(3):  # the compiled pass against the numpy test of the points under the flap
-        quads = worlds.positions[index][worlds._footprint][..., [0, 2]]
+        quads = worlds.positions[index][worlds.footprint_quads][..., [0, 2]]
         expected = 1.0 - float(np.mean(covered(worlds.target_points[index], quads)))
         assert measures["exposed_fraction"][index] == expected
 
@@ -354,7 +354,7 @@ def test_the_probe_surface_of_all_copies_on_threads_gives_the_serial_floats():
     numba's threads (``Probe.surface(parallel=True)``): the same floats as the serial pass, with the
     probe over the tissue in some copies and away from it in others."""
     envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
-    tips = envs.worlds._tips()
+    tips = envs.worlds.probe_start + envs.worlds.tool_offset  # (N, 3) m, each copy's probe tip
     serial = envs.worlds.probe.surface(envs.worlds.positions, tips)
     threaded = envs.worlds.probe.surface(envs.worlds.positions, tips, parallel=True)
     np.testing.assert_array_equal(threaded, serial)

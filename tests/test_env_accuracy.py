@@ -2,6 +2,7 @@
 (the budgeted choice) and how those speeds are measured (interleaved rounds, medians)."""
 
 import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -34,6 +35,7 @@ def test_env_speeds_interleaves_rounds_and_takes_medians(monkeypatch):
     calls, rates = [], {(8, 2, 4): iter([700.0, 500.0, 600.0]), (10, 2, 5): iter([300.0, 310.0, 100.0])}
 
     def fake(env_id, shape, steps, seed, clock=None):
+        assert clock is time.process_time  # CPU time of this process, not wall time
         calls.append(shape)
         return None if shape == (1, 1, 1) else next(rates[shape])
 
@@ -44,14 +46,35 @@ def test_env_speeds_interleaves_rounds_and_takes_medians(monkeypatch):
     assert calls == [(8, 2, 4), (10, 2, 5), (1, 1, 1), (8, 2, 4), (10, 2, 5), (8, 2, 4), (10, 2, 5)]
 
 
-def test_env_speed_measures_cpu_time_and_rejects_an_impossible_shape():
-    import math
+def test_env_speed_measures_cpu_time_and_rejects_an_impossible_shape(monkeypatch):
+    """The rate is the steps asked for over the clock's time across exactly those steps (the
+    warm-up steps outside it): the clock's readings and a count of the env's steps, both taken
+    here, give the same number."""
     import time
 
-    assert env_accuracy.env_speed("tissue_env/Retraction-v0", (0, 2, 4), steps=2) is None
-    rate = env_accuracy.env_speed("tissue_env/Retraction-v0", (4, 1, 2), steps=5, clock=time.process_time)
-    assert math.isfinite(rate) and rate > 0.0
+    import gymnasium
 
+    assert env_accuracy.env_speed("tissue_env/Retraction-v0", (0, 2, 4), steps=2) is None
+    taken = [0]
+
+    class CountSteps(gymnasium.Wrapper):
+        def step(self, action):
+            taken[0] += 1
+            return super().step(action)
+
+    make = gymnasium.make
+    monkeypatch.setattr(gymnasium, "make", lambda *args, **kwargs: CountSteps(make(*args, **kwargs)))
+    readings = []  # (process CPU seconds, env steps taken so far)
+
+    def clock():
+        readings.append((time.process_time(), taken[0]))
+        return readings[-1][0]
+
+    rate = env_accuracy.env_speed("tissue_env/Retraction-v0", (4, 1, 2), steps=5, clock=clock)
+    assert len(readings) == 2, readings  # one reading before the timed steps, one after
+    (start, steps_before), (end, steps_after) = readings
+    assert steps_after - steps_before == 5 and steps_before > 0  # the timed steps; warm-up before them
+    assert end > start and rate == 5 / (end - start)
 
 
 def test_the_env_defaults_are_the_committed_budget_choices():

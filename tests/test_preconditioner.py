@@ -162,14 +162,23 @@ def test_a_moving_contact_keeps_the_factor_exact_through_its_capacitance_correct
     assert kept.factorisations == 1
 
 
-def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one_is_kept():
+def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one_is_kept(monkeypatch):
     """CHEAP_FACTOR: a factorisation estimated to cost fewer than 10 iterations (a thin 6x1x3 flap,
     like Retraction's) is made again when a contact imposes more than 1% of its dofs, where a
     fresh factor beats a kept one the state has moved from; the 6^3 block's (about 12.7) is kept
     and corrected (test above). Both steps are solved to the tolerance."""
-    from sim_core import preconditioners
+    from sim_core import integrators, preconditioners
 
+    made = []  # the factors the integrator builds: their public ``cost`` is the estimate
+
+    class Recorded(preconditioners.Factor):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(integrators, "Factor", Recorded)
     for shape, cheap in (((6, 1, 3), True), ((6, 6, 6), False)):
+        made.clear()
         model = build_model(HexMesh.block(shape, 0.01), Material(5e3, 0.45, 1060.0), hourglass_control=1.0,
                             volume_stiffness=100.0)
         nodes = model.mesh.nodes
@@ -179,8 +188,7 @@ def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one
         state = model.new_state()
         base = model.new_control().impose(bottom, nodes[bottom])
         integrator.simulate(model, state, state.copy(), 0.04, base)
-        # the kept factor's cost estimate has no public view on ImplicitEuler
-        assert (integrator._factor.cost < preconditioners.CHEAP_FACTOR) == cheap
+        assert len(made) == 1 and (made[0].cost < preconditioners.CHEAP_FACTOR) == cheap
         held = base.copy().impose(top[:6], nodes[top[:6]] - [0.0, 0.0005, 0.0], components=(1,))
         report = integrator.simulate(model, state, state.copy(), 0.04, held)
         assert report.residual <= 1e-8
@@ -286,23 +294,38 @@ def test_factorised_preconditioner_uses_the_node_block_lu():
     import sim_core.preconditioners as preconditioners
 
     model, control, _ = stiff_scene((4, 4, 4))
-    block = ImplicitEuler(preconditioner="factorised", tolerance=1e-10)
-    positions, _ = trajectory(model, control, block, 4)
-    # which factor ImplicitEuler holds (node blocks or SuperLU) has no public view
-    assert block._factor.block is not None
+    # which factors the steps make: each Factor the integrator builds is recorded, and its public
+    # ``block`` (node-block LU) or ``lu`` (SuperLU) says which
+    from sim_core import integrators
+
+    made = []
+
+    class Recorded(preconditioners.Factor):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
 
     class Pivots:
         def __init__(self, *args, **kwargs):
             raise np.linalg.LinAlgError("force the scalar LU")
 
     original = preconditioners.NodeBlockLU
-    preconditioners.NodeBlockLU = Pivots
+    factor_class = integrators.Factor
+    integrators.Factor = Recorded
     try:
+        block = ImplicitEuler(preconditioner="factorised", tolerance=1e-10)
+        positions, _ = trajectory(model, control, block, 4)
+        assert len(made) == block.factorisations >= 1
+        assert all(factor.block is not None and factor.lu is None for factor in made)
+        made.clear()
+        preconditioners.NodeBlockLU = Pivots
         scalar = ImplicitEuler(preconditioner="factorised", tolerance=1e-10)
         reference, _ = trajectory(model, control, scalar, 4)
-        assert scalar._factor.block is None and scalar._factor.lu is not None
+        assert len(made) == scalar.factorisations >= 1
+        assert all(factor.block is None and factor.lu is not None for factor in made)
     finally:
         preconditioners.NodeBlockLU = original
+        integrators.Factor = factor_class
     assert np.abs(positions - reference).max() < 1e-9
 
 

@@ -57,8 +57,7 @@ def test_matmul_tangent_matches_the_einsum_definition():
     mesh = sa.block(2)
     fem = NeoHookeanFEM(mesh, Material(sa.YOUNG, sa.POISSON, sa.DENSITY))
     x = mesh.nodes + np.random.default_rng(1).normal(scale=5e-4, size=mesh.nodes.shape)
-    # the Lame parameters per quadrature point have no public view on NeoHookeanFEM
-    mu, lam = fem._point_parameters()
+    mu, lam = fem.mu[:, None], fem.lam[:, None]  # each element's Lame parameters (Pa) at its quadrature points
     tangent = material_tangent(fem.deformation_gradients(x), mu, lam)
     expected = np.einsum("mp,mpnB,mpaBcD,mpkD->mnakc", fem.weights, fem.gradients, tangent, fem.gradients).reshape(-1, 24, 24)
     actual = fem.element_tangents(x)

@@ -791,6 +791,13 @@ class TissueEnv(gym.Env):
         return _row(observations), _row(infos)
 
     @property
+    def model_cache(self) -> BudgetCache:
+        """The models this env built, keyed by material, block size and task layout (``MODEL_CACHE_SIZE``
+        entries within the "models" byte budget of ``sim_core.caches``): one object shared by
+        the envs that ``share_caches`` with it, such as a vector env's copies."""
+        return self._model_cache
+
+    @property
     def worlds(self) -> TaskWorlds | None:
         """This env's one world (``tissue_env.worlds.TaskWorlds``: its solver, stacked model and
         step stages), built at the first ``reset``; None before."""

@@ -100,6 +100,13 @@ class RetractionWorlds(TaskWorlds):
         self._node_forces = measures["forces"]
         return measures
 
+    @property
+    def footprint_quads(self) -> np.ndarray:
+        """(2M, 4) node indices of the bottom and top face of each of the flap's M elements: a
+        target point under one of these quads, seen from above (x-z), is hidden
+        (``exposed_fraction``)."""
+        return self._footprint
+
     def _task_measures(self, positions):
         # the target points under a footprint quad of the flap (seen from above), in one compiled pass
         hidden = np.empty(self.target_points.shape[:2], dtype=bool)

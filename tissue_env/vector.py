@@ -126,6 +126,12 @@ class TissueVectorEnv(VectorEnv):
         self._started = False
         self._observations = None
 
+    @property
+    def reset_pool_running(self) -> bool:
+        """Whether the thread pool that resets the copies (``threads`` > 1) is running: started at
+        the first threaded reset, stopped by ``close`` and before a fork."""
+        return self._pool is not None
+
     def _stop_pool(self):
         if self._pool is not None:
             self._pool.shutdown()
