@@ -177,8 +177,8 @@ def check_flag(name, value):
 #: The largest mesh (nodes) an environment accepts unless told otherwise (``max_nodes``): a reset
 #: solves the start equilibrium under gravity (and TumorPositioning its goal) by Newton steps on the
 #: 3 N-dof tangent, whose sparse factorisations cost about dofs^2, so past this size a reset takes
-#: more than about 30 s on 2 cores (benchmarks/large_mesh.py measures it per shape). The task
-#: defaults have at most 726 nodes.
+#: tens of seconds (benchmarks/large_mesh.py measures it per shape: the performance page's "Work
+#: against mesh size"). The task defaults have at most 726 nodes.
 MAX_NODES = 4_000
 #: Past this many nodes (with ``max_nodes`` raised or None) the env warns that a reset takes long.
 SLOW_NODES = 2_500

@@ -205,7 +205,7 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
     results["ratio_implicit_converged"] = results["implicit_step_ms"] / results["bare_converged_implicit_step_ms"]
     results["ratio_implicit_to_bare_fixed15"] = (
         results["implicit_step_ms"] / results["bare_numba_implicit_fixed15_step_ms"])
-    results["ratio_implicit15_to_bare_numba_implicit15"] = (  # both capped at 15, tolerance 1e-6 (as before)
+    results["ratio_implicit15_to_bare_numba_implicit15"] = (  # both capped at 15 iterations, tolerance 1e-6
         results["implicit_15_iterations_step_ms"] / results["bare_numba_implicit_15_iterations_step_ms"])
     results.update(_bandwidth_floors(full, results))
     return results
@@ -249,7 +249,7 @@ def _implicit_times(full, bare, state, control, repeats):
     median iterations (``*_iterations``; ``cg_iterations`` the full model's BiCGSTAB) and the
     factorised and auto preconditioners' factorisation counts."""
     never = 1e-30  # a tolerance no solve reaches: exactly max_iterations iterations
-    jacobi = dict(preconditioner="jacobi")  # the historic entries (and the bare lattice's CG): Jacobi
+    jacobi = dict(preconditioner="jacobi")  # the entries without a preconditioner in their name: Jacobi
     configurations = {
         "implicit_step_ms": (ImplicitEuler(**jacobi), full),
         "implicit_step_factorised_ms": (ImplicitEuler(preconditioner="factorised"), full),
