@@ -298,98 +298,133 @@ def run(quick=False, tasks=None):
     start = time.perf_counter()
     if tasks:  # the other tasks' results as they were
         out["tasks"] = {name: task for name, task in json.loads(path.read_text())["tasks"].items()}
-    for name, (make, max_step, fem_resolution, fine_resolution, resolutions) in TASKS.items():
+    for name in TASKS:
         if tasks and name not in tasks:
             continue
-        model, alpha, kappa = env_setting(name)
-        default_shape = env_default_shape(name)
-        default_dt = env_default_dt(name)
-        solver_tolerance = env_solver_tolerance(name)
-        if quick:
-            fem_resolution, fine_resolution, resolutions = QUICK[name]
-        scenes = make()
-        clock = time.perf_counter()
-        # (a) discretisation against the fine mass-spring model
-        fine = reference_solutions(scenes, reference_resolution=fine_resolution, model=model,
-                                   hourglass_control=alpha, volume_stiffness=kappa)
-        choice = choose_resolution(scenes, TOLERANCE, resolutions=resolutions, hourglass_controls=(alpha,),
-                                   volume_stiffnesses=(kappa,), references=fine, full_scan=True, model=model)
-        fine_nodes = int(np.prod(np.asarray(fine[1][0]) + 1))
-        chosen = {f"{int(t * 100)}pct": _pick(choice.candidates, {q: t for q in ("force", "target", "volume")}, fine_nodes)
-                  for t in TOLERANCES}
-        force_target = {f"{int(t * 100)}pct": _pick(choice.candidates, {"force": t, "target": t}, fine_nodes)
-                        for t in TOLERANCES}
-        discretisation = dict(choice.summary(), chosen_by_tolerance={k: None if c is None else c.summary() for k, c in chosen.items()},
-                              force_target_only={k: None if c is None else c.summary() for k, c in force_target.items()},
-                              fine_reference_values=[dict(scene=s.name, force=r.force.tolist(),
-                                                          target_displacement=(r.target - r.target_rest).tolist(),
-                                                          volume=r.volume.tolist(), stable=[bool(v) for v in r.stable])
-                                                     for s, r in zip(scenes, fine[0])])
-        # env speed at every candidate shape, and the budgeted choice (the most accurate that keeps
-        # SPEED_FLOOR steps/s with SPEED_MARGIN): how the env defaults are chosen
-        shapes = list(dict.fromkeys(tuple(c.shape) for c in choice.candidates if c.errors is not None))
-        speeds = ({"x".join(map(str, shape)): None for shape in shapes} if quick
-                  else env_speeds(ENV_IDS[name], shapes))
-        budget = budget_choice(choice.candidates, speeds)
-        # stepping on the chosen meshes and on the env's default mesh
-        stepping, recommendation = {}, {}
-        shapes = ({tuple(default_shape)} | {tuple(c.shape) for c in chosen.values() if c is not None}
-                  | ({tuple(budget.shape)} if budget is not None else set()))
-        for shape in sorted(shapes, key=lambda s: np.prod(np.asarray(s) + 1)):
-            static = [solve_scene(s, shape, model=model, hourglass_control=alpha, volume_stiffness=kappa,
-                                  check_stability=False) for s in scenes]
-            steps = choose_stepping(scenes, shape, TOLERANCE, dts=DTS, substeps=SUBSTEPS, max_step=max_step,
-                                    hourglass_control=alpha, volume_stiffness=kappa, static=static,
-                                    solver_tolerance=solver_tolerance, solver=dict(preconditioner="auto"), model=model)
-            entry = steps.summary()
-            entry["chosen_by_tolerance"] = {f"{int(t * 100)}pct": (lambda c: None if c is None else c.summary())(
-                _pick_stepping(steps.candidates, t)) for t in TOLERANCES}
-            stepping["x".join(map(str, shape))] = entry
-        for key, c in chosen.items():
-            if c is None:
-                recommendation[key] = None
-                continue
-            step = stepping["x".join(map(str, c.shape))]["chosen_by_tolerance"][key]
-            recommendation[key] = dict(shape=list(c.shape), resolution=c.resolution, model=model, hourglass_control=alpha,
-                                       volume_stiffness=kappa, dt=None if step is None else step["dt"],
-                                       substeps=None if step is None else step["substeps"],
-                                       discretisation_errors=c.errors, stepping_errors=None if step is None else step["errors"])
-        # (b) constitutive accuracy against fem-neohookean
-        fem = reference_solutions(scenes, reference_resolution=fem_resolution)
-        constitutive = dict(reference_shape=[list(s) for s in fem[1]], reference_time=fem[2],
-                            reference_stable=all(all(v is True for v in r.stable) for r in fem[0]),
-                            reference_values=[dict(scene=s.name, force=r.force.tolist(),
-                                                   target_displacement=(r.target - r.target_rest).tolist(),
-                                                   volume=r.volume.tolist(), stable=[bool(v) for v in r.stable])
-                                              for s, r in zip(scenes, fem[0])])
-        constitutive["env_default"] = _constitutive(scenes, default_shape, fem, model, alpha, kappa)
-        for key, c in chosen.items():
-            if c is not None:
-                constitutive[f"chosen_{key}"] = (constitutive["env_default"] if tuple(c.shape) == tuple(default_shape)
-                                                 else _constitutive(scenes, c.shape, fem, model, alpha, kappa))
-        default_step = stepping["x".join(map(str, default_shape))]
-        env_dt = next(c for c in default_step["candidates"] if c["dt"] == default_dt and c["substeps"] == ENV_SUBSTEPS)
-        budget_summary = None if budget is None else dict(
-            budget.summary(), steps_per_s=speeds["x".join(map(str, budget.shape))], floor=SPEED_FLOOR * SPEED_MARGIN, issue_floor=SPEED_FLOOR,
-            is_env_default=tuple(budget.shape) == tuple(default_shape))
-        default_disc = next((c.summary() for c in choice.candidates if tuple(c.shape) == tuple(default_shape)), None)
-        out["tasks"][name] = dict(
-            scenes=[s.name for s in scenes], displacements_m=[[p.tolist() for p in s.displacements] for s in scenes],
-            max_step=max_step, recommendation=recommendation, env_speeds=speeds, budget_choice=budget_summary,
-            model=model,
-            env_default=dict(shape=list(default_shape), dt=default_dt, substeps=ENV_SUBSTEPS, model=model,
-                             hourglass_control=alpha,
-                             volume_stiffness=kappa, discretisation=default_disc, stepping=env_dt,
-                             constitutive=constitutive["env_default"]),
-            discretisation=discretisation, stepping=stepping, constitutive=constitutive,
-            wall_time=time.perf_counter() - clock)
-        print(f"{name}: {time.perf_counter() - clock:.0f} s", flush=True)
+        out["tasks"][name] = _task_accuracy(name, quick)
     out["tasks"] = {name: out["tasks"][name] for name in TASKS if name in out["tasks"]}
     out["total_time"] = time.perf_counter() - start
     write_json(path, out, indent=1, default=float)
     figure(out, ROOT / "docs" / "figures" / ("env_accuracy_quick.png" if quick else "env_accuracy.png"))
     table(out)
     return out
+
+
+def _task_accuracy(name, quick):
+    """One task's entry of ``run``'s results: the discretisation errors against the fine mass-spring
+    model, the env speeds and the budgeted choice, the stepping errors on the chosen meshes and the
+    env's default mesh, the recommendations, the constitutive errors against fem-neohookean and the
+    wall time (s) they took."""
+    make, max_step, fem_resolution, fine_resolution, resolutions = TASKS[name]
+    model, alpha, kappa = env_setting(name)
+    default_shape = env_default_shape(name)
+    default_dt = env_default_dt(name)
+    solver_tolerance = env_solver_tolerance(name)
+    if quick:
+        fem_resolution, fine_resolution, resolutions = QUICK[name]
+    scenes = make()
+    clock = time.perf_counter()
+    choice, chosen, discretisation = _discretisation(scenes, model, alpha, kappa, fine_resolution, resolutions)
+    # env speed at every candidate shape, and the budgeted choice (the most accurate that keeps
+    # SPEED_FLOOR steps/s with SPEED_MARGIN): how the env defaults are chosen
+    shapes = list(dict.fromkeys(tuple(c.shape) for c in choice.candidates if c.errors is not None))
+    speeds = ({"x".join(map(str, shape)): None for shape in shapes} if quick
+              else env_speeds(ENV_IDS[name], shapes))
+    budget = budget_choice(choice.candidates, speeds)
+    # stepping on the chosen meshes and on the env's default mesh
+    shapes = ({tuple(default_shape)} | {tuple(c.shape) for c in chosen.values() if c is not None}
+              | ({tuple(budget.shape)} if budget is not None else set()))
+    stepping = {"x".join(map(str, shape)): _stepping(scenes, shape, model, alpha, kappa, max_step, solver_tolerance)
+                for shape in sorted(shapes, key=lambda s: np.prod(np.asarray(s) + 1))}
+    recommendation = _recommendation(chosen, stepping, model, alpha, kappa)
+    constitutive = _constitutive_accuracy(scenes, chosen, default_shape, fem_resolution, model, alpha, kappa)
+    default_step = stepping["x".join(map(str, default_shape))]
+    env_dt = next(c for c in default_step["candidates"] if c["dt"] == default_dt and c["substeps"] == ENV_SUBSTEPS)
+    budget_summary = None if budget is None else dict(
+        budget.summary(), steps_per_s=speeds["x".join(map(str, budget.shape))], floor=SPEED_FLOOR * SPEED_MARGIN, issue_floor=SPEED_FLOOR,
+        is_env_default=tuple(budget.shape) == tuple(default_shape))
+    default_disc = next((c.summary() for c in choice.candidates if tuple(c.shape) == tuple(default_shape)), None)
+    entry = dict(
+        scenes=[s.name for s in scenes], displacements_m=[[p.tolist() for p in s.displacements] for s in scenes],
+        max_step=max_step, recommendation=recommendation, env_speeds=speeds, budget_choice=budget_summary,
+        model=model,
+        env_default=dict(shape=list(default_shape), dt=default_dt, substeps=ENV_SUBSTEPS, model=model,
+                         hourglass_control=alpha,
+                         volume_stiffness=kappa, discretisation=default_disc, stepping=env_dt,
+                         constitutive=constitutive["env_default"]),
+        discretisation=discretisation, stepping=stepping, constitutive=constitutive,
+        wall_time=time.perf_counter() - clock)
+    print(f"{name}: {time.perf_counter() - clock:.0f} s", flush=True)
+    return entry
+
+
+def _reference_values(scenes, solutions):
+    """Per scene, the reference's observed values: tool force (N), target displacement (m), relative
+    volume change and stability, per tested displacement."""
+    return [dict(scene=s.name, force=r.force.tolist(), target_displacement=(r.target - r.target_rest).tolist(),
+                 volume=r.volume.tolist(), stable=[bool(v) for v in r.stable]) for s, r in zip(scenes, solutions)]
+
+
+def _discretisation(scenes, model, alpha, kappa, fine_resolution, resolutions):
+    """(a) discretisation against the fine mass-spring model: (the ``choose_resolution`` full scan,
+    the coarsest candidate per tolerance of TOLERANCES, the task's "discretisation" entry)."""
+    fine = reference_solutions(scenes, reference_resolution=fine_resolution, model=model,
+                               hourglass_control=alpha, volume_stiffness=kappa)
+    choice = choose_resolution(scenes, TOLERANCE, resolutions=resolutions, hourglass_controls=(alpha,),
+                               volume_stiffnesses=(kappa,), references=fine, full_scan=True, model=model)
+    fine_nodes = int(np.prod(np.asarray(fine[1][0]) + 1))
+    chosen = {f"{int(t * 100)}pct": _pick(choice.candidates, {q: t for q in ("force", "target", "volume")}, fine_nodes)
+              for t in TOLERANCES}
+    force_target = {f"{int(t * 100)}pct": _pick(choice.candidates, {"force": t, "target": t}, fine_nodes)
+                    for t in TOLERANCES}
+    discretisation = dict(choice.summary(), chosen_by_tolerance={k: None if c is None else c.summary() for k, c in chosen.items()},
+                          force_target_only={k: None if c is None else c.summary() for k, c in force_target.items()},
+                          fine_reference_values=_reference_values(scenes, fine[0]))
+    return choice, chosen, discretisation
+
+
+def _stepping(scenes, shape, model, alpha, kappa, max_step, solver_tolerance):
+    """The ``choose_stepping`` summary of the task's env stepping on ``shape`` against the static
+    equilibria there, with the cheapest admissible stepping per tolerance ("chosen_by_tolerance")."""
+    static = [solve_scene(s, shape, model=model, hourglass_control=alpha, volume_stiffness=kappa,
+                          check_stability=False) for s in scenes]
+    steps = choose_stepping(scenes, shape, TOLERANCE, dts=DTS, substeps=SUBSTEPS, max_step=max_step,
+                            hourglass_control=alpha, volume_stiffness=kappa, static=static,
+                            solver_tolerance=solver_tolerance, solver=dict(preconditioner="auto"), model=model)
+    entry = steps.summary()
+    entry["chosen_by_tolerance"] = {f"{int(t * 100)}pct": (lambda c: None if c is None else c.summary())(
+        _pick_stepping(steps.candidates, t)) for t in TOLERANCES}
+    return entry
+
+
+def _recommendation(chosen, stepping, model, alpha, kappa):
+    """Per tolerance, the chosen mesh with the stepping chosen on it (dt in s, substeps) and both errors."""
+    recommendation = {}
+    for key, c in chosen.items():
+        if c is None:
+            recommendation[key] = None
+            continue
+        step = stepping["x".join(map(str, c.shape))]["chosen_by_tolerance"][key]
+        recommendation[key] = dict(shape=list(c.shape), resolution=c.resolution, model=model, hourglass_control=alpha,
+                                   volume_stiffness=kappa, dt=None if step is None else step["dt"],
+                                   substeps=None if step is None else step["substeps"],
+                                   discretisation_errors=c.errors, stepping_errors=None if step is None else step["errors"])
+    return recommendation
+
+
+def _constitutive_accuracy(scenes, chosen, default_shape, fem_resolution, model, alpha, kappa):
+    """(b) constitutive accuracy against fem-neohookean: the reference and the errors on the env's
+    default mesh ("env_default") and on each chosen one ("chosen_<tolerance>")."""
+    fem = reference_solutions(scenes, reference_resolution=fem_resolution)
+    constitutive = dict(reference_shape=[list(s) for s in fem[1]], reference_time=fem[2],
+                        reference_stable=all(all(v is True for v in r.stable) for r in fem[0]),
+                        reference_values=_reference_values(scenes, fem[0]))
+    constitutive["env_default"] = _constitutive(scenes, default_shape, fem, model, alpha, kappa)
+    for key, c in chosen.items():
+        if c is not None:
+            constitutive[f"chosen_{key}"] = (constitutive["env_default"] if tuple(c.shape) == tuple(default_shape)
+                                             else _constitutive(scenes, c.shape, fem, model, alpha, kappa))
+    return constitutive
 
 
 def _fmt(errors):

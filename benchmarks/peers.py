@@ -391,24 +391,46 @@ def build_engines(scene: Scene, only=None):
 
 def measure(rounds: int = 7, steps: int = 100, static: bool = True, only=None, scene: Scene | None = None) -> dict:
     scene = Scene() if scene is None else scene
-    duration = SCENE["duration"]
     engines, records = build_engines(scene, only)
-    results = {"scene": scene.describe(), "machine": machine(),
-               "versions": {"numpy": np.__version__, "mujoco": _dist_version("mujoco"),
-                            "pybullet": _dist_version("pybullet"), "numba": _dist_version("numba"),
-                            "scipy": _dist_version("scipy")},
-               "method": {"dt_s": DT, "rounds": rounds, "steps_per_round": steps, "statistic": "median",
-                          "interleaved": True, "sag": f"mean y displacement of the top face after {duration} s from rest",
-                          "settled_sag": f"the same after {SETTLE_TIME} s at the equal-stability dt",
-                          "equal_stability": ("explicit: 0.9 x stable_time_step; others: largest dt of "
-                                              f"{list(DT_LADDER)} s whose {duration} s run is finite, stable and "
-                                              f"within {SAG_TOLERANCE:.0%} of the same engine's 1 ms sag")},
-               "engines": {}}
+    results = _header(scene, rounds, steps)
     for name, engine in engines.items():
         results["engines"][name] = {"status": "ok", "version": engine.version, "physics": engine.physics}
     results["engines"].update(records)
+    sanity = _sanity(engines, scene, results)
+    # 2. speed at dt = 1 ms, interleaved, continuing from the loaded, moving state
+    timing = interleaved_ms(engines, {name: steps for name in engines}, rounds)
+    for name, (ms, samples) in timing.items():
+        results["engines"][name].update(dt_s=DT, ms_per_step=ms, steps_per_s=1e3 / ms,
+                                        sim_s_per_wall_s=DT / (ms * 1e-3), ms_per_step_samples=samples)
+    _equal_stability(engines, scene, sanity, steps, rounds, results)
+    for engine in engines.values():
+        if hasattr(engine, "close"):
+            engine.close()
+    if static:
+        results["static_reference"] = _static_reference(scene)
+    return results
 
-    # 1. sanity: 1 s from rest at 1 ms (also the warm-up: numba compilation, caches)
+
+def _header(scene, rounds, steps):
+    """``measure``'s results before any run: the scene, the machine, the versions and the method."""
+    duration = SCENE["duration"]
+    return {"scene": scene.describe(), "machine": machine(),
+            "versions": {"numpy": np.__version__, "mujoco": _dist_version("mujoco"),
+                         "pybullet": _dist_version("pybullet"), "numba": _dist_version("numba"),
+                         "scipy": _dist_version("scipy")},
+            "method": {"dt_s": DT, "rounds": rounds, "steps_per_round": steps, "statistic": "median",
+                       "interleaved": True, "sag": f"mean y displacement of the top face after {duration} s from rest",
+                       "settled_sag": f"the same after {SETTLE_TIME} s at the equal-stability dt",
+                       "equal_stability": ("explicit: 0.9 x stable_time_step; others: largest dt of "
+                                           f"{list(DT_LADDER)} s whose {duration} s run is finite, stable and "
+                                           f"within {SAG_TOLERANCE:.0%} of the same engine's 1 ms sag")},
+            "engines": {}}
+
+
+def _sanity(engines, scene, results):
+    """1. sanity: 1 s from rest at 1 ms (also the warm-up: numba compilation, caches). Returns
+    {name: run}; an engine that raises is recorded as an error and dropped from ``engines``."""
+    duration = SCENE["duration"]
     sanity = {}
     for name, engine in list(engines.items()):
         try:
@@ -422,39 +444,17 @@ def measure(rounds: int = 7, steps: int = 100, static: bool = True, only=None, s
                      unstable_reason=sanity[name]["unstable_reason"])
         if not sanity[name]["finite"]:
             print(f"WARNING: {name} gave non-finite positions after {duration} s")
+    return sanity
 
-    # 2. speed at dt = 1 ms, interleaved, continuing from the loaded, moving state
-    timing = interleaved_ms(engines, {name: steps for name in engines}, rounds)
-    for name, (ms, samples) in timing.items():
-        results["engines"][name].update(dt_s=DT, ms_per_step=ms, steps_per_s=1e3 / ms,
-                                        sim_s_per_wall_s=DT / (ms * 1e-3), ms_per_step_samples=samples)
 
-    # 3. at equal stability: each integrator at its largest usable dt
+def _equal_stability(engines, scene, sanity, steps, rounds, results):
+    """3. at equal stability: each integrator at its largest usable dt (``_largest_usable_dt``), its
+    sag settled there, then timed interleaved from a loaded, moving state."""
     chosen = {}
     for name, engine in engines.items():
         if not sanity[name]["finite"]:
             continue
-        ladder = []
-        if name == "ours-explicit":
-            limit = stable_time_step(scene.model, scene.control)
-            dt = 0.9 * limit
-            run = simulate_from_rest(engine, scene, dt, duration)
-            run["passes"] = passes(run, sanity[name])
-            ladder.append(run)
-            chosen[name] = {"dt_s": dt, "stable_time_step_s": limit, "rule": "0.9 x stable_time_step"}
-            if not (run["finite"] and run["unstable_reason"] is None):
-                chosen[name]["warning"] = "unstable at 0.9 x stable_time_step"
-        else:
-            best = DT
-            for dt in DT_LADDER:
-                run = simulate_from_rest(engine, scene, dt, duration)
-                run["passes"] = passes(run, sanity[name])
-                ladder.append(run)
-                if not run["passes"]:
-                    break
-                best = dt
-            chosen[name] = {"dt_s": best, "rule": "largest passing dt of the ladder"}
-        chosen[name]["scan"] = ladder
+        chosen[name] = _largest_usable_dt(name, engine, scene, sanity[name])
         settled = simulate_from_rest(engine, scene, chosen[name]["dt_s"], SETTLE_TIME)
         chosen[name]["settled"] = settled
         results["engines"][name].update(top_sag_settled_m=settled["top_sag_m"], settled_finite=settled["finite"],
@@ -473,26 +473,52 @@ def measure(rounds: int = 7, steps: int = 100, static: bool = True, only=None, s
                      ms_per_step_samples=samples)
         results["engines"][name]["equal_stability"] = entry
 
-    for engine in engines.values():
-        if hasattr(engine, "close"):
-            engine.close()
 
-    # 4. static references on the same nodes: our model and hexahedral neo-Hookean FEM
-    if static:
-        from sim_core.hyperelastic import NeoHookeanFEM
-        from sim_core.static import solve_static
+def _largest_usable_dt(name, engine, scene, sanity):
+    """The equal-stability dt of one engine, with the runs that chose it ("scan"): 0.9 x
+    ``stable_time_step`` for our explicit integrator, else the largest dt of ``DT_LADDER`` whose run
+    ``passes`` against the engine's 1 ms ``sanity`` run (the ladder stops at the first failure)."""
+    duration = SCENE["duration"]
+    ladder = []
+    if name == "ours-explicit":
+        limit = stable_time_step(scene.model, scene.control)
+        dt = 0.9 * limit
+        run = simulate_from_rest(engine, scene, dt, duration)
+        run["passes"] = passes(run, sanity)
+        ladder.append(run)
+        chosen = {"dt_s": dt, "stable_time_step_s": limit, "rule": "0.9 x stable_time_step"}
+        if not (run["finite"] and run["unstable_reason"] is None):
+            chosen["warning"] = "unstable at 0.9 x stable_time_step"
+    else:
+        best = DT
+        for dt in DT_LADDER:
+            run = simulate_from_rest(engine, scene, dt, duration)
+            run["passes"] = passes(run, sanity)
+            ladder.append(run)
+            if not run["passes"]:
+                break
+            best = dt
+        chosen = {"dt_s": best, "rule": "largest passing dt of the ladder"}
+    chosen["scan"] = ladder
+    return chosen
 
-        gravity = (0.0, -scene.gravity, 0.0)
-        reference = {}
-        try:
-            ours = solve_static(scene.model, scene.control)
-            reference["ours_static_top_sag_m"] = scene.sag(ours.positions) if ours.converged else None
-            fem = NeoHookeanFEM(scene.mesh, scene.material).solve(scene.control, gravity)
-            reference["neohookean_hex_fem_static_top_sag_m"] = scene.sag(fem.positions) if fem.converged else None
-        except Exception as error:
-            reference["error"] = f"{type(error).__name__}: {error}"
-        results["static_reference"] = reference
-    return results
+
+def _static_reference(scene):
+    """4. static references on the same nodes: our model and hexahedral neo-Hookean FEM (top sag, m;
+    None where a solve did not converge)."""
+    from sim_core.hyperelastic import NeoHookeanFEM
+    from sim_core.static import solve_static
+
+    gravity = (0.0, -scene.gravity, 0.0)
+    reference = {}
+    try:
+        ours = solve_static(scene.model, scene.control)
+        reference["ours_static_top_sag_m"] = scene.sag(ours.positions) if ours.converged else None
+        fem = NeoHookeanFEM(scene.mesh, scene.material).solve(scene.control, gravity)
+        reference["neohookean_hex_fem_static_top_sag_m"] = scene.sag(fem.positions) if fem.converged else None
+    except Exception as error:
+        reference["error"] = f"{type(error).__name__}: {error}"
+    return reference
 
 
 def _fmt(value, spec):

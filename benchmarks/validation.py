@@ -642,6 +642,28 @@ def figure_zero_energy_modes():
     alphas = (0.0, 0.5, 1.0)
     mesh = HexMesh.block((2, 2, 2), 0.1)
     count, n_hourglass, shapes = hourglass_shapes(mesh)
+    counts = _zero_energy_mode_counts(count, n_hourglass, alphas)
+    rows = _hourglass_control_rows(alphas)
+    write_csv("validation_6_zero_energy_modes", rows)
+    tool_rows, onsets, views = tool_loading(alphas)
+    write_csv("validation_6_tool_loading", tool_rows)
+    write_csv("validation_6_stability_onset", onsets)
+    fig = plt.figure(figsize=(17, 19))
+    grid = fig.add_gridspec(4, 3, hspace=0.3)
+    _plot_free_block_modes(fig, grid, mesh, shapes, n_hourglass)
+    _plot_hourglass_control(fig, grid, rows, alphas)
+    plot_tool_loading(fig, grid, tool_rows, onsets, views, alphas)
+    fig.suptitle(f"Fig. 6 - zero-energy modes: {n_hourglass} non-rigid modes per free block; effect of hourglass "
+                 "control alpha (x: not converged, or the dynamics inverts an element; red ring: unstable\n"
+                 "equilibrium, a saddle; white squares: where damped dynamics settles from it). Rows 3-4: a 3x3-node "
+                 f"tool on a 6x6x6 block of 0.1 m cubes, bottom fixed, nu = {TOOL_NU}", y=0.995)
+    save(fig, "validation_6_zero_energy_modes")
+    SUMMARY["6_zero_energy_modes"] = _zero_energy_summary(rows, tool_rows, onsets, counts, count, n_hourglass, alphas)
+
+
+def _zero_energy_mode_counts(count, n_hourglass, alphas):
+    """The zero-energy modes of the free 2x2x2 block (``count`` with the rigid ones, ``n_hourglass``
+    without) and under the elongation, flexion and shear experiments' conditions, per alpha."""
     counts = dict(free_2x2x2=count, free_2x2x2_non_rigid=n_hourglass)
     for alpha in alphas:
         counts[f"elongation_10x10x10_alpha={alpha}"] = elongation(
@@ -649,7 +671,13 @@ def figure_zero_energy_modes():
         counts[f"flexion_10x5x4_alpha={alpha}"] = flexion(
             **CANTILEVER, gravity=0.04, count_modes=True, hourglass_control=alpha).zero_energy_modes
     counts["shear_6x6x6_alpha=0.0"] = shear((6, 6, 6), 0.1, E0, 0.3, angle_deg=5, count_modes=True).zero_energy_modes
-    # the effect of alpha on the curves
+    return counts
+
+
+def _hourglass_control_rows(alphas):
+    """The effect of alpha on the curves: per alpha, %e_dm against fem-neohookean under shear (deg)
+    and the cantilever's gravity (m/s^2), and the apparent E under compression, with convergence and
+    the lowest eigenvalue of the equilibrium (None where not computed)."""
     rows = []
     for alpha in alphas:
         for angle in (2.0, 10.0, 20.0):
@@ -675,12 +703,11 @@ def figure_zero_energy_modes():
             young_modulus, converged, lowest = compression_with_stability(strain, alpha)
             rows.append(dict(alpha=alpha, experiment="compression", load=strain, e_dm=float("nan"),
                              measured=young_modulus, converged=converged, lowest_eigenvalue=lowest))
-    write_csv("validation_6_zero_energy_modes", rows)
-    tool_rows, onsets, views = tool_loading(alphas)
-    write_csv("validation_6_tool_loading", tool_rows)
-    write_csv("validation_6_stability_onset", onsets)
-    fig = plt.figure(figsize=(17, 19))
-    grid = fig.add_gridspec(4, 3, hspace=0.3)
+    return rows
+
+
+def _plot_free_block_modes(fig, grid, mesh, shapes, n_hourglass):
+    """Row 1 of Fig. 6: up to three zero-energy modes of the free 2x2x2 block over its rest edges."""
     edges = np.unique(np.sort(mesh.elements[:, np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7],
                                                          [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]])].reshape(-1, 2),
                               axis=1), axis=0)
@@ -693,6 +720,11 @@ def figure_zero_energy_modes():
             ax.plot(*moved[[a, b]].T, color="tab:red", linewidth=1.2)
         ax.set_title(f"zero-energy mode {index + 1} of a free 2x2x2 block")
         ax.set_axis_off()
+
+
+def _plot_hourglass_control(fig, grid, rows, alphas):
+    """Row 2 of Fig. 6: the rows of ``_hourglass_control_rows`` per experiment, one curve per alpha
+    (x: not converged; red ring: an unstable equilibrium)."""
     panels = (("shear", "shear angle (deg)", "%e_dm vs fem-neohookean"),
               ("flexion", "gravity (m/s^2)", "%e_dm vs fem-neohookean"),
               ("compression", "imposed strain", "apparent E / E, compression of a 6x6x6 block, nu = 0.45"))
@@ -711,12 +743,11 @@ def figure_zero_energy_modes():
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    plot_tool_loading(fig, grid, tool_rows, onsets, views, alphas)
-    fig.suptitle(f"Fig. 6 - zero-energy modes: {n_hourglass} non-rigid modes per free block; effect of hourglass "
-                 "control alpha (x: not converged, or the dynamics inverts an element; red ring: unstable\n"
-                 "equilibrium, a saddle; white squares: where damped dynamics settles from it). Rows 3-4: a 3x3-node "
-                 f"tool on a 6x6x6 block of 0.1 m cubes, bottom fixed, nu = {TOOL_NU}", y=0.995)
-    save(fig, "validation_6_zero_energy_modes")
+
+
+def _zero_energy_summary(rows, tool_rows, onsets, counts, count, n_hourglass, alphas):
+    """Fig. 6's SUMMARY entry: the headlines (the tool's 5% indentation, the mode counts, the
+    apparent E at -30% and the unstable cantilever loads) and the rows behind them."""
     compression = {r["alpha"]: (round(r["measured"] / E0, 3), "stable" if r["lowest_eigenvalue"] >= 0 else "unstable")
                    for r in rows if r["experiment"] == "compression" and r["load"] == -0.30}
     unstable = {alpha: [r["load"] for r in rows if r["alpha"] == alpha and r["experiment"] == "flexion"
@@ -731,7 +762,7 @@ def figure_zero_energy_modes():
         + f"alpha = 0.5: {'stable' if at5[0.5]['lowest_eigenvalue'] >= 0 else 'unstable'}, hourglass ratio "
         f"{at5[0.5]['hourglass_ratio']:.2f}, %e_dm {at5[0.5]['e_dm']:.1f}; frictionless indentation is a saddle from "
         + ", ".join(f"alpha {a}: {'>30' if math.isinf(v) else f'{v * 100:.1f}'}%" for a, v in onset.items()))
-    SUMMARY["6_zero_energy_modes"] = dict(
+    return dict(
         tool_headline=tool_headline, tool_rows=tool_rows, stability_onset=onsets,
         headline=(tool_headline + "; "
                   f"{n_hourglass} non-rigid zero-energy modes per free 2x2x2 block ({count} with the rigid ones), "

@@ -29,9 +29,9 @@ PRECONDITIONERS = ("auto", "jacobi", "factorised")
 
 def auto_switch_iterations(n_free: int) -> int:
     """Jacobi iterations above which "auto" switches to the factorised preconditioner: where the
-    two step times cross, measured (2 cores, interleaved medians) at about 5 Jacobi iterations for
-    ~400 free dofs, 8-13 for ~1200 and 15 for ~3600 (an LU solve costs more, relative to an operator
-    product, as the fill grows with the mesh): 5 sqrt(n_free / 400), at least 6."""
+    two step times cross, which moves to more iterations as the mesh grows (an LU solve costs more,
+    relative to an operator product, as the fill grows): 5 sqrt(n_free / 400), at least 6, fitted
+    to where they crossed in interleaved timings (docs/performance_notes.md)."""
     return max(6, int(round(5.0 * np.sqrt(n_free / 400.0))))
 
 

@@ -177,8 +177,8 @@ def check_flag(name, value):
 #: The largest mesh (nodes) an environment accepts unless told otherwise (``max_nodes``): a reset
 #: solves the start equilibrium under gravity (and TumorPositioning its goal) by Newton steps on the
 #: 3 N-dof tangent, whose sparse factorisations cost about dofs^2, so past this size a reset takes
-#: more than about 30 s on 2 cores (benchmarks/large_mesh.py measures it per shape). The task
-#: defaults have at most 726 nodes.
+#: tens of seconds (benchmarks/large_mesh.py measures it per shape: the performance page's "Work
+#: against mesh size"). The task defaults have at most 726 nodes.
 MAX_NODES = 4_000
 #: Past this many nodes (with ``max_nodes`` raised or None) the env warns that a reset takes long.
 SLOW_NODES = 2_500
@@ -442,12 +442,33 @@ class TissueEnv(gym.Env):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(terminate_on_success=terminate_on_success))
         self.difficulty = difficulty
         self.terminate_on_success = check_flag("terminate_on_success", settings["terminate_on_success"])
+        self._check_material_and_block(young_modulus, poisson_ratio, density, shape, size, max_nodes)
+        self._check_stepping(integrator, dt, substeps, max_step, model, hourglass_control, volume_stiffness, gravity)
+        self._check_observation_type(observation_type)
+        self._check_randomisation(young_modulus_range, poisson_ratio_range, density_range, size_range,
+                                  observe_parameters)
+        self._check_reward_and_solver(volume_weight, strain_threshold, strain_weight, instability_penalty,
+                                      solver_tolerance, preconditioner, render_mode)
+        self._build_block()
+        self._camera_view = self._camera_setup(image_size, camera, point_count, point_normals)
+        self._build_spaces()
+        self._renderer = None
+        self._worlds = None  # this env's one world (``TaskWorlds``), built at its first reset
+        self.state = None
+
+    def _check_material_and_block(self, young_modulus, poisson_ratio, density, shape, size, max_nodes):
+        """``__init__``'s material (Pa, kg/m^3) and block (hexahedra per axis, extent in m), checked."""
         self.young_modulus = positive_scalar("young_modulus", young_modulus, "Pa")
         self.poisson_ratio = check_poisson_ratio("poisson_ratio", poisson_ratio)
         self.density = positive_scalar("density", density, "kg/m^3")
         self.shape = check_shape("shape", self.default_shape if shape is None else shape, self.min_shape)
         self.max_nodes = max_nodes
         self.size = check_vector("size", self.default_size if size is None else size)
+
+    def _check_stepping(self, integrator, dt, substeps, max_step, model, hourglass_control, volume_stiffness,
+                        gravity):
+        """``__init__``'s stepping (integrator, dt in s, substeps, the tool's max_step in m), model and
+        gravity (m/s^2), checked; the task's defaults where None."""
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         self.integrator_name = integrator
@@ -459,6 +480,9 @@ class TissueEnv(gym.Env):
         self.model_name, self.hourglass_control, self.volume_stiffness = check_model(
             self.default_model if model is None else model, hourglass_control, volume_stiffness)
         self.gravity = nonnegative_scalar("gravity", gravity)
+
+    def _check_observation_type(self, observation_type):
+        """``__init__``'s observation_type, checked against the task's ``observation_types``."""
         if observation_type not in OBSERVATION_TYPES:
             raise ValueError(f"observation_type must be one of {OBSERVATION_TYPES}, got {observation_type!r}")
         if observation_type not in self.observation_types():
@@ -466,6 +490,11 @@ class TissueEnv(gym.Env):
                              f"{type(self).__name__} has no goal that an achieved state can be relabelled with "
                              f"(see its docstring); use one of {self.observation_types()}")
         self.observation_type = observation_type
+
+    def _check_randomisation(self, young_modulus_range, poisson_ratio_range, density_range, size_range,
+                             observe_parameters):
+        """``__init__``'s domain randomisation (the ranges drawn from at each reset) and
+        observe_parameters, checked against the task's ``randomised_parameters`` and observation type."""
         self.young_modulus_range = check_range(
             "young_modulus_range", young_modulus_range, lambda n, v: positive_scalar(n, v, "Pa"))
         self.poisson_ratio_range = check_range("poisson_ratio_range", poisson_ratio_range, check_poisson_ratio)
@@ -477,10 +506,15 @@ class TissueEnv(gym.Env):
         if self.size_range is not None and "size" not in self.randomised_parameters:
             raise ValueError(f"{type(self).__name__} takes no size_range: its block size is fixed per env (see its "
                              f"docstring); it randomises {tuple(self.randomised_parameters.values())}")
-        if self.observe_parameters and observation_type in VISUAL_TYPES:
+        if self.observe_parameters and self.observation_type in VISUAL_TYPES:
             raise ValueError(f"observe_parameters appends values to a vector observation; observation_type="
-                             f"{observation_type!r} is an image or point cloud: use one of "
+                             f"{self.observation_type!r} is an image or point cloud: use one of "
                              f"{tuple(t for t in self.observation_types() if t not in VISUAL_TYPES)}")
+
+    def _check_reward_and_solver(self, volume_weight, strain_threshold, strain_weight, instability_penalty,
+                                 solver_tolerance, preconditioner, render_mode):
+        """``__init__``'s reward weights, the linear solver's tolerance and preconditioner and the
+        render mode, checked."""
         self.volume_weight = nonnegative_scalar("volume_weight", volume_weight)
         self.strain_threshold = nonnegative_scalar("strain_threshold", strain_threshold)
         self.strain_weight = nonnegative_scalar("strain_weight", strain_weight)
@@ -494,6 +528,9 @@ class TissueEnv(gym.Env):
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.render_mode = render_mode
 
+    def _build_block(self):
+        """The block's mesh, surface and caches, the task's scene, and the default model (built now:
+        it validates material and geometry together, and every ``size_range`` corner's too)."""
         self.spacing = self.size / np.asarray(self.shape)
         self.mesh = self._build_mesh()
         #: the episode's block (``size_range``): its extent (3,) m and mesh; the ``size`` block's
@@ -525,7 +562,10 @@ class TissueEnv(gym.Env):
                     raise ValueError(f"size_range corner {list(corner)} m gives an invalid model with shape "
                                      f"{self.shape}: {error}") from error
 
-        self._camera_view = self._camera_setup(image_size, camera, point_count, point_normals)
+    def _build_spaces(self):
+        """The action space (the tool's move, in units of max_step) and the observation space of the
+        observation type: the features' sizes (the task's, the surface's, the randomised parameters')."""
+        observation_type = self.observation_type
         self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
         self._feature_sizes = OrderedDict(
             tool_position=3, tool_displacement=3, reaction_force=3, relative_volume_change=1, max_strain=1)
@@ -548,9 +588,6 @@ class TissueEnv(gym.Env):
             self.observation_space = self._state_space()
         if observation_type == "goal":
             self.observation_space = self._goal_space()
-        self._renderer = None
-        self._worlds = None  # this env's one world (``TaskWorlds``), built at its first reset
-        self.state = None
 
     #: The task's worlds (``tissue_env.worlds.TaskWorlds`` subclass): its env step on arrays over
     #: worlds, the single env's (one world) and the vector env's (N).

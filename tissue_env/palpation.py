@@ -258,15 +258,13 @@ class PalpationEnv(TissueEnv):
     is projected on the top nodes' bilinear basis functions (``probe_sampling="projected"``: each
     node is bounded by the hat-weighted average of the probe's surface over the faces around it,
     so the displaced volume is the probe's wherever the nodes fall; ``"node"``: by the probe's
-    surface over the node itself, as in earlier versions); the top nodes on or over their bound
-    have their height imposed on it (x and z free: Hertz's boundary condition), a node the tissue
-    pulls away from the probe is released, and a node that went through its bound during a step
-    is put back on it and joins. The probe radius, the inclusion and its candidate positions are
-    physical sizes: ``shape`` only sets the resolution (a finer mesh models the same scene with
-    more elements and contact nodes). With the flat probe of earlier versions the observations did
-    not converge with the mesh (the fine model moved 34% between 10 and 12 elements across); with
-    the projected sphere they do (5.7-9.9%), see README, "How the default resolution is chosen".
-    The agent sees the probe position and the
+    surface over the node itself); the top nodes on or over their bound have their height imposed
+    on it (x and z free: Hertz's boundary condition), a node the tissue pulls away from the probe
+    is released, and a node that went through its bound during a step is put back on it and joins.
+    The probe radius, the inclusion and its candidate positions are physical sizes: ``shape`` only
+    sets the resolution (a finer mesh models the same scene with more elements and contact nodes).
+    The projected sphere is what makes the observations converge with the mesh (README, "How the
+    default resolution is chosen"). The agent sees the probe position and the
     reaction force and must press at least 5 mm deep within 1 cm (horizontally) of the inclusion
     and hold that press for ``hold_steps`` (default 3) consecutive steps: what a surgeon does when
     palpating a liver for a tumour. The probe starts at a random place at least ``start_distance``

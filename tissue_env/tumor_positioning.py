@@ -17,17 +17,13 @@ from .worlds import TaskWorlds
 
 # Goal solves: keep the (cached) start tangent while it contracts the residual by 0.95 per step,
 # with Anderson mixing over 5 steps, and give up past 8 load increments (the last converged goal is
-# kept). Chosen for the reset time (``benchmarks/reset_speed.py``, the performance page): long
-# chord runs, accelerated, reuse one factorisation for most of a goal; the increment cap bounds the
-# time a goal that cannot converge (a deep press on a fine mesh) takes to fail. The goals stay
-# within 2e-7 m of the plain Newton ones.
+# kept), for the reset time: long chord runs, accelerated, reuse one factorisation for most of a
+# goal, and the increment cap bounds the time a goal that cannot converge (a deep press on a fine
+# mesh) takes to fail; the goals are Newton's (docs/performance_notes.md, "Static solves and resets").
 GOAL_SOLVER = dict(chord_contraction=0.95, acceleration=5, max_load_steps=8)
 #: A retry (a larger displacement, solved from the previous equilibrium) gives up sooner: the
 #: failing ones (large compressions at the workspace corners) are the slowest resets, and giving up
-#: sooner leaves the goals the same (to 2e-8 m over seeds 1-200). Since Newton gives up a load step
-#: at a rejected fresh-tangent step (``sim_core.static._newton``) a failing retry (15 of seeds
-#: 1-1000) stops after a few factorisations, not 20-27, with the same goals
-#: (``benchmarks/reset_speed.py``).
+#: sooner leaves the goals the same.
 GOAL_RETRY_SOLVER = dict(GOAL_SOLVER, max_load_steps=2, max_iterations=20)
 #: Random goal directions a reset tries before it says that no goal is reachable (``_start_hook``).
 GOAL_ATTEMPTS = 5

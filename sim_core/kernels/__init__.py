@@ -6,7 +6,8 @@ run them at once (the vector envs reset their copies on several threads, whose s
 them; a kernel only writes the arrays it is given). The numpy formulation in ``sim_core.forces`` is
 the readable reference the tests compare these kernels with. SI units.
 
-The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``threads`` (the thread policy and
+The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``vectors`` (3-vectors as tuples,
+inlined into the per-element bodies), ``threads`` (the thread policy and
 ``variant``, the choice between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes,
 health, strain, reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the
 force passes), ``stress`` (the finite-strain stress correction), ``operator`` (the implicit step's matrix-free operator products and its assembled

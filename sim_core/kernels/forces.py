@@ -10,6 +10,8 @@ from numba import njit, prange
 
 from ..topology import EDGES
 from .fastmath import FAST
+from .measure import corner_differences, trilinear_volume
+from .vectors import add, cross, norm, row, sub
 
 _EDGES = np.ascontiguousarray(EDGES)
 
@@ -223,304 +225,111 @@ def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, 
     _volume_forces(positions, elements, rest_volume, kappa, forces, True, coefficient, direction, gradient)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _face_vector(a, b, c, d):
+    """(x_c - x_a) x (x_d - x_b) of the face (a, b, c, d) (``topology.FACES``): twice its outward
+    vector area a_S (m^2)."""
+    return cross(sub(c, a), sub(d, b))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _add_scaled(out, i, scale, v):
+    """out[i] += scale v, for an (N, 3) ``out``."""
+    out[i, 0] += scale * v[0]
+    out[i, 1] += scale * v[1]
+    out[i, 2] += scale * v[2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _set_scaled(out, m, n, scale, v):
+    """out[m, n] = scale v, for an (M, 8, 3) ``out``."""
+    out[m, n, 0] = scale * v[0]
+    out[m, n, 1] = scale * v[1]
+    out[m, n, 2] = scale * v[2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _volume_gradient(d, gradient, m):
+    """gradient[m] (8, 3) = dV/dx_n (m^2) of the exact trilinear volume V, from the element's
+    ``corner_differences`` d: dV/dd_i is 1/12 of the signed crosses d_b x d_c of the triples of
+    ``measure._VOLUME_TRIPLES`` that hold d_i (in that table's order), and dV/dx_0 = -sum_i dV/dd_i."""
+    d1, d2, d3, d4, d5, d6, d7 = d
+    x12, x13, x14, x15, x17 = cross(d1, d2), cross(d1, d3), cross(d1, d4), cross(d1, d5), cross(d1, d7)
+    x23, x24, x26, x27 = cross(d2, d3), cross(d2, d4), cross(d2, d6), cross(d2, d7)
+    x35, x36, x37 = cross(d3, d5), cross(d3, d6), cross(d3, d7)
+    x45, x46, x47 = cross(d4, d5), cross(d4, d6), cross(d4, d7)
+    x56, x57, x67 = cross(d5, d6), cross(d5, d7), cross(d6, d7)
+    for c in range(3):
+        g1 = (+ x23[c] + x35[c] + x37[c] - x45[c] - x57[c]) / 12.0
+        g2 = (- x13[c] - x36[c] - x37[c] + x46[c] + x67[c]) / 12.0
+        g3 = (+ x12[c] - x15[c] - x17[c] + x26[c] + x27[c] - x57[c] + x67[c]) / 12.0
+        g4 = (+ x15[c] - x26[c] + x56[c] + x57[c] - x67[c]) / 12.0
+        g5 = (+ x13[c] - x14[c] + x17[c] + x37[c] - x46[c] - x47[c] - x67[c]) / 12.0
+        g6 = (- x23[c] + x24[c] - x27[c] - x37[c] + x45[c] + x47[c] + x57[c]) / 12.0
+        g7 = (+ x13[c] - x15[c] - x23[c] + x26[c] - x35[c] + x36[c] + x45[c] - x46[c] - x56[c]) / 12.0
+        # d_1 .. d_7 are the lexicographic corners 1 .. 7: VTK corners 1 3 2 4 5 7 6
+        gradient[m, 0, c] = -(g1 + g2 + g3 + g4 + g5 + g6 + g7)
+        gradient[m, 1, c] = g1
+        gradient[m, 3, c] = g2
+        gradient[m, 2, c] = g3
+        gradient[m, 4, c] = g4
+        gradient[m, 5, c] = g5
+        gradient[m, 7, c] = g6
+        gradient[m, 6, c] = g7
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def _volume_forces(positions, elements, rest_volume, kappa, forces, jacobian, coefficient, direction, gradient):
     """Adds every element's volume-conservation force (docs/physics.md 4) to ``forces`` (N, 3), with
-    exact trilinear volumes: the formulas of ``hex_volume`` and ``volume_pass`` written out as one
-    straight-line body per element (generated code, no scratch arrays: faster than two passes
-    through them). With ``jacobian``, also fills the rank-one stiffness terms of
-    ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3); without it those
-    arrays are not touched (may be empty).
+    exact trilinear volumes (``measure.trilinear_volume``): one straight-line body per element, in
+    registers (no scratch arrays). The force on node n is -kappa r |r| h_n with r = (V - V0) / V0 and
+    h_n = sum of a_S / (4 A_H) over the node's three faces S (A_H the element's total face area).
+    With ``jacobian``, also fills the rank-one stiffness terms of ``volume_jacobian_terms``:
+    coefficient (M,), direction h and gradient (M, 8, 3); without it those arrays are not touched
+    (may be empty).
     """
     for m in range(elements.shape[0]):
         if kappa[m] == 0.0:
             if jacobian:
                 coefficient[m] = 0.0
             continue
-        i0 = elements[m, 0]
-        i1 = elements[m, 1]
-        i2 = elements[m, 2]
-        i3 = elements[m, 3]
-        i4 = elements[m, 4]
-        i5 = elements[m, 5]
-        i6 = elements[m, 6]
-        i7 = elements[m, 7]
-        p0x = positions[i0, 0]
-        p0y = positions[i0, 1]
-        p0z = positions[i0, 2]
-        p1x = positions[i1, 0]
-        p1y = positions[i1, 1]
-        p1z = positions[i1, 2]
-        p2x = positions[i2, 0]
-        p2y = positions[i2, 1]
-        p2z = positions[i2, 2]
-        p3x = positions[i3, 0]
-        p3y = positions[i3, 1]
-        p3z = positions[i3, 2]
-        p4x = positions[i4, 0]
-        p4y = positions[i4, 1]
-        p4z = positions[i4, 2]
-        p5x = positions[i5, 0]
-        p5y = positions[i5, 1]
-        p5z = positions[i5, 2]
-        p6x = positions[i6, 0]
-        p6y = positions[i6, 1]
-        p6z = positions[i6, 2]
-        p7x = positions[i7, 0]
-        p7y = positions[i7, 1]
-        p7z = positions[i7, 2]
-        d1x = p1x - p0x
-        d1y = p1y - p0y
-        d1z = p1z - p0z
-        d2x = p3x - p0x
-        d2y = p3y - p0y
-        d2z = p3z - p0z
-        d3x = p2x - p0x
-        d3y = p2y - p0y
-        d3z = p2z - p0z
-        d4x = p4x - p0x
-        d4y = p4y - p0y
-        d4z = p4z - p0z
-        d5x = p5x - p0x
-        d5y = p5y - p0y
-        d5z = p5z - p0z
-        d6x = p7x - p0x
-        d6y = p7y - p0y
-        d6z = p7z - p0z
-        d7x = p6x - p0x
-        d7y = p6y - p0y
-        d7z = p6z - p0z
-        # exact trilinear volume (hex_volume's grouping)
-        vax = d2y * d3z - d2z * d3y
-        vay = d2z * d3x - d2x * d3z
-        vaz = d2x * d3y - d2y * d3x
-        vbx = d3y * (d5z + d7z) - d3z * (d5y + d7y)
-        vby = d3z * (d5x + d7x) - d3x * (d5z + d7z)
-        vbz = d3x * (d5y + d7y) - d3y * (d5x + d7x)
-        vex = d5y * (d4z - d7z) - d5z * (d4y - d7y)
-        vey = d5z * (d4x - d7x) - d5x * (d4z - d7z)
-        vez = d5x * (d4y - d7y) - d5y * (d4x - d7x)
-        volume = (d1x * (vax + vbx + vex) + d1y * (vay + vby + vey) + d1z * (vaz + vbz + vez))
-        vfx = d3y * (d6z + d7z) - d3z * (d6y + d7y)
-        vfy = d3z * (d6x + d7x) - d3x * (d6z + d7z)
-        vfz = d3x * (d6y + d7y) - d3y * (d6x + d7x)
-        vgx = d6y * (d7z - d4z) - d6z * (d7y - d4y)
-        vgy = d6z * (d7x - d4x) - d6x * (d7z - d4z)
-        vgz = d6x * (d7y - d4y) - d6y * (d7x - d4x)
-        volume += d2x * (vgx - vfx) + d2y * (vgy - vfy) + d2z * (vgz - vfz)
-        vhx = (d6y - d5y) * d7z - (d6z - d5z) * d7y
-        vhy = (d6z - d5z) * d7x - (d6x - d5x) * d7z
-        vhz = (d6x - d5x) * d7y - (d6y - d5y) * d7x
-        volume += d3x * vhx + d3y * vhy + d3z * vhz
-        vsx = d6y * d7z - d6z * d7y
-        vsy = d6z * d7x - d6x * d7z
-        vsz = d6x * d7y - d6y * d7x
-        vkx = d5y * (d6z + d7z) - d5z * (d6y + d7y)
-        vky = d5z * (d6x + d7x) - d5x * (d6z + d7z)
-        vkz = d5x * (d6y + d7y) - d5y * (d6x + d7x)
-        volume += d4x * (vkx - vsx) + d4y * (vky - vsy) + d4z * (vkz - vsz)
-        volume -= d5x * vsx + d5y * vsy + d5z * vsz
-        volume = volume / 12.0
-        # face area vectors a_S = (x2 - x0) x (x3 - x1) / 2 and the total area A_H
-        f0x = (p7y - p0y) * (p3z - p4z) - (p7z - p0z) * (p3y - p4y)
-        f0y = (p7z - p0z) * (p3x - p4x) - (p7x - p0x) * (p3z - p4z)
-        f0z = (p7x - p0x) * (p3y - p4y) - (p7y - p0y) * (p3x - p4x)
-        f1x = (p6y - p1y) * (p5z - p2z) - (p6z - p1z) * (p5y - p2y)
-        f1y = (p6z - p1z) * (p5x - p2x) - (p6x - p1x) * (p5z - p2z)
-        f1z = (p6x - p1x) * (p5y - p2y) - (p6y - p1y) * (p5x - p2x)
-        f2x = (p5y - p0y) * (p4z - p1z) - (p5z - p0z) * (p4y - p1y)
-        f2y = (p5z - p0z) * (p4x - p1x) - (p5x - p0x) * (p4z - p1z)
-        f2z = (p5x - p0x) * (p4y - p1y) - (p5y - p0y) * (p4x - p1x)
-        f3x = (p6y - p3y) * (p2z - p7z) - (p6z - p3z) * (p2y - p7y)
-        f3y = (p6z - p3z) * (p2x - p7x) - (p6x - p3x) * (p2z - p7z)
-        f3z = (p6x - p3x) * (p2y - p7y) - (p6y - p3y) * (p2x - p7x)
-        f4x = (p2y - p0y) * (p1z - p3z) - (p2z - p0z) * (p1y - p3y)
-        f4y = (p2z - p0z) * (p1x - p3x) - (p2x - p0x) * (p1z - p3z)
-        f4z = (p2x - p0x) * (p1y - p3y) - (p2y - p0y) * (p1x - p3x)
-        f5x = (p6y - p4y) * (p7z - p5z) - (p6z - p4z) * (p7y - p5y)
-        f5y = (p6z - p4z) * (p7x - p5x) - (p6x - p4x) * (p7z - p5z)
-        f5z = (p6x - p4x) * (p7y - p5y) - (p6y - p4y) * (p7x - p5x)
-        area = 0.5 * (np.sqrt(f0x * f0x + f0y * f0y + f0z * f0z) + np.sqrt(f1x * f1x + f1y * f1y + f1z * f1z) + np.sqrt(f2x * f2x + f2y * f2y + f2z * f2z) + np.sqrt(f3x * f3x + f3y * f3y + f3z * f3z) + np.sqrt(f4x * f4x + f4y * f4y + f4z * f4z) + np.sqrt(f5x * f5x + f5y * f5y + f5z * f5z))
+        i0, i1, i2, i3 = elements[m, 0], elements[m, 1], elements[m, 2], elements[m, 3]
+        i4, i5, i6, i7 = elements[m, 4], elements[m, 5], elements[m, 6], elements[m, 7]
+        x0, x1, x2, x3 = row(positions, i0), row(positions, i1), row(positions, i2), row(positions, i3)
+        x4, x5, x6, x7 = row(positions, i4), row(positions, i5), row(positions, i6), row(positions, i7)
+        d = corner_differences(x0, x1, x2, x3, x4, x5, x6, x7)
+        volume = trilinear_volume(d)
+        # twice the face vector areas, faces x=0, x=1, y=0, y=1, z=0, z=1
+        f0, f1 = _face_vector(x0, x4, x7, x3), _face_vector(x1, x2, x6, x5)
+        f2, f3 = _face_vector(x0, x1, x5, x4), _face_vector(x3, x7, x6, x2)
+        f4, f5 = _face_vector(x0, x3, x2, x1), _face_vector(x4, x5, x6, x7)
+        area = 0.5 * (norm(f0) + norm(f1) + norm(f2) + norm(f3) + norm(f4) + norm(f5))
         relative = (volume - rest_volume[m]) / rest_volume[m]
         share = 1.0 / (8.0 * area)  # the 1/2 of each a_S, and 1 / (4 A_H)
         scale = -kappa[m] * relative * abs(relative) * share
-        h0x = f0x + f2x + f4x
-        forces[i0, 0] += scale * h0x
-        h0y = f0y + f2y + f4y
-        forces[i0, 1] += scale * h0y
-        h0z = f0z + f2z + f4z
-        forces[i0, 2] += scale * h0z
-        h1x = f1x + f2x + f4x
-        forces[i1, 0] += scale * h1x
-        h1y = f1y + f2y + f4y
-        forces[i1, 1] += scale * h1y
-        h1z = f1z + f2z + f4z
-        forces[i1, 2] += scale * h1z
-        h2x = f1x + f3x + f4x
-        forces[i2, 0] += scale * h2x
-        h2y = f1y + f3y + f4y
-        forces[i2, 1] += scale * h2y
-        h2z = f1z + f3z + f4z
-        forces[i2, 2] += scale * h2z
-        h3x = f0x + f3x + f4x
-        forces[i3, 0] += scale * h3x
-        h3y = f0y + f3y + f4y
-        forces[i3, 1] += scale * h3y
-        h3z = f0z + f3z + f4z
-        forces[i3, 2] += scale * h3z
-        h4x = f0x + f2x + f5x
-        forces[i4, 0] += scale * h4x
-        h4y = f0y + f2y + f5y
-        forces[i4, 1] += scale * h4y
-        h4z = f0z + f2z + f5z
-        forces[i4, 2] += scale * h4z
-        h5x = f1x + f2x + f5x
-        forces[i5, 0] += scale * h5x
-        h5y = f1y + f2y + f5y
-        forces[i5, 1] += scale * h5y
-        h5z = f1z + f2z + f5z
-        forces[i5, 2] += scale * h5z
-        h6x = f1x + f3x + f5x
-        forces[i6, 0] += scale * h6x
-        h6y = f1y + f3y + f5y
-        forces[i6, 1] += scale * h6y
-        h6z = f1z + f3z + f5z
-        forces[i6, 2] += scale * h6z
-        h7x = f0x + f3x + f5x
-        forces[i7, 0] += scale * h7x
-        h7y = f0y + f3y + f5y
-        forces[i7, 1] += scale * h7y
-        h7z = f0z + f3z + f5z
-        forces[i7, 2] += scale * h7z
+        # each node's three faces, along local x, y, z
+        h0, h1, h2, h3 = add(add(f0, f2), f4), add(add(f1, f2), f4), add(add(f1, f3), f4), add(add(f0, f3), f4)
+        h4, h5, h6, h7 = add(add(f0, f2), f5), add(add(f1, f2), f5), add(add(f1, f3), f5), add(add(f0, f3), f5)
+        _add_scaled(forces, i0, scale, h0)
+        _add_scaled(forces, i1, scale, h1)
+        _add_scaled(forces, i2, scale, h2)
+        _add_scaled(forces, i3, scale, h3)
+        _add_scaled(forces, i4, scale, h4)
+        _add_scaled(forces, i5, scale, h5)
+        _add_scaled(forces, i6, scale, h6)
+        _add_scaled(forces, i7, scale, h7)
         if not jacobian:
             continue
         coefficient[m] = 2.0 * kappa[m] * abs(volume - rest_volume[m]) / rest_volume[m] ** 2
-        direction[m, 0, 0] = share * h0x
-        direction[m, 0, 1] = share * h0y
-        direction[m, 0, 2] = share * h0z
-        direction[m, 1, 0] = share * h1x
-        direction[m, 1, 1] = share * h1y
-        direction[m, 1, 2] = share * h1z
-        direction[m, 2, 0] = share * h2x
-        direction[m, 2, 1] = share * h2y
-        direction[m, 2, 2] = share * h2z
-        direction[m, 3, 0] = share * h3x
-        direction[m, 3, 1] = share * h3y
-        direction[m, 3, 2] = share * h3z
-        direction[m, 4, 0] = share * h4x
-        direction[m, 4, 1] = share * h4y
-        direction[m, 4, 2] = share * h4z
-        direction[m, 5, 0] = share * h5x
-        direction[m, 5, 1] = share * h5y
-        direction[m, 5, 2] = share * h5z
-        direction[m, 6, 0] = share * h6x
-        direction[m, 6, 1] = share * h6y
-        direction[m, 6, 2] = share * h6z
-        direction[m, 7, 0] = share * h7x
-        direction[m, 7, 1] = share * h7y
-        direction[m, 7, 2] = share * h7z
-        x12x = d1y * d2z - d1z * d2y
-        x12y = d1z * d2x - d1x * d2z
-        x12z = d1x * d2y - d1y * d2x
-        x13x = d1y * d3z - d1z * d3y
-        x13y = d1z * d3x - d1x * d3z
-        x13z = d1x * d3y - d1y * d3x
-        x14x = d1y * d4z - d1z * d4y
-        x14y = d1z * d4x - d1x * d4z
-        x14z = d1x * d4y - d1y * d4x
-        x15x = d1y * d5z - d1z * d5y
-        x15y = d1z * d5x - d1x * d5z
-        x15z = d1x * d5y - d1y * d5x
-        x17x = d1y * d7z - d1z * d7y
-        x17y = d1z * d7x - d1x * d7z
-        x17z = d1x * d7y - d1y * d7x
-        x23x = d2y * d3z - d2z * d3y
-        x23y = d2z * d3x - d2x * d3z
-        x23z = d2x * d3y - d2y * d3x
-        x24x = d2y * d4z - d2z * d4y
-        x24y = d2z * d4x - d2x * d4z
-        x24z = d2x * d4y - d2y * d4x
-        x26x = d2y * d6z - d2z * d6y
-        x26y = d2z * d6x - d2x * d6z
-        x26z = d2x * d6y - d2y * d6x
-        x27x = d2y * d7z - d2z * d7y
-        x27y = d2z * d7x - d2x * d7z
-        x27z = d2x * d7y - d2y * d7x
-        x35x = d3y * d5z - d3z * d5y
-        x35y = d3z * d5x - d3x * d5z
-        x35z = d3x * d5y - d3y * d5x
-        x36x = d3y * d6z - d3z * d6y
-        x36y = d3z * d6x - d3x * d6z
-        x36z = d3x * d6y - d3y * d6x
-        x37x = d3y * d7z - d3z * d7y
-        x37y = d3z * d7x - d3x * d7z
-        x37z = d3x * d7y - d3y * d7x
-        x45x = d4y * d5z - d4z * d5y
-        x45y = d4z * d5x - d4x * d5z
-        x45z = d4x * d5y - d4y * d5x
-        x46x = d4y * d6z - d4z * d6y
-        x46y = d4z * d6x - d4x * d6z
-        x46z = d4x * d6y - d4y * d6x
-        x47x = d4y * d7z - d4z * d7y
-        x47y = d4z * d7x - d4x * d7z
-        x47z = d4x * d7y - d4y * d7x
-        x56x = d5y * d6z - d5z * d6y
-        x56y = d5z * d6x - d5x * d6z
-        x56z = d5x * d6y - d5y * d6x
-        x57x = d5y * d7z - d5z * d7y
-        x57y = d5z * d7x - d5x * d7z
-        x57z = d5x * d7y - d5y * d7x
-        x67x = d6y * d7z - d6z * d7y
-        x67y = d6z * d7x - d6x * d7z
-        x67z = d6x * d7y - d6y * d7x
-        g1x = (+ x23x + x35x + x37x - x45x - x57x) / 12.0
-        g1y = (+ x23y + x35y + x37y - x45y - x57y) / 12.0
-        g1z = (+ x23z + x35z + x37z - x45z - x57z) / 12.0
-        g2x = (- x13x - x36x - x37x + x46x + x67x) / 12.0
-        g2y = (- x13y - x36y - x37y + x46y + x67y) / 12.0
-        g2z = (- x13z - x36z - x37z + x46z + x67z) / 12.0
-        g3x = (+ x12x - x15x - x17x + x26x + x27x - x57x + x67x) / 12.0
-        g3y = (+ x12y - x15y - x17y + x26y + x27y - x57y + x67y) / 12.0
-        g3z = (+ x12z - x15z - x17z + x26z + x27z - x57z + x67z) / 12.0
-        g4x = (+ x15x - x26x + x56x + x57x - x67x) / 12.0
-        g4y = (+ x15y - x26y + x56y + x57y - x67y) / 12.0
-        g4z = (+ x15z - x26z + x56z + x57z - x67z) / 12.0
-        g5x = (+ x13x - x14x + x17x + x37x - x46x - x47x - x67x) / 12.0
-        g5y = (+ x13y - x14y + x17y + x37y - x46y - x47y - x67y) / 12.0
-        g5z = (+ x13z - x14z + x17z + x37z - x46z - x47z - x67z) / 12.0
-        g6x = (- x23x + x24x - x27x - x37x + x45x + x47x + x57x) / 12.0
-        g6y = (- x23y + x24y - x27y - x37y + x45y + x47y + x57y) / 12.0
-        g6z = (- x23z + x24z - x27z - x37z + x45z + x47z + x57z) / 12.0
-        g7x = (+ x13x - x15x - x23x + x26x - x35x + x36x + x45x - x46x - x56x) / 12.0
-        g7y = (+ x13y - x15y - x23y + x26y - x35y + x36y + x45y - x46y - x56y) / 12.0
-        g7z = (+ x13z - x15z - x23z + x26z - x35z + x36z + x45z - x46z - x56z) / 12.0
-        g0x = -(g1x + g2x + g3x + g4x + g5x + g6x + g7x)
-        g0y = -(g1y + g2y + g3y + g4y + g5y + g6y + g7y)
-        g0z = -(g1z + g2z + g3z + g4z + g5z + g6z + g7z)
-        gradient[m, 0, 0] = g0x
-        gradient[m, 0, 1] = g0y
-        gradient[m, 0, 2] = g0z
-        gradient[m, 1, 0] = g1x
-        gradient[m, 1, 1] = g1y
-        gradient[m, 1, 2] = g1z
-        gradient[m, 3, 0] = g2x
-        gradient[m, 3, 1] = g2y
-        gradient[m, 3, 2] = g2z
-        gradient[m, 2, 0] = g3x
-        gradient[m, 2, 1] = g3y
-        gradient[m, 2, 2] = g3z
-        gradient[m, 4, 0] = g4x
-        gradient[m, 4, 1] = g4y
-        gradient[m, 4, 2] = g4z
-        gradient[m, 5, 0] = g5x
-        gradient[m, 5, 1] = g5y
-        gradient[m, 5, 2] = g5z
-        gradient[m, 7, 0] = g6x
-        gradient[m, 7, 1] = g6y
-        gradient[m, 7, 2] = g6z
-        gradient[m, 6, 0] = g7x
-        gradient[m, 6, 1] = g7y
-        gradient[m, 6, 2] = g7z
+        _set_scaled(direction, m, 0, share, h0)
+        _set_scaled(direction, m, 1, share, h1)
+        _set_scaled(direction, m, 2, share, h2)
+        _set_scaled(direction, m, 3, share, h3)
+        _set_scaled(direction, m, 4, share, h4)
+        _set_scaled(direction, m, 5, share, h5)
+        _set_scaled(direction, m, 6, share, h6)
+        _set_scaled(direction, m, 7, share, h7)
+        _volume_gradient(d, gradient, m)
 
 
 @njit(cache=True, error_model="numpy", parallel=True)

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from .vectors import add, cross, dot, row, sub
+
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def spring_lengths(positions, springs, length):
@@ -20,56 +22,50 @@ def spring_lengths(positions, springs, length):
         length[s] = np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-#: VTK corner of each lexicographic corner a + 2 b + 4 c.
-_LEXICOGRAPHIC_TO_VTK = np.array([0, 1, 3, 2, 4, 5, 7, 6])
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def corner_differences(x0, x1, x2, x3, x4, x5, x6, x7):
+    """(d_1, ..., d_7), d_i = x_i - x_0 (m) for the corners in lexicographic order (i = a + 2 b + 4 c
+    at local (a, b, c)), from the corners x0 .. x7 (3-tuples) of a hexahedron in VTK order."""
+    return (sub(x1, x0), sub(x3, x0), sub(x2, x0), sub(x4, x0),
+            sub(x5, x0), sub(x7, x0), sub(x6, x0))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _cross(a0, a1, a2, b0, b1, b2):
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+def trilinear_volume(d):
+    """Exact volume (m^3) of a trilinear hexahedron from its ``corner_differences`` d.
+
+    The integral of det J is a cubic form in the corners; written with the d_i it is (1/12) sum of
+    15 triple products (``_VOLUME_TRIPLES``), grouped here into 9 cross products (coefficients
+    fitted to, and tested against, 2x2x2 Gauss quadrature, which is exact for this integrand).
+    """
+    d1, d2, d3, d4, d5, d6, d7 = d
+    volume = dot(d1, add(add(cross(d2, d3), cross(d3, add(d5, d7))), cross(d5, sub(d4, d7))))
+    volume += dot(d2, sub(cross(d6, sub(d7, d4)), cross(d3, add(d6, d7))))
+    volume += dot(d3, cross(sub(d6, d5), d7))
+    six_seven = cross(d6, d7)
+    volume += dot(d4, sub(cross(d5, add(d6, d7)), six_seven))
+    volume -= dot(d5, six_seven)
+    return volume / 12.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def hex_volume(corner, d=None):
-    """Exact volume (m^3) of a trilinear hexahedron from its (8, 3) corners, VTK order.
-
-    The integral of det J is a cubic form in the corners; written with d_i = x_i - x_0 for the
-    corners in lexicographic order (i = a + 2 b + 4 c at local (a, b, c)) it is (1/12) sum of 15
-    triple products, grouped here into 9 cross products (coefficients fitted to, and tested
-    against, 2x2x2 Gauss quadrature, which is exact for this integrand).
-    """
-    if d is None:
-        d = np.empty((8, 3))  # scratch (pass one in hot loops: no allocation per element)
-    for n in range(8):
-        vtk = _LEXICOGRAPHIC_TO_VTK[n]
-        for c in range(3):
-            d[n, c] = corner[vtk, c] - corner[0, c]
-    a = _cross(d[2, 0], d[2, 1], d[2, 2], d[3, 0], d[3, 1], d[3, 2])
-    b = _cross(d[3, 0], d[3, 1], d[3, 2], d[5, 0] + d[7, 0], d[5, 1] + d[7, 1], d[5, 2] + d[7, 2])
-    e = _cross(d[5, 0], d[5, 1], d[5, 2], d[4, 0] - d[7, 0], d[4, 1] - d[7, 1], d[4, 2] - d[7, 2])
-    volume = d[1, 0] * (a[0] + b[0] + e[0]) + d[1, 1] * (a[1] + b[1] + e[1]) + d[1, 2] * (a[2] + b[2] + e[2])
-    a = _cross(d[3, 0], d[3, 1], d[3, 2], d[6, 0] + d[7, 0], d[6, 1] + d[7, 1], d[6, 2] + d[7, 2])
-    b = _cross(d[6, 0], d[6, 1], d[6, 2], d[7, 0] - d[4, 0], d[7, 1] - d[4, 1], d[7, 2] - d[4, 2])
-    volume += d[2, 0] * (b[0] - a[0]) + d[2, 1] * (b[1] - a[1]) + d[2, 2] * (b[2] - a[2])
-    a = _cross(d[6, 0] - d[5, 0], d[6, 1] - d[5, 1], d[6, 2] - d[5, 2], d[7, 0], d[7, 1], d[7, 2])
-    volume += d[3, 0] * a[0] + d[3, 1] * a[1] + d[3, 2] * a[2]
-    six_seven = _cross(d[6, 0], d[6, 1], d[6, 2], d[7, 0], d[7, 1], d[7, 2])
-    a = _cross(d[5, 0], d[5, 1], d[5, 2], d[6, 0] + d[7, 0], d[6, 1] + d[7, 1], d[6, 2] + d[7, 2])
-    volume += d[4, 0] * (a[0] - six_seven[0]) + d[4, 1] * (a[1] - six_seven[1]) + d[4, 2] * (a[2] - six_seven[2])
-    volume -= d[5, 0] * six_seven[0] + d[5, 1] * six_seven[1] + d[5, 2] * six_seven[2]
-    return volume / 12.0
+def hex_volume(corner):
+    """Exact volume (m^3) of a trilinear hexahedron from its (8, 3) corners, VTK order
+    (``trilinear_volume``)."""
+    return trilinear_volume(corner_differences(row(corner, 0), row(corner, 1), row(corner, 2), row(corner, 3),
+                                               row(corner, 4), row(corner, 5), row(corner, 6), row(corner, 7)))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def element_volumes(positions, elements, out):
     """``out[e]`` = exact volume (m^3) of every trilinear hexahedron (``hex_volume``), no temporaries
     per element: much faster than the batched Gauss determinants of ``mesh.hex_volumes``."""
-    corner, d = np.empty((8, 3)), np.empty((8, 3))
+    corner = np.empty((8, 3))
     for e in range(elements.shape[0]):
         for n in range(8):
             for c in range(3):
                 corner[n, c] = positions[elements[e, n], c]
-        out[e] = hex_volume(corner, d)
+        out[e] = hex_volume(corner)
     return out
 
 

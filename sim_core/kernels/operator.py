@@ -65,8 +65,8 @@ def _stress_product(elements, stress_gradient, stress_tangent, scale, vector, ou
     per element dF = sum_a v_a (x) b_a (9), dP = T dF with T (9, 9) its stiffness on F
     (``kernels.stress_correction_tangent_add``: V0 (A_NH - A_S), the implicit step's positive part),
     and out_a += dP b_a. stress_gradient (M, n, 3) b_a (n nodes per element), stress_tangent (M, 9, 9);
-    flat dof vectors. dF and dP are held in scalars: as 9-entry arrays each product's entries went
-    through memory, and the pass took 1.6x as long."""
+    flat dof vectors. dF and dP are held in scalars, so that no product's entries go through memory
+    (docs/performance_notes.md, "Kernel-level choices")."""
     n_nodes = stress_gradient.shape[1]
     for m in range(elements.shape[0]):
         d = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)

@@ -153,6 +153,19 @@ def _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_leng
     36 .. 53 the cofactor times the two coefficients of A_NH; row (12, LANES): one spring's
     (F D)(F D)^T L/l^3 k and D D^T; g (6, LANES): sum_s k_s (1 - L_s / l_s) D D^T; scalars
     (3, LANES) scratch: V0 mu and the two coefficients of A_NH (with ``linear``, V0 lam)."""
+    _tangent_scalars(offset, start, n, volume, mu, lam, linear, det, log_j, scalars)
+    if linear:
+        _linear_tangent(n, t, scalars)
+    else:
+        _neo_hookean_tangent(n, c, t, products, scalars)
+    _spring_tangent_sums(offset, start, n, spring_vector, spring_length, spring_stiffness, f, products, row, g)
+    _subtract_spring_tangent(n, t, products, g)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _tangent_scalars(offset, start, n, volume, mu, lam, linear, det, log_j, scalars):
+    """``_block_tangent``'s per-lane scalars (3, LANES): V0 mu (N m), then the two coefficients of
+    A_NH over det^2, V0 (mu - lam ln J) / J^2 and V0 lam / J^2, or with ``linear`` V0 lam."""
     for j in range(n):
         m = offset + start + j
         v = volume[m]
@@ -163,39 +176,53 @@ def _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_leng
             scalars[2, j] = v * lam[m] * inverse_det * inverse_det
         else:
             scalars[1, j] = v * lam[m]
-    if linear:
-        for r in range(81):
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _linear_tangent(n, t, scalars):
+    """t (81, LANES) = V0 A_lin = V0 (lam d_iJ d_kL + mu (d_ik d_JL + d_iL d_kJ)), from
+    ``_tangent_scalars``' V0 mu and V0 lam."""
+    for r in range(81):
+        for j in range(n):
+            t[r, j] = 0.0
+    for i in range(3):
+        for k in range(3):
             for j in range(n):
-                t[r, j] = 0.0
-        for i in range(3):
-            for k in range(3):
-                for j in range(n):
-                    t[9 * (4 * i) + 4 * k, j] = scalars[1, j]  # d_iJ d_kL: rows and columns of the diagonal of F
-                    t[9 * (3 * i + k) + 3 * k + i, j] += scalars[0, j]  # d_iL d_kJ
-            for jj in range(3):
-                for j in range(n):
-                    t[10 * (3 * i + jj), j] += scalars[0, j]  # d_ik d_JL
-    else:
-        for r in range(9):
+                t[9 * (4 * i) + 4 * k, j] = scalars[1, j]  # d_iJ d_kL: rows and columns of the diagonal of F
+                t[9 * (3 * i + k) + 3 * k + i, j] += scalars[0, j]  # d_iL d_kJ
+        for jj in range(3):
             for j in range(n):
-                products[36 + r, j] = scalars[1, j] * c[r, j]
-                products[45 + r, j] = scalars[2, j] * c[r, j]
-        for i in range(3):
-            for jj in range(3):
-                r = 3 * i + jj
-                for k in range(3):
-                    for ll in range(3):
-                        q = 3 * k + ll
-                        if q < r:
-                            continue
-                        for j in range(n):
-                            value = (products[36 + 3 * k + jj, j] * c[3 * i + ll, j]
-                                     + products[45 + 3 * i + jj, j] * c[3 * k + ll, j])
-                            t[9 * r + q, j] = value
-                            t[9 * q + r, j] = value
-        for r in range(9):
+                t[10 * (3 * i + jj), j] += scalars[0, j]  # d_ik d_JL
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _neo_hookean_tangent(n, c, t, products, scalars):
+    """t (81, LANES) = V0 A_NH = V0 (mu d_ik d_JL + (mu - lam ln J) G_kJ G_iL + lam G_iJ G_kL), from the
+    cofactor c (9, LANES) and ``_tangent_scalars``; filled on and above the diagonal and mirrored.
+    Rows 36 .. 53 of products (54, LANES) hold the cofactor times the two coefficients."""
+    for r in range(9):
+        for j in range(n):
+            products[36 + r, j] = scalars[1, j] * c[r, j]
+            products[45 + r, j] = scalars[2, j] * c[r, j]
+    for r in range(9):  # r = 3 i + J
+        i, jj = r // 3, r % 3
+        for q in range(r, 9):  # q = 3 k + L, on and above the diagonal
+            k, ll = q // 3, q % 3
             for j in range(n):
-                t[10 * r, j] += scalars[0, j]
+                value = (products[36 + 3 * k + jj, j] * c[3 * i + ll, j]
+                         + products[45 + 3 * i + jj, j] * c[3 * k + ll, j])
+                t[9 * r + q, j] = value
+                t[9 * q + r, j] = value
+    for r in range(9):
+        for j in range(n):
+            t[10 * r, j] += scalars[0, j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _spring_tangent_sums(offset, start, n, spring_vector, spring_length, spring_stiffness, f, products, row, g):
+    """The springs' sums of A_S over the block's elements, with F in f (9, LANES): products rows
+    6 a + b (36, LANES) = sum_s k_s L_s / l_s^3 [(F D)(F D)^T]_a [D D^T]_b (``_SYMMETRIC`` pairs) and
+    g (6, LANES) = sum_s k_s (1 - L_s / l_s) D D^T, in N/m m^2; row (12, LANES) scratch."""
     for a in range(36):
         for j in range(n):
             products[a, j] = 0.0
@@ -228,19 +255,23 @@ def _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_leng
             for b in range(6):
                 for j in range(n):
                     products[6 * a + b, j] += row[a, j] * row[6 + b, j]
-    for i in range(3):
-        for jj in range(3):
-            r = 3 * i + jj
-            for k in range(3):
-                for ll in range(3):
-                    q = 3 * k + ll
-                    a, b = _SYMMETRIC[i, k], _SYMMETRIC[jj, ll]
-                    if i == k:
-                        for j in range(n):
-                            t[9 * r + q, j] -= products[6 * a + b, j] + g[b, j]
-                    else:
-                        for j in range(n):
-                            t[9 * r + q, j] -= products[6 * a + b, j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _subtract_spring_tangent(n, t, products, g):
+    """t (81, LANES) -= V0 A_S from ``_spring_tangent_sums``' products and g: entry (3 i + J, 3 k + L)
+    loses the products of pair (i, k), (J, L), and g's (J, L) where i == k."""
+    for r in range(9):  # r = 3 i + J
+        i, jj = r // 3, r % 3
+        for q in range(9):  # q = 3 k + L
+            k, ll = q // 3, q % 3
+            a, b = _SYMMETRIC[i, k], _SYMMETRIC[jj, ll]
+            if i == k:
+                for j in range(n):
+                    t[9 * r + q, j] -= products[6 * a + b, j] + g[b, j]
+            else:
+                for j in range(n):
+                    t[9 * r + q, j] -= products[6 * a + b, j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")

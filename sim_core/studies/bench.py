@@ -182,6 +182,38 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
       (c) ``ratio_implicit_to_bare_fixed15``: the issue's reading, the full model's real step
           (converged, 1e-6) against the bare lattice's fixed 15-iteration CG step.
     """
+    full, bare, state, control = _sagging_block(shape)
+    shape = [int(n) for n in shape]
+    results = {"shape": shape, "nodes": full.mesh.n_nodes, "springs": len(full.springs),
+               "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+                           "cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__}}
+    results.update(_explicit_times(full, bare, state, control, repeats))
+    results.update(_implicit_times(full, bare, state, control, repeats))
+    results.update(stiff_block(repeats))
+    results["implicit_solver"] = "BiCGSTAB (full model, corrections and volume implicit); CG (bare lattice)"
+
+    start = time.perf_counter()
+    solve = shear(shape, 0.1, 1e4, 0.3, angle_deg=5.0)  # a static solve that any shape admits
+    results["static_solve_ms"] = (time.perf_counter() - start) * 1e3
+    results["static_solve_converged"] = solve.converged
+
+    results["ratio_explicit_to_bare_numba"] = results["explicit_step_ms"] / results["bare_numba_explicit_step_ms"]
+    results["ratio_explicit_to_bare_same_integrator"] = (
+        results["explicit_step_ms"] / results["bare_same_integrator_explicit_step_ms"])
+    results["ratio_implicit_fixed15"] = (
+        results["implicit_fixed15_step_ms"] / results["bare_numba_implicit_fixed15_step_ms"])
+    results["ratio_implicit_converged"] = results["implicit_step_ms"] / results["bare_converged_implicit_step_ms"]
+    results["ratio_implicit_to_bare_fixed15"] = (
+        results["implicit_step_ms"] / results["bare_numba_implicit_fixed15_step_ms"])
+    results["ratio_implicit15_to_bare_numba_implicit15"] = (  # both capped at 15 iterations, tolerance 1e-6
+        results["implicit_15_iterations_step_ms"] / results["bare_numba_implicit_15_iterations_step_ms"])
+    results.update(_bandwidth_floors(full, results))
+    return results
+
+
+def _sagging_block(shape):
+    """``measure``'s scene: (full model, bare lattice, a moving loaded state after 5 implicit steps of
+    10 ms, the control fixing the bottom face)."""
     mesh = HexMesh.block(shape, 0.1)
     material = Material(1e4, 0.3, 1500.0)
     full = build_model(mesh, material, gravity=(0, -0.5, 0))
@@ -191,26 +223,33 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
     control.impose(bottom, mesh.nodes[bottom])
     state = full.new_state()
     run(full, state, ImplicitEuler(), 0.01, 5, control)  # a moving, loaded state
-    out = state.copy()
-    shape = [int(n) for n in shape]
-    results = {"shape": shape, "nodes": mesh.n_nodes, "springs": len(full.springs),
-               "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                           "cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__}}
+    return full, bare, state, control
 
+
+def _explicit_times(full, bare, state, control, repeats):
+    """Explicit steps of 1 ms from ``state`` (ms): the full model, the bare lattice's numba springs and
+    the same integrator on the bare lattice interleaved, then the numpy lattice."""
     explicit = SymplecticEuler()
+    out = state.copy()
     n = len(bare.springs)
     scratch = (np.empty(n), np.empty((n, 3)), np.empty(n), np.empty_like(state.positions))
-    results.update(interleaved_median_ms({
+    results = interleaved_median_ms({
         "explicit_step_ms": lambda: explicit.simulate(full, state, out, 1e-3, control),
         "bare_numba_explicit_step_ms": lambda: bare_lattice_numba_step(
             bare, state.positions, state.velocities, 1e-3, scratch),
         "bare_same_integrator_explicit_step_ms": lambda: explicit.simulate(bare, state, out, 1e-3, control),
-    }, repeats))
+    }, repeats)
     results["bare_numpy_explicit_step_ms"] = median_ms(
         lambda: bare_lattice_numpy_step(bare, state.positions, state.velocities, 1e-3), max(repeats // 4, 10))
+    return results
 
+
+def _implicit_times(full, bare, state, control, repeats):
+    """Implicit steps of 10 ms continued from ``state``, every configuration interleaved: medians (ms),
+    median iterations (``*_iterations``; ``cg_iterations`` the full model's BiCGSTAB) and the
+    factorised and auto preconditioners' factorisation counts."""
     never = 1e-30  # a tolerance no solve reaches: exactly max_iterations iterations
-    jacobi = dict(preconditioner="jacobi")  # the historic entries (and the bare lattice's CG): Jacobi
+    jacobi = dict(preconditioner="jacobi")  # the entries without a preconditioner in their name: Jacobi
     configurations = {
         "implicit_step_ms": (ImplicitEuler(**jacobi), full),
         "implicit_step_factorised_ms": (ImplicitEuler(preconditioner="factorised"), full),
@@ -234,44 +273,28 @@ def measure(shape=(10, 10, 10), repeats: int = 200) -> dict:
             iterations[label].append(report.iterations)
         return step
 
-    results.update(interleaved_median_ms({label: stepper(label) for label in configurations}, max(repeats // 4, 10)))
+    results = interleaved_median_ms({label: stepper(label) for label in configurations}, max(repeats // 4, 10))
     for label, counts in iterations.items():
         results[label[:-len("_ms")].replace("_step", "") + "_iterations"] = float(np.median(counts))
     results["cg_iterations"] = results.pop("implicit_iterations")  # BiCGSTAB (corrections implicit)
     results["implicit_factorisations"] = configurations["implicit_step_factorised_ms"][0].factorisations
     results["implicit_auto_factorisations"] = configurations["implicit_step_auto_ms"][0].factorisations
-    results.update(stiff_block(repeats))
-    results["implicit_solver"] = "BiCGSTAB (full model, corrections and volume implicit); CG (bare lattice)"
+    return results
 
-    start = time.perf_counter()
-    solve = shear(shape, 0.1, 1e4, 0.3, angle_deg=5.0)  # a static solve that any shape admits
-    results["static_solve_ms"] = (time.perf_counter() - start) * 1e3
-    results["static_solve_converged"] = solve.converged
 
-    results["ratio_explicit_to_bare_numba"] = results["explicit_step_ms"] / results["bare_numba_explicit_step_ms"]
-    results["ratio_explicit_to_bare_same_integrator"] = (
-        results["explicit_step_ms"] / results["bare_same_integrator_explicit_step_ms"])
-    results["ratio_implicit_fixed15"] = (
-        results["implicit_fixed15_step_ms"] / results["bare_numba_implicit_fixed15_step_ms"])
-    results["ratio_implicit_converged"] = results["implicit_step_ms"] / results["bare_converged_implicit_step_ms"]
-    results["ratio_implicit_to_bare_fixed15"] = (
-        results["implicit_step_ms"] / results["bare_numba_implicit_fixed15_step_ms"])
-    results["ratio_implicit15_to_bare_numba_implicit15"] = (  # both capped at 15, tolerance 1e-6 (as before)
-        results["implicit_15_iterations_step_ms"] / results["bare_numba_implicit_15_iterations_step_ms"])
-
-    # Memory-bandwidth floor: compulsory bytes per step / copy bandwidth measured now, from main
-    # memory (a 256 MB copy) and from cache (a 1 MB copy: the step's arrays fit in L2).
+def _bandwidth_floors(full, results):
+    """The memory-bandwidth floor of the measured steps: compulsory bytes per step / copy bandwidth
+    measured now, from main memory (a 256 MB copy) and from cache (a 1 MB copy: the step's arrays
+    fit in L2), and the measured steps' multiples of it."""
     bandwidth = copy_bandwidth(256 * 2**20, 10)
     cache_bandwidth = copy_bandwidth(2**20, 200)
     traffic = step_bytes(full, int(round(results["cg_iterations"])), symmetric=False)
-    results["memory_bandwidth_GBps"] = bandwidth / 1e9
-    results["cache_bandwidth_GBps"] = cache_bandwidth / 1e9
-    results["explicit_bytes_per_step"] = traffic["explicit"]
-    results["implicit_bytes_per_step"] = traffic["implicit"]
-    results["explicit_bandwidth_floor_ms"] = traffic["explicit"] / bandwidth * 1e3
-    results["implicit_bandwidth_floor_ms"] = traffic["implicit"] / bandwidth * 1e3
-    results["explicit_cache_floor_ms"] = traffic["explicit"] / cache_bandwidth * 1e3
-    results["implicit_cache_floor_ms"] = traffic["implicit"] / cache_bandwidth * 1e3
-    results["explicit_times_bandwidth_floor"] = results["explicit_step_ms"] / results["explicit_bandwidth_floor_ms"]
-    results["implicit_times_bandwidth_floor"] = results["implicit_step_ms"] / results["implicit_bandwidth_floor_ms"]
-    return results
+    floors = {"memory_bandwidth_GBps": bandwidth / 1e9, "cache_bandwidth_GBps": cache_bandwidth / 1e9,
+              "explicit_bytes_per_step": traffic["explicit"], "implicit_bytes_per_step": traffic["implicit"],
+              "explicit_bandwidth_floor_ms": traffic["explicit"] / bandwidth * 1e3,
+              "implicit_bandwidth_floor_ms": traffic["implicit"] / bandwidth * 1e3,
+              "explicit_cache_floor_ms": traffic["explicit"] / cache_bandwidth * 1e3,
+              "implicit_cache_floor_ms": traffic["implicit"] / cache_bandwidth * 1e3}
+    floors["explicit_times_bandwidth_floor"] = results["explicit_step_ms"] / floors["explicit_bandwidth_floor_ms"]
+    floors["implicit_times_bandwidth_floor"] = results["implicit_step_ms"] / floors["implicit_bandwidth_floor_ms"]
+    return floors

@@ -336,24 +336,11 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
         raise ValueError("scene: every Scene in the list must have the same size")
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
-    if reference is None:
-        reference = getattr(references, "model", "fem-neohookean") if isinstance(references, tuple) else (
-            model if references is None or isinstance(references, dict) else "fem-neohookean")
-    if reference not in (model, "fem-neohookean"):
-        raise ValueError(f"reference must be the candidates' model {model!r} (the fine model) or 'fem-neohookean', "
-                         f"got {reference!r}")
+    reference = _reference_model(reference, references, model)
     fine = reference != "fem-neohookean"
     quantities = check_quantities(quantities)
     tolerance = check_tolerances(tolerance, quantities)
-    try:
-        given = list(resolutions)
-        resolutions = [int(r) for r in given]
-        exact = all(float(a) == b for a, b in zip(given, resolutions))
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"resolutions must be integers >= 1, got {resolutions!r}") from error
-    if not resolutions or not exact or min(resolutions) < 1:
-        raise ValueError(f"resolutions must be a non-empty sequence of integers >= 1, got {resolutions!r}")
-    resolutions = sorted(set(resolutions))
+    resolutions = _check_resolutions(resolutions)
     hourglass_controls = _settings("hourglass_controls", hourglass_controls, 0.0)
     volume_stiffnesses = _settings("volume_stiffnesses", volume_stiffnesses, 0.0)
     reference_resolution, reference_shape = _reference_shape_arguments(reference_resolution, reference_shape)
@@ -365,8 +352,51 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
     ref_converged = all(bool(np.all(s.converged)) for r in everything for s in r[0])
     ref_stable = all(all(v is True for v in s.stable) for r in everything for s in r[0])
     ref_shapes, ref_time = everything[0][1], float(sum(r[2] for r in everything))
-    ref_nodes = int(np.prod(np.asarray(ref_shapes[0]) + 1))
+    # a fine-model reference admits only candidates strictly coarser than its mesh
+    ref_nodes = int(np.prod(np.asarray(ref_shapes[0]) + 1)) if fine else None
 
+    candidates, chosen = _scan_resolutions(scenes, resolutions, settings, ref_of, tolerance, model, ref_nodes,
+                                           full_scan)
+    best = _best_candidate(candidates, tolerance, ref_nodes)
+    convergence = None if not fine else _reference_convergence(candidates, settings, ref_nodes, ref_shapes[0])
+    solutions = ref_map[None][0] if reference == "fem-neohookean" else {k: v[0] for k, v in ref_map.items()}
+    return ResolutionChoice(chosen=chosen, best=best, candidates=candidates, tolerance=tolerance,
+                            reference_shape=[list(s) for s in ref_shapes], reference_time=ref_time,
+                            reference_stable=ref_stable, reference_converged=ref_converged,
+                            total_time=time.perf_counter() - clock, reference=solutions,
+                            reference_model=reference, reference_convergence=convergence)
+
+
+def _reference_model(reference, references, model):
+    """``choose_resolution``'s reference model, checked: the given one, else that of ``references``
+    (a single ``reference_solutions`` result), else ``model`` (none, or a dict of them per setting)."""
+    if reference is None:
+        reference = getattr(references, "model", "fem-neohookean") if isinstance(references, tuple) else (
+            model if references is None or isinstance(references, dict) else "fem-neohookean")
+    if reference not in (model, "fem-neohookean"):
+        raise ValueError(f"reference must be the candidates' model {model!r} (the fine model) or 'fem-neohookean', "
+                         f"got {reference!r}")
+    return reference
+
+
+def _check_resolutions(resolutions):
+    """The distinct resolutions n, sorted, of a non-empty sequence of integers >= 1; ValueError otherwise."""
+    try:
+        given = list(resolutions)
+        checked = [int(r) for r in given]
+        exact = all(float(a) == b for a, b in zip(given, checked))
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"resolutions must be integers >= 1, got {resolutions!r}") from error
+    if not checked or not exact or min(checked) < 1:
+        raise ValueError(f"resolutions must be a non-empty sequence of integers >= 1, got {checked!r}")
+    return sorted(set(checked))
+
+
+def _scan_resolutions(scenes, resolutions, settings, ref_of, tolerance, model, ref_nodes, full_scan):
+    """(every candidate evaluated, the chosen one or None): each resolution, coarsest first, with every
+    setting; the chosen one is the admissible candidate of the coarsest resolution that has one (the
+    smallest worst error ratio, then the fastest), and the scan stops there unless ``full_scan``. With
+    ``ref_nodes`` (a fine-model reference's node count) a candidate with as many nodes is not admissible."""
     candidates, chosen = [], None
     seen = set()
     for resolution in resolutions:
@@ -378,7 +408,7 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
         for alpha, kappa in settings:
             candidate = evaluate(scenes, shape, ref_of((alpha, kappa))[0], tolerance, hourglass_control=alpha,
                                  volume_stiffness=kappa, resolution=resolution, model=model)
-            if fine and candidate.admissible and candidate.n_nodes >= ref_nodes:
+            if ref_nodes is not None and candidate.admissible and candidate.n_nodes >= ref_nodes:
                 candidate.admissible, candidate.reason = False, "not coarser than the reference"
             here.append(candidate)
         candidates.extend(here)
@@ -387,28 +417,32 @@ def choose_resolution(scene, tolerance=0.05, *, resolutions=range(2, 9), hourgla
             chosen = min(admissible, key=lambda c: (c.worst_ratio(tolerance), c.solve_time))
             if not full_scan:
                 break
+    return candidates, chosen
+
+
+def _best_candidate(candidates, tolerance, ref_nodes):
+    """The smallest sound candidate (converged, stable, with errors; coarser than a fine-model reference
+    of ``ref_nodes`` nodes) whose worst error ratio is within 10% of the least one; None when none is."""
     sound = [c for c in candidates if c.converged and c.stable and c.errors is not None
-             and (not fine or c.n_nodes < ref_nodes)]
-    best = None
-    if sound:
-        smallest = min(c.worst_ratio(tolerance) for c in sound)
-        best = min((c for c in sound if c.worst_ratio(tolerance) <= 1.1 * smallest),
-                   key=lambda c: (c.n_nodes, c.worst_ratio(tolerance)))
-    convergence = None
-    if fine:
-        convergence = []
-        for alpha, kappa in settings:
-            coarser = [c for c in candidates if c.errors is not None and c.n_nodes < ref_nodes
-                       and (c.hourglass_control, c.volume_stiffness) == (alpha, kappa)]
-            finest = max(coarser, key=lambda c: c.n_nodes, default=None)
-            convergence.append(dict(
-                hourglass_control=alpha, volume_stiffness=kappa, reference_shape=list(ref_shapes[0]),
-                resolution=None if finest is None else finest.resolution,
-                shape=None if finest is None else list(finest.shape),
-                errors=None if finest is None else finest.errors))
-    solutions = ref_map[None][0] if reference == "fem-neohookean" else {k: v[0] for k, v in ref_map.items()}
-    return ResolutionChoice(chosen=chosen, best=best, candidates=candidates, tolerance=tolerance,
-                            reference_shape=[list(s) for s in ref_shapes], reference_time=ref_time,
-                            reference_stable=ref_stable, reference_converged=ref_converged,
-                            total_time=time.perf_counter() - clock, reference=solutions,
-                            reference_model=reference, reference_convergence=convergence)
+             and (ref_nodes is None or c.n_nodes < ref_nodes)]
+    if not sound:
+        return None
+    smallest = min(c.worst_ratio(tolerance) for c in sound)
+    return min((c for c in sound if c.worst_ratio(tolerance) <= 1.1 * smallest),
+               key=lambda c: (c.n_nodes, c.worst_ratio(tolerance)))
+
+
+def _reference_convergence(candidates, settings, ref_nodes, ref_shape):
+    """Per setting, the errors of the finest candidate coarser than the fine-model reference (shape
+    ``ref_shape``, ``ref_nodes`` nodes): how far the model is from its own converged solution."""
+    convergence = []
+    for alpha, kappa in settings:
+        coarser = [c for c in candidates if c.errors is not None and c.n_nodes < ref_nodes
+                   and (c.hourglass_control, c.volume_stiffness) == (alpha, kappa)]
+        finest = max(coarser, key=lambda c: c.n_nodes, default=None)
+        convergence.append(dict(
+            hourglass_control=alpha, volume_stiffness=kappa, reference_shape=list(ref_shape),
+            resolution=None if finest is None else finest.resolution,
+            shape=None if finest is None else list(finest.shape),
+            errors=None if finest is None else finest.errors))
+    return convergence

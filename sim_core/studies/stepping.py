@@ -92,9 +92,70 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
     Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""
     if integrator not in ("implicit", "static"):
         raise ValueError(f"integrator must be 'implicit' or 'static', got {integrator!r}")
+    setup = _scene_setup(scene, shape, hourglass_control, volume_stiffness, model, damping_ratio)
+    options = dict(solver or {}) if integrator == "static" else dict(tolerance=solver_tolerance, **(solver or {}))
+    stepper = make_integrator(integrator, **options)
+    passes = STATIC_CONTACT_PASSES if integrator == "static" else 1
+    observed = dict(force=[], target=[], volume=[])
+    env_steps, iterations = 0, 0
+    clock = time.perf_counter()
+    for path in scene.displacements:
+        state = State(setup.rest.copy(), np.zeros_like(setup.rest))
+        scratch = state.copy()
+        offset = np.zeros(3)
+        # contact as the environments (RetractionEnv's floor, PalpationEnv's probe): the nodes on
+        # the obstacle have their height imposed in the step; a node it would pull is released; one
+        # that goes through it joins (after a projection)
+        contact = (np.zeros(setup.mesh.n_nodes, bool) if setup.obstacle is None else
+                   contact_.touching(setup.obstacle, state.positions, setup.candidates, scene.probe_tip(offset), 1e-12))
+        for displacement in path:
+            moves = int(math.ceil(float(np.max(np.abs(displacement - offset))) / max_step - 1e-9))
+            for k in range(moves + hold_steps):
+                if k < moves:
+                    offset = offset + np.clip(displacement - offset, -max_step, max_step)
+                control, contact = _formed_control(setup, state, offset, contact)
+                state, scratch, control, contact, count, reason = _env_step(
+                    setup, stepper, state, scratch, control, contact, offset, dt, substeps, passes)
+                iterations += count
+                if reason is not None:
+                    return None, env_steps, iterations, time.perf_counter() - clock, reason
+                env_steps += 1
+            _observe(setup, state, control, contact, observed)
+    elapsed = time.perf_counter() - clock
+    count = len(observed["volume"])
+    solution = SceneSolution(
+        shape=tuple(shape), force=np.asarray(observed["force"]), target=np.asarray(observed["target"]),
+        volume=np.asarray(observed["volume"]), target_rest=setup.weights @ setup.mesh.nodes[setup.target_nodes],
+        converged=np.ones(count, bool), stable=np.full(count, None, dtype=object),
+        lowest_eigenvalue=np.full(count, np.nan), solve_time=elapsed)
+    return solution, env_steps, iterations, elapsed, None
+
+
+@dataclass
+class _SceneSetup:
+    """What ``dynamic_scene`` steps: the scene on its mesh, the model, the fixed nodes' control
+    (``base``), the tool's nodes, the contact's candidates and obstacle (None without one), the
+    rest state (m) and its volume (m^3), the observed target's nodes and weights."""
+
+    scene: object
+    mesh: object
+    model: object
+    base: Control
+    tool: np.ndarray
+    candidates: np.ndarray
+    obstacle: object
+    rest: np.ndarray
+    rest_volume: float
+    target_nodes: np.ndarray
+    weights: np.ndarray
+
+
+def _scene_setup(scene, shape, hourglass_control, volume_stiffness, model_name, damping_ratio):
+    """``dynamic_scene``'s ``_SceneSetup``: the rest state is the static equilibrium under gravity with
+    the tool at rest (the mesh's nodes without gravity, or where that solve fails), and the obstacle
+    follows the rest state's heights."""
     mesh, material, fixed, tool, target_nodes, weights = scene.discretise(shape)
     nodes = mesh.nodes
-    model_name = model
     model = mss_model(mesh, material, scene.gravity, hourglass_control, volume_stiffness, model_name, damping_ratio)
     solve, _ = mss_solver(mesh, material, scene.gravity, hourglass_control, volume_stiffness, False, model_name)
     base = Control.free(mesh.n_nodes).impose(fixed, nodes[fixed])
@@ -106,79 +167,66 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
                                                    obstacle, candidates, scene.probe_tip(np.zeros(3)), rest=nodes)
         rest = rest if ok else nodes.copy()
         obstacle = from_surface(obstacle, rest[:, 1])
-    rest_volume = float(mesh.element_volumes().sum())
-    options = dict(solver or {}) if integrator == "static" else dict(tolerance=solver_tolerance, **(solver or {}))
-    stepper = make_integrator(integrator, **options)
-    passes = STATIC_CONTACT_PASSES if integrator == "static" else 1
+    return _SceneSetup(scene, mesh, model, base, tool, candidates, obstacle, rest, float(mesh.element_volumes().sum()),
+                       target_nodes, weights)
 
-    def formed(state, offset, contact):
-        """The step's control at ``state``: the tool, and the contact's active set updated (nodes
-        touching join, nodes the tissue pulls away leave) with their heights imposed."""
-        control = tool_control(scene, base, nodes, tool, offset)
-        if obstacle is None:
-            return control, contact
-        tip = scene.probe_tip(offset)
-        net = internal_forces(model, state.positions, state.velocities) + external_forces(model, control)
-        contact = contact_.update(obstacle, contact, state.positions, net, candidates, tip)
-        held = np.flatnonzero(contact)
-        if len(held):
-            target = state.positions[held].copy()
-            target[:, 1] = contact_.targets(obstacle, state.positions, contact, tip)[held]
-            control.impose(held, target, components=(1,))
+
+def _formed_control(setup, state, offset, contact):
+    """The step's control at ``state``: the tool at ``offset`` (m), and the contact's active set
+    updated (nodes touching join, nodes the tissue pulls away leave) with their heights imposed."""
+    scene, obstacle = setup.scene, setup.obstacle
+    control = tool_control(scene, setup.base, setup.mesh.nodes, setup.tool, offset)
+    if obstacle is None:
         return control, contact
-    observed = dict(force=[], target=[], volume=[])
-    env_steps, iterations, reason = 0, 0, None
-    clock = time.perf_counter()
-    for path in scene.displacements:
-        state = State(rest.copy(), np.zeros_like(rest))
-        scratch = state.copy()
-        offset = np.zeros(3)
-        # contact as the environments (RetractionEnv's floor, PalpationEnv's probe): the nodes on
-        # the obstacle have their height imposed in the step; a node it would pull is released; one
-        # that goes through it joins (after a projection)
-        contact = (np.zeros(mesh.n_nodes, bool) if obstacle is None else
-                   contact_.touching(obstacle, state.positions, candidates, scene.probe_tip(offset), 1e-12))
-        for displacement in path:
-            moves = int(math.ceil(float(np.max(np.abs(displacement - offset))) / max_step - 1e-9))
-            for k in range(moves + hold_steps):
-                if k < moves:
-                    offset = offset + np.clip(displacement - offset, -max_step, max_step)
-                tip = scene.probe_tip(offset)
-                control, contact = formed(state, offset, contact)
-                for _ in range(substeps):
-                    for attempt in range(passes):
-                        with np.errstate(all="ignore"):
-                            report = stepper.simulate(model, state, scratch, dt, control)
-                        iterations += report.iterations
-                        reason = report.unstable_reason
-                        if reason is None and not np.all(np.isfinite(scratch.positions)):
-                            reason = "non-finite positions"
-                        if reason is not None:
-                            return None, env_steps, iterations, time.perf_counter() - clock, reason
-                        if obstacle is not None:
-                            contact |= contact_.project(obstacle, scratch.positions, scratch.velocities, candidates, tip)
-                        state, scratch = scratch, state
-                        if obstacle is None or attempt + 1 == passes:
-                            break
-                        # quasi-static: the active set iterated within the step, as TissueEnv._advance
-                        previous = control
-                        control, contact = formed(state, offset, contact)
-                        if same_contact(previous, control):
-                            break
-                env_steps += 1
-            positions = state.positions
-            forces = internal_forces(model, positions, state.velocities) + external_forces(model, control)
-            observed["force"].append(tool_force(scene, tool, contact, -forces))  # as TissueEnv._measure
-            observed["target"].append(weights @ positions[target_nodes])
-            observed["volume"].append(float(mesh.element_volumes(positions).sum()) / rest_volume - 1.0)
-    elapsed = time.perf_counter() - clock
-    count = len(observed["volume"])
-    solution = SceneSolution(
-        shape=tuple(shape), force=np.asarray(observed["force"]), target=np.asarray(observed["target"]),
-        volume=np.asarray(observed["volume"]), target_rest=weights @ nodes[target_nodes],
-        converged=np.ones(count, bool), stable=np.full(count, None, dtype=object),
-        lowest_eigenvalue=np.full(count, np.nan), solve_time=elapsed)
-    return solution, env_steps, iterations, elapsed, None
+    tip = scene.probe_tip(offset)
+    net = internal_forces(setup.model, state.positions, state.velocities) + external_forces(setup.model, control)
+    contact = contact_.update(obstacle, contact, state.positions, net, setup.candidates, tip)
+    held = np.flatnonzero(contact)
+    if len(held):
+        target = state.positions[held].copy()
+        target[:, 1] = contact_.targets(obstacle, state.positions, contact, tip)[held]
+        control.impose(held, target, components=(1,))
+    return control, contact
+
+
+def _env_step(setup, stepper, state, scratch, control, contact, offset, dt, substeps, passes):
+    """One env step: ``substeps`` steps of ``dt`` s under ``control``, each with up to ``passes``
+    contact passes (the active set iterated within the step, as TissueEnv._advance). Returns (state,
+    scratch, control, contact, solver iterations, divergence reason or None); after a divergence the
+    states are those of the failed step."""
+    obstacle, model = setup.obstacle, setup.model
+    tip = setup.scene.probe_tip(offset)
+    iterations = 0
+    for _ in range(substeps):
+        for attempt in range(passes):
+            with np.errstate(all="ignore"):
+                report = stepper.simulate(model, state, scratch, dt, control)
+            iterations += report.iterations
+            reason = report.unstable_reason
+            if reason is None and not np.all(np.isfinite(scratch.positions)):
+                reason = "non-finite positions"
+            if reason is not None:
+                return state, scratch, control, contact, iterations, reason
+            if obstacle is not None:
+                contact |= contact_.project(obstacle, scratch.positions, scratch.velocities, setup.candidates, tip)
+            state, scratch = scratch, state
+            if obstacle is None or attempt + 1 == passes:
+                break
+            previous = control
+            control, contact = _formed_control(setup, state, offset, contact)
+            if same_contact(previous, control):
+                break
+    return state, scratch, control, contact, iterations, None
+
+
+def _observe(setup, state, control, contact, observed):
+    """Appends the observed quantities at ``state`` to ``observed``: the tool's force (N, as
+    TissueEnv._measure), the target's position (m) and the relative volume change."""
+    positions = state.positions
+    forces = internal_forces(setup.model, positions, state.velocities) + external_forces(setup.model, control)
+    observed["force"].append(tool_force(setup.scene, setup.tool, contact, -forces))
+    observed["target"].append(setup.weights @ positions[setup.target_nodes])
+    observed["volume"].append(float(setup.mesh.element_volumes(positions).sum()) / setup.rest_volume - 1.0)
 
 
 def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_steps=0, hourglass_control=1.0,
