@@ -15,7 +15,7 @@ displacements, as in env_accuracy. Each shape's lag (its dynamic against its own
 observations) is reported too.
 
 ``--integrator static`` steps every run (each shape's and the fine mesh's) by a static
-equilibrium per env step (``sim_core.static.QuasiStatic``, the envs' ``integrator="static"``)
+equilibrium per env step (``sim_core.solvers.static.QuasiStatic``, the envs' ``integrator="static"``)
 instead of implicit Euler: no lag, so its errors against the fine mesh are the static
 discretisation errors, at the cost per env step it reports (``seconds_per_step``).
 

@@ -39,7 +39,7 @@ Scenes (SI units; tool displacements from rest, y up):
   grasped nodes span less, so the error is not monotonic in n).
 - Palpation: 6 x 3 x 6 cm slab, bottom fixed, inclusion (the default 1.2 x 1 x 1.2 cm box,
   1-2 cm deep, 10x stiffer), a frictionless sphere-ended probe of radius 9 mm (the env's
-  defaults; an active-set contact, ``sim_core.contact``) pressed 2, 4, 6, 8 mm (the env's
+  defaults; an active-set contact, ``sim_core.solvers.contact``) pressed 2, 4, 6, 8 mm (the env's
   max_depth) at three places: over the inclusion, between nodes away from it, and on a node of
   the 5x3x5 mesh; target = the inclusion centre. Fine model n = 12.
 - Retraction: 6 x 0.8 x 3 cm flap on a frictionless floor, edge x = 0 attached, tool = the face
@@ -102,7 +102,7 @@ def tumor_grasp():
 
 def palpation_scenes():
     # tissue_env.PalpationEnv defaults: size (6, 3, 6) cm, sphere-ended probe of radius 9 mm
-    # (frictionless contact, sim_core.contact), inclusion = the 1.2 x 1 x 1.2 cm box at the middle
+    # (frictionless contact, sim_core.solvers.contact), inclusion = the 1.2 x 1 x 1.2 cm box at the middle
     # candidate centre (3.0, 1.5, 3.0) cm, 10x E; max_depth 8 mm.
     size = np.array([0.06, 0.03, 0.06])
     path = [[(0, -d * MM, 0) for d in (2, 4, 6, 8)]]

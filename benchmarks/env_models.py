@@ -11,7 +11,7 @@ stiffness from ``tissue_env.base.MODEL_DEFAULTS``) and compared with ``fem-neoho
 mesh env_accuracy uses (``--reference-scale`` refines it; for Palpation that reference is the
 env's own mesh): the largest relative error of each quantity over the cases, whether every
 equilibrium is stable (no saddle), and the solve time; a model that refuses the mesh (``baudet`` on
-Retraction's box elements, ``sim_core.model.MAX_SHEAR_ERROR``) is reported with its reason. Written to ``--output`` (JSON, atomically; ``--task NAME`` re-runs
+Retraction's box elements, ``sim_core.models.model.MAX_SHEAR_ERROR``) is reported with its reason. Written to ``--output`` (JSON, atomically; ``--task NAME`` re-runs
 those tasks and keeps the others' results).
 """
 

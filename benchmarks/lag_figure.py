@@ -5,7 +5,7 @@ Usage: python benchmarks/lag_figure.py [--output docs/figures/static_vs_implicit
 Palpation at its defaults, the probe over the middle of the slab (over the inclusion), pressed
 at full speed (``max_step`` = 4 mm per env step) to 8 mm, held for 6 steps and lifted at full
 speed, once with ``integrator="implicit"`` (the default) and once with ``integrator="static"``
-(``sim_core.static.QuasiStatic``): the vertical force the probe exerts (N) at every env step. The
+(``sim_core.solvers.static.QuasiStatic``): the vertical force the probe exerts (N) at every env step. The
 implicit tissue lags behind the probe (mass and damping) and settles on the static reading when
 the probe is held. The success press does not end the episode here. Writes the figure atomically
 and prints the readings.

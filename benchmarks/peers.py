@@ -38,10 +38,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from training.common import write_json  # noqa: E402
-from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
-from sim_core.material import Material  # noqa: E402
-from sim_core.mesh import LOCAL_CORNERS, HexMesh  # noqa: E402
-from sim_core.model import build_model  # noqa: E402
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
+from sim_core.models.material import Material  # noqa: E402
+from sim_core.geometry.mesh import LOCAL_CORNERS, HexMesh  # noqa: E402
+from sim_core.models.model import build_model  # noqa: E402
 
 SCENE = dict(shape=(10, 10, 10), spacing=0.1, young_modulus=1e4, poisson_ratio=0.3, density=1500.0,
              gravity=0.5, duration=1.0, hourglass_control=0.5)
@@ -506,8 +506,8 @@ def _largest_usable_dt(name, engine, scene, sanity):
 def _static_reference(scene):
     """4. static references on the same nodes: our model and hexahedral neo-Hookean FEM (top sag, m;
     None where a solve did not converge)."""
-    from sim_core.hyperelastic import NeoHookeanFEM
-    from sim_core.static import solve_static
+    from sim_core.solvers.hyperelastic import NeoHookeanFEM
+    from sim_core.solvers.static import solve_static
 
     gravity = (0.0, -scene.gravity, 0.0)
     reference = {}

@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import sim_core.static as static  # noqa: E402
+import sim_core.solvers.static as static  # noqa: E402
 import tissue_env  # noqa: E402
 import tissue_env.tumor_positioning as tumor_positioning  # noqa: E402
 from training.common import write_json  # noqa: E402

@@ -93,12 +93,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
-from sim_core.fem import LinearFEM  # noqa: E402
+from sim_core.solvers.fem import LinearFEM  # noqa: E402
 from sim_core.files import atomic_write, save_figure  # noqa: E402
-from sim_core.hyperelastic import NeoHookeanFEM  # noqa: E402
-from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
-from sim_core.mesh import LOCAL_CORNERS  # noqa: E402
-from sim_core.model import Control  # noqa: E402
+from sim_core.solvers.hyperelastic import NeoHookeanFEM  # noqa: E402
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
+from sim_core.geometry.mesh import LOCAL_CORNERS  # noqa: E402
+from sim_core.models.model import Control  # noqa: E402
 from training.common import write_json  # noqa: E402
 
 # -- the physical block (SI) ---------------------------------------------------------------------

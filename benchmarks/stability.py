@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
 from sim_core.files import atomic_path, save_figure  # noqa: E402
-from sim_core.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step  # noqa: E402
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {"full": {}, "no corrections": dict(corrections=False), "no volume forces": dict(volume_conservation=False),

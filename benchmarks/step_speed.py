@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 from training.common import write_json  # noqa: E402
 from sim_core import HexMesh, Material, build_model  # noqa: E402
-from sim_core.integrators import ImplicitEuler, SymplecticEuler, run  # noqa: E402
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run  # noqa: E402
 from sim_core.studies.bench import interleaved_median_ms, measure  # noqa: E402
 
 #: the models ``model_comparison`` times side by side: label -> build_model keywords

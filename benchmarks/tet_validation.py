@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 
 from sim_core import Material, TetMesh, build_model  # noqa: E402
 from sim_core.files import atomic_write  # noqa: E402
-from sim_core.forces import internal_forces  # noqa: E402
+from sim_core.models.forces import internal_forces  # noqa: E402
 from sim_core.studies import experiments  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results" / "tet_validation.json"

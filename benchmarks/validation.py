@@ -53,11 +53,11 @@ from sim_core import HexMesh, Material, build_model  # noqa: E402
 from sim_core.experiments import (  # noqa: E402
     elongation, elongation_control, flexion, hourglass_content, indentation, position_errors, settle, shear, tool_patch,
     tool_patch_nodes)
-from sim_core.fem import LinearFEM  # noqa: E402
-from sim_core.hyperelastic import NeoHookeanFEM  # noqa: E402
-from sim_core.laws import baudet_shear_ratio  # noqa: E402
-from sim_core.model import MAX_SHEAR_ERROR, MSS_MODELS as MSS_NAMES, Control, baudet_stiffness  # noqa: E402
-from sim_core.static import lowest_eigenvalue, solve_static, zero_energy_modes  # noqa: E402
+from sim_core.solvers.fem import LinearFEM  # noqa: E402
+from sim_core.solvers.hyperelastic import NeoHookeanFEM  # noqa: E402
+from sim_core.models.laws import baudet_shear_ratio  # noqa: E402
+from sim_core.models.model import MAX_SHEAR_ERROR, MSS_MODELS as MSS_NAMES, Control, baudet_stiffness  # noqa: E402
+from sim_core.solvers.static import lowest_eigenvalue, solve_static, zero_energy_modes  # noqa: E402
 
 FIGURES = ROOT / "docs" / "figures"
 RESULTS = ROOT / "benchmarks" / "results"

@@ -403,7 +403,7 @@ def env_defaults_section(accuracy):
     classes = task_classes()
     out = ["## The defaults and one env step\n\n",
            "One env step is `substeps` linearised implicit Euler steps of `dt` "
-           "(`sim_core.batched.BatchedImplicitEuler`). Implicit Euler is stable far past the explicit limit, "
+           "(`sim_core.solvers.batched.BatchedImplicitEuler`). Implicit Euler is stable far past the explicit limit, "
            "so one step per action is enough, and with the springs' critical damping the tissue settles on "
            "the static equilibrium within a few steps of a held tool (tested against `solve_static`). A "
            "`solve_static` per step (the opt-in `integrator=\"static\"`) costs a factorisation per Newton "
@@ -691,7 +691,7 @@ def env_model_choice_section():
 
 def env_contact_section():
     return ["## Contact\n\n",
-            "Palpation's probe is sphere-ended, in a frictionless active-set contact (`sim_core.contact`, shared "
+            "Palpation's probe is sphere-ended, in a frictionless active-set contact (`sim_core.solvers.contact`, shared "
             "with Retraction's floor and with the scenes of `sim_core.resolution`): the top nodes on or over "
             "their bound have their height imposed on it, x and z free (Hertz's boundary condition); a node the "
             "tissue pulls away is released, and one that went through its bound during a step is projected back "
@@ -706,7 +706,7 @@ def env_contact_section():
             "contact of the static scene), so a held flap settles on the static equilibrium (tested); a clamp "
             "after the step settled far from it in volume change. A contact that moves keeps the implicit "
             "integrator's factorisation, corrected exactly for the dofs it imposes (a capacitance correction, "
-            "`sim_core.batched`). At the soft end of the material range Retraction's flap, lifted by its "
+            "`sim_core.solvers.batched`). At the soft end of the material range Retraction's flap, lifted by its "
             "clamped edge, stretches its springs beyond 100%, as neo-Hookean FEM on its mesh does: the "
             "maximum-strain entry (%) is bounded at 1000% (`tissue_env.worlds.FEATURE_LIMITS`), every other "
             "entry at 100, and `info[\"observation_clipped\"]` reports any entry at its bound:\n\n",
@@ -903,7 +903,7 @@ def performance_page():
     out += ["## Work against mesh size\n\n",
             f"The envs refuse a shape with more than {mesh['max_nodes']} nodes unless `max_nodes` is raised "
             "(a reset is Newton on the whole mesh), and warn about a slow one. `solve_static` switches to "
-            "AMG-preconditioned Krylov solves past `sim_core.static.DIRECT_DOF_LIMIT` free dofs "
+            "AMG-preconditioned Krylov solves past `sim_core.solvers.static.DIRECT_DOF_LIMIT` free dofs "
             "(`linear_solver=\"auto\"`).\n\n",
             caption(command_for("large_mesh.py"), "large_mesh.json"), "\n",
             table(["TumorPositioning shape", "nodes", "construct (s)", "first reset (s)", "step (ms)"],

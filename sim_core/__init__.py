@@ -17,14 +17,14 @@ All quantities are SI: m, kg, s, Pa, N. Formulas follow docs/physics.md.
 
 from importlib import metadata as _metadata
 
-from .material import Material
-from .mesh import HexMesh
-from .tetmesh import TetMesh
-from .model import Control, Model, State, build_model
-from .static import StaticResult, solve_static, zero_energy_modes
-from .stack import ModelStack
-from .solver import StepReport
-from .worlds import make_solver
+from .models.material import Material
+from .geometry.mesh import HexMesh
+from .geometry.tetmesh import TetMesh
+from .models.model import Control, Model, State, build_model
+from .solvers.static import StaticResult, solve_static, zero_energy_modes
+from .models.stack import ModelStack
+from .solvers.solver import StepReport
+from .solvers.worlds import make_solver
 
 #: The version of pyproject.toml; used when the package runs from a clone that is not installed.
 _SOURCE_VERSION = "0.1.0"

@@ -4,9 +4,11 @@ arguments and control, the probe, under-constrained static problems)."""
 import numpy as np
 import pytest
 
-from sim_core import HexMesh, Material, build_model, contact
-from sim_core.model import Control
-from sim_core.static import solve_static, unconstrained_motions
+from sim_core import HexMesh, Material, build_model
+
+from sim_core.solvers import contact
+from sim_core.models.model import Control
+from sim_core.solvers.static import solve_static, unconstrained_motions
 
 
 @pytest.fixture(scope="module")
@@ -255,7 +257,7 @@ def test_one_node_held_under_gravity(block):
     (dict(max_load_steps="8"), "max_load_steps must be an integer >= 1, got str '8'"),
 ])
 def test_quasi_static_arguments(keyword, message):
-    from sim_core.static import QuasiStatic
+    from sim_core.solvers.static import QuasiStatic
 
     with pytest.raises(ValueError, match=message):
         QuasiStatic(**keyword)

@@ -1,4 +1,4 @@
-"""The batched factorised solver (sim_core.batched, solver "factorised") keeps each copy's
+"""The batched factorised solver (sim_core.solvers.batched, solver "factorised") keeps each copy's
 node-block LU when a contact imposes more dofs, and restricts it exactly to the free dofs by a
 capacitance correction (``_CopyFactor.correction``, ``kernels.corrected_lu_apply``)."""
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sim_core.studies.bench import tumor_block
-from sim_core.batched import BatchedImplicitEuler
-from sim_core.stack import ModelStack
+from sim_core.solvers.batched import BatchedImplicitEuler
+from sim_core.models.stack import ModelStack
 
 
 def test_a_moving_contact_keeps_each_copys_factor_exact_through_its_capacitance_correction():
@@ -68,7 +68,7 @@ def test_the_copies_inverse_columns_equal_each_factors_own():
     on numba's threads) gives the floats of its serial version and of ``InverseColumns.columns`` (one
     copy's columns solved together), zero on the imposed dofs."""
     from sim_core import kernels
-    from sim_core.preconditioners import InverseColumns
+    from sim_core.solvers.preconditioners import InverseColumns
     model, bottom, _ = tumor_block((5, 5, 5), 0.01)
     count, dt = 3, 0.04
     stack = ModelStack(model, count)
@@ -113,7 +113,7 @@ def test_the_batched_corrections_equal_each_factors_own():
     and serial alike (bitwise), for 1 to 40 imposed dofs; a singular Z[c] (a dof twice) is reported
     (ok False), not returned as NaN or huge values."""
     from sim_core import kernels
-    from sim_core.preconditioners import InverseColumns
+    from sim_core.solvers.preconditioners import InverseColumns
     integrator, free, n_dofs = _factorised_copies()
     rng = np.random.default_rng(5)
     picks = [np.sort(rng.choice(free, size, replace=False)) for size in (1, 7, 40)]
@@ -140,8 +140,8 @@ def test_the_kept_columns_of_the_inverse_are_the_solved_ones_and_forgotten_past_
     """``InverseColumns`` keeps solved columns in one array: asked again (in another order, mixed with
     new ones) it returns the floats a fresh solve gives, and it forgets them all when keeping the
     new ones would pass CAPACITANCE_CACHE."""
-    from sim_core import preconditioners
-    from sim_core.preconditioners import InverseColumns
+    from sim_core.solvers import preconditioners
+    from sim_core.solvers.preconditioners import InverseColumns
     integrator, free, n_dofs = _factorised_copies(1)
     ints, floats = (factors[0] for factors in integrator.factor_lists)
     kept = InverseColumns(ints, floats, n_dofs)
@@ -161,8 +161,8 @@ def test_copies_sharing_a_factor_ask_its_inverse_once_for_all_their_dofs(monkeyp
     equal a fresh ``InverseColumns.correction`` (asked one after the other, the second request
     forgot the columns the first counted on). Asking ``rows`` for columns not kept is an error,
     not another dof's column."""
-    from sim_core import preconditioners
-    from sim_core.preconditioners import InverseColumns
+    from sim_core.solvers import preconditioners
+    from sim_core.solvers.preconditioners import InverseColumns
     monkeypatch.setattr(preconditioners, "CAPACITANCE_CACHE", 8)
     integrator, free, n_dofs = _factorised_copies(1)
     factor = integrator._factors[0]

@@ -75,7 +75,7 @@ def test_a_failed_block_factor_falls_back_to_the_scalar_factor(monkeypatch):
     system = _system(integrator, envs.worlds.dt)
     integrator._structures.clear()
     monkeypatch.setattr(integrator, "_block_structure", lambda key, nodes: None)
-    import sim_core.batched as batched
+    import sim_core.solvers.batched as batched
     monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free, **kwargs: None)
     factors = integrator._factorise_copies(np.arange(2), system, covers)
     for index, factor in enumerate(factors):
@@ -116,8 +116,8 @@ def test_stacked_force_workspace_equals_the_stacked_models_force_pass(env_id, gr
     """StackedForceWorkspace's hourglass term (one copy's matrix read once for all copies where they
     share it; each copy's own in node blocks where they differ) gives the stacked model's forces
     (ForceWorkspace) to rounding."""
-    from sim_core.forces import ForceWorkspace
-    from sim_core.stack import StackedForceWorkspace
+    from sim_core.models.forces import ForceWorkspace
+    from sim_core.models.stack import StackedForceWorkspace
     envs = _stepped(env_id, count=4, steps=6, seed=0, model="baudet")  # the model with hourglass control
     stack = envs.worlds.stack
     # Palpation's copies draw different inclusions (hourglass matrices), TumorPositioning's share one
@@ -180,7 +180,7 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
     floats as the serial pass over the stacked model, bit for bit (the vector envs' results do not
     depend on the thread count), and the products equal the lockstep kernel's to rounding."""
     from sim_core import kernels
-    from sim_core.stack import StackedForceWorkspace
+    from sim_core.models.stack import StackedForceWorkspace
     for env_id in ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0"):
         envs = _stepped(env_id, count=4, steps=6, seed=0)
         stack = envs.worlds.stack
@@ -310,7 +310,7 @@ def test_lockstep_chunks_give_two_threads_work_and_depend_on_the_copy_count_only
     It takes the copy count only, so the thread count cannot change the floats."""
     import inspect
 
-    from sim_core.batched import LOCKSTEP_CHUNK, lockstep_chunk
+    from sim_core.solvers.batched import LOCKSTEP_CHUNK, lockstep_chunk
     assert list(inspect.signature(lockstep_chunk).parameters) == ["count"]
     assert lockstep_chunk(1) == 1 and lockstep_chunk(16) == 8 == LOCKSTEP_CHUNK
     for count in range(1, 65):
@@ -325,7 +325,7 @@ def test_threaded_measurement_kernels_give_the_serial_floats():
     the springs' damping forces) run one copy per thread when threaded: the same floats as the
     serial pass, bit for bit."""
     from sim_core import kernels
-    from sim_core.stack import StackedForceWorkspace
+    from sim_core.models.stack import StackedForceWorkspace
     envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
     stack, count = envs.worlds.stack, envs.num_envs
     model = stack.model

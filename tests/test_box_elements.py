@@ -16,9 +16,9 @@ from skfem.models.elasticity import linear_elasticity
 
 from sim_core import HexMesh, Material, TetMesh, build_model
 from sim_core.experiments import shear
-from sim_core.forces import stiffness_data
-from sim_core.laws import baudet_shear_ratio
-from sim_core.model import MAX_SHEAR_ERROR
+from sim_core.models.forces import stiffness_data
+from sim_core.models.laws import baudet_shear_ratio
+from sim_core.models.model import MAX_SHEAR_ERROR
 
 E, RHO = 1e4, 1000.0
 #: (direction i, normal j) of the simple shears u_i = gamma X_j: every plane, both ways

@@ -7,7 +7,7 @@ import sys
 import meshio
 import pytest
 
-from sim_core.mesh import HexMesh
+from sim_core.geometry.mesh import HexMesh
 from sim_core.studies.cli import main
 
 

@@ -1,10 +1,10 @@
-"""sim_core.contact: frictionless height-field obstacles (floor, sphere and flat probes) and their
+"""sim_core.solvers.contact: frictionless height-field obstacles (floor, sphere and flat probes) and their
 active set, on one block and on stacked copies; the static scene's probe converges with the mesh."""
 
 import numpy as np
 import pytest
 
-from sim_core import contact
+from sim_core.solvers import contact
 from sim_core.resolution import Scene, scene_errors, solve_scene
 
 
@@ -99,7 +99,7 @@ def test_projected_probe_displaces_the_probe_s_volume_wherever_the_nodes_fall(ti
     over a node, between four or anywhere (measured with 4 midpoints per element side: the sphere
     within 1.3%, the flat probe 5%), and only on nodes whose faces the probe reaches. Sampled at the
     nodes, the sphere displaces 0.58x its volume over a node and 1.33x between four."""
-    from sim_core.mesh import HexMesh
+    from sim_core.geometry.mesh import HexMesh
 
     mesh = HexMesh.block((8, 4, 8), (0.0075, 0.0075, 0.0075))
     top = np.flatnonzero(np.isclose(mesh.nodes[:, 1], 0.03))
@@ -122,7 +122,7 @@ def test_projected_probe_on_stacked_copies_and_its_reference():
     """Stacked copies ((N, n, 3) positions, (N, 3) tips, an (N, n) reference) give each copy's own
     projected surface, the same as one block; a surface 1 mm lower (a sagging start) is indented
     less: its bounds are lower where the probe reaches above it; bad inputs name what is allowed."""
-    from sim_core.mesh import HexMesh
+    from sim_core.geometry.mesh import HexMesh
 
     mesh = HexMesh.block((6, 2, 6), (0.01, 0.01, 0.01))
     projection = contact.SurfaceProjection.top_face(mesh)
@@ -157,7 +157,7 @@ def test_projected_surface_kernel_equals_its_definition(tip):
     numpy, the hat-weighted average of min(probe surface, reference) over each node's support
     (+inf where the probe is above the reference everywhere on it), on perturbed positions and
     random tips (measured: 3e-17 m)."""
-    from sim_core.mesh import HexMesh
+    from sim_core.geometry.mesh import HexMesh
 
     mesh = HexMesh.block((8, 4, 8), (0.0075, 0.0075, 0.0075))
     projection = contact.SurfaceProjection.top_face(mesh)
@@ -179,7 +179,7 @@ def test_a_stacked_projection_gives_each_row_its_own_blocks_surface():
     """``SurfaceProjection.stacked`` / ``set_row``: copies on blocks of other spacings (the same
     structured block scaled along its axes: the same weights) in one pass, threaded or not, give
     each row the bound of its own block's projection, bit for bit."""
-    from sim_core.mesh import HexMesh
+    from sim_core.geometry.mesh import HexMesh
 
     spacings = [(0.0075, 0.0075, 0.0075), (0.0068, 0.008, 0.0083), (0.0082, 0.007, 0.0071)]
     meshes = [HexMesh.block((8, 4, 8), spacing) for spacing in spacings]

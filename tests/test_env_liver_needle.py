@@ -8,7 +8,7 @@ import pytest
 
 import tissue_env  # noqa: F401
 from sim_core import solve_static
-from sim_core.phantoms import PARENCHYMA, TUMOUR, VESSEL
+from sim_core.models.phantoms import PARENCHYMA, TUMOUR, VESSEL
 
 ENV_ID = "tissue_env/LiverNeedleAlignment-v0"
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import tissue_env  # noqa: F401  (registers the ids)
-from sim_core import contact
+from sim_core.solvers import contact
 from tissue_env.episodes import random_policy, run_episode, scripted_policy
 
 ENV_ID = "tissue_env/Palpation-v0"
@@ -199,7 +199,7 @@ def test_shape_only_sets_the_resolution_of_the_inclusion(shape):
 def rest_contact(unwrapped, offset):
     """(held top nodes, their imposed heights (n,) m) of the env's probe pressed at ``offset`` (m)
     from its start on the rest mesh: the contact set and heights its control forms
-    (``sim_core.contact.update`` and ``targets``, from no contact and no force)."""
+    (``sim_core.solvers.contact.update`` and ``targets``, from no contact and no force)."""
     nodes = unwrapped.mesh.nodes
     tip = unwrapped.probe_start + offset
     candidates = np.zeros(unwrapped.mesh.n_nodes, bool)

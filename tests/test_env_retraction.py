@@ -63,7 +63,7 @@ def test_held_flap_settles_on_the_frictionless_static_equilibrium():
     pull back, part of the flap on the floor, the flap settles on the frictionless-contact
     equilibrium that solve_static's active set finds from the rest state (measured: within 4e-10 m;
     the post-step clamp it replaced settled up to 121% away in volume change)."""
-    from sim_core.contact import Floor
+    from sim_core.solvers.contact import Floor
     from sim_core.studies.solving import model_solver, solve_with_contact
 
     env = gym.make(ENV_ID, max_episode_steps=400, shape=(6, 1, 3)).unwrapped  # a coarse flap: a quick static solve
@@ -94,8 +94,8 @@ def test_soft_flap_lifted_by_its_edge_strains_beyond_100_percent_as_neo_hookean_
     and the max-strain observation (%) is bounded at 1000% so that it reads it
     (tests/test_env_material_range.py)."""
     from sim_core import Material
-    from sim_core.contact import Floor
-    from sim_core.hyperelastic import NeoHookeanFEM
+    from sim_core.solvers.contact import Floor
+    from sim_core.solvers.hyperelastic import NeoHookeanFEM
     from sim_core.studies.solving import model_solver, solve_with_contact
 
     env = gym.make(ENV_ID, young_modulus=1e3).unwrapped

@@ -148,12 +148,12 @@ def test_observed_parameters_pass_the_gymnasium_and_sb3_checkers(observation_typ
 
 
 def test_a_stacked_copy_on_another_block_geometry_has_that_blocks_forces():
-    # sim_core.stack: a copy assigned a model of the same topology on a scaled block takes its rest
+    # sim_core.models.stack: a copy assigned a model of the same topology on a scaled block takes its rest
     # geometry with it (the hourglass term's rest positions, the rest edge directions): its forces are
     # the single model's, bit for bit, beside copies of the other geometry
     from sim_core import HexMesh, Material, build_model
-    from sim_core.forces import ForceWorkspace
-    from sim_core.stack import ModelStack, StackedForceWorkspace
+    from sim_core.models.forces import ForceWorkspace
+    from sim_core.models.stack import ModelStack, StackedForceWorkspace
 
     def model(spacing, young):
         # baudet, for its hourglass term's rest positions; the bound on its boxes' shear error is

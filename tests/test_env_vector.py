@@ -166,7 +166,7 @@ def test_invalid_num_envs():
 @pytest.mark.parametrize("solver", ["factorised", "reference"])
 def test_every_per_copy_solver_gives_the_single_env_trajectories(solver):
     """Each of the implicit step's per-copy linear solvers (``preconditioner`` keyword;
-    sim_core.batched) gives a copy the single env's steps, on Palpation, whose probe contact changes
+    sim_core.solvers.batched) gives a copy the single env's steps, on Palpation, whose probe contact changes
     the imposed dofs during an episode (the factorised solver keeps or re-factorises a copy's factor
     when its free set changes): observations within 1e-6. (Solver "jacobi" runs the copies in
     lockstep with the copy index innermost, where the compiler vectorises across copies: a copy's
@@ -184,7 +184,7 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     free-dof matrix, packed for the compiled solves: applied by kernels.lu_apply it equals
     spsolve's solution (to 1e-8), and the steps stay finite."""
     from sim_core import kernels
-    from sim_core import batched
+    from sim_core.solvers import batched
 
     monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free, **kwargs: None)
     # the fused factorisations (kernels.factor_copies) fail too: every copy takes _factorise's path
@@ -235,8 +235,8 @@ def test_reference_preconditioner_solves_each_group_with_its_factor(layout, monk
     a re-linearised copy gets a factor of its own; group -1 is the Jacobi diagonal. Both factor
     layouts: node blocks (free dofs are whole nodes, TumorPositioning) and the scalar fallback."""
     from sim_core import kernels
-    from sim_core.forces import stiffness_data
-    from sim_core import batched
+    from sim_core.models.forces import stiffness_data
+    from sim_core.solvers import batched
 
     if layout == "scalar":
         monkeypatch.setattr(batched.NodeBlockLU, "applies", staticmethod(lambda free: False))
@@ -282,7 +282,7 @@ def test_measurement_shares_the_next_steps_force_pass():
     """TumorPositioning's vector env measures with the next implicit step's force pass
     (``BatchedImplicitEuler.linearise`` plus the damping forces): the same nodal forces as a full
     pass with velocities up to rounding, and the step from that state does not compute it again."""
-    from sim_core.forces import ForceWorkspace
+    from sim_core.models.forces import ForceWorkspace
 
     vector = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=3, vectorization_mode="vector_entry_point")
     env = vector.unwrapped.worlds

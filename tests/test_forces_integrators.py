@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.forces import external_forces, internal_forces, stiffness_data
-from sim_core.integrators import ImplicitEuler, SymplecticEuler, make_integrator, run, stable_time_step
-from sim_core.model import Control, State
+from sim_core.models.forces import external_forces, internal_forces, stiffness_data
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, make_integrator, run, stable_time_step
+from sim_core.models.model import Control, State
 
 
 def finite_difference_stiffness(model, positions, step=1e-7):
@@ -184,7 +184,7 @@ def test_external_forces_include_gravity_on_lumped_masses():
                                      dict(hourglass_control=0.5), dict(model="uniform-springs")])
 def test_compiled_forces_match_numpy_reference(options):
     """The numba kernels and the numpy formulation agree to 1e-12 relative (with damping)."""
-    from sim_core.forces import internal_forces_reference
+    from sim_core.models.forces import internal_forces_reference
 
     mesh = HexMesh.block((3, 4, 2), (0.1, 0.11, 0.12))
     if options.get("model", "baudet") in ("baudet", "baudet-original"):
@@ -199,8 +199,8 @@ def test_compiled_forces_match_numpy_reference(options):
 
 
 def test_divergence_monitor_reasons():
-    from sim_core.solver import DivergenceMonitor
-    from sim_core.model import State
+    from sim_core.solvers.solver import DivergenceMonitor
+    from sim_core.models.model import State
 
     model = build_model(HexMesh.block((2, 2, 2), 0.1), Material(1e4, 0.3, 1000))
     monitor = DivergenceMonitor(model)
@@ -227,7 +227,7 @@ def test_the_copies_monitor_gives_each_copys_own_monitor_reasons():
     region, one with a NaN, one too fast, one with an element pushed inside out (caught at the 10th
     check), and a copy skipped on some steps (its history untouched). A copy whose check failed is
     assigned again, as the vector env resets it."""
-    from sim_core.solver import DivergenceMonitor, DivergenceMonitors
+    from sim_core.solvers.solver import DivergenceMonitor, DivergenceMonitors
 
     model = build_model(HexMesh.block((2, 2, 2), 0.1), Material(1e4, 0.3, 1000))
     count, rest, n = 6, model.rest_positions, model.n_nodes
@@ -268,7 +268,7 @@ def test_the_copies_monitor_gives_each_copys_own_monitor_reasons():
 def test_closed_form_hexahedron_volume_matches_gauss():
     """The compiled 15-triple-product volume equals 2x2x2 Gauss (exact) for distorted elements."""
     from sim_core import kernels
-    from sim_core.mesh import hex_volumes
+    from sim_core.geometry.mesh import hex_volumes
 
     mesh = HexMesh.block((1, 1, 1), (0.03, 0.05, 0.04))
     rng = np.random.default_rng(5)
@@ -313,7 +313,7 @@ def test_a_run_at_the_edge_of_the_explicit_limit_is_flagged_before_it_explodes()
     while the speed check had not fired (an undetected divergence in benchmarks/stability.py).
     The growing step-to-step oscillation check flags it (measured: step 415); 0.8x stays clean."""
     from sim_core import HexMesh, Material, build_model
-    from sim_core.integrators import SymplecticEuler, run, stable_time_step
+    from sim_core.solvers.integrators import SymplecticEuler, run, stable_time_step
 
     mesh = HexMesh.block((4, 4, 4), 0.01)
     model = build_model(mesh, Material(1e4, 0.45, 1060.0), hourglass_control=0.5, corrections=False)
@@ -333,9 +333,9 @@ def test_every_solver_keeps_one_step_contract():
     """Explicit, implicit and quasi-static solvers of one world and the implicit and explicit solvers
     of N worlds step with one verb, ``step(state_in, state_out, control, dt, active=None)``; a world
     left out by ``active`` keeps its state; an unbound solver says what is missing."""
-    from sim_core.batched import BatchedImplicitEuler, BatchedSymplecticEuler
-    from sim_core.solver import StepReport, WorldsReport
-    from sim_core.stack import ModelStack
+    from sim_core.solvers.batched import BatchedImplicitEuler, BatchedSymplecticEuler
+    from sim_core.solvers.solver import StepReport, WorldsReport
+    from sim_core.models.stack import ModelStack
 
     mesh = HexMesh.block((3, 2, 2), 0.01)
     model = build_model(mesh, Material(5e3, 0.45, 1060), gravity=(0, -9.81, 0), hourglass_control=1.0)

@@ -6,11 +6,11 @@ change in place (``ModelStack.assign``) must not keep stale blocks."""
 import numpy as np
 
 from sim_core import kernels
-from sim_core.forces import ForceWorkspace, hourglass_blocks
-from sim_core.krylov import apply_system
-from sim_core.material import Material
-from sim_core.mesh import HexMesh
-from sim_core.model import build_model
+from sim_core.models.forces import ForceWorkspace, hourglass_blocks
+from sim_core.solvers.krylov import apply_system
+from sim_core.models.material import Material
+from sim_core.geometry.mesh import HexMesh
+from sim_core.models.model import build_model
 
 
 def _model(young_modulus=5e3, hourglass_control=1.0):
@@ -64,7 +64,7 @@ def test_block_operator_and_forces_equal_the_scalar_csr_ones():
 def test_a_stacked_model_drops_its_blocks_when_its_values_change():
     """The stacked model of N worlds is the one model whose values change in place; its node-block
     hourglass form is derived data it must drop then (``StackedModel.values_changed``)."""
-    from sim_core.stack import ModelStack
+    from sim_core.models.stack import ModelStack
 
     stack = ModelStack(_model(), 1)
     model = stack.model
@@ -80,7 +80,7 @@ def test_a_stacked_model_drops_its_blocks_when_its_values_change():
 
 
 def test_model_stack_assign_refreshes_the_stacked_blocks():
-    from sim_core.stack import ModelStack
+    from sim_core.models.stack import ModelStack
 
     soft, stiff = _model(5e3), _model(2e4)
     stack = ModelStack(soft, 2)

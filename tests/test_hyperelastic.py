@@ -1,4 +1,4 @@
-"""fem-neohookean (sim_core.hyperelastic): the large-deformation reference is right.
+"""fem-neohookean (sim_core.solvers.hyperelastic): the large-deformation reference is right.
 
 Patch test, rigid-rotation invariance, tangent against finite differences, agreement with
 fem-linear at small strain, and docs/physics.md section 8's large-deflection flexion floor. Each test
@@ -10,8 +10,8 @@ import pytest
 
 from sim_core import HexMesh, Material
 from sim_core.experiments import FEM_MODELS, elongation, flexion, position_errors, shear
-from sim_core.hyperelastic import NeoHookeanFEM, first_piola_stress, lame_parameters, strain_energy_density
-from sim_core.model import Control
+from sim_core.solvers.hyperelastic import NeoHookeanFEM, first_piola_stress, lame_parameters, strain_energy_density
+from sim_core.models.model import Control
 
 E, NU = 1e4, 0.3
 CANTILEVER = dict(shape=(10, 5, 4), spacing=0.1, young_modulus=1e4, poisson_ratio=0.3, density=1500.0)

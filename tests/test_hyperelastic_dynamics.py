@@ -12,12 +12,12 @@ import pytest
 
 import tissue_env
 from sim_core import HexMesh, Material, build_model, kernels, solve_static
-from sim_core.forces import ForceWorkspace, internal_forces, stiffness_data
-from sim_core.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step
-from sim_core.preconditioners import pattern_arrays
-from sim_core.stack import ModelStack, StackedForceWorkspace
-from sim_core.static import tangent_stiffness
-from sim_core.stress_correction import tangent_matrices
+from sim_core.models.forces import ForceWorkspace, internal_forces, stiffness_data
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step
+from sim_core.solvers.preconditioners import pattern_arrays
+from sim_core.models.stack import ModelStack, StackedForceWorkspace
+from sim_core.solvers.static import tangent_stiffness
+from sim_core.models.stress_correction import tangent_matrices
 
 MODEL = "baudet-hyperelastic"
 TASKS = sorted(tissue_env.ENV_IDS)
@@ -193,8 +193,8 @@ def test_stacked_copies_each_their_material_equal_the_single_models():
     copies' (assign), the stacked force pass and tangent equal each single model's bit for bit, on
     one thread and on two (kernels.stress_correction_*_copies), and BatchedImplicitEuler (every
     solver) settles each copy on its own static equilibrium to 1e-6 of the sag."""
-    from sim_core.batched import SOLVERS, BatchedImplicitEuler
-    from sim_core.model import Control, State
+    from sim_core.solvers.batched import SOLVERS, BatchedImplicitEuler
+    from sim_core.models.model import Control, State
 
     mesh = HexMesh.block((3, 2, 3), 0.01)
     models = [build_model(mesh, Material(e, nu, 1060.0), model=MODEL, gravity=(0.0, -9.81, 0.0))

@@ -13,8 +13,8 @@ import scipy.sparse.linalg as spla
 from scipy.interpolate import RegularGridInterpolator
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.hyperelastic import NeoHookeanFEM
-from sim_core.model import Control
+from sim_core.solvers.hyperelastic import NeoHookeanFEM
+from sim_core.models.model import Control
 
 MODEL = "baudet-hyperelastic"
 E, RHO = 1e4, 1500.0

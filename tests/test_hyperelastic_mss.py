@@ -1,6 +1,6 @@
 """baudet-hyperelastic (docs/physics.md section 11): springs plus a finite-strain stress correction on
 each element's mean deformation gradient, against the compressible neo-Hookean law
-(``sim_core.hyperelastic``) and its FEM on the same nodes (fem-neohookean). Each test states the
+(``sim_core.solvers.hyperelastic``) and its FEM on the same nodes (fem-neohookean). Each test states the
 tolerance it proves; the references are the law itself and the FEM, neither tuned to this model.
 """
 
@@ -12,11 +12,11 @@ import pytest
 from sim_core import HexMesh, Material, build_model
 from sim_core.experiments import (MODELS, elongation, elongation_control, flexion, indentation, position_errors, shear,
                                   tool_patch)
-from sim_core.forces import internal_forces, internal_forces_reference, stiffness_data
-from sim_core.hyperelastic import first_piola_stress, lame_parameters
-from sim_core.model import MSS_MODELS, Control
-from sim_core.static import lowest_eigenvalue, solve_static, tangent_stiffness, zero_energy_modes
-from sim_core.stress_correction import mean_gradients
+from sim_core.models.forces import internal_forces, internal_forces_reference, stiffness_data
+from sim_core.solvers.hyperelastic import first_piola_stress, lame_parameters
+from sim_core.models.model import MSS_MODELS, Control
+from sim_core.solvers.static import lowest_eigenvalue, solve_static, tangent_stiffness, zero_energy_modes
+from sim_core.models.stress_correction import mean_gradients
 
 MODEL = "baudet-hyperelastic"
 E = 1e4
@@ -238,8 +238,8 @@ def test_quasi_static_steps_it_and_the_compiled_force_pass_equals_the_reference(
     """QuasiStatic steps it to an equilibrium (relative residual < 1e-6); the compiled force pass the
     explicit steps use equals the numpy reference to 1e-10 E h^2. (ImplicitEuler and ModelStack step
     it too: tests/test_hyperelastic_dynamics.py.)"""
-    from sim_core.forces import ForceWorkspace
-    from sim_core.static import QuasiStatic
+    from sim_core.models.forces import ForceWorkspace
+    from sim_core.solvers.static import QuasiStatic
 
     mesh = HexMesh.block((3, 2, 2), 0.1)
     model = build_model(mesh, Material(E, 0.45, 1000.0), model=MODEL, gravity=(0.0, -1.0, 0.0))

@@ -6,11 +6,11 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from sim_core import kernels
-from sim_core.forces import ForceWorkspace, internal_forces, internal_forces_reference, spring_state, stiffness_data
-from sim_core.integrators import ImplicitEuler, run
-from sim_core.material import Material
-from sim_core.mesh import HexMesh
-from sim_core.model import build_model
+from sim_core.models.forces import ForceWorkspace, internal_forces, internal_forces_reference, spring_state, stiffness_data
+from sim_core.solvers.integrators import ImplicitEuler, run
+from sim_core.models.material import Material
+from sim_core.geometry.mesh import HexMesh
+from sim_core.models.model import build_model
 
 VARIANTS = [dict(), dict(hourglass_control=0.5), dict(model="baudet-original"), dict(corrections=False),
             dict(volume_stiffness=100.0)]

@@ -112,7 +112,7 @@ def test_a_model_is_measured_with_its_derived_data(budget):
     """A model's bytes include the data the solvers derive from it (here a static solve's); a
     factor cache's bytes are its factors'."""
     from sim_core import HexMesh, Material, build_model, solve_static
-    from sim_core.static import FactorCache
+    from sim_core.solvers.static import FactorCache
 
     mesh = HexMesh.block((4, 4, 4), 0.01)
     model = build_model(mesh, Material(5e3, 0.45, 1000.0), gravity=(0, -9.81, 0))

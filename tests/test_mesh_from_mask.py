@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.mesh import corner_jacobians, downsample, fill_non_manifold, non_manifold_voxels, voxel_factor
+from sim_core.geometry.mesh import corner_jacobians, downsample, fill_non_manifold, non_manifold_voxels, voxel_factor
 
 
 def ball(n, radius):

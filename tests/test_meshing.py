@@ -1,9 +1,9 @@
-"""sim_core.meshing: isosurfaces, closed-surface checks, surface files and tetrahedralisation."""
+"""sim_core.geometry.meshing: isosurfaces, closed-surface checks, surface files and tetrahedralisation."""
 
 import numpy as np
 import pytest
 
-from sim_core.meshing import (
+from sim_core.geometry.meshing import (
     check_closed, enclosed_volume, isosurface, read_surface, tet_quality, tet_volumes, tetrahedralise,
 )
 
@@ -152,7 +152,7 @@ def test_icosphere_tetrahedralises_with_positive_tetrahedra():
 def test_phantom_lobe_surface_tetrahedralises():
     """The liver phantom's outer surface (marching tetrahedra at 4 mm, thin rims included)."""
     pytest.importorskip("pytetwild", reason="the mesh extra (pytetwild) is not installed")
-    from sim_core.phantoms import liver_lobe
+    from sim_core.models.phantoms import liver_lobe
 
     phantom = liver_lobe(0.004)
     vertices, faces = phantom.surface()
@@ -182,7 +182,7 @@ def test_tet_mesh_from_a_surface_file_passes_the_patch_test(tmp_path, model):
     import meshio
 
     from sim_core import Material, TetMesh, build_model, solve_static
-    from sim_core.model import Control
+    from sim_core.models.model import Control
 
     vertices, faces = icosphere(2)
     path = tmp_path / "sphere.stl"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim_core.mesh import HexMesh
+from sim_core.geometry.mesh import HexMesh
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "peers.py"
 _spec = importlib.util.spec_from_file_location("peers_benchmark", _PATH)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sim_core import Material, build_model, solve_static
-from sim_core.meshing import check_closed, enclosed_volume
-from sim_core.phantoms import LIVER_MATERIALS, PARENCHYMA, TUMOUR, VESSEL, LiverLobe, liver_lobe
+from sim_core.geometry.meshing import check_closed, enclosed_volume
+from sim_core.models.phantoms import LIVER_MATERIALS, PARENCHYMA, TUMOUR, VESSEL, LiverLobe, liver_lobe
 
 SPHERE = 4 / 3 * np.pi * 0.0075**3  # the default tumour's volume, m^3
 

@@ -9,9 +9,9 @@ import scipy.sparse.linalg as spla
 
 from sim_core import HexMesh, Material, build_model, kernels
 from sim_core.studies.bench import tumor_block
-from sim_core.forces import ForceWorkspace
-from sim_core.integrators import ImplicitEuler, make_integrator, run
-from sim_core.preconditioners import FreeStructure
+from sim_core.models.forces import ForceWorkspace
+from sim_core.solvers.integrators import ImplicitEuler, make_integrator, run
+from sim_core.solvers.preconditioners import FreeStructure
 
 
 def stiff_scene(shape=(6, 6, 6)):
@@ -152,7 +152,7 @@ def test_a_moving_contact_keeps_the_factor_exact_through_its_capacitance_correct
     kept.simulate(model, state, state.copy(), 0.04, model.new_control().impose(bottom, nodes[bottom]))
     for step in range(1, 6):
         out, fresh_out = state.copy(), state.copy()
-        # ImplicitEuler has no public way to drop its warm start (sim_core.integrators)
+        # ImplicitEuler has no public way to drop its warm start (sim_core.solvers.integrators)
         kept._warm = kept._warm_old = None  # the same start as a fresh integrator's
         report = kept.simulate(model, state, out, 0.04, contact(step))
         fresh = ImplicitEuler(preconditioner="factorised", tolerance=1e-8)
@@ -167,7 +167,8 @@ def test_a_cheap_factor_is_renewed_after_a_large_contact_change_an_expensive_one
     like Retraction's) is made again when a contact imposes more than 1% of its dofs, where a
     fresh factor beats a kept one the state has moved from; the 6^3 block's (about 12.7) is kept
     and corrected (test above). Both steps are solved to the tolerance."""
-    from sim_core import integrators, preconditioners
+    from sim_core.solvers import integrators
+    from sim_core.solvers import preconditioners
 
     made = []  # the factors the integrator builds: their public ``cost`` is the estimate
 
@@ -227,7 +228,7 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
     second factorisation of the same pattern reuses the structure and gives the same factor. Its
     symmetric form (LDL^T, half the values) inverts the matrix's symmetric part (A + A^T) / 2 to
     1e-12, through the one- and the several-right-hand-side substitutions."""
-    from sim_core.sparse import NodeBlockLU
+    from sim_core.models.sparse import NodeBlockLU
 
     model, _, patch = stiff_scene(shape)
     n_dofs = 3 * model.n_nodes
@@ -291,12 +292,12 @@ def test_node_block_lu_solves_the_free_dof_system(shape, imposed_y, symmetric):
 def test_factorised_preconditioner_uses_the_node_block_lu():
     """ImplicitEuler's factor is the node-block LU on this scene (whole nodes imposed) and gives
     the scalar SuperLU factor's trajectory to the solver tolerance."""
-    import sim_core.preconditioners as preconditioners
+    import sim_core.solvers.preconditioners as preconditioners
 
     model, control, _ = stiff_scene((4, 4, 4))
     # which factors the steps make: each Factor the integrator builds is recorded, and its public
     # ``block`` (node-block LU) or ``lu`` (SuperLU) says which
-    from sim_core import integrators
+    from sim_core.solvers import integrators
 
     made = []
 
@@ -334,7 +335,7 @@ def test_krylov_scales_its_guess_to_the_least_residual(symmetric):
     """The single envs' preconditioned solve (``krylov_solve``, BiCGSTAB or CG) starts from the guess scaled
     by the factor that minimises ||b - a A x0||: a multiple of the solution (3 x, -2 x) starts
     converged (0 iterations, exact to rounding); unscaled it needed iterations (checked)."""
-    from sim_core.krylov import krylov_solve
+    from sim_core.solvers.krylov import krylov_solve
 
     class Identity:  # no preconditioner
         def apply(self, vector, out):
@@ -364,7 +365,7 @@ def test_factor_store_serves_only_the_matrix_the_step_would_factorise():
     """A FactorStore at the start state: a second integrator takes the first one's factorisation
     at that state (same imposed set) instead of factorising, and its steps are bitwise those of an
     integrator without the store; another imposed set, or a step at other positions, factorises."""
-    from sim_core.preconditioners import FactorStore
+    from sim_core.solvers.preconditioners import FactorStore
     model, control, _ = stiff_scene((4, 4, 4))
     store = FactorStore(model, model.new_state().positions)
     first = ImplicitEuler(preconditioner="factorised")

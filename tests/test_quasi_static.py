@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 import tissue_env  # noqa: F401  (registers the tasks)
-from sim_core import HexMesh, Material, build_model, contact
-from sim_core.forces import external_forces, internal_forces
-from sim_core.integrators import make_integrator
-from sim_core.model import State
+from sim_core import HexMesh, Material, build_model
+from sim_core.solvers import contact
+from sim_core.models.forces import external_forces, internal_forces
+from sim_core.solvers.integrators import make_integrator
+from sim_core.models.model import State
 from sim_core.resolution import dynamic_scene, solve_scene
-from sim_core.static import QuasiStatic
+from sim_core.solvers.static import QuasiStatic
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.env_accuracy import env_defaults, palpation_scenes  # noqa: E402
@@ -113,7 +114,7 @@ def test_state_velocities_zero_make_damping_vanish():
 
 
 def test_kept_tangent_saves_factorisations_not_accuracy(monkeypatch):
-    from sim_core import static
+    from sim_core.solvers import static
 
     mesh = HexMesh.block((4, 4, 4), spacing=0.01)
     model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0)

@@ -21,7 +21,7 @@ def test_reset_speed_counts_goal_solves_and_restores_the_solvers(tmp_path, monke
     import scipy.sparse.linalg as spla
 
     # the benchmark counts factorisations by patching static._factorise, which has no public
-    # stand-in in sim_core.static: the test checks that it is restored
+    # stand-in in sim_core.solvers.static: the test checks that it is restored
     solve, factorise = tumor_positioning.solve_static, static._factorise
     seeds = 3
     row = reset_speed.measure("tissue_env/TumorPositioning-v0", seeds)

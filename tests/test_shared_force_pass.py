@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import tissue_env  # noqa: F401  (registers the tasks)
-from sim_core.forces import ForceWorkspace, external_forces
-from sim_core.stack import StackedForceWorkspace
+from sim_core.models.forces import ForceWorkspace, external_forces
+from sim_core.models.stack import StackedForceWorkspace
 
 
 @pytest.mark.parametrize("task", ["TumorPositioning", "Palpation", "Retraction"])
@@ -40,8 +40,8 @@ def test_one_force_pass_per_step_and_same_measures(task, monkeypatch):
 
 def test_linearise_is_reused_only_at_the_same_positions_and_model():
     from sim_core import HexMesh, Material, build_model
-    from sim_core.integrators import ImplicitEuler
-    from sim_core.model import State
+    from sim_core.solvers.integrators import ImplicitEuler
+    from sim_core.models.model import State
 
     mesh = HexMesh.block((3, 3, 3), spacing=0.01)
     model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model
-from sim_core.forces import stiffness_data
+from sim_core.models.forces import stiffness_data
 
 
 def linear_uniaxial(model, axis):
@@ -71,7 +71,7 @@ def test_without_corrections_springs_obey_cauchy(nu):
 
 def test_cube_closed_forms():
     """k_edge = E l (4nu+1) / (8(1+nu)), k_d = 3 E l / (8(1+nu)), C = -(4nu-1)/2 (docs/physics.md 2-3)."""
-    from sim_core.model import baudet_stiffness, correction_coefficients
+    from sim_core.models.model import baudet_stiffness, correction_coefficients
 
     young, nu, length = 2e4, 0.35, 0.05
     edge, diagonal = baudet_stiffness(np.full((1, 3), length), np.array([young]), np.array([nu]))

@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import speed_accuracy as sa  # noqa: E402
 from sim_core import Material  # noqa: E402
-from sim_core.hyperelastic import NeoHookeanFEM, material_tangent  # noqa: E402
+from sim_core.solvers.hyperelastic import NeoHookeanFEM, material_tangent  # noqa: E402
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5])
@@ -152,9 +152,9 @@ def test_capped_solves_do_not_extrapolate_the_warm_start():
 
 
 def test_warm_start_extrapolates_only_after_converged_solves():
-    from sim_core.integrators import ImplicitEuler
-    from sim_core.mesh import HexMesh
-    from sim_core.model import State, build_model
+    from sim_core.solvers.integrators import ImplicitEuler
+    from sim_core.geometry.mesh import HexMesh
+    from sim_core.models.model import State, build_model
 
     mesh = HexMesh.block((3, 3, 3), 0.01)
     model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0))

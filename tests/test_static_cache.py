@@ -9,7 +9,7 @@ import pytest
 
 import tissue_env  # noqa: F401  (registers the ids)
 from sim_core import solve_static
-from sim_core.static import FactorCache
+from sim_core.solvers.static import FactorCache
 from tissue_env.tumor_positioning import GOAL_SOLVER
 
 
@@ -102,7 +102,7 @@ def test_a_failing_goal_retry_gives_up_without_damping_towards_gradient_steps(mo
     fails factorise at most 16 times per goal direction (seed 60: 11, 23 with the escalation).
     Seeds 43 and 72 left their first goals 1.3 and 1.8 mm from the tumour, within success_distance
     (a success at reset): they draw more directions (3 and 2; 27 and 16 factorisations)."""
-    from sim_core import static
+    from sim_core.solvers import static
 
     env = gym.make("tissue_env/TumorPositioning-v0").unwrapped
     env.reset(seed=0)
@@ -127,8 +127,8 @@ def test_compiled_tangent_is_the_numpy_tangent():
     """``static.tangent_stiffness`` (the compiled assembly of the implicit step, geometric term not
     clamped) equals ``forces.stiffness_data`` (numpy) to 1e-12 at a deformed state with compressed
     springs, for the full model (projected corrections, volume forces, hourglass control)."""
-    from sim_core.forces import stiffness_data
-    from sim_core.static import tangent_stiffness
+    from sim_core.models.forces import stiffness_data
+    from sim_core.solvers.static import tangent_stiffness
 
     env, control, start = _goal_problem((0.004, -0.01, 0.006), model="baudet")
     result = solve_static(env.model, control, initial=start, tolerance=1e-6)

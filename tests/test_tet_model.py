@@ -12,14 +12,14 @@ from skfem.models.elasticity import lame_parameters as skfem_lame
 from skfem.models.elasticity import linear_elasticity
 
 from sim_core import HexMesh, Material, State, TetMesh, build_model, solve_static
-from sim_core.fem import LinearFEM
-from sim_core.forces import internal_forces, stiffness_data
-from sim_core.hyperelastic import NeoHookeanFEM
-from sim_core.integrators import ImplicitEuler, SymplecticEuler, stable_time_step
-from sim_core.model import Control
-from sim_core.batched import BatchedImplicitEuler
-from sim_core.stack import ModelStack
-from sim_core.static import tangent_stiffness, zero_energy_modes
+from sim_core.solvers.fem import LinearFEM
+from sim_core.models.forces import internal_forces, stiffness_data
+from sim_core.solvers.hyperelastic import NeoHookeanFEM
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step
+from sim_core.models.model import Control
+from sim_core.solvers.batched import BatchedImplicitEuler
+from sim_core.models.stack import ModelStack
+from sim_core.solvers.static import tangent_stiffness, zero_energy_modes
 from sim_core.studies import experiments
 
 E, RHO = 1e4, 1000.0

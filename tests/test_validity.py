@@ -1,4 +1,4 @@
-"""The validity monitor (``sim_core.validity``): a state outside the model's validated range is
+"""The validity monitor (``sim_core.models.validity``): a state outside the model's validated range is
 flagged in every info, never silent; a reset that cannot start a meaningful episode raises; an
 observation entry beyond its bound is flagged, and none is at the defaults."""
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import tissue_env
-from sim_core.validity import VALIDATED_STRAIN, ValidityRange, out_of_range
+from sim_core.models.validity import VALIDATED_STRAIN, ValidityRange, out_of_range
 
 ENV_IDS = sorted(tissue_env.ENV_IDS)
 

@@ -9,8 +9,8 @@ single env is the one-world case (``reset`` loads the episode into its one world
 ``tumor_positioning.py`` for the smallest example. SI units throughout (m, kg, s, Pa, N).
 
 Physics per env step (its cost: ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
-Euler steps of ``dt`` s (``sim_core.batched.BatchedImplicitEuler``, the discrete equation of
-``sim_core.integrators.ImplicitEuler``). It is stable far past the explicit limit (about 1 ms for
+Euler steps of ``dt`` s (``sim_core.solvers.batched.BatchedImplicitEuler``, the discrete equation of
+``sim_core.solvers.integrators.ImplicitEuler``). It is stable far past the explicit limit (about 1 ms for
 1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms for
 TumorPositioning and Palpation) per env step is enough, and with the springs' critical damping the
 block settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
@@ -37,9 +37,9 @@ import numpy as np
 from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.batched import SOLVERS
+from sim_core.solvers.batched import SOLVERS
 from sim_core.caches import BudgetCache
-from sim_core.model import Control, State
+from sim_core.models.model import Control, State
 
 from .camera import VISUAL_TYPES, Camera, CameraView
 from .rendering import Renderer
@@ -61,7 +61,7 @@ MODELS = ("baudet", "baudet-hyperelastic")
 #: modes, its ln J pressure holds the volume).
 MODEL_DEFAULTS = {"baudet": (1.0, 100.0), "baudet-hyperelastic": (None, None)}
 #: The implicit step's linear solvers: "auto" (the task's, ``TaskWorlds.linear_solver``) or one of
-#: ``sim_core.batched.SOLVERS``.
+#: ``sim_core.solvers.batched.SOLVERS``.
 PRECONDITIONERS = ("auto",) + SOLVERS
 MODEL_CACHE_SIZE = 16
 #: the model's derived-data entry holding an env's start positions (its equilibrium under gravity)
@@ -293,7 +293,7 @@ class TissueEnv(gym.Env):
         shape: (nx, ny, nz) hexahedra of the block.
         size: (Lx, Ly, Lz) block extent in m (a float gives a cube).
         integrator: "implicit" (default, linearised implicit Euler), "static" (a static equilibrium
-            per env step, ``sim_core.static.QuasiStatic``, with a contact's active set iterated
+            per env step, ``sim_core.solvers.static.QuasiStatic``, with a contact's active set iterated
             to convergence within the step: observations without the dynamic lag, those of the
             static scene at every tool position, at several times the cost of an implicit step) or
             "explicit" (symplectic Euler, needs dt below about 1 ms; for experiments on stability).
@@ -304,7 +304,7 @@ class TissueEnv(gym.Env):
             ``build_model``: docs/physics.md section 11, compressible neo-Hookean at every strain,
             objective, no hourglass control or volume forces); None (default): the task's
             ``default_model``. "baudet" refuses box-shaped elements (its shear modulus is exact
-            for cubes only: ``sim_core.model.MAX_SHEAR_ERROR``); "baudet-hyperelastic" takes any box.
+            for cubes only: ``sim_core.models.model.MAX_SHEAR_ERROR``); "baudet-hyperelastic" takes any box.
         hourglass_control: sim_core's hourglass stabilisation alpha (default 1 for "baudet"; does
             not apply to "baudet-hyperelastic": None or 0 only).
         volume_stiffness: multiplier of sim_core's volume-force stiffness kappa = K V0^(2/3)
@@ -349,7 +349,7 @@ class TissueEnv(gym.Env):
         solver_tolerance: relative residual of the implicit integrator's linear solve (the task's
             ``default_solver_tolerance``: 1e-4, fewer iterations than 1e-6 with positions within
             0.01 mm of the 1e-6 run; TumorPositioning and Palpation 1e-2, see their docstrings).
-        preconditioner: the implicit step's linear solver (``sim_core.batched.BatchedImplicitEuler``):
+        preconditioner: the implicit step's linear solver (``sim_core.solvers.batched.BatchedImplicitEuler``):
             "auto" (default: the task's, ``linear_solver`` of its ``TaskWorlds``), "factorised"
             (each world's sparse factor of its system matrix, kept across steps and refreshed when
             its solves slow down), "reference" (the factor of the episode's start matrix) or

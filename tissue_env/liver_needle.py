@@ -1,13 +1,13 @@
 """LiverNeedleAlignment-v0: bring a liver tumour onto a planned needle path by moving a grasped patch
-of the organ's surface (the first task on an organ mesh, ``sim_core.phantoms.liver_lobe``)."""
+of the organ's surface (the first task on an organ mesh, ``sim_core.models.phantoms.liver_lobe``)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from sim_core import HexMesh, Material
-from sim_core.phantoms import PARENCHYMA, TUMOUR, VESSEL, liver_lobe
-from sim_core.model import Control
+from sim_core.models.phantoms import PARENCHYMA, TUMOUR, VESSEL, liver_lobe
+from sim_core.models.model import Control
 
 from .base import check_range, check_work, positive_scalar
 from .tumor_positioning import TumorPositioningEnv, TumorPositioningWorlds, square_patch, trilinear_weights
@@ -76,14 +76,14 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     """
     ## Description
 
-    The tip of a liver lobe (``sim_core.phantoms.liver_lobe``: a smooth, tapered, curved lobe in an
+    The tip of a liver lobe (``sim_core.models.phantoms.liver_lobe``: a smooth, tapered, curved lobe in an
     8 x 4 x 6.4 cm box with a spherical tumour of ``tumor_radius`` = 1 cm in its thick part and a
     vessel of 3 mm radius through its thin part) is meshed from its label volume
     (``HexMesh.from_mask``: one hexahedron per voxel of a ``shape`` = (10, 5, 8) voxel grid over the
     box, 8 mm cubes: 203 hexahedra, 360 nodes, 10 of them tumour and 4 vessel voxels), with
     per-element materials from the labels: parenchyma ``young_modulus``, tumour and vessel
     ``tumor_stiffness_ratio`` = 4 and ``vessel_stiffness_ratio`` = 20 times stiffer (the phantom's
-    20 kPa and 100 kPa at the default 5 kPa; ``sim_core.phantoms`` gives the sources). The lobe is
+    20 kPa and 100 kPa at the default 5 kPa; ``sim_core.models.phantoms`` gives the sources). The lobe is
     attached to the body along the visceral (lower) surface of its thick end (``attachment``: the
     downward-facing surface nodes with x <= 0.3 Lx, where the tip continues into the liver towards
     the hilum); its anterior free edge hangs under gravity. A tool
@@ -292,7 +292,7 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
                              f"{tuple(self.randomised_parameters.values())}")
         if "tumor_region" in kwargs:
             raise ValueError("tumor_region does not apply to LiverNeedleAlignment: the tumour is the phantom's "
-                             "labelled inclusion (sim_core.phantoms.LiverLobe's tumour_centre)")
+                             "labelled inclusion (sim_core.models.phantoms.LiverLobe's tumour_centre)")
         self.tumor_radius = positive_scalar("tumor_radius", tumor_radius, "m")
         self.tumor_stiffness_ratio = positive_scalar("tumor_stiffness_ratio", tumor_stiffness_ratio)
         self.vessel_stiffness_ratio = positive_scalar("vessel_stiffness_ratio", vessel_stiffness_ratio)

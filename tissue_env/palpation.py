@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import Material
-from sim_core import contact, kernels
+from sim_core import kernels
+from sim_core.solvers import contact
 
 from .base import (TissueEnv, check_range, check_region, check_vector, check_vector_range, difficulty_settings,
                    nonnegative_scalar, positive_scalar)
@@ -132,7 +133,7 @@ class PalpationWorlds(TaskWorlds):
         return self.probe_start + self.tool_offset
 
     def _control(self, rows=None):
-        """The attached bottom face and the probe contact (``sim_core.contact``): the top nodes on
+        """The attached bottom face and the probe contact (``sim_core.solvers.contact``): the top nodes on
         or under the probe's surface have their height imposed on it (frictionless: x and z stay
         free), so the implicit step solves with the contact in place; a node the tissue pulls away
         from the probe (net force on it downward, measured at the current state) is released."""
@@ -253,7 +254,7 @@ class PalpationEnv(TissueEnv):
     is E (1 + (ratio - 1) f), f the share of its volume inside the box (the inclusion's stiff volume
     is the box's at every shape, wherever the nodes fall). A probe with a hemispherical end of radius
     ``probe_radius`` (default 9 mm; ``probe_tip="flat"``: a flat-ended cylinder) indents the top
-    surface with a frictionless contact (``sim_core.contact``, an active set inside the implicit
+    surface with a frictionless contact (``sim_core.solvers.contact``, an active set inside the implicit
     step): the probe's indentation of the start surface (the slab at equilibrium under gravity)
     is projected on the top nodes' bilinear basis functions (``probe_sampling="projected"``: each
     node is bounded by the hat-weighted average of the probe's surface over the faces around it,
@@ -522,7 +523,7 @@ class PalpationEnv(TissueEnv):
         if probe_sampling not in contact.SAMPLINGS:
             raise ValueError(f"probe_sampling must be one of {contact.SAMPLINGS}, got {probe_sampling!r}")
         self.probe_sampling = probe_sampling
-        #: the probe as a contact obstacle (``sim_core.contact.Probe``; projected on the mesh's top
+        #: the probe as a contact obstacle (``sim_core.solvers.contact.Probe``; projected on the mesh's top
         #: face in ``_setup_scene``)
         self.probe = contact.Probe(self.probe_radius, probe_tip)
         self.inclusion_size = check_vector("inclusion_size", inclusion_size)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import solve_static
-from sim_core.static import FactorCache
-from sim_core.mesh import LOCAL_CORNERS
+from sim_core.solvers.static import FactorCache
+from sim_core.geometry.mesh import LOCAL_CORNERS
 
 from .base import (TissueEnv, check_range, check_region, check_vector, difficulty_settings, nonnegative_scalar,
                    positive_scalar)
@@ -51,7 +51,7 @@ class TumorPositioningWorlds(TaskWorlds):
     # factors kept up to date (solver "factorised") and saves their factorisations: the tool moves
     # the tissue only a few millimetres from the start. Solved in lockstep chunks, each pass over
     # the shared factor and hourglass matrix serves all of a chunk's running worlds
-    # (``sim_core.batched._solve_shared``; benchmarks/vector_env_speed.py and the performance page).
+    # (``sim_core.solvers.batched._solve_shared``; benchmarks/vector_env_speed.py and the performance page).
     # The measurement's force pass is the next step's (the reaction force only reads it).
     linear_solver = "reference"
     share_force_pass = True

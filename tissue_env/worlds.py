@@ -1,8 +1,8 @@
 """A task's N worlds: the one implementation of an env step, on arrays over worlds.
 
 A ``TaskWorlds`` holds N worlds of one task (a tissue block, a tool and the task's episode data
-per world) as one stacked sim_core model (``sim_core.stack.ModelStack``) stepped by one N-world
-solver (``sim_core.worlds.make_worlds_solver``). Its ``step`` is the whole env step of every world:
+per world) as one stacked sim_core model (``sim_core.models.stack.ModelStack``) stepped by one N-world
+solver (``sim_core.solvers.worlds.make_worlds_solver``). Its ``step`` is the whole env step of every world:
 the tool's move, the task's control, the physics with its divergence checks, the measurements, the
 task's bookkeeping, rewards, success, observations and infos, each written once, on arrays whose
 first axis is the world. The single environment (``TissueEnv``) is its one-world case and the
@@ -24,12 +24,12 @@ from collections import OrderedDict
 import numpy as np
 
 from sim_core import kernels
-from sim_core.batched import BatchedImplicitEuler
-from sim_core.model import Control, State
-from sim_core.stack import ModelStack, StackedForceWorkspace
-from sim_core.static import STATIC_CONTACT_PASSES, same_contacts
-from sim_core.validity import ValidityRange, out_of_range
-from sim_core.worlds import make_worlds_solver
+from sim_core.solvers.batched import BatchedImplicitEuler
+from sim_core.models.model import Control, State
+from sim_core.models.stack import ModelStack, StackedForceWorkspace
+from sim_core.solvers.static import STATIC_CONTACT_PASSES, same_contacts
+from sim_core.models.validity import ValidityRange, out_of_range
+from sim_core.solvers.worlds import make_worlds_solver
 
 from .camera import VISUAL_TYPES
 
@@ -116,7 +116,7 @@ class TaskWorlds:
             worlds are independent: any count gives the same floats.
     """
 
-    #: How the implicit step solves each world's linear system (``sim_core.batched``):
+    #: How the implicit step solves each world's linear system (``sim_core.solvers.batched``):
     #: "factorised" (each world's sparse factor kept across steps), "reference" (the factor of the
     #: start-of-episode system matrix, shared by the worlds that start alike) or "jacobi". A task
     #: env's ``preconditioner="auto"`` takes this one.
@@ -130,7 +130,7 @@ class TaskWorlds:
     #: fast and factorises cheaply, e.g. Retraction)
     refactor_amortise = None
 
-    #: The state range in which the model's accuracy is validated (``sim_core.validity``): a step
+    #: The state range in which the model's accuracy is validated (``sim_core.models.validity``): a step
     #: whose state leaves it has ``info["out_of_range"]`` True and the reason in
     #: ``info["out_of_range_reason"]``.
     validity = ValidityRange()
@@ -384,7 +384,7 @@ class TaskWorlds:
         projects the nodes that went through the obstacle (``_after_substep``) and re-forms its
         control at the new state (``_control``: nodes the tissue pulls away are released, held
         heights follow the nodes' sliding), and the worlds whose imposed set or heights changed
-        (``sim_core.static.same_contacts``) are solved again, at most STATIC_CONTACT_PASSES times,
+        (``sim_core.solvers.static.same_contacts``) are solved again, at most STATIC_CONTACT_PASSES times,
         so the state is the equilibrium of the contact problem at the tool's position. The
         implicit integrator updates the set once per step: the dynamics carry it along."""
         count = self.num_envs

@@ -3,7 +3,7 @@
 Each kernel is a plain loop over springs or elements compiled once (``cache=True`` keeps the
 machine code between runs). The serial kernels release the GIL (``nogil=True``): Python threads
 run them at once (the vector envs reset their copies on several threads, whose static solves call
-them; a kernel only writes the arrays it is given). The numpy formulation in ``sim_core.forces`` is
+them; a kernel only writes the arrays it is given). The numpy formulation in ``sim_core.models.forces`` is
 the readable reference the tests compare these kernels with. SI units.
 
 The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``vectors`` (3-vectors as tuples,
@@ -17,7 +17,7 @@ sparse factors), ``contact`` (the probe's projected surface), ``geometry`` (poin
 seen from above). Every public name is re-exported here: ``kernels.model_forces(...)``.
 
 numba checks a cached kernel against the file that defines it only: a kernel that calls (or
-inlines) a function of another module, or reads a constant of ``sim_core.topology``, would keep its
+inlines) a function of another module, or reads a constant of ``sim_core.geometry.topology``, would keep its
 cached machine code when only that other file changes. So the package drops its whole cache when
 the source of any kernel module or of the topology changed since the cache was written
 (``drop_stale_cache``, at import, before any kernel is compiled or loaded), as a single file of
@@ -30,7 +30,7 @@ import tempfile
 from pathlib import Path
 
 #: the sources a kernel's machine code depends on
-SOURCES = sorted(Path(__file__).parent.glob("*.py")) + [Path(__file__).parent.parent / "topology.py"]
+SOURCES = sorted(Path(__file__).parent.glob("*.py")) + [Path(__file__).parent.parent / "geometry" / "topology.py"]
 STAMP = "kernel-sources.blake2b"
 
 

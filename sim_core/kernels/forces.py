@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..topology import EDGES
+from ..geometry.topology import EDGES
 from .fastmath import FAST
 from .measure import corner_differences, trilinear_volume
 from .vectors import add, cross, norm, row, sub
@@ -172,12 +172,12 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
         flat = forces.reshape(-1)
         x = positions.reshape(-1)
         rest = rest_positions.reshape(-1)
-        for row in range(hg_indptr.shape[0] - 1):
+        for dof in range(hg_indptr.shape[0] - 1):
             total = 0.0
-            for k in range(hg_indptr[row], hg_indptr[row + 1]):
+            for k in range(hg_indptr[dof], hg_indptr[dof + 1]):
                 col = hg_indices[k]
                 total += hg_data[k] * (x[col] - rest[col])
-            flat[row] -= total
+            flat[dof] -= total
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..topology import EDGES
+from ..geometry.topology import EDGES
 from .fastmath import FAST, FAST_REDUCE
 from .stress import add_outer
 
@@ -360,7 +360,7 @@ def operator_matrix_data_blocks(data, scales, spring_positions, element_position
                         out[element_positions[m, k, n, i, j]] += r0 * q[n, 0, j] + r1 * q[n, 1, j] + r2 * q[n, 2, j]
 
 
-# -- batched copies (sim_core.batched): N copies of one block, copy index last ------------------------
+# -- batched copies (sim_core.solvers.batched): N copies of one block, copy index last ------------------------
 # Every per-copy array has the copy as its last axis ((S, N), (S, 3, N), (3 n, N) ...), so each loop over
 # springs, elements or hourglass entries reads its indices once for all N copies (the inner loop over
 # copies is contiguous). Same formulas as ``spring_operator`` / ``solve_springs``.

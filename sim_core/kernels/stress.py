@@ -2,7 +2,7 @@
 element, f_a = -V0 (P_NH(F) - P_S(F)) b_a with F the element's mean deformation gradient, and its
 stiffness, the 9 x 9 matrix T = V0 (A_NH(F) - A_S(F)) on the entries of F (the element block is
 K_e = B^T T B, B the map from the element's nodal displacements to F), for the implicit step. The
-numpy reference is ``sim_core.stress_correction.element_forces`` / ``tangent_matrices``.
+numpy reference is ``sim_core.models.stress_correction.element_forces`` / ``tangent_matrices``.
 
 The passes take the elements ``LANES`` at a time, one lane per element: every per-element quantity of
 a block (F, its cofactor, the stress, the 81 entries of T, ...) is a row of a (., LANES) scratch

@@ -17,10 +17,10 @@ import time
 import numpy as np
 
 from .. import kernels
-from ..integrators import ImplicitEuler, SymplecticEuler, run
-from ..material import Material
-from ..mesh import HexMesh
-from ..model import build_model
+from ..solvers.integrators import ImplicitEuler, SymplecticEuler, run
+from ..models.material import Material
+from ..geometry.mesh import HexMesh
+from ..models.model import build_model
 from .experiments import shear
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..mesh import HexMesh
+from ..geometry.mesh import HexMesh
 from . import experiments
 from .bench import measure
 

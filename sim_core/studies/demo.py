@@ -16,10 +16,10 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..files import atomic_write, save_figure
-from ..integrators import stable_time_step
-from ..material import Material
-from ..mesh import HexMesh
-from ..model import build_model
+from ..solvers.integrators import stable_time_step
+from ..models.material import Material
+from ..geometry.mesh import HexMesh
+from ..models.model import build_model
 from .experiments import elongation, flexion, position_errors, shear
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -25,16 +25,16 @@ import numpy as np
 import scipy.sparse.linalg as spla
 
 from .._validate import finite_array
-from ..fem import LinearFEM
-from ..forces import stiffness_data
-from ..hyperelastic import NeoHookeanFEM
-from ..integrators import ImplicitEuler
-from ..material import Material
-from ..mesh import HexMesh
-from ..model import MSS_MODELS, Control, State, build_model, hourglass_projectors
-from ..tetmesh import TetMesh
-from ..static import solve_static, zero_energy_modes
-from ..validity import VALIDATED_SHEAR_DEG, VALIDATED_STRAIN  # noqa: F401  (public names here too)
+from ..solvers.fem import LinearFEM
+from ..models.forces import stiffness_data
+from ..solvers.hyperelastic import NeoHookeanFEM
+from ..solvers.integrators import ImplicitEuler
+from ..models.material import Material
+from ..geometry.mesh import HexMesh
+from ..models.model import MSS_MODELS, Control, State, build_model, hourglass_projectors
+from ..geometry.tetmesh import TetMesh
+from ..solvers.static import solve_static, zero_energy_modes
+from ..models.validity import VALIDATED_SHEAR_DEG, VALIDATED_STRAIN  # noqa: F401  (public names here too)
 
 FEM_MODELS = ("fem-linear", "fem-neohookean")
 MODELS = MSS_MODELS + FEM_MODELS

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import contact as contact_
-from ..material import Material
-from ..mesh import LOCAL_CORNERS, HexMesh
+from ..solvers import contact as contact_
+from ..models.material import Material
+from ..geometry.mesh import LOCAL_CORNERS, HexMesh
 from .checks import check_scalar, check_vector
 
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
@@ -43,12 +43,12 @@ class Scene:
             around the box centre (x and z bounded by the radius, y by the box): a round probe.
         tool_components: the components the tool imposes: (0, 1, 2) glued, (1,) a frictionless probe.
         probe: None (the tool's nodes are imposed throughout, as ``tool_components`` says), or a
-            contact probe of radius ``tool_radius`` pressed from above (``sim_core.contact.Probe``):
+            contact probe of radius ``tool_radius`` pressed from above (``sim_core.solvers.contact.Probe``):
             "sphere" (hemispherical end) or "flat" (flat-ended cylinder), its lowest point at the
             top centre of the tool box plus the displacement; the tool box's surface nodes, at any
             x and z, are the contact candidates (frictionless active set, only u_y imposed).
         probe_sampling: "projected" (default: the probe's indentation of the start surface projected
-            on the top nodes' basis functions, ``sim_core.contact.SurfaceProjection``; the tool box
+            on the top nodes' basis functions, ``sim_core.solvers.contact.SurfaceProjection``; the tool box
             must then lie on the top face) or "node" (the probe sampled at the nodes).
         displacements: tool displacements from rest (m): an (K, 3) array of independent cases, or a
             sequence of paths (each an (K_p, 3) array) solved in order by continuation, each path
@@ -139,7 +139,7 @@ class Scene:
 
     # -- contact ----------------------------------------------------------------------------
     def obstacle(self, mesh=None, candidates=None):
-        """The scene's contact obstacle (``sim_core.contact``): the floor, the probe, or None. A
+        """The scene's contact obstacle (``sim_core.solvers.contact``): the floor, the probe, or None. A
         probe with ``probe_sampling="projected"`` is projected on the top face of ``mesh`` at its
         ``candidates`` (n,) bool, its indentation measured from the rest heights (``from_surface``
         measures it from another surface)."""

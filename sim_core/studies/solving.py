@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .. import contact as contact_
-from ..hyperelastic import NeoHookeanFEM
-from ..model import Control, build_model
-from ..static import lowest_eigenvalue, solve_static
+from ..solvers import contact as contact_
+from ..solvers.hyperelastic import NeoHookeanFEM
+from ..models.model import Control, build_model
+from ..solvers.static import lowest_eigenvalue, solve_static
 from .scenes import Scene
 
 QUANTITIES = ("force", "target", "volume")
@@ -172,7 +172,7 @@ def from_surface(obstacle, heights):
 
 def solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, rest=None, max_rounds=25,
                         tolerance=1e-9, slide_tolerance=1e-7):
-    """Static solve with a frictionless obstacle (``sim_core.contact``: the floor y >= 0 or a probe
+    """Static solve with a frictionless obstacle (``sim_core.solvers.contact``: the floor y >= 0 or a probe
     from above) by an active set: the candidate nodes (n,) bool on or through its surface get
     their height imposed on it at their (x, z), the nodes it would pull are released, and the
     heights follow the nodes' horizontal sliding; repeated until no node goes through the surface

@@ -13,11 +13,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .. import contact as contact_
-from ..forces import external_forces, internal_forces
-from ..integrators import make_integrator
-from ..model import Control, State
-from ..static import STATIC_CONTACT_PASSES, same_contact
+from ..solvers import contact as contact_
+from ..models.forces import external_forces, internal_forces
+from ..solvers.integrators import make_integrator
+from ..models.model import Control, State
+from ..solvers.static import STATIC_CONTACT_PASSES, same_contact
 from .checks import check_integer, check_scalar
 from .scenes import check_scenes
 from .solving import (
@@ -86,7 +86,7 @@ def dynamic_scene(scene, shape, *, dt, substeps, max_step, hold_steps, hourglass
     ``hold_steps`` env steps; the observation
     is taken then. ``damping_ratio``: ``build_model``'s multiplier of the critical spring damping.
     ``integrator``: "implicit" (``ImplicitEuler`` with ``solver_tolerance`` and the ``solver``
-    keywords) or "static" (``sim_core.static.QuasiStatic``, the ``solver`` keywords: an equilibrium
+    keywords) or "static" (``sim_core.solvers.static.QuasiStatic``, the ``solver`` keywords: an equilibrium
     per step, as the envs' ``integrator="static"``). ``model``: "baudet" or "baudet-hyperelastic"
     (``solving.mss_model``; hourglass_control and volume_stiffness are baudet's).
     Returns (SceneSolution, env steps, iterations, seconds, divergence reason)."""

@@ -13,10 +13,10 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from . import kernels
-from .caches import digest
-from .model import Model
-from .sparse import NodeBlockLU
+from .. import kernels
+from ..caches import digest
+from ..models.model import Model
+from ..models.sparse import NodeBlockLU
 
 
 #: ImplicitEuler's preconditioners. "jacobi": the diagonal of the mass, spring and hourglass terms

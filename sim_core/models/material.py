@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._validate import finite_array, positive
+from .._validate import finite_array, positive
 
 #: Baudet's edge stiffness of a cube, ``E l (4 nu + 1) / (8 (1 + nu))`` (docs/physics.md section 2),
 #: is not positive for nu <= -1/4, so the mass-spring model cannot represent such materials.

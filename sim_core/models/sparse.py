@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from . import kernels
+from .. import kernels
 
 #: symbolic structures (ordering, fill) kept by ``NodeBlockLU``, one per free set and matrix pattern
 ORDER_CACHE_SIZE = 64

@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernels
-from ._validate import real_scalar
+from .. import kernels
+from .._validate import real_scalar
 
 TIPS = ("sphere", "flat")
 #: Where a probe is sampled: "projected" (its indentation projected on the surface nodes' basis

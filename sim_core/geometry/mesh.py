@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import kernels
-from ._validate import finite_array
+from .. import kernels
+from .._validate import finite_array
 from .topology import (  # noqa: F401  (re-exported: the names mesh users import)
     CORNER_NEIGHBOURS, CORNER_SIGN, DIAGONALS, EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS, GAUSS_POINTS,
     LOCAL_CORNERS, shape_gradients,
@@ -413,7 +413,7 @@ def downsample(mask, factor, *, vote="majority") -> np.ndarray:
     choose_resolution(scene).resolution`` (``sim_core.resolution``). The whole grid is coarsened
     because a mesh whose uniform regions alone had larger elements would not be conforming.
     """
-    from ._validate import integer_at_least
+    from .._validate import integer_at_least
 
     array = np.asarray(mask)
     volume = _label_volume(array, None)
@@ -441,7 +441,7 @@ def downsample(mask, factor, *, vote="majority") -> np.ndarray:
 def voxel_factor(spacing, element_size) -> int:
     """The largest integer k >= 1 whose coarsened voxels (k x ``spacing``, m) are no larger than
     ``element_size`` (m) along any axis: ``downsample``'s factor for a chosen element size."""
-    from ._validate import positive_scalar
+    from .._validate import positive_scalar
 
     spacing = _parse_spacing(spacing)
     element_size = positive_scalar("element_size", element_size, "m")
@@ -540,7 +540,7 @@ def cell_blocks(mesh, path, cell_type: str, content: str, need: str) -> list:
 
 def signed_volumes(positions: np.ndarray, elements: np.ndarray) -> np.ndarray:
     """(M,) signed volumes det[x1 - x0, x2 - x0, x3 - x0] / 6 of tetrahedra, m^3 (here, below
-    ``sim_core.tetmesh`` and ``sim_core.meshing``, which both use it)."""
+    ``sim_core.geometry.tetmesh`` and ``sim_core.geometry.meshing``, which both use it)."""
     corners = positions[elements]
     return np.linalg.det(corners[:, 1:] - corners[:, :1]) / 6.0
 

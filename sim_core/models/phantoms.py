@@ -4,7 +4,7 @@ The geometry is implicit (``LiverLobe``: signed, distance-like functions, negati
 phantom gives a label volume at any voxel size (``Phantom.mask``: 0 outside, 1 parenchyma,
 2 tumour, 3 vessel), a hexahedral mesh of it (``Phantom.hex_mesh``, through
 ``HexMesh.from_mask``) and closed triangle surfaces of the lobe and of the tumour
-(``Phantom.surface``, marching tetrahedra: ``sim_core.meshing.isosurface``). Nothing is
+(``Phantom.surface``, marching tetrahedra: ``sim_core.geometry.meshing.isosurface``). Nothing is
 downloaded. SI units: m, Pa, kg/m^3.
 
 Default materials (``LIVER_MATERIALS``; each value is one choice inside a published range, not a
@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._validate import finite_array, positive_scalar
+from .._validate import finite_array, positive_scalar
 from .material import Material
-from .mesh import HexMesh, fill_non_manifold
+from ..geometry.mesh import HexMesh, fill_non_manifold
 
 OUTSIDE, PARENCHYMA, TUMOUR, VESSEL = 0, 1, 2, 3
 #: label -> Material of the liver phantom (module docstring: the ranges and their sources).
@@ -236,7 +236,7 @@ class Phantom:
         """Closed triangle surface ``(vertices (V, 3) m, faces (F, 3))`` of ``part`` ("lobe": the
         organ's outer surface, or "tumour"), outward oriented, by marching tetrahedra on the
         implicit function sampled every ``spacing`` m (default: the voxel size)."""
-        from .meshing import isosurface
+        from ..geometry.meshing import isosurface
 
         functions = {"lobe": self.geometry.lobe, "tumour": self.geometry.tumour}
         if part not in functions:

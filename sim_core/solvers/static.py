@@ -19,14 +19,14 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from . import kernels
-from .caches import BudgetCache
-from .forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
+from .. import kernels
+from ..caches import BudgetCache
+from ..models.forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
 from .preconditioners import free_structure, pattern_arrays
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt
-from .elements import corner_frames
-from ._validate import count_not_finite, integer_at_least, positive_scalar, real_scalar
-from .model import Control, Model, State
+from ..models.elements import corner_frames
+from .._validate import count_not_finite, integer_at_least, positive_scalar, real_scalar
+from ..models.model import Control, Model, State
 
 
 @dataclass
@@ -433,7 +433,7 @@ class QuasiStatic(OneWorldSolver):
     """Quasi-static stepping: each step is the static equilibrium (``solve_static``) under the
     step's control, solved from the previous positions, so the state has no inertia, damping or
     lag behind the tool: the observations at every tool position are those of the static scene.
-    The same ``simulate`` interface as the integrators (``sim_core.integrators``); ``dt`` (s) only
+    The same ``simulate`` interface as the integrators (``sim_core.solvers.integrators``); ``dt`` (s) only
     advances the clock, and the velocities are zero (a sequence of equilibria).
 
     Args:

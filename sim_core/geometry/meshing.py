@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import finite_array
+from .._validate import finite_array
 from .mesh import read_mesh_file, signed_volumes
 
 #: The 6 tetrahedra of a grid cell around its diagonal (0,0,0)-(1,1,1) (Kuhn's subdivision):

@@ -1,13 +1,13 @@
 """Time integration: symplectic (semi-implicit) Euler, implicit Euler (Baraff and Witkin), the
 quasi-static solver by name (``make_integrator``), the stable explicit time step and ``run``.
 
-Every integrator keeps the solver contract of ``sim_core.solver``: bound to a model (``bind``,
+Every integrator keeps the solver contract of ``sim_core.solvers.solver``: bound to a model (``bind``,
 ``make_integrator(name, model=model)``), ``step(state_in, state_out, control, dt) -> StepReport``;
 ``simulate(model, state_in, state_out, dt, control)`` is the same step with the model named at the
 call. A diverging run is reported
 (``StepReport.unstable_reason``), never left to produce an unexplained NaN. The implicit step's
-factorised preconditioners are in ``sim_core.preconditioners``, its Krylov solves in
-``sim_core.krylov``. SI units: s, m, m/s, N.
+factorised preconditioners are in ``sim_core.solvers.preconditioners``, its Krylov solves in
+``sim_core.solvers.krylov``. SI units: s, m, m/s, N.
 """
 
 from __future__ import annotations
@@ -18,11 +18,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from . import kernels
-from .caches import digest
-from .forces import ForceWorkspace, hourglass_blocks, stiffness_data
+from .. import kernels
+from ..caches import digest
+from ..models.forces import ForceWorkspace, hourglass_blocks, stiffness_data
 from .krylov import apply_system, krylov_solve
-from .model import Control, Model, State
+from ..models.model import Control, Model, State
 from .preconditioners import (AUTO_MAX_DOFS, PRECONDITIONERS, REFACTOR_MIN, RESTRICTED_MAX_CHANGED, Factor,
                               FactorStore, auto_switch_iterations, free_structure, pattern_arrays)
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt, impose_control
@@ -329,8 +329,8 @@ INTEGRATORS = {"explicit": SymplecticEuler, "implicit": ImplicitEuler}
 
 def make_integrator(name: str, model: Model | None = None, **options):
     """Integrator by name: "explicit" (symplectic Euler), "implicit" (Baraff-Witkin Euler) or "static"
-    (``sim_core.static.QuasiStatic``: a static equilibrium per step), bound to ``model`` when given
-    (its ``step`` verb, ``sim_core.solver``)."""
+    (``sim_core.solvers.static.QuasiStatic``: a static equilibrium per step), bound to ``model`` when given
+    (its ``step`` verb, ``sim_core.solvers.solver``)."""
     if name == "static":
         solver = QuasiStatic(**options)
     elif name in INTEGRATORS:

@@ -1,7 +1,7 @@
 """Batched solvers for N worlds of one scene stepped together (the vector environments).
 
 The N worlds share one topology (the task's block), so they are one sim_core ``Model`` on a mesh
-made of N disjoint copies of the block (``sim_core.stack.ModelStack``). A world whose material
+made of N disjoint copies of the block (``sim_core.models.stack.ModelStack``). A world whose material
 changes (a new episode with another inclusion or Young's modulus) overwrites its slot; nothing is
 rebuilt.
 
@@ -72,16 +72,16 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba.typed import List as TypedList
 
-from . import kernels
-from .caches import BudgetCache
-from .forces import stiffness_data
+from .. import kernels
+from ..caches import BudgetCache
+from ..models.forces import stiffness_data
 from .integrators import SymplecticEuler
-from .model import Control, Model, State
+from ..models.model import Control, Model, State
 from .solver import WorldsSolver
 from .preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
                               node_block_factor)
-from .sparse import NodeBlockLU, block_structure, symmetric_structure
-from .stack import ModelStack, StackedForceWorkspace
+from ..models.sparse import NodeBlockLU, block_structure, symmetric_structure
+from ..models.stack import ModelStack, StackedForceWorkspace
 
 #: Start-of-episode preconditioners an integrator keeps, keyed by the content of (model, reference
 #: positions, dt, imposed dofs): its N copies share them across episodes.

@@ -10,14 +10,14 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ._validate import finite_array
+from .._validate import finite_array
 from .elements import element_block_positions, element_blocks, element_stiffness
 from .laws import baudet_shear_ratio, baudet_stiffness, lame_parameters
-from .mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
+from ..geometry.mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
 from .sparse import BlockPattern
 from .stress_correction import (StressCorrection, element_spring_pairs, element_spring_stiffness, mean_gradients,
                                 merge_parallel_springs, tetrahedron_spring_stiffness)
-from .tetmesh import TET_EDGES
+from ..geometry.tetmesh import TET_EDGES
 
 #: The models whose shear modulus on a box element is that of Baudet's springs (``max_shear_error``).
 SPRING_SHEAR_MODELS = ("baudet", "baudet-original")

@@ -26,14 +26,14 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .laws import first_piola_stress, lame_parameters, material_tangent, strain_energy_density  # noqa: F401
-from .material import Material
-from .elements import element_block_positions, element_blocks, quadrature
-from .mesh import HexMesh
-from .model import Control
-from .sparse import BlockPattern
+from ..models.laws import first_piola_stress, lame_parameters, material_tangent, strain_energy_density  # noqa: F401
+from ..models.material import Material
+from ..models.elements import element_block_positions, element_blocks, quadrature
+from ..geometry.mesh import HexMesh
+from ..models.model import Control
+from ..models.sparse import BlockPattern
 from .static import ramp_load
-from .tetmesh import TetMesh
+from ..geometry.tetmesh import TetMesh
 
 
 # -- the finite-element model ------------------------------------------------------------------

@@ -6,7 +6,7 @@ sum_a b_a (outer) X_a = I), the model adds to the element's 16 springs the nodal
 
     f_a = -V0 (P_NH(F) - P_S(F)) b_a,
 
-where P_NH is the compressible neo-Hookean first Piola stress (``sim_core.hyperelastic``) and
+where P_NH is the compressible neo-Hookean first Piola stress (``sim_core.solvers.hyperelastic``) and
 
     P_S(F) = (1/V0) sum_s k_s (|F D_s| - L_s) (F D_s / |F D_s|) (outer) D_s
 
@@ -30,8 +30,8 @@ import numpy as np
 
 from .elements import nodes_per_element, quadrature
 from .laws import baudet_stiffness, first_piola_stress, lame_parameters, material_tangent
-from .mesh import signed_volumes
-from .topology import DIAGONALS, EDGES, FACES, GAUSS_GRADIENTS
+from ..geometry.mesh import signed_volumes
+from ..geometry.topology import DIAGONALS, EDGES, FACES, GAUSS_GRADIENTS
 
 #: the two diagonals of each face (FACES order): 12, grouped by the plane they lie in
 FACE_DIAGONALS = np.concatenate([FACES[:, [0, 2]], FACES[:, [1, 3]]])
@@ -236,7 +236,7 @@ def tetrahedron_spring_stiffness(nodes: np.ndarray, elements: np.ndarray, young_
     stiffness V0 (C - C_S) only adds stiffness (no clamping at rest). Positive or zero for every
     tetrahedron and nu in (-1, 0.5); bounded by the shear modulus as nu -> 0.5 (the volumetric
     stiffness is the correction's alone)."""
-    from .tetmesh import TET_EDGES
+    from ..geometry.tetmesh import TET_EDGES
 
     nu = np.asarray(poisson_ratio, dtype=float)
     young_modulus = np.asarray(young_modulus, dtype=float)

@@ -1,7 +1,7 @@
 """Pointwise formulas the models share, with no dependence on meshes or solvers: Baudet's spring
 stiffnesses from E and nu (docs/physics.md section 2) and the compressible neo-Hookean law (its
 energy, first Piola stress and material tangent; section 10), vectorised over any leading axes.
-SI units: Pa, m, N/m. ``sim_core.model`` and ``sim_core.hyperelastic`` re-export them.
+SI units: Pa, m, N/m. ``sim_core.models.model`` and ``sim_core.solvers.hyperelastic`` re-export them.
 """
 
 from __future__ import annotations
@@ -71,7 +71,7 @@ def first_piola_stress(deformation_gradient, mu, lam):
 
 
 def material_tangent(deformation_gradient, mu, lam):
-    """(..., 3, 3, 3, 3) A_aBcD = dP_aB / dF_cD in Pa (the law: ``sim_core.hyperelastic``'s module docstring)."""
+    """(..., 3, 3, 3, 3) A_aBcD = dP_aB / dF_cD in Pa (the law: ``sim_core.solvers.hyperelastic``'s module docstring)."""
     f = np.asarray(deformation_gradient, float)
     inverse = np.linalg.inv(f)
     log_j = np.log(np.linalg.det(f))

@@ -1,7 +1,7 @@
 """Linear-elastic finite elements on the same nodes: the accuracy reference ("fem-linear").
 
 Trilinear hexahedra (``HexMesh``) or linear tetrahedra (``TetMesh``); element matrices from
-``sim_core.elements`` (hexahedra: full 2x2x2 Gauss integration; tetrahedra: exact one-point),
+``sim_core.models.elements`` (hexahedra: full 2x2x2 Gauss integration; tetrahedra: exact one-point),
 isotropic Hooke law per element, small-displacement theory. The global matrix reuses the mass-spring model's fixed
 sparsity pattern (``BlockPattern``).
 """
@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from .elements import element_block_positions, element_blocks, element_stiffness
-from .material import Material
-from .mesh import HexMesh
-from .tetmesh import TetMesh
-from .model import Control
-from .sparse import BlockPattern
+from ..models.elements import element_block_positions, element_blocks, element_stiffness
+from ..models.material import Material
+from ..geometry.mesh import HexMesh
+from ..geometry.tetmesh import TetMesh
+from ..models.model import Control
+from ..models.sparse import BlockPattern
 
 
 @dataclass

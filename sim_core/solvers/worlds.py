@@ -2,7 +2,7 @@
 ``Model`` or a ``ModelStack``, and ``PerWorld``, an N-world solver of N one-world solvers (a static
 equilibrium per step has no batched form: each world's Newton solve is its own).
 
-Every solver returned keeps the contract of ``sim_core.solver``: ``step(state_in, state_out,
+Every solver returned keeps the contract of ``sim_core.solvers.solver``: ``step(state_in, state_out,
 control, dt, active)`` on (n, 3) or (N, n, 3) states and controls, which returns a ``StepReport``;
 ``reset(world_mask)`` starts worlds' episodes again, ``model_changed(index)`` after
 ``ModelStack.assign``. SI units."""
@@ -15,10 +15,10 @@ from typing import Callable
 import numpy as np
 
 from .batched import BatchedImplicitEuler, BatchedSymplecticEuler
-from .model import Control, Model, State
+from ..models.model import Control, Model, State
 from .integrators import make_integrator
 from .solver import OneWorldSolver, StepReport, check_dt
-from .stack import ModelStack
+from ..models.stack import ModelStack
 from .static import QuasiStatic
 
 #: The methods ``make_worlds_solver`` knows.

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._validate import finite_array
+from .._validate import finite_array
 from .mesh import (
     LOCAL_CORNERS, HexMesh, MeshGeometry, boundary_faces, cell_blocks, read_mesh_file, signed_volumes, write_mesh_file,
 )
@@ -141,7 +141,7 @@ class TetMesh(MeshGeometry):
     @classmethod
     def from_surface(cls, vertices, faces, **options) -> "TetMesh":
         """Fill a closed triangle surface (vertices (V, 3) m, faces (F, 3), outward
-        counter-clockwise) with tetrahedra: ``sim_core.meshing.tetrahedralise`` (fTetWild, the
+        counter-clockwise) with tetrahedra: ``sim_core.geometry.meshing.tetrahedralise`` (fTetWild, the
         ``[mesh]`` extra), whose keywords ``options`` passes on (``edge_length`` m,
         ``max_volume`` m^3, the quality limits ``max_radius_edge`` and ``min_mean_ratio``, ...).
 

@@ -1,6 +1,6 @@
 """Element stiffness of linear-elastic finite elements: the formula shared by the FEM references
-(``sim_core.fem``, ``sim_core.hyperelastic``) and the mass-spring model's hourglass control
-(``sim_core.model``).
+(``sim_core.solvers.fem``, ``sim_core.solvers.hyperelastic``) and the mass-spring model's hourglass control
+(``sim_core.models.model``).
 
 Two element kinds, told apart by the nodes per element (``elements.shape[1]``): trilinear
 hexahedra (8 nodes, full 2x2x2 Gauss integration) and linear tetrahedra (4 nodes, one point: their
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mesh import CORNER_NEIGHBOURS, CORNER_SIGN, GAUSS_GRADIENTS
+from ..geometry.mesh import CORNER_NEIGHBOURS, CORNER_SIGN, GAUSS_GRADIENTS
 
 #: the element kinds by nodes per element
 ELEMENT_NODES = {8: "hexahedron", 4: "tetrahedron"}
@@ -32,7 +32,7 @@ def corner_frames(elements):
     node 0 of a tetrahedron."""
     if nodes_per_element(elements) == 8:
         return CORNER_NEIGHBOURS, CORNER_SIGN
-    from .tetmesh import TET_CORNER_NEIGHBOURS, TET_CORNER_SIGN
+    from ..geometry.tetmesh import TET_CORNER_NEIGHBOURS, TET_CORNER_SIGN
 
     return TET_CORNER_NEIGHBOURS, TET_CORNER_SIGN
 

@@ -20,10 +20,10 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from . import kernels
+from .. import kernels
 from .forces import ForceWorkspace, hourglass_block_map, stress_arguments
 from .model import Control, Model, State
-from .caches import digest
+from ..caches import digest
 from .stress_correction import ARRAY_FIELDS, StressCorrection, write_lanes
 
 
@@ -275,7 +275,7 @@ class ModelStack:
 
 
 class StackedForceWorkspace(ForceWorkspace):
-    """``sim_core.forces.ForceWorkspace`` of a ``ModelStack``'s stacked model whose hourglass term
+    """``sim_core.models.forces.ForceWorkspace`` of a ``ModelStack``'s stacked model whose hourglass term
     reads each distinct copy's hourglass matrix once for all the copies that hold it, in node blocks
     (``kernels.stacked_hourglass_subtract_groups``): the stacked CSR matrix is N times a copy's
     (14 MB at Palpation's 8x4x8 and N = 16), out of cache, and made the stacked force pass slower

@@ -15,16 +15,16 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import terms
-from ._validate import finite_array
+from .._validate import finite_array
 from .elements import element_block_positions
 from .laws import baudet_stiffness  # noqa: F401  (re-exported: the formulas' users import it from here)
 from .material import Material
-from .mesh import EDGES, HexMesh
+from ..geometry.mesh import EDGES, HexMesh
 from .sparse import BlockPattern
 from .stress_correction import SPRING_CHOICES, StressCorrection
 from .terms import (SPRING_SHEAR_MODELS, check_shear_error, correction_coefficients,  # noqa: F401  (re-exported)
                     correction_matrix, hourglass_matrix, hourglass_projectors)
-from .tetmesh import TET_EDGES, TetMesh
+from ..geometry.tetmesh import TET_EDGES, TetMesh
 
 #: Mass-spring model names accepted by ``build_model``.
 MSS_MODELS = ("baudet", "baudet-original", "uniform-springs", "baudet-hyperelastic")

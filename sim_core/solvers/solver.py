@@ -4,9 +4,9 @@ Every solver has one verb, ``solver.step(state_in, state_out, control, dt, activ
 advances the worlds of its model by ``dt`` seconds under ``control`` (imposed positions, external
 forces) from ``state_in`` into ``state_out`` and returns a ``StepReport`` of what it did and whether
 a world diverged; ``reset(world_mask)`` starts worlds again and ``model_changed(index)`` follows a
-changed model. A solver of one world (``OneWorldSolver``: ``sim_core.integrators``' explicit and
-implicit Euler, ``sim_core.static.QuasiStatic``; ``bind`` gives it its model) steps (n, 3) states; a
-solver of N worlds (``WorldsSolver``, ``sim_core.batched``; ``sim_core.worlds.PerWorld``) steps the
+changed model. A solver of one world (``OneWorldSolver``: ``sim_core.solvers.integrators``' explicit and
+implicit Euler, ``sim_core.solvers.static.QuasiStatic``; ``bind`` gives it its model) steps (n, 3) states; a
+solver of N worlds (``WorldsSolver``, ``sim_core.solvers.batched``; ``sim_core.solvers.worlds.PerWorld``) steps the
 (N, n, 3) states of a ``ModelStack`` with ``active`` an (N,) world mask, and reports per world. Both
 run the same divergence checks (``DivergenceMonitors``, of which ``DivergenceMonitor`` is the
 one-world case). ``sim_core.make_solver`` builds either. Here also: the time step check and the
@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import kernels
-from .elements import corner_frames
-from .model import Control, Model, State
+from .. import kernels
+from ..models.elements import corner_frames
+from ..models.model import Control, Model, State
+from ..models.stack import ModelStack
 
 
 @dataclass
@@ -235,7 +236,7 @@ class DivergenceMonitors:
 
 
 class WorldsSolver:
-    """The solver contract (``sim_core.solver``) for the N worlds of a ``ModelStack``:
+    """The solver contract (``sim_core.solvers.solver``) for the N worlds of a ``ModelStack``:
     ``step(state_in, state_out, control, dt, active)`` with states and controls of shape (N, n, 3)
     and ``active`` an (N,) world mask, which returns a ``StepReport`` of per-world arrays whose
     divergence reasons come from the worlds' ``DivergenceMonitors``. A world starts an episode
@@ -268,8 +269,6 @@ class WorldsSolver:
         if not self.stack.shared[index]:
             own = self._own.get(index)
             if own is None or own.stack.models[0] is not padded:
-                from .stack import ModelStack  # the stack builds on the force passes, which build on this module
-
                 own = self._own[index] = type(self)(ModelStack(padded, 1), **self._options())
             own.prepare(0, padded, positions, dt, fixed)
             return

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from . import kernels
+from .. import kernels
 from .elements import element_blocks
-from .mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS, hex_jacobians
+from ..geometry.mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS, hex_jacobians
 from .model import Model
 from . import stress_correction as _stress
 
@@ -115,7 +115,7 @@ def hourglass_block_map(matrix):
     """The node-block (BSR, 3 x 3) layout of a CSR matrix with 3 dofs per node: (block indptr
     (N + 1,), block columns (nb,), positions (9 nb,) int64: the index in ``matrix.data`` of each
     row-major block value, -1 for the zeros a block adds). Values of another matrix of the same
-    pattern are ``data[positions]`` where positions >= 0 (``sim_core.batched``'s per-copy
+    pattern are ``data[positions]`` where positions >= 0 (``sim_core.solvers.batched``'s per-copy
     hourglass values)."""
     probe = sp.csr_matrix((np.arange(1.0, matrix.nnz + 1.0), matrix.indices, matrix.indptr), shape=matrix.shape)
     blocks = sp.bsr_matrix(probe, blocksize=(3, 3))
@@ -128,7 +128,7 @@ def hourglass_blocks(model: Model):
     """The node-block (BSR, 3 x 3) form of ``model.hourglass`` for ``kernels.apply_operator_blocks``:
     (block indptr (N + 1,), block columns (nb,), row-major block values (9 nb,), ones (3 N,)), or
     None without hourglass control. Built once per model and kept in ``model.derived``: a model's
-    matrix is constant (the one model whose values change, ``sim_core.stack.StackedModel``, drops
+    matrix is constant (the one model whose values change, ``sim_core.models.stack.StackedModel``, drops
     it when they do). Read in
     blocks, an operator product or a force pass loads one index and three vector entries per 9
     values, where the scalar CSR loops were about half of their time."""

@@ -1,6 +1,6 @@
 """Where the mass-spring models are validated, and the check that says when a state leaves it.
 
-The divergence monitor (``sim_core.solver.DivergenceMonitors``) says when a simulation is broken
+The divergence monitor (``sim_core.solvers.solver.DivergenceMonitors``) says when a simulation is broken
 (non-finite, exploding, inverted). A state can be healthy and still outside the range in which the
 model's accuracy was measured: the springs' elongation and the elements' volume ratio were checked
 against neo-Hookean FEM only up to moderate strains (docs/physics.md, validation). ``ValidityRange``

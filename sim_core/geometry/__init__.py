@@ -1,0 +1,1 @@
+"""Meshes: hexahedral and tetrahedral meshes, the reference hexahedron, meshing of closed surfaces."""
