@@ -204,15 +204,19 @@ def _neo_hookean_tangent(n, c, t, products, scalars):
         for j in range(n):
             products[36 + r, j] = scalars[1, j] * c[r, j]
             products[45 + r, j] = scalars[2, j] * c[r, j]
-    for r in range(9):  # r = 3 i + J
-        i, jj = r // 3, r % 3
-        for q in range(r, 9):  # q = 3 k + L, on and above the diagonal
-            k, ll = q // 3, q % 3
-            for j in range(n):
-                value = (products[36 + 3 * k + jj, j] * c[3 * i + ll, j]
-                         + products[45 + 3 * i + jj, j] * c[3 * k + ll, j])
-                t[9 * r + q, j] = value
-                t[9 * q + r, j] = value
+    for i in range(3):
+        for jj in range(3):
+            r = 3 * i + jj
+            for k in range(3):
+                for ll in range(3):
+                    q = 3 * k + ll
+                    if q < r:
+                        continue
+                    for j in range(n):
+                        value = (products[36 + 3 * k + jj, j] * c[3 * i + ll, j]
+                                 + products[45 + 3 * i + jj, j] * c[3 * k + ll, j])
+                        t[9 * r + q, j] = value
+                        t[9 * q + r, j] = value
     for r in range(9):
         for j in range(n):
             t[10 * r, j] += scalars[0, j]
@@ -261,17 +265,17 @@ def _spring_tangent_sums(offset, start, n, spring_vector, spring_length, spring_
 def _subtract_spring_tangent(n, t, products, g):
     """t (81, LANES) -= V0 A_S from ``_spring_tangent_sums``' products and g: entry (3 i + J, 3 k + L)
     loses the products of pair (i, k), (J, L), and g's (J, L) where i == k."""
-    for r in range(9):  # r = 3 i + J
-        i, jj = r // 3, r % 3
-        for q in range(9):  # q = 3 k + L
-            k, ll = q // 3, q % 3
-            a, b = _SYMMETRIC[i, k], _SYMMETRIC[jj, ll]
-            if i == k:
-                for j in range(n):
-                    t[9 * r + q, j] -= products[6 * a + b, j] + g[b, j]
-            else:
-                for j in range(n):
-                    t[9 * r + q, j] -= products[6 * a + b, j]
+    for i in range(3):
+        for jj in range(3):
+            for k in range(3):
+                for ll in range(3):
+                    entry, a, b = 9 * (3 * i + jj) + 3 * k + ll, _SYMMETRIC[i, k], _SYMMETRIC[jj, ll]
+                    if i == k:
+                        for j in range(n):
+                            t[entry, j] -= products[6 * a + b, j] + g[b, j]
+                    else:
+                        for j in range(n):
+                            t[entry, j] -= products[6 * a + b, j]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
