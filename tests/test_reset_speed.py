@@ -8,7 +8,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks import reset_speed  # noqa: E402
-from sim_core import static  # noqa: E402
+from sim_core.solvers import static  # noqa: E402
 import tissue_env.tumor_positioning as tumor_positioning  # noqa: E402
 
 
