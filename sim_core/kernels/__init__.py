@@ -7,14 +7,15 @@ them; a kernel only writes the arrays it is given). The numpy formulation in ``s
 the readable reference the tests compare these kernels with. SI units.
 
 The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``vectors`` (3-vectors as tuples,
-inlined into the per-element bodies), ``threads`` (the thread policy and
-``variant``, the choice between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes,
-health, strain, reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the
-force passes), ``stress`` (the finite-strain stress correction), ``operator`` (the implicit step's matrix-free operator products and its assembled
-matrix), ``factor`` (block LU / LDL^T factors and their solves), ``krylov`` (the single-model and
-Jacobi-preconditioned batched solves), ``krylov_copies`` (the per-copy solves preconditioned by
-sparse factors), ``contact`` (the probe's projected surface), ``geometry`` (points covered by quads
-seen from above). Every public name is re-exported here: ``kernels.model_forces(...)``.
+inlined into the per-element bodies), ``threads`` (the thread policy and ``variant``, the choice
+between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes, health, strain,
+reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the force passes),
+``stress`` (the finite-strain stress correction), ``operator`` (the implicit step's matrix-free
+operator products and its assembled matrix), ``factor`` (block LU / LDL^T factors and their
+solves), ``krylov`` (the single-model and Jacobi-preconditioned batched solves), ``krylov_copies``
+(the per-copy solves preconditioned by sparse factors), ``contact`` (the probe's projected
+surface), ``geometry`` (points covered by quads seen from above). Every public name is re-exported
+here: ``kernels.model_forces(...)``.
 
 numba checks a cached kernel against the file that defines it only: a kernel that calls (or
 inlines) a function of another module, or reads a constant of ``sim_core.geometry.topology``, would keep its
