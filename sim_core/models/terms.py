@@ -1,6 +1,6 @@
 """The force terms a mass-spring model is built from, one builder each (docs/physics.md sections in
-brackets): each element's springs [2] [11] [12] and their merge across elements, Baudet's
-corrections [3], the finite-strain stress correction [11] [12], the volume forces [4] and the
+brackets): each element's springs (sections 2, 11, 12) and their merge across elements, Baudet's
+corrections [3], the finite-strain stress correction (sections 11, 12), the volume forces [4] and the
 hourglass control [6]. ``model.build_model`` calls them in turn; a new law is a new builder here.
 Every builder works per element, so that a model of a changed mesh (a cut) is these builders on
 that mesh. SI units: m, Pa, N/m, N."""
@@ -121,7 +121,7 @@ def baudet_corrections(model: str, axis_rest_length, young_modulus, poisson_rati
 
 
 def stress_correction(mesh, local_pairs, values, young_modulus, poisson_ratio, law: str) -> StressCorrection:
-    """The finite-strain stress correction [11] [12]: per element, f_a = -V0 (P(F) - P_S(F)) b_a on
+    """The finite-strain stress correction (sections 11, 12): per element, f_a = -V0 (P(F) - P_S(F)) b_a on
     its mean deformation gradient, P the ``law``'s stress ("neo-hookean" or "linear") and P_S the
     stress of its springs (``local_pairs``, ``values`` (M, P) N/m; a hexahedron's parallel springs
     merged into one per direction)."""
