@@ -334,7 +334,7 @@ def test_every_solver_keeps_one_step_contract():
     of N worlds step with one verb, ``step(state_in, state_out, control, dt, active=None)``; a world
     left out by ``active`` keeps its state; an unbound solver says what is missing."""
     from sim_core.solvers.batched import BatchedImplicitEuler, BatchedSymplecticEuler
-    from sim_core.solvers.solver import StepReport, WorldsReport
+    from sim_core.solvers.solver import StepReport
     from sim_core.models.stack import ModelStack
 
     mesh = HexMesh.block((3, 2, 2), 0.01)
@@ -367,7 +367,7 @@ def test_every_solver_keeps_one_step_contract():
         out = State(rest.copy(), np.zeros_like(rest))
         active = np.array([True, False, True])
         report = solver.step(state, out, Control(fixed, target, np.zeros_like(rest)), dt, active)
-        assert isinstance(report, WorldsReport) and not report.unstable.any()
+        assert isinstance(report, StepReport) and not report.unstable.any()
         np.testing.assert_array_equal(out.positions[1], rest[1])
         assert np.abs(out.positions[0] - rest[0]).max() > 0  # gravity moved the stepped worlds
         np.testing.assert_array_equal(out.positions[0], out.positions[2])

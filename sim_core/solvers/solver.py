@@ -44,10 +44,6 @@ class StepReport:
         return self.unstable_reason is not None
 
 
-#: The N-world form of ``StepReport`` (the same class; its fields are per-world arrays).
-WorldsReport = StepReport
-
-
 class OneWorldSolver:
     """The ``step`` verb of a solver of one world, on top of its ``simulate(model, state_in,
     state_out, dt, control)``: ``bind(model)`` (or ``make_integrator(name, model=model)``) gives the
