@@ -134,7 +134,10 @@ class Model:
             ),
             incidence=incidence, element_scatter=element_scatter, pattern=pattern,
             spring_positions=spring_positions, element_positions=element_positions,
-            mass_data=mass_data, gravity_force=self.mass[:, None] * self.gravity[None, :],
+            mass_data=mass_data,
+            # a node of no element (a stack's parked row) carries no load: nothing would hold it
+            gravity_force=np.where((np.bincount(elements.ravel(), minlength=n_nodes) > 0)[:, None],
+                                   self.mass[:, None] * self.gravity[None, :], 0.0),
             rest_edge_direction=_edge_directions(self.mesh.nodes, elements),
         )
         for key, value in derived.items():
@@ -356,8 +359,10 @@ def build_model(
     rest_volume = mesh.element_volumes()
     mass, damping = terms.masses_and_damping(mesh, density, rest_volume, spring_pairs, stiffness,
                                              options["damping_ratio"])
-    w, correction_mode = terms.baudet_corrections(model if corrections and not tetrahedra else "none",
-                                                  axis_rest_length, young_modulus, poisson_ratio, nu_factor)
+    w, correction_mode = np.zeros((mesh.n_elements, 3, 3)), None  # tetrahedra: the stress correction instead
+    if corrections and not tetrahedra:
+        w, correction_mode = terms.baudet_corrections(model, axis_rest_length, young_modulus, poisson_ratio,
+                                                      nu_factor)
     correction = None
     if corrections and (hyperelastic or tetrahedra):
         correction = terms.stress_correction(mesh, local_pairs, values, young_modulus, poisson_ratio,

@@ -71,9 +71,7 @@ def with_spare_nodes(model: Model, n_nodes: int) -> Model:
     fields = {field.name: getattr(model, field.name) for field in dataclasses.fields(Model)}
     fields.update(mesh=mesh, hourglass=hourglass,
                   mass=np.concatenate([model.mass, np.full(extra, float(np.mean(model.mass)))]))
-    padded = Model(**fields)
-    padded.gravity_force[model.n_nodes:] = 0.0  # parked nodes carry no load
-    return padded
+    return Model(**fields)
 
 
 def same_topology(model: Model, reference: Model) -> bool:
@@ -146,7 +144,6 @@ class ModelStack:
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
             options=dict(model.options), stress_correction=stress, **values,
         )
-        self.model.gravity_force[:] = np.tile(model.gravity_force, (count, 1))  # parked rows carry none
         # slots of each copy in the per-dof arrays the Model derived at construction
         self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
         #: each world's model on the stack's ``n_nodes`` rows (the given one, its unused rows parked)
@@ -193,9 +190,8 @@ class ModelStack:
         padded = with_spare_nodes(model, self.n_nodes)
         self.given[index] = model
         if not same_topology(padded, self.reference):
-            self.models[index] = padded
+            self.models[index] = padded  # the stacked arrays (and ``version``) are left as they are
             self.shared[index] = False
-            self.version += 1
             return
         self.shared[index] = True
         self._write(index, padded)

@@ -90,6 +90,14 @@ class OneWorldSolver:
         return self.simulate(self.model, state_in, state_out, dt, control)
 
 
+def check_world_mask(mask, count: int) -> np.ndarray:
+    """``mask`` as an (count,) bool world mask (None: every world), or ValueError."""
+    mask = np.ones(count, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
+    if mask.shape != (count,):
+        raise ValueError(f"a world mask must be None or an ({count},) bool array, got shape {mask.shape}")
+    return mask
+
+
 def check_dt(dt) -> float:
     """``dt`` as a float, or ValueError unless it is a finite time step > 0 s."""
     dt = float(dt)
@@ -277,7 +285,7 @@ class WorldsSolver:
     def reset(self, world_mask=None):
         """The worlds in ``world_mask`` ((N,) bool; None: all) start a new episode at their next
         step, from the state and control it gets."""
-        mask = self._world_mask(world_mask)
+        mask = check_world_mask(world_mask, self.stack.count)
         for index in np.flatnonzero(mask):
             self._prepared[index] = None
 
@@ -286,13 +294,6 @@ class WorldsSolver:
         at its next step on its new model."""
         self._prepared[int(index)] = None
 
-    def _world_mask(self, mask):
-        count = self.stack.count
-        mask = np.ones(count, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
-        if mask.shape != (count,):
-            raise ValueError(f"a world mask must be None or an ({count},) bool array, got shape {mask.shape}")
-        return mask
-
     def step(self, state_in: State, state_out: State, control: Control, dt: float, active=None) -> StepReport:
         """Advance the ``active`` worlds (None: all) by ``dt`` s from ``state_in`` into ``state_out``
         under ``control`` (``fixed``, ``target``, ``force`` (N, n, 3): imposed components, their
@@ -300,7 +301,7 @@ class WorldsSolver:
         state."""
         dt = check_dt(dt)
         stack, count = self.stack, self.stack.count
-        active = self._world_mask(active)
+        active = check_world_mask(active, stack.count)
         shape = (count, stack.n_nodes, 3)
         for name, array in (("positions", state_in.positions), ("velocities", state_in.velocities),
                             ("control.fixed", control.fixed), ("control.target", control.target)):

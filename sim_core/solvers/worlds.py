@@ -17,7 +17,7 @@ import numpy as np
 from .batched import BatchedImplicitEuler, BatchedSymplecticEuler
 from ..models.model import Control, Model, State
 from .integrators import make_integrator
-from .solver import OneWorldSolver, StepReport, check_dt
+from .solver import OneWorldSolver, StepReport, check_dt, check_world_mask
 from ..models.stack import ModelStack
 from .static import QuasiStatic
 
@@ -47,7 +47,7 @@ class PerWorld:
 
     def reset(self, world_mask=None):
         """The worlds in ``world_mask`` ((N,) bool; None: all) start a new episode at their next step."""
-        for index in np.flatnonzero(_world_mask(world_mask, self.stack.count)):
+        for index in np.flatnonzero(check_world_mask(world_mask, self.stack.count)):
             self.solvers[index] = None
 
     def model_changed(self, index: int):
@@ -60,7 +60,7 @@ class PerWorld:
         error: ...") and keeps its state."""
         dt = check_dt(dt)
         count = self.stack.count
-        active = _world_mask(active, count)
+        active = check_world_mask(active, count)
         positions = np.array(state_in.positions, dtype=float)
         velocities = np.array(state_in.velocities, dtype=float)
         iterations, residual = np.zeros(count, dtype=int), np.zeros(count)
@@ -85,13 +85,6 @@ class PerWorld:
             iterations[index], residual[index], reasons[index] = report.iterations, report.residual, report.unstable_reason
         state_out.positions, state_out.velocities, state_out.time = positions, velocities, state_in.time + dt
         return StepReport(iterations, residual, reasons)
-
-
-def _world_mask(mask, count):
-    mask = np.ones(count, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
-    if mask.shape != (count,):
-        raise ValueError(f"a world mask must be None or an ({count},) bool array, got shape {mask.shape}")
-    return mask
 
 
 def make_solver(method: str, target: Model | ModelStack, **options):
