@@ -403,7 +403,7 @@ def env_defaults_section(accuracy):
     classes = task_classes()
     out = ["## The defaults and one env step\n\n",
            "One env step is `substeps` linearised implicit Euler steps of `dt` "
-           "(`sim_core.solvers.batched.BatchedImplicitEuler`). Implicit Euler is stable far past the explicit limit, "
+           "(`sim_core.solvers.implicit.ImplicitEuler`). Implicit Euler is stable far past the explicit limit, "
            "so one step per action is enough, and with the springs' critical damping the tissue settles on "
            "the static equilibrium within a few steps of a held tool (tested against `solve_static`). A "
            "`solve_static` per step (the opt-in `integrator=\"static\"`) costs a factorisation per Newton "
@@ -706,7 +706,7 @@ def env_contact_section():
             "contact of the static scene), so a held flap settles on the static equilibrium (tested); a clamp "
             "after the step settled far from it in volume change. A contact that moves keeps the implicit "
             "integrator's factorisation, corrected exactly for the dofs it imposes (a capacitance correction, "
-            "`sim_core.solvers.batched`). At the soft end of the material range Retraction's flap, lifted by its "
+            "`sim_core.solvers.implicit`). At the soft end of the material range Retraction's flap, lifted by its "
             "clamped edge, stretches its springs beyond 100%, as neo-Hookean FEM on its mesh does: the "
             "maximum-strain entry (%) is bounded at 1000% (`tissue_env.worlds.FEATURE_LIMITS`), every other "
             "entry at 100, and `info[\"observation_clipped\"]` reports any entry at its bound:\n\n",

@@ -1,4 +1,4 @@
-"""The batched factorised solver (sim_core.solvers.batched, solver "factorised") keeps each copy's
+"""The batched factorised solver (sim_core.solvers.implicit, solver "factorised") keeps each copy's
 node-block LU when a contact imposes more dofs, and restricts it exactly to the free dofs by a
 capacitance correction (``_CopyFactor.correction``, ``kernels.corrected_lu_apply``)."""
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim_core.studies.bench import tumor_block
-from sim_core.solvers.batched import BatchedImplicitEuler
+from sim_core.solvers.implicit import ImplicitEuler
 from sim_core.models.stack import ModelStack
 
 
@@ -36,15 +36,15 @@ def test_a_moving_contact_keeps_each_copys_factor_exact_through_its_capacitance_
             target[copy, held, 1] -= 0.0005 * step
         return fixed, target
 
-    kept = BatchedImplicitEuler(stack, tolerance=1e-8, solver="factorised")
-    kept.simulate(positions, velocities, *contact(0), dt, active)
+    kept = ImplicitEuler(stack, tolerance=1e-8, preconditioner="factorised")
+    kept.advance(positions, velocities, *contact(0), dt, active)
     assert kept.factorisations == count
     for step in range(1, 6):
         kept.warm[:] = 0.0  # the same start as a fresh integrator's
-        out, _ = kept.simulate(positions, velocities, *contact(step), dt, active)
+        out, _ = kept.advance(positions, velocities, *contact(step), dt, active)
         assert all(len(kept.correction_lists[1][copy]) == 4 + step for copy in range(count))  # corrected
-        fresh = BatchedImplicitEuler(stack, tolerance=1e-8, solver="factorised")
-        fresh_out, _ = fresh.simulate(positions, velocities, *contact(step), dt, active)
+        fresh = ImplicitEuler(stack, tolerance=1e-8, preconditioner="factorised")
+        fresh_out, _ = fresh.advance(positions, velocities, *contact(step), dt, active)
         assert np.all(kept.last_iterations <= fresh.last_iterations + 1), (step, kept.last_iterations,
                                                                              fresh.last_iterations)
         assert np.abs(out - fresh_out).max() < 1e-9
@@ -75,8 +75,8 @@ def test_the_copies_inverse_columns_equal_each_factors_own():
     positions = np.repeat(model.mesh.nodes[None], count, axis=0)
     fixed = np.zeros(positions.shape, dtype=bool)
     fixed[:, bottom] = True
-    integrator = BatchedImplicitEuler(stack, tolerance=1e-8, solver="factorised")
-    integrator.simulate(positions, np.zeros_like(positions), fixed, positions, dt, np.ones(count, dtype=bool))
+    integrator = ImplicitEuler(stack, tolerance=1e-8, preconditioner="factorised")
+    integrator.advance(positions, np.zeros_like(positions), fixed, positions, dt, np.ones(count, dtype=bool))
     free = np.flatnonzero(~fixed[0].ravel())
     picks = [free[[3, 40, 41]], free[[len(free) - 1]], free[[0, len(free) // 2]]]
     copies = np.array([0, 1, 2], dtype=np.int64)
@@ -95,15 +95,15 @@ def test_the_copies_inverse_columns_equal_each_factors_own():
 
 
 def _factorised_copies(count=3):
-    """A factorised BatchedImplicitEuler after one step of TumorPositioning's 5^3 block (bottom
+    """A factorised ImplicitEuler after one step of TumorPositioning's 5^3 block (bottom
     fixed), with its free dofs."""
     model, bottom, _ = tumor_block((5, 5, 5), 0.01)
     stack = ModelStack(model, count)
     positions = np.repeat(model.mesh.nodes[None], count, axis=0)
     fixed = np.zeros(positions.shape, dtype=bool)
     fixed[:, bottom] = True
-    integrator = BatchedImplicitEuler(stack, tolerance=1e-8, solver="factorised")
-    integrator.simulate(positions, np.zeros_like(positions), fixed, positions, 0.04, np.ones(count, dtype=bool))
+    integrator = ImplicitEuler(stack, tolerance=1e-8, preconditioner="factorised")
+    integrator.advance(positions, np.zeros_like(positions), fixed, positions, 0.04, np.ones(count, dtype=bool))
     return integrator, np.flatnonzero(~fixed[0].ravel()), 3 * model.n_nodes
 
 

@@ -1,4 +1,4 @@
-"""The batched vector envs' fused factorisations (``BatchedImplicitEuler._factorise_copies``,
+"""The batched vector envs' fused factorisations (``ImplicitEuler._factorise_copies``,
 ``kernels.factor_copies``) give the same factors as the per-copy path (``_factorise``)."""
 
 import gymnasium as gym
@@ -75,7 +75,7 @@ def test_a_failed_block_factor_falls_back_to_the_scalar_factor(monkeypatch):
     system = _system(integrator, envs.worlds.dt)
     integrator._structures.clear()
     monkeypatch.setattr(integrator, "_block_structure", lambda key, nodes: None)
-    import sim_core.solvers.batched as batched
+    import sim_core.solvers.implicit as batched
     monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free, **kwargs: None)
     factors = integrator._factorise_copies(np.arange(2), system, covers)
     for index, factor in enumerate(factors):
@@ -178,7 +178,7 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
     (``kernels.model_forces_copies``), the hourglass term one block of rows per thread and the
     right-hand side's operator products one copy per thread (``kernels.apply_copies``): the same
     floats as the serial pass over the stacked model, bit for bit (the vector envs' results do not
-    depend on the thread count), and the products equal the lockstep kernel's to rounding."""
+    depend on the thread count)."""
     from sim_core import kernels
     from sim_core.models.stack import StackedForceWorkspace
     for env_id in ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0"):
@@ -206,10 +206,6 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
             out[name] = np.empty_like(vector)
             getattr(kernels, name)(stacked, system, hg_rows, hg_group, vector, out[name], *blocks)
         np.testing.assert_array_equal(out["apply_copies"], out["apply_copies_serial"])
-        data, count = integrator.lockstep_data(), envs.num_envs
-        lockstep = np.empty((vector.shape[1], count))
-        kernels.batched_apply_operator(data, system, np.ones_like(lockstep), np.ascontiguousarray(vector.T), lockstep)
-        np.testing.assert_allclose(out["apply_copies"], lockstep.T, rtol=0, atol=1e-12 * np.abs(lockstep).max())
 
 
 def test_per_copy_solves_scale_their_guess_to_the_least_residual():
@@ -310,7 +306,7 @@ def test_lockstep_chunks_give_two_threads_work_and_depend_on_the_copy_count_only
     It takes the copy count only, so the thread count cannot change the floats."""
     import inspect
 
-    from sim_core.solvers.batched import LOCKSTEP_CHUNK, lockstep_chunk
+    from sim_core.solvers.implicit import LOCKSTEP_CHUNK, lockstep_chunk
     assert list(inspect.signature(lockstep_chunk).parameters) == ["count"]
     assert lockstep_chunk(1) == 1 and lockstep_chunk(16) == 8 == LOCKSTEP_CHUNK
     for count in range(1, 65):

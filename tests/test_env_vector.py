@@ -166,13 +166,13 @@ def test_invalid_num_envs():
 @pytest.mark.parametrize("solver", ["factorised", "reference"])
 def test_every_per_copy_solver_gives_the_single_env_trajectories(solver):
     """Each of the implicit step's per-copy linear solvers (``preconditioner`` keyword;
-    sim_core.solvers.batched) gives a copy the single env's steps, on Palpation, whose probe contact changes
+    sim_core.solvers.implicit) gives a copy the single env's steps, on Palpation, whose probe contact changes
     the imposed dofs during an episode (the factorised solver keeps or re-factorises a copy's factor
     when its free set changes): observations within 1e-6. (Solver "jacobi" runs the copies in
     lockstep with the copy index innermost, where the compiler vectorises across copies: a copy's
     floats depend on the copy count, and Palpation's contact decisions amplify the rounding.)"""
     vector, sync = make_pair("tissue_env/Palpation-v0", 3, preconditioner=solver, max_episode_steps=15)
-    assert vector.unwrapped.worlds.integrator.solver == solver
+    assert vector.unwrapped.worlds.integrator.preconditioner == solver
     run_side_by_side(vector, sync, steps=25, seed=3, obs_atol=1e-6, reward_atol=1e-6, info_atol=1e-7, obs_rtol=0.0,
                      info_rtol=1e-4)
     vector.close()
@@ -184,11 +184,11 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
     free-dof matrix, packed for the compiled solves: applied by kernels.lu_apply it equals
     spsolve's solution (to 1e-8), and the steps stay finite."""
     from sim_core import kernels
-    from sim_core.solvers import batched
+    import sim_core.solvers.implicit as implicit
 
-    monkeypatch.setattr(batched, "node_block_factor", lambda model, values, free, **kwargs: None)
+    monkeypatch.setattr(implicit, "node_block_factor", lambda model, values, free, **kwargs: None)
     # the fused factorisations (kernels.factor_copies) fail too: every copy takes _factorise's path
-    monkeypatch.setattr(batched.BatchedImplicitEuler, "_block_structure", lambda self, key, nodes: None)
+    monkeypatch.setattr(implicit.ImplicitEuler, "_block_structure", lambda self, key, nodes: None)
     vector = gym.make_vec("tissue_env/Palpation-v0", num_envs=2, vectorization_mode="vector_entry_point")
     vector.reset(seed=0)
     rng = np.random.default_rng(0)
@@ -197,19 +197,19 @@ def test_scalar_fallback_factor_solves_the_system(monkeypatch):
         assert np.all(np.isfinite(observations))
     integrator = vector.unwrapped.worlds.integrator
     factor = integrator._factors[0]
-    assert integrator.solver == "factorised" and factor.ints[0] > 0  # a scalar factor
+    assert integrator.preconditioner == "factorised" and factor.ints[0] > 0  # a scalar factor
     k = int(factor.ints[0])  # packed: ..., gather (k), free (k), perm_c (k)
     free = factor.ints[len(factor.ints) - 2 * k:len(factor.ints) - k]
     values = integrator._values.copy()  # the last factorisation's matrix, in the model's pattern
     factor = integrator._scalar_factor(values, np.isin(np.arange(3 * vector.unwrapped.worlds.n_nodes), free))
-    pattern = batched.FreeStructure(vector.unwrapped.worlds.stack.reference, free)
-    matrix = batched.sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
+    pattern = implicit.FreeStructure(vector.unwrapped.worlds.stack.reference, free)
+    matrix = implicit.sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
     vector_in = rng.normal(size=3 * vector.unwrapped.worlds.n_nodes)
     mask = np.zeros(3 * vector.unwrapped.worlds.n_nodes)
     mask[free] = 1.0
     out = np.empty_like(vector_in)
     kernels.lu_apply(factor.ints, factor.floats, mask, vector_in * mask, out, np.empty(k))
-    expected = batched.spla.spsolve(matrix.tocsc(), vector_in[free])
+    expected = implicit.spla.spsolve(matrix.tocsc(), vector_in[free])
     np.testing.assert_allclose(out[free], expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
     vector.close()
 
@@ -230,21 +230,21 @@ def test_copies_share_models_and_caches():
 @pytest.mark.parametrize("layout", ["node blocks", "scalar"])
 def test_reference_preconditioner_solves_each_group_with_its_factor(layout, monkeypatch):
     """Solver "reference": the copies that start alike share one sparse LU (one group), and the
-    compiled solve (kernels.batched_precondition) applies each group's factor to all its copies at
-    once: the exact inverse of the group's system matrix on the free dofs, zero on the imposed ones;
-    a re-linearised copy gets a factor of its own; group -1 is the Jacobi diagonal. Both factor
-    layouts: node blocks (free dofs are whole nodes, TumorPositioning) and the scalar fallback."""
+    lockstep solves (kernels.solve_copies_grouped) apply each group's factor to all its copies:
+    the exact inverse of the group's system matrix on the free dofs, zero on the imposed ones; a
+    re-linearised copy gets a factor of its own. Both factor layouts: node blocks (free dofs are
+    whole nodes, TumorPositioning) and the scalar fallback."""
     from sim_core import kernels
     from sim_core.models.forces import stiffness_data
-    from sim_core.solvers import batched
+    import sim_core.solvers.implicit as implicit
 
     if layout == "scalar":
-        monkeypatch.setattr(batched.NodeBlockLU, "applies", staticmethod(lambda free: False))
+        monkeypatch.setattr(implicit.NodeBlockLU, "applies", staticmethod(lambda free: False))
     vector = gym.make_vec("tissue_env/TumorPositioning-v0", num_envs=4, vectorization_mode="vector_entry_point")
     env = vector.unwrapped.worlds
     vector.reset(seed=0)
     integrator = env.integrator
-    assert integrator.solver == "reference"
+    assert integrator.preconditioner == "reference"
     assert len(integrator._group()) == 1  # the four copies start alike: one factor
     assert (integrator._group()[0][0].ints[0] < 0) == (layout == "node blocks")
     rng = np.random.default_rng(1)
@@ -256,31 +256,29 @@ def test_reference_preconditioner_solves_each_group_with_its_factor(layout, monk
     groups = integrator._group()
     assert sorted(len(rows) for _, rows in groups) == [1, 3]
     lu_int, lu_float, group_of = integrator._pack_preconditioners()
-    group_of = group_of.copy()
-    group_of[3] = -1  # copy 3 on the Jacobi diagonal
     dofs = 3 * env.n_nodes
     vectors = rng.normal(size=(dofs, 4))
     mask = np.ascontiguousarray(~fixed.reshape(4, dofs).T, dtype=float)
-    inverse_diagonal = rng.uniform(1.0, 2.0, (dofs, 4))
-    out = np.empty_like(vectors)
-    kernels.batched_precondition(lu_int, lu_float, group_of, np.ones(4, bool), inverse_diagonal, mask, vectors, out,
-                                 np.empty(4, np.int64), np.empty((dofs, 4)), np.empty((3, 4)))
     free = np.flatnonzero(mask[:, 0])
+    assert group_of[0] != group_of[2]
     for index, positions in ((0, copy.state.positions), (2, env.positions[2])):
         # copy 0 still has the start-of-episode factor, copy 2 the one at its current state
+        out = np.empty(dofs)
+        group = group_of[index]
+        kernels.lu_apply(lu_int[group], lu_float[group], np.ascontiguousarray(mask[:, index]),
+                         np.ascontiguousarray(vectors[:, index]), out, np.empty(dofs))
         data = stiffness_data(copy.model, positions, volume=False, clamp=True, stiffness_scale=env.dt ** 2,
                               damping_scale=env.dt, mass_scale=1.0)
         matrix = copy.model.pattern.matrix(data).tocsr()[free][:, free].tocsc()
-        expected = batched.spla.spsolve(matrix, vectors[free, index])
-        np.testing.assert_allclose(out[free, index], expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
-        assert np.all(out[mask[:, index] == 0, index] == 0.0)
-    np.testing.assert_allclose(out[:, 3], mask[:, 3] * inverse_diagonal[:, 3] * vectors[:, 3], rtol=1e-15)
+        expected = implicit.spla.spsolve(matrix, vectors[free, index])
+        np.testing.assert_allclose(out[free], expected, rtol=1e-8, atol=1e-12 * np.abs(expected).max())
+        assert np.all(out[mask[:, index] == 0] == 0.0)
     vector.close()
 
 
 def test_measurement_shares_the_next_steps_force_pass():
     """TumorPositioning's vector env measures with the next implicit step's force pass
-    (``BatchedImplicitEuler.linearise`` plus the damping forces): the same nodal forces as a full
+    (``ImplicitEuler.linearise`` plus the damping forces): the same nodal forces as a full
     pass with velocities up to rounding, and the step from that state does not compute it again."""
     from sim_core.models.forces import ForceWorkspace
 

@@ -191,9 +191,9 @@ def test_explicit_time_step_accounts_for_the_correction():
 def test_stacked_copies_each_their_material_equal_the_single_models():
     """A ModelStack of three copies with their own E and nu: its stacked correction arrays are the
     copies' (assign), the stacked force pass and tangent equal each single model's bit for bit, on
-    one thread and on two (kernels.stress_correction_*_copies), and BatchedImplicitEuler (every
+    one thread and on two (kernels.stress_correction_*_copies), and ImplicitEuler (every
     solver) settles each copy on its own static equilibrium to 1e-6 of the sag."""
-    from sim_core.solvers.batched import SOLVERS, BatchedImplicitEuler
+    from sim_core.solvers.implicit import PRECONDITIONERS, ImplicitEuler
     from sim_core.models.model import Control, State
 
     mesh = HexMesh.block((3, 2, 3), 0.01)
@@ -221,8 +221,8 @@ def test_stacked_copies_each_their_material_equal_the_single_models():
     statics = [solve_static(model, control, tolerance=1e-10).positions for model in models]
     fixed = np.repeat(control.fixed[None], 3, axis=0)
     target = np.repeat(control.target[None], 3, axis=0)
-    for solver in SOLVERS:
-        integrator = BatchedImplicitEuler(stack, tolerance=1e-10, solver=solver, threads=1)
+    for solver in PRECONDITIONERS:
+        integrator = ImplicitEuler(stack, tolerance=1e-10, preconditioner=solver, threads=1)
         state = State(np.repeat(mesh.nodes[None], 3, axis=0), np.zeros((3, mesh.n_nodes, 3)))
         for index, model in enumerate(models):
             integrator.prepare(index, model, mesh.nodes, 0.04, control.fixed)

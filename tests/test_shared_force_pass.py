@@ -1,4 +1,4 @@
-"""One force pass per env step: the implicit step's linearisation (``BatchedImplicitEuler.linearise``,
+"""One force pass per env step: the implicit step's linearisation (``ImplicitEuler.linearise``,
 ``ImplicitEuler.linearise``) is the measurement's pass and the next step's."""
 
 import gymnasium as gym
@@ -39,9 +39,12 @@ def test_one_force_pass_per_step_and_same_measures(task, monkeypatch):
 
 
 def test_linearise_is_reused_only_at_the_same_positions_and_model():
-    from sim_core import HexMesh, Material, build_model
+    """A step from linearised positions reuses that force pass; from other positions, after the
+    world's model changed, or after the positions changed in place, it makes its own: the steps
+    equal those of a fresh solver bit for bit."""
+    from sim_core import HexMesh, Material, ModelStack, build_model
     from sim_core.solvers.integrators import ImplicitEuler
-    from sim_core.models.model import State
+    from sim_core.models.model import Control, State
 
     mesh = HexMesh.block((3, 3, 3), spacing=0.01)
     model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0, -9.81, 0), hourglass_control=1.0)
@@ -53,18 +56,28 @@ def test_linearise_is_reused_only_at_the_same_positions_and_model():
     a = mesh.nodes + 1e-4 * rng.standard_normal(mesh.nodes.shape)
     b = mesh.nodes + 1e-4 * rng.standard_normal(mesh.nodes.shape)
 
-    def step(integrator, positions, which=model):
-        state, out = State(positions.copy(), np.zeros_like(positions)), State(positions.copy(), np.zeros_like(positions))
-        integrator.simulate(which, state, out, 0.01, control)
-        return out.positions
+    def step(integrator, positions):
+        state = State(positions[None].copy(), np.zeros((1,) + positions.shape))
+        out = State(None, None)
+        integrator.step(state, out, Control(control.fixed[None], control.target[None], None), 0.01)
+        return out.positions[0]
 
-    for prepared, positions, which in ((a, b, model), (a, a, model), (a, a, other)):
-        integrator = ImplicitEuler(tolerance=1e-10)
-        integrator.linearise(model, prepared)
-        np.testing.assert_array_equal(step(integrator, positions, which), step(ImplicitEuler(tolerance=1e-10), positions, which))
+    def fresh(which=model):
+        return ImplicitEuler(ModelStack(which, 1), tolerance=1e-10)
+
+    for prepared, positions in ((a, b), (a, a)):
+        integrator = fresh()
+        integrator.linearise(prepared.copy())
+        np.testing.assert_array_equal(step(integrator, positions), step(fresh(), positions))
+    # the world's model changed after the pass
+    integrator = fresh()
+    integrator.linearise(a.copy())
+    integrator.stack.assign(0, other)
+    integrator.model_changed(0)
+    np.testing.assert_array_equal(step(integrator, a), step(fresh(other), a))
     # positions changed in place after the pass are not taken for the old ones
-    integrator = ImplicitEuler(tolerance=1e-10)
+    integrator = fresh()
     moved = a.copy()
-    integrator.linearise(model, moved)
+    integrator.linearise(moved)
     moved += 1e-4
-    np.testing.assert_array_equal(step(integrator, moved), step(ImplicitEuler(tolerance=1e-10), moved))
+    np.testing.assert_array_equal(step(integrator, moved), step(fresh(), moved))

@@ -17,7 +17,6 @@ from sim_core.models.forces import internal_forces, stiffness_data
 from sim_core.solvers.hyperelastic import NeoHookeanFEM
 from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step
 from sim_core.models.model import Control
-from sim_core.solvers.batched import BatchedImplicitEuler
 from sim_core.models.stack import ModelStack
 from sim_core.solvers.static import tangent_stiffness, zero_energy_modes
 from sim_core.studies import experiments
@@ -288,7 +287,7 @@ def test_dynamics_settle_on_the_static_equilibrium(name):
     _, report = run(SymplecticEuler(), 2.0 * limit, 1000)
     assert report.unstable
     stack = ModelStack(model, 2)
-    batched = BatchedImplicitEuler(stack, solver="factorised", tolerance=1e-12)
+    batched = ImplicitEuler(stack, preconditioner="factorised", tolerance=1e-12)
     single = ImplicitEuler(tolerance=1e-12)
     dt = 20 * limit
     positions = np.stack([mesh.nodes] * 2)

@@ -9,8 +9,7 @@ single env is the one-world case (``reset`` loads the episode into its one world
 ``tumor_positioning.py`` for the smallest example. SI units throughout (m, kg, s, Pa, N).
 
 Physics per env step (its cost: ``benchmarks/env_speed.py``): ``substeps`` linearised implicit
-Euler steps of ``dt`` s (``sim_core.solvers.batched.BatchedImplicitEuler``, the discrete equation of
-``sim_core.solvers.integrators.ImplicitEuler``). It is stable far past the explicit limit (about 1 ms for
+Euler steps of ``dt`` s (``sim_core.solvers.implicit.ImplicitEuler``, the same step as for one world). It is stable far past the explicit limit (about 1 ms for
 1 cm elements of a 5 kPa tissue), so one step of ``default_dt`` (20 ms, 40 ms for
 TumorPositioning and Palpation) per env step is enough, and with the springs' critical damping the
 block settles to the quasi-static equilibrium within a few steps of a slow tool (checked against
@@ -37,7 +36,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.solvers.batched import SOLVERS
+from sim_core.solvers.implicit import PRECONDITIONERS
 from sim_core.caches import BudgetCache
 from sim_core.models.model import Control, State
 
@@ -60,9 +59,8 @@ MODELS = ("baudet", "baudet-hyperelastic")
 #: None where the keyword does not apply ("baudet-hyperelastic": its springs resist the hourglass
 #: modes, its ln J pressure holds the volume).
 MODEL_DEFAULTS = {"baudet": (1.0, 100.0), "baudet-hyperelastic": (None, None)}
-#: The implicit step's linear solvers: "auto" (the task's, ``TaskWorlds.linear_solver``) or one of
-#: ``sim_core.solvers.batched.SOLVERS``.
-PRECONDITIONERS = ("auto",) + SOLVERS
+#: The implicit step's preconditioners (``sim_core.solvers.implicit.PRECONDITIONERS``), where an
+#: env's "auto" is its task's (``TaskWorlds.linear_solver``).
 MODEL_CACHE_SIZE = 16
 #: the model's derived-data entry holding an env's start positions (its equilibrium under gravity)
 _START = "env_start_positions"
@@ -349,12 +347,12 @@ class TissueEnv(gym.Env):
         solver_tolerance: relative residual of the implicit integrator's linear solve (the task's
             ``default_solver_tolerance``: 1e-4, fewer iterations than 1e-6 with positions within
             0.01 mm of the 1e-6 run; TumorPositioning and Palpation 1e-2, see their docstrings).
-        preconditioner: the implicit step's linear solver (``sim_core.solvers.batched.BatchedImplicitEuler``):
+        preconditioner: the implicit step's linear solver (``sim_core.solvers.implicit.ImplicitEuler``):
             "auto" (default: the task's, ``linear_solver`` of its ``TaskWorlds``), "factorised"
             (each world's sparse factor of its system matrix, kept across steps and refreshed when
             its solves slow down), "reference" (the factor of the episode's start matrix) or
-            "jacobi" (the Jacobi diagonal; a vector env solves its copies in lockstep, where a
-            copy's floats depend on the copy count: not bitwise the single env's).
+            "jacobi" (the inverse diagonal). Here "auto" is the task's choice, not
+            ``ImplicitEuler``'s "auto" (Jacobi switching to "factorised" where it stalls).
         render_mode: None, "rgb_array" (the debug frames of ``tissue_env.rendering``, with the hidden
             tumour or inclusion marked), "human", or "depth_array" (the camera's depth image, (H, W)
             float32 m, as ``observation_type="depth"`` sees it).

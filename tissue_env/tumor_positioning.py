@@ -51,7 +51,7 @@ class TumorPositioningWorlds(TaskWorlds):
     # factors kept up to date (solver "factorised") and saves their factorisations: the tool moves
     # the tissue only a few millimetres from the start. Solved in lockstep chunks, each pass over
     # the shared factor and hourglass matrix serves all of a chunk's running worlds
-    # (``sim_core.solvers.batched._solve_shared``; benchmarks/vector_env_speed.py and the performance page).
+    # (``sim_core.solvers.implicit``'s "reference"; benchmarks/vector_env_speed.py and the performance page).
     # The measurement's force pass is the next step's (the reaction force only reads it).
     linear_solver = "reference"
     share_force_pass = True

@@ -23,7 +23,7 @@ The vector env does several times the env steps per second of ``vectorization_mo
 one thread (``threads=1``) as on several (benchmarks/vector_env_speed.py measures it; the
 performance page). numba's idle threads spin briefly between parallel regions before they sleep
 (``kernels.start_threads``). How each task's worlds solve their linear systems (``linear_solver``
-of its ``TaskWorlds``) is documented in ``sim_core.solvers.batched``. The copies' resets (their task
+of its ``TaskWorlds``) is documented in ``sim_core.solvers.implicit``. The copies' resets (their task
 envs' episode draws) run on a pool of as many Python threads (``_reset_rows``; a static solve
 releases the GIL for most of its time).
 """

@@ -24,7 +24,7 @@ from collections import OrderedDict
 import numpy as np
 
 from sim_core import kernels
-from sim_core.solvers.batched import BatchedImplicitEuler
+from sim_core.solvers.implicit import ImplicitEuler
 from sim_core.models.model import Control, State
 from sim_core.models.stack import ModelStack, StackedForceWorkspace
 from sim_core.solvers.static import STATIC_CONTACT_PASSES, same_contacts
@@ -116,17 +116,17 @@ class TaskWorlds:
             worlds are independent: any count gives the same floats.
     """
 
-    #: How the implicit step solves each world's linear system (``sim_core.solvers.batched``):
+    #: How the implicit step solves each world's linear system (``sim_core.solvers.implicit``):
     #: "factorised" (each world's sparse factor kept across steps), "reference" (the factor of the
     #: start-of-episode system matrix, shared by the worlds that start alike) or "jacobi". A task
     #: env's ``preconditioner="auto"`` takes this one.
     linear_solver = "factorised"
-    #: The measurement's force pass is also the next implicit step's (``BatchedImplicitEuler.linearise``
+    #: The measurement's force pass is also the next implicit step's (``ImplicitEuler.linearise``
     #: at the new state, plus the springs' damping forces): one pass over the stacked model per step
     #: instead of two; off for tasks whose contact decisions read the sign of nodal forces.
     share_force_pass = False
     #: solver "factorised": None, or the iterations beyond the fresh count after which a world's
-    #: factor is refreshed (``BatchedImplicitEuler``'s ``amortise``; for scenes whose matrix changes
+    #: factor is refreshed (``ImplicitEuler``'s ``amortise``; for scenes whose matrix changes
     #: fast and factorises cheaply, e.g. Retraction)
     refactor_amortise = None
 
@@ -468,7 +468,7 @@ class TaskWorlds:
         with np.errstate(all="ignore"):
             flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
             flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
-            if self.share_force_pass and isinstance(self.integrator, BatchedImplicitEuler):
+            if self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
                 forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
                 self.integrator.workspace.add_damping(flat_velocities, forces)
             else:

@@ -12,8 +12,7 @@ between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes, healt
 reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the force passes),
 ``stress`` (the finite-strain stress correction), ``operator`` (the implicit step's matrix-free
 operator products and its assembled matrix), ``factor`` (block LU / LDL^T factors and their
-solves), ``krylov`` (the single-model and Jacobi-preconditioned batched solves), ``krylov_copies``
-(the per-copy solves preconditioned by sparse factors), ``contact`` (the probe's projected
+solves), ``krylov_copies`` (the implicit step's Krylov solves, per copy: N = 1 is one world), ``contact`` (the probe's projected
 surface), ``geometry`` (points covered by quads seen from above). Every public name is re-exported
 here: ``kernels.model_forces(...)``.
 
@@ -88,8 +87,7 @@ from .stress import (  # noqa: F401
 )
 from .operator import (  # noqa: F401
     apply_blocks, apply_copies, apply_copies_serial, apply_copy, apply_operator, apply_operator_blocks,
-    apply_packed, batched_apply_operator, batched_apply_packed, batched_spring_operator, bsr3_matvec_add,
-    copies_row_product, copy_data, csr_matvec_add, operator_matrix_data, operator_matrix_data_blocks,
+    OperatorData, apply_packed, bsr3_matvec_add, copy_data, csr_matvec_add, operator_matrix_data, operator_matrix_data_blocks,
     spring_operator,
 )
 from .factor import (  # noqa: F401
@@ -98,12 +96,9 @@ from .factor import (  # noqa: F401
     factor_copies, factor_copies_serial, inverse_columns_copies, inverse_columns_copies_serial, lu_apply,
     lu_columns, set_list_items,
 )
-from .krylov import (  # noqa: F401
-    batched_precondition, batched_solve, solve_springs,
-)
 from .krylov_copies import (  # noqa: F401
-    bsr3_matvec_add_rows, solve_copies_grouped, solve_copies_grouped_serial, solve_copies_lu,
-    solve_copies_lu_serial,
+    bsr3_matvec_add_rows, inverse_diagonal, jacobi_copies, jacobi_copies_serial, solve_copies_grouped,
+    solve_copies_grouped_serial, solve_copies_lu, solve_copies_lu_serial,
 )
 from .contact import (  # noqa: F401
     projected_probe_surfaces, projected_probe_surfaces_rows,

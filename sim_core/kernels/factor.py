@@ -454,11 +454,16 @@ def lu_apply(ints, values, mask, vector, out, buffer):
     U indices, gather (k), free (k), perm_c (k)] (CSC, sorted indices: L's diagonal first, U's last in
     each column), ``values``: [L data, U data]; gather[j] = the dof that Pr puts in position j. The
     factor's free dofs may include dofs the mask imposes (a factor of a larger free set: an
-    approximate inverse). k = 0: no factor (out = mask * vector)."""
+    approximate inverse). k = 0: no factor: ``ints`` [0] the identity (out = mask * vector), [0, 1]
+    Jacobi with ``values`` the masked inverse diagonal (out = values * vector, ``inverse_diagonal``)."""
     k = ints[0]
     if k == 0:
-        for i in range(vector.shape[0]):
-            out[i] = mask[i] * vector[i]
+        if ints.shape[0] > 1:
+            for i in range(vector.shape[0]):
+                out[i] = values[i] * vector[i]
+        else:
+            for i in range(vector.shape[0]):
+                out[i] = mask[i] * vector[i]
         return
     if k < 0:  # a node-block factor (``sparse.NodeBlockLU``)
         block_lu_apply(ints, values, mask, vector, out, buffer)

@@ -11,9 +11,9 @@ from __future__ import annotations
 #: they depended on which callees numba had loaded from its cache, and a serial kernel and its
 #: threaded twin could round apart: docs/performance_notes.md, "Fastmath flags").
 FAST = {"nsz", "arcp", "contract"}
-#: ``FAST`` with reassociation, for the single-model Jacobi Krylov kernels only (``apply_operator``,
-#: ``solve_springs``: no serial / threaded twin whose floats must match; ``spring_operator``, which
-#: the copies' kernels call too, has none), so that LLVM vectorises their reductions.
+#: ``FAST`` with reassociation, for the single-model operator product only (``apply_operator``: no
+#: serial / threaded twin whose floats must match; ``spring_operator``, which the copies' kernels
+#: call too, has none), so that LLVM vectorises its reductions.
 FAST_REDUCE = FAST | {"reassoc"}
 #: ``FAST`` without contraction, for the stress correction's kernels (``kernels.stress``), whose
 #: per-element bodies a threaded pass (``stress_correction_tangent_add_copies``) inlines: with

@@ -1,5 +1,6 @@
-"""Krylov solves of N copies preconditioned by sparse factors: each copy on its own
-(``solve_copies_lu``) or the copies that share a factor in lockstep (``solve_copies_grouped``), on
+"""Krylov solves of the implicit step for N copies (N = 1: one world): each copy on its own
+(``solve_copies_lu``), preconditioned by its sparse factor or by Jacobi (the inverse diagonal,
+``jacobi_copies``), or the copies that share a factor in lockstep (``solve_copies_grouped``), on
 numba's threads or in this one (the ``_serial`` twins).
 """
 
@@ -9,7 +10,7 @@ import numpy as np
 from numba import njit, prange
 
 from .fastmath import FAST
-from .operator import apply_blocks, apply_copy, copy_data
+from .operator import apply_blocks, apply_copy, copy_data, stress_diagonal_add
 from .factor import correct_masked, corrected_lu_apply, lu_columns
 
 
@@ -68,6 +69,42 @@ def _scaled_start(x, b, v, r, r_hat, p):
     return rr
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _direction(p, r, v, beta, omega):
+    """BiCGSTAB's search direction: p = r + beta (p - omega v)."""
+    for i in range(p.shape[0]):
+        p[i] = r[i] + beta * (p[i] - omega * v[i])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _half_step(r, v, s, alpha):
+    """s = r - alpha v; returns s . s."""
+    ss = 0.0
+    for i in range(s.shape[0]):
+        s[i] = r[i] - alpha * v[i]
+        ss += s[i] * s[i]
+    return ss
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _stop_at_half(x, r, s, p_hat, alpha):
+    """The solve converged at the half step: x += alpha p_hat, r = s."""
+    for i in range(x.shape[0]):
+        x[i] += alpha * p_hat[i]
+        r[i] = s[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _full_step(x, r, s, t, p_hat, s_hat, alpha, omega):
+    """x += alpha p_hat + omega s_hat, r = s - omega t; returns r . r."""
+    rr = 0.0
+    for i in range(x.shape[0]):
+        x[i] += alpha * p_hat[i] + omega * s_hat[i]
+        r[i] = s[i] - omega * t[i]
+        rr += r[i] * r[i]
+    return rr
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
                 factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
@@ -105,34 +142,24 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
             break
         beta = (rho_new / rho) * (alpha / omega)
         rho = rho_new
-        for i in range(dofs):
-            p[i] = r[i] + beta * (p[i] - omega * v[i])
+        _direction(p, r, v, beta, omega)
         corrected_lu_apply(ints, values, m, ones, correction, held, gathered, p, p_hat, buffer)
         apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, p_hat, v)
         denominator = _dot(r_hat, v)
         if not (np.isfinite(denominator) and denominator != 0.0):
             break
         alpha = rho / denominator
-        ss = 0.0
-        for i in range(dofs):
-            s[i] = r[i] - alpha * v[i]
-            ss += s[i] * s[i]
+        ss = _half_step(r, v, s, alpha)
         count += 1
         if np.sqrt(ss) / norm_b <= tolerance:
-            for i in range(dofs):
-                x[i] += alpha * p_hat[i]
-                r[i] = s[i]
+            _stop_at_half(x, r, s, p_hat, alpha)
             res = np.sqrt(ss) / norm_b
             break
         corrected_lu_apply(ints, values, m, ones, correction, held, gathered, s, s_hat, buffer)
         apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, blocks, m, s_hat, t)
         ts, tt = _dot_and_square(s, t)
         omega = ts / tt if tt > 0.0 else 0.0
-        rr = 0.0
-        for i in range(dofs):
-            x[i] += alpha * p_hat[i] + omega * s_hat[i]
-            r[i] = s[i] - omega * t[i]
-            rr += r[i] * r[i]
+        rr = _full_step(x, r, s, t, p_hat, s_hat, alpha, omega)
         res = np.sqrt(rr) / norm_b
         if not np.isfinite(res):
             break
@@ -144,7 +171,7 @@ def _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, to
 def solve_copies_lu(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int,
                     lu_float, factor_of, corrections, imposed, work, solution, iterations, residual,
                     hg_block_indptr, hg_block_indices, hg_block_rows):
-    """Each ``active`` copy's right-preconditioned BiCGSTAB (``solve_springs``' algorithm and stopping
+    """Each ``active`` copy's right-preconditioned BiCGSTAB (stopping
     test ||r|| <= tolerance ||b||), the copies shared among numba's threads, each with its own
     scratch (no lockstep: a copy costs its own iterations; ``work`` (8, 3 n) serves a single copy),
     preconditioned by its sparse LU ``factor_of[c]`` restricted to its free dofs
@@ -180,6 +207,57 @@ def solve_copies_lu_serial(stacked, scales, hg_rows, hg_group, mask, rhs, guess,
         _solve_copy(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
                     factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
                     hg_block_indices, hg_block_rows, ones, c)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def inverse_diagonal(data, scales, mask, out):
+    """out (3 n,) = mask / diag(A), the Jacobi preconditioner of the implicit system A = M + dt D +
+    dt^2 K of the ``OperatorData`` ``data`` with ``scales``: the diagonal of the mass, the springs'
+    (axial stiffness and damping, clamped geometric term), the stress correction's element blocks
+    and the hourglass matrix; 0 where it is not positive (an imposed or degenerate dof)."""
+    (springs, unit, stiffness, damping, geometric, mass, elements, _, _, _, _, _, _, hg_indptr, hg_indices, hg_data,
+     _, _, stress_gradient, stress_tangent) = data
+    mass_scale, damping_scale, stiffness_scale, hg_scale = scales[0], scales[1], scales[2], scales[5]
+    for node in range(mass.shape[0]):
+        for c in range(3):
+            out[3 * node + c] = mass_scale * mass[node]
+    for k in range(springs.shape[0]):
+        a, b = springs[k, 0], springs[k, 1]
+        across = stiffness_scale * geometric[k]
+        along = stiffness_scale * stiffness[k] + damping_scale * damping[k] - across
+        for c in range(3):
+            value = along * unit[k, c] * unit[k, c] + across
+            out[3 * a + c] += value
+            out[3 * b + c] += value
+    if stress_tangent.shape[0] != 0:  # the stress correction's element blocks (baudet-hyperelastic)
+        stress_diagonal_add(elements, stress_gradient, stress_tangent, stiffness_scale, out)
+    for row in range(out.shape[0]):
+        value = out[row]
+        if value > 0.0:
+            if hg_scale != 0.0:
+                for k in range(hg_indptr[row], hg_indptr[row + 1]):
+                    if hg_indices[k] == row:
+                        value += hg_scale * hg_data[k]
+            out[row] = mask[row] / value
+        else:
+            out[row] = 0.0
+
+
+@njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
+def jacobi_copies(stacked, scales, hg_rows, hg_group, mask, active, out):
+    """out[c] (N, 3 n) = ``inverse_diagonal`` of each ``active`` copy c's system (its data from
+    ``copy_data``; ``solve_copies_lu``'s arguments), the copies shared among numba's threads."""
+    for c in prange(out.shape[0]):
+        if active[c]:
+            inverse_diagonal(copy_data(stacked, hg_rows, hg_group, c), scales, mask[c], out[c])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def jacobi_copies_serial(stacked, scales, hg_rows, hg_group, mask, active, out):
+    """``jacobi_copies`` in this thread only."""
+    for c in range(out.shape[0]):
+        if active[c]:
+            inverse_diagonal(copy_data(stacked, hg_rows, hg_group, c), scales, mask[c], out[c])
 
 
 # -- lockstep solves of copies that share preconditioners (solver "reference") -----------------------
@@ -281,6 +359,18 @@ def _apply_rows(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_in
                 row[j] *= m[j]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _scratch_sizes(lu_int, factor_of, imposed, first, last):
+    """(the largest factor's dofs, the most dofs a correction holds) of the copies first ... last - 1:
+    the sizes of a lockstep chunk's substitution and correction scratch."""
+    largest = 1
+    held = 0
+    for c in range(first, last):
+        largest = max(largest, abs(lu_int[factor_of[c]][0]))
+        held = max(held, imposed[c].shape[0])
+    return largest, held
+
+
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active, tolerance, limits, lu_int, lu_float,
                     factor_of, corrections, imposed, work, solution, iterations, residual, hg_block_indptr,
@@ -290,7 +380,6 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
     and iteration count (a copy that stops is left out of every later pass, so it costs its own
     iterations), the preconditioner applied to all the running copies of a factor at once
     (``_precondition_rows``). ``work`` (8, N, 3 n): rows first ... last - 1 used."""
-    dofs = rhs.shape[1]
     size = last - first
     r, r_hat, p, v, s, t, p_hat, s_hat = work[0], work[1], work[2], work[3], work[4], work[5], work[6], work[7]
     running = np.zeros(size, dtype=np.bool_)
@@ -301,11 +390,7 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
     rho = np.ones(size)
     alpha = np.ones(size)
     omega = np.ones(size)
-    largest = 1
-    held = 0
-    for c in range(first, last):
-        largest = max(largest, abs(lu_int[factor_of[c]][0]))
-        held = max(held, imposed[c].shape[0])
+    largest, held = _scratch_sizes(lu_int, factor_of, imposed, first, last)
     columns = np.empty(size, dtype=np.int64)
     buffer = np.empty((largest, size))
     accumulator = np.empty((3, size))
@@ -343,8 +428,7 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
                 continue
             beta = (rho_new / rho[i]) * (alpha[i] / omega[i])
             rho[i] = rho_new
-            for j in range(dofs):
-                p[c, j] = r[c, j] + beta * (p[c, j] - omega[i] * v[c, j])
+            _direction(p[c], r[c], v[c], beta, omega[i])
             more = True
         if not more:
             break
@@ -361,16 +445,10 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
                 running[i] = False
                 continue
             alpha[i] = rho[i] / denominator
-            ss = 0.0
-            for j in range(dofs):
-                s[c, j] = r[c, j] - alpha[i] * v[c, j]
-                ss += s[c, j] * s[c, j]
+            ss = _half_step(r[c], v[c], s[c], alpha[i])
             iterations[c] += 1
             if np.sqrt(ss) / norm_b[i] <= tolerance:
-                x = solution[c]
-                for j in range(dofs):
-                    x[j] += alpha[i] * p_hat[c, j]
-                    r[c, j] = s[c, j]
+                _stop_at_half(solution[c], r[c], s[c], p_hat[c], alpha[i])
                 res[i] = np.sqrt(ss) / norm_b[i]
                 running[i] = False
         _precondition_rows(s, s_hat, running, first, lu_int, lu_float, factor_of, corrections, imposed, mask, columns,
@@ -383,12 +461,7 @@ def _solve_lockstep(stacked, scales, hg_rows, hg_group, mask, rhs, guess, active
             c = first + i
             ts, tt = _dot_and_square(s[c], t[c])
             omega[i] = ts / tt if tt > 0.0 else 0.0
-            x = solution[c]
-            rr = 0.0
-            for j in range(dofs):
-                x[j] += alpha[i] * p_hat[c, j] + omega[i] * s_hat[c, j]
-                r[c, j] = s[c, j] - omega[i] * t[c, j]
-                rr += r[c, j] * r[c, j]
+            rr = _full_step(solution[c], r[c], s[c], t[c], p_hat[c], s_hat[c], alpha[i], omega[i])
             res[i] = np.sqrt(rr) / norm_b[i]
             if not (np.isfinite(res[i]) and res[i] > tolerance and iterations[c] < limits[c]):
                 running[i] = False

@@ -1,10 +1,11 @@
 """The implicit step's system operator A = M + h D + h^2 K: matrix-free products (one model,
-``spring_operator``; N copies, copy index last, ``batched_spring_operator``; copy by copy,
-``apply_copies``), the assembled matrix's data (``operator_matrix_data``) and the CSR / node-block
+``spring_operator``, ``apply_operator``; copy by copy, ``apply_copies``), the assembled matrix's data (``operator_matrix_data``) and the CSR / node-block
 (BSR) matrix-vector products they use.
 """
 
 from __future__ import annotations
+
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -14,6 +15,20 @@ from .fastmath import FAST, FAST_REDUCE
 from .stress import add_outer
 
 _EDGES = np.ascontiguousarray(EDGES)
+
+#: The implicit step's operator data, as every operator kernel takes it (``apply_operator``,
+#: ``operator_matrix_data``, the copies' kernels): the springs (S, 2) and their unit vectors (S, 3),
+#: stiffness and damping (S,) N/m and N s/m, clamped geometric stiffness (S,) N/m; the node masses
+#: (N,) kg; the elements (M, 8 or 4), each element's spring per edge (M, 12), the corrections'
+#: matrices (M, 3, 3) and axis rest lengths (M, 3) m; the volume forces' coefficient (M,),
+#: direction and gradient (M, 8, 3); the hourglass matrix in CSR (indptr, indices, data N/m);
+#: the corrections' elongations and deltas (S,) (scratch); the stress correction's mean gradient
+#: (M, n, 3) and tangent (M, 9, 9), empty without it. Built by ``models.forces.ForceWorkspace``
+#: (one model) and ``copy_data`` (copy c of a stacked model).
+OperatorData = namedtuple("OperatorData", (
+    "springs", "unit", "stiffness", "damping", "geometric", "mass", "elements", "edge_spring",
+    "correction_matrix", "axis_rest_length", "volume_coefficient", "volume_direction", "volume_gradient",
+    "hg_indptr", "hg_indices", "hg_data", "elongation", "delta", "stress_gradient", "stress_tangent"))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -218,10 +233,8 @@ def apply_packed(data, scales, mask, vector, out):
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_REDUCE)
 def apply_operator(data, scales, mask, vector, out):
-    """``spring_operator`` with its arguments packed: data = (springs, unit, stiffness, damping,
-    geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length, volume_coefficient,
-    volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta, stress_gradient,
-    stress_tangent), scales = (mass, damping, stiffness, coupling, volume, hourglass); the stress
+    """``spring_operator`` with its arguments packed: ``data`` an ``OperatorData``, scales = (mass,
+    damping, stiffness, coupling, volume, hourglass); the stress
     correction's stiffness K_s (stress_gradient (M, 8, 3), stress_tangent (M, 9, 9), or empty) goes
     with the stiffness scale."""
     apply_packed(data, scales, mask, vector, out)
@@ -360,146 +373,6 @@ def operator_matrix_data_blocks(data, scales, spring_positions, element_position
                         out[element_positions[m, k, n, i, j]] += r0 * q[n, 0, j] + r1 * q[n, 1, j] + r2 * q[n, 2, j]
 
 
-# -- batched copies (sim_core.solvers.batched): N copies of one block, copy index last ------------------------
-# Every per-copy array has the copy as its last axis ((S, N), (S, 3, N), (3 n, N) ...), so each loop over
-# springs, elements or hourglass entries reads its indices once for all N copies (the inner loop over
-# copies is contiguous). Same formulas as ``spring_operator`` / ``solve_springs``.
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
-def copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, vector, row, total):
-    """total (N,) = row ``row`` of each copy's hourglass matrix (CSR ``hg_indptr``, ``hg_indices`` of
-    one copy, values ``hg_data[:, hg_group[c]]`` (nnz, G)) times that copy's column of ``vector``
-    (dofs, N); with one matrix for every copy (G = 1) the inner loop is contiguous (vectorised)."""
-    for c in range(total.shape[0]):
-        total[c] = 0.0
-    shared = hg_data.shape[1] == 1
-    for k in range(hg_indptr[row], hg_indptr[row + 1]):
-        col = hg_indices[k]
-        if shared:
-            value = hg_data[k, 0]
-            for c in range(total.shape[0]):
-                total[c] += value * vector[col, c]
-        else:
-            for c in range(total.shape[0]):
-                total[c] += hg_data[k, hg_group[c]] * vector[col, c]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
-def batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_scale, damping_scale,
-                            stiffness_scale, elements, edge_spring, correction_matrix, axis_rest_length,
-                            coupling_scale, volume_coefficient, volume_direction, volume_gradient, volume_scale,
-                            hg_indptr, hg_indices, hg_data, hg_group, hg_scale, mask, vector, out, elongation,
-                            delta, stress_gradient, stress_tangent):
-    """``spring_operator`` of N copies at once: out (3 n, N) = mask * A @ vector (3 n, N), with the
-    single block's topology (springs, elements, edge_spring, hg_indptr, hg_indices) and per-copy values
-    (unit (S, 3, N), stiffness, damping, geometric (S, N), mass (n, N), correction_matrix (M, 3, 3, N),
-    axis_rest_length (M, 3, N), volume_coefficient (M, N), volume_direction, volume_gradient (M, 8, 3, N),
-    hg_data (nnz, G): the G distinct hourglass matrices' values, copy c using column hg_group[c],
-    stress_gradient (M, 8, 3, N), stress_tangent (M, 9, 9, N): the stress correction's stiffness, or
-    empty). elongation, delta (S, N) are scratch."""
-    n_copies = vector.shape[1]
-    for node in range(mass.shape[0]):
-        for k in range(3):
-            row = 3 * node + k
-            for c in range(n_copies):
-                out[row, c] = mass_scale * mass[node, c] * vector[row, c]
-    coupled = coupling_scale != 0.0
-    n_springs = springs.shape[0]
-    if coupled:
-        for s in range(n_springs):
-            a, b = springs[s, 0], springs[s, 1]
-            for c in range(n_copies):
-                elongation[s, c] = (unit[s, 0, c] * (vector[3 * b, c] - vector[3 * a, c])
-                                    + unit[s, 1, c] * (vector[3 * b + 1, c] - vector[3 * a + 1, c])
-                                    + unit[s, 2, c] * (vector[3 * b + 2, c] - vector[3 * a + 2, c]))
-                delta[s, c] = 0.0
-        for m in range(elements.shape[0]):
-            for c in range(n_copies):
-                r0 = 0.25 * coupling_scale * (elongation[edge_spring[m, 0], c] + elongation[edge_spring[m, 1], c]
-                                              + elongation[edge_spring[m, 2], c] + elongation[edge_spring[m, 3], c]) \
-                    / axis_rest_length[m, 0, c]
-                r1 = 0.25 * coupling_scale * (elongation[edge_spring[m, 4], c] + elongation[edge_spring[m, 5], c]
-                                              + elongation[edge_spring[m, 6], c] + elongation[edge_spring[m, 7], c]) \
-                    / axis_rest_length[m, 1, c]
-                r2 = 0.25 * coupling_scale * (elongation[edge_spring[m, 8], c] + elongation[edge_spring[m, 9], c]
-                                              + elongation[edge_spring[m, 10], c] + elongation[edge_spring[m, 11], c]) \
-                    / axis_rest_length[m, 2, c]
-                for j in range(3):
-                    p = (correction_matrix[m, j, 0, c] * r0 + correction_matrix[m, j, 1, c] * r1
-                         + correction_matrix[m, j, 2, c] * r2)
-                    for q in range(4):
-                        delta[edge_spring[m, 4 * j + q], c] += p
-    if volume_scale != 0.0:
-        for m in range(elements.shape[0]):
-            for c in range(n_copies):
-                if volume_coefficient[m, c] == 0.0:
-                    continue
-                rate = 0.0
-                for n in range(8):
-                    node = elements[m, n]
-                    rate += (volume_gradient[m, n, 0, c] * vector[3 * node, c]
-                             + volume_gradient[m, n, 1, c] * vector[3 * node + 1, c]
-                             + volume_gradient[m, n, 2, c] * vector[3 * node + 2, c])
-                rate *= volume_scale * volume_coefficient[m, c]
-                for n in range(8):
-                    node = elements[m, n]
-                    out[3 * node, c] += rate * volume_direction[m, n, 0, c]
-                    out[3 * node + 1, c] += rate * volume_direction[m, n, 1, c]
-                    out[3 * node + 2, c] += rate * volume_direction[m, n, 2, c]
-    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:
-        for c in range(n_copies):  # each copy's columns (copies last); its elements in order, as one model
-            _stress_product(elements, stress_gradient[:, :, :, c], stress_tangent[:, :, :, c], stiffness_scale,
-                            vector[:, c], out[:, c])
-    for s in range(n_springs):
-        a, b = springs[s, 0], springs[s, 1]
-        for c in range(n_copies):
-            u0, u1, u2 = unit[s, 0, c], unit[s, 1, c], unit[s, 2, c]
-            d0 = vector[3 * b, c] - vector[3 * a, c]
-            d1 = vector[3 * b + 1, c] - vector[3 * a + 1, c]
-            d2 = vector[3 * b + 2, c] - vector[3 * a + 2, c]
-            across = stiffness_scale * geometric[s, c]
-            along = stiffness_scale * stiffness[s, c] + damping_scale * damping[s, c] - across
-            t = along * (u0 * d0 + u1 * d1 + u2 * d2)
-            if coupled:
-                t -= delta[s, c]
-            f0 = t * u0 + across * d0
-            f1 = t * u1 + across * d1
-            f2 = t * u2 + across * d2
-            out[3 * a, c] -= f0
-            out[3 * a + 1, c] -= f1
-            out[3 * a + 2, c] -= f2
-            out[3 * b, c] += f0
-            out[3 * b + 1, c] += f1
-            out[3 * b + 2, c] += f2
-    if hg_scale != 0.0:
-        total = np.empty(n_copies)
-        for row in range(hg_indptr.shape[0] - 1):
-            copies_row_product(hg_indptr, hg_indices, hg_data, hg_group, vector, row, total)
-            for c in range(n_copies):
-                out[row, c] += hg_scale * total[c]
-    for i in range(out.shape[0]):
-        for c in range(n_copies):
-            out[i, c] *= mask[i, c]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def batched_apply_packed(data, scales, mask, vector, out):
-    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
-     hg_group, stress_gradient, stress_tangent) = data
-    batched_spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
-                            elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
-                            volume_coefficient, volume_direction, volume_gradient, scales[4],
-                            hg_indptr, hg_indices, hg_data, hg_group, scales[5], mask, vector, out, elongation, delta,
-                            stress_gradient, stress_tangent)
-
-
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
-def batched_apply_operator(data, scales, mask, vector, out):
-    """``batched_spring_operator`` with its arguments packed as ``apply_operator``'s (copies last), but
-    hg_group (N,) after delta (then stress_gradient, stress_tangent)."""
-    batched_apply_packed(data, scales, mask, vector, out)
-
-
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def bsr3_matvec_add(indptr, indices, data, vector, scale, out):
     """out += scale * A @ vector for a matrix of 3 x 3 node blocks (``forces.hourglass_blocks``:
@@ -551,9 +424,11 @@ def apply_operator_blocks(data, scales, ones, hg_block_indptr, hg_block_indices,
 
 @njit(cache=True, nogil=True, inline="always")
 def copy_data(stacked, hg_rows, hg_group, c):
-    """``apply_operator``'s data of copy ``c`` of a stacked model (copies first; ``solve_copies_lu``,
+    """``OperatorData`` of copy ``c`` of a stacked model (copies first; ``solve_copies_lu``,
     ``factor_copies``): its slices of the per-spring, per-node and per-element arrays, the shared
-    topology, and its group's hourglass values ``hg_rows[hg_group[c]]``."""
+    topology, and its group's hourglass values ``hg_rows[hg_group[c]]``. A plain tuple of the
+    ``OperatorData`` fields in their order: numba's parallel analysis fails on a named tuple built
+    inside a ``prange`` body."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
      delta, stress_gradient, stress_tangent) = stacked

@@ -115,7 +115,7 @@ def hourglass_block_map(matrix):
     """The node-block (BSR, 3 x 3) layout of a CSR matrix with 3 dofs per node: (block indptr
     (N + 1,), block columns (nb,), positions (9 nb,) int64: the index in ``matrix.data`` of each
     row-major block value, -1 for the zeros a block adds). Values of another matrix of the same
-    pattern are ``data[positions]`` where positions >= 0 (``sim_core.solvers.batched``'s per-copy
+    pattern are ``data[positions]`` where positions >= 0 (``sim_core.solvers.implicit``'s per-copy
     hourglass values)."""
     probe = sp.csr_matrix((np.arange(1.0, matrix.nnz + 1.0), matrix.indices, matrix.indptr), shape=matrix.shape)
     blocks = sp.bsr_matrix(probe, blocksize=(3, 3))
@@ -183,11 +183,12 @@ class ForceWorkspace:
         #: elements whose correction stiffness the last ``compute`` clamped to its positive part
         self.clamped_elements = 0
         hg_indptr, hg_indices, hg_data = self.hourglass_arrays
-        self.operator_data = (model.springs, self.unit, model.stiffness, model.damping, self.geometric, model.mass,
-                              model.mesh.elements, model.edge_spring, model.correction_matrix,
-                              model.axis_rest_length, self.volume_coefficient, self.volume_direction,
-                              self.volume_gradient, hg_indptr, hg_indices, hg_data, self.elongation, self.delta,
-                              self.stress_gradient, self.stress_tangent)
+        #: the implicit operator's data at the last ``compute`` (``kernels.OperatorData``)
+        self.operator_data = kernels.OperatorData(
+            model.springs, self.unit, model.stiffness, model.damping, self.geometric, model.mass, model.mesh.elements,
+            model.edge_spring, model.correction_matrix, model.axis_rest_length, self.volume_coefficient,
+            self.volume_direction, self.volume_gradient, hg_indptr, hg_indices, hg_data, self.elongation, self.delta,
+            self.stress_gradient, self.stress_tangent)
 
     def compute(self, positions: np.ndarray, velocities: np.ndarray | None, hourglass: bool = True,
                 geometric: bool = False, volume_jacobian: bool = False, exact: bool = False) -> np.ndarray:

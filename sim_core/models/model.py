@@ -338,14 +338,10 @@ def build_model(
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
-    if isinstance(mesh, TetMesh):
-        options = _tet_options(model, volume_conservation, volume_stiffness, nu_factor, damping_ratio,
-                               hourglass_control, springs)
-    elif isinstance(mesh, HexMesh):
-        options = _hex_options(model, volume_conservation, volume_stiffness, nu_factor, damping_ratio,
-                               hourglass_control, springs)
-    else:
+    if not isinstance(mesh, (HexMesh, TetMesh)):
         raise ValueError(f"mesh must be a HexMesh or a TetMesh, got {type(mesh).__name__}")
+    options = (_tet_options if isinstance(mesh, TetMesh) else _hex_options)(
+        model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, hourglass_control, springs)
     gravity = finite_array("gravity", gravity, shape=(3,))
     tetrahedra = isinstance(mesh, TetMesh)
     hyperelastic = model == "baudet-hyperelastic"

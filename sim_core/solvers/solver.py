@@ -6,7 +6,7 @@ forces) from ``state_in`` into ``state_out`` and returns a ``StepReport`` of wha
 a world diverged; ``reset(world_mask)`` starts worlds again and ``model_changed(index)`` follows a
 changed model. A solver of one world (``OneWorldSolver``: ``sim_core.solvers.integrators``' explicit and
 implicit Euler, ``sim_core.solvers.static.QuasiStatic``; ``bind`` gives it its model) steps (n, 3) states; a
-solver of N worlds (``WorldsSolver``, ``sim_core.solvers.batched``; ``sim_core.solvers.worlds.PerWorld``) steps the
+solver of N worlds (``WorldsSolver``: ``sim_core.solvers.implicit``, ``integrators``; ``sim_core.solvers.worlds.PerWorld``) steps the
 (N, n, 3) states of a ``ModelStack`` with ``active`` an (N,) world mask, and reports per world. Both
 run the same divergence checks (``DivergenceMonitors``, of which ``DivergenceMonitor`` is the
 one-world case). ``sim_core.make_solver`` builds either. Here also: the time step check and the
@@ -81,7 +81,7 @@ class OneWorldSolver:
         ``state_in`` into ``state_out`` and advances the clock (the one-world case of a world mask)."""
         if self.model is None:
             raise ValueError("this solver has no model: bind one first (solver.bind(model), or "
-                             "make_integrator(name, model=model))")
+                             "make_solver(method, model))")
         if active is not None and not bool(np.all(active)):
             dt = check_dt(dt)
             state_out.positions, state_out.velocities = state_in.positions.copy(), state_in.velocities.copy()
@@ -239,7 +239,7 @@ class DivergenceMonitors:
         return reasons
 
 
-class WorldsSolver:
+class WorldsSolver(OneWorldSolver):
     """The solver contract (``sim_core.solvers.solver``) for the N worlds of a ``ModelStack``:
     ``step(state_in, state_out, control, dt, active)`` with states and controls of shape (N, n, 3)
     and ``active`` an (N,) world mask, which returns a ``StepReport`` of per-world arrays whose
@@ -248,9 +248,81 @@ class WorldsSolver:
     gets) and is told when its model changed (``model_changed(index)``; a changed model is also
     noticed at the next step). A world whose model has another topology than the stack's block
     (``ModelStack.shared`` False: a cut) is stepped on its own model by a solver of the same class
-    and options on a stack of that one world. A subclass provides ``simulate(positions, velocities,
+    and options on a stack of that one world. A subclass provides ``advance(positions, velocities,
     fixed, target, dt, active, force)`` -> (positions, velocities), new (N, n, 3) arrays in which
-    the inactive worlds keep their state, and ``_options`` (the keywords that rebuild it)."""
+    the inactive worlds keep their state, and ``_options`` (the keywords that rebuild it).
+
+    One world is the case N = 1: built on a ``Model`` (or on nothing, then ``bind(model)``) instead
+    of a ``ModelStack``, the solver steps (n, 3) states and controls and reports scalars
+    (``step``, and ``simulate(model, state_in, state_out, dt, control)`` with the model named at
+    the call), each model through a solver of its class and options on a one-world stack of it."""
+
+    stack: ModelStack | None = None
+
+    def _one_world(self, target) -> bool:
+        """Whether ``target`` (a ``ModelStack``, a ``Model`` or None) makes this a solver of one
+        world; if so, set it up (bound to ``target`` when it is a model)."""
+        if isinstance(target, ModelStack):
+            return False
+        if target is not None and not isinstance(target, Model):
+            raise ValueError(f"a solver steps a sim_core Model (one world) or a ModelStack (N worlds), "
+                             f"got {type(target).__name__}")
+        self.model = target
+        #: one world: the solver of each model stepped so far, on a one-world stack of it
+        self._worlds = {}
+        return True
+
+    @property
+    def one_world(self) -> bool:
+        """Whether this solver steps one world ((n, 3) states) rather than a ``ModelStack``."""
+        return self.stack is None
+
+    def bind(self, model: Model):
+        """One world: step ``model`` from now on (returns the solver)."""
+        if not self.one_world:
+            raise ValueError("bind is for a solver of one world; this one steps a ModelStack")
+        return super().bind(model)
+
+    def _single_options(self):
+        """The options of a solver of one world's stack: one thread (the threads share copies, and
+        there is one)."""
+        options = self._options()
+        if "threads" in options:
+            options["threads"] = 1
+        return options
+
+    def world(self, model: Model):
+        """One world: the N = 1 solver that steps ``model`` (made at its first step, kept: its
+        warm start, factors and divergence history are the episode's)."""
+        solver = self._worlds.get(model)
+        if solver is None:
+            if len(self._worlds) >= 8:  # a study that steps many models keeps the last few
+                self._worlds.pop(next(iter(self._worlds)))
+            solver = self._worlds[model] = type(self)(ModelStack(model, 1), **self._single_options())
+        return solver
+
+    def simulate(self, model: Model, state_in: State, state_out: State, dt: float,
+                 control: Control | None = None) -> StepReport:
+        """One world: advance ``model``'s world by ``dt`` s from ``state_in`` into ``state_out``
+        ((n, 3) arrays, m and m/s) under ``control`` (None: nothing imposed); a ``StepReport`` of
+        scalars."""
+        if not self.one_world:
+            raise ValueError("simulate(model, ...) is for a solver of one world; step the ModelStack instead")
+        control = model.new_control() if control is None else control
+        rows = model.n_nodes
+        for name, array in (("positions", state_in.positions), ("velocities", state_in.velocities),
+                            ("control.fixed", control.fixed), ("control.target", control.target)):
+            if np.shape(array) != (rows, 3):
+                raise ValueError(f"{name} must have shape {(rows, 3)} (nodes, 3), got {np.shape(array)}")
+        force = None if control.force is None else np.asarray(control.force, dtype=float)[None]
+        out = State(None, None)
+        report = self.world(model).step(
+            State(np.asarray(state_in.positions, dtype=float)[None], np.asarray(state_in.velocities, dtype=float)[None],
+                  state_in.time),
+            out, Control(np.asarray(control.fixed, dtype=bool)[None], np.asarray(control.target, dtype=float)[None],
+                         force), dt)
+        state_out.positions, state_out.velocities, state_out.time = out.positions[0], out.velocities[0], out.time
+        return StepReport(int(report.iterations[0]), float(report.residual[0]), report.unstable_reason[0])
 
     def _start_worlds(self, stack, threads: int):
         self.stack = stack
@@ -273,7 +345,7 @@ class WorldsSolver:
         if not self.stack.shared[index]:
             own = self._own.get(index)
             if own is None or own.stack.models[0] is not padded:
-                own = self._own[index] = type(self)(ModelStack(padded, 1), **self._options())
+                own = self._own[index] = type(self)(ModelStack(padded, 1), **self._single_options())
             own.prepare(0, padded, positions, dt, fixed)
             return
         self._own.pop(index, None)
@@ -284,21 +356,30 @@ class WorldsSolver:
 
     def reset(self, world_mask=None):
         """The worlds in ``world_mask`` ((N,) bool; None: all) start a new episode at their next
-        step, from the state and control it gets."""
+        step, from the state and control it gets. One world: None or True starts it again (its
+        divergence history, warm start and factors), as with a fresh solver; False leaves it."""
+        if self.one_world:
+            return super().reset(world_mask)
         mask = check_world_mask(world_mask, self.stack.count)
         for index in np.flatnonzero(mask):
             self._prepared[index] = None
 
-    def model_changed(self, index: int):
+    def model_changed(self, index: int = 0, model: Model | None = None):
         """World ``index``'s model changed (``stack.assign``: material or topology): it starts again
-        at its next step on its new model."""
+        at its next step on its new model. One world: ``index`` 0, and ``model`` (None: the bound
+        one) is stepped from now on, from a fresh history."""
+        if self.one_world:
+            return super().model_changed(index, model)
         self._prepared[int(index)] = None
 
     def step(self, state_in: State, state_out: State, control: Control, dt: float, active=None) -> StepReport:
         """Advance the ``active`` worlds (None: all) by ``dt`` s from ``state_in`` into ``state_out``
         under ``control`` (``fixed``, ``target``, ``force`` (N, n, 3): imposed components, their
         positions in m, external nodal forces in N added to gravity). The other worlds keep their
-        state."""
+        state. One world: (n, 3) arrays of the bound model, ``control`` None for nothing imposed,
+        ``active`` None or True (False copies the state and advances the clock)."""
+        if self.one_world:
+            return super().step(state_in, state_out, control, dt, active)
         dt = check_dt(dt)
         stack, count = self.stack, self.stack.count
         active = check_world_mask(active, stack.count)
@@ -316,8 +397,8 @@ class WorldsSolver:
                              np.asarray(control.fixed[index], dtype=bool))
         shared = active & stack.shared
         if shared.any():
-            positions, velocities = self.simulate(state_in.positions, state_in.velocities, control.fixed,
-                                                  control.target, dt, shared, force)
+            positions, velocities = self.advance(state_in.positions, state_in.velocities, control.fixed,
+                                                 control.target, dt, shared, force)
         else:
             positions = np.array(state_in.positions, dtype=float)
             velocities = np.array(state_in.velocities, dtype=float)

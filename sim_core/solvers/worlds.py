@@ -14,9 +14,8 @@ from typing import Callable
 
 import numpy as np
 
-from .batched import BatchedImplicitEuler, BatchedSymplecticEuler
 from ..models.model import Control, Model, State
-from .integrators import make_integrator
+from .integrators import INTEGRATORS, make_integrator
 from .solver import OneWorldSolver, StepReport, check_dt, check_world_mask
 from ..models.stack import ModelStack
 from .static import QuasiStatic
@@ -96,12 +95,10 @@ def make_solver(method: str, target: Model | ModelStack, **options):
             (a static equilibrium per step).
         target: a ``Model`` (one world: states and controls (n, 3)) or a ``ModelStack`` (N worlds:
             (N, n, 3), ``active`` an (N,) world mask; reports per world).
-        options: the method's keywords. "implicit": ``tolerance`` (relative residual),
-            ``max_iterations``, ``preconditioner`` (one world: "jacobi", "factorised" or "auto";
-            N worlds: "factorised", "reference" or "jacobi", "auto" being "factorised"); one world
-            also ``corrections``; N worlds also ``threads``, ``amortise``, ``refresh_iterations``.
-            "explicit": one world ``monitor``, N worlds ``threads``. "static": ``tolerance``,
-            ``max_iterations``, ``max_load_steps``.
+        options: the method's keywords, the same for one world and N. "implicit": those of
+            ``ImplicitEuler`` (``tolerance``, ``max_iterations``, ``preconditioner``,
+            ``refresh_iterations``, ``amortise``, ``threads``); "explicit": ``threads``; "static":
+            those of ``QuasiStatic`` (``tolerance``, ``max_iterations``, ``max_load_steps``).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -110,13 +107,8 @@ def make_solver(method: str, target: Model | ModelStack, **options):
     if not isinstance(target, ModelStack):
         raise ValueError(f"target must be a sim_core Model (one world) or a ModelStack (N worlds), "
                          f"got {type(target).__name__}")
-    if method == "implicit":
-        if "preconditioner" in options:
-            preconditioner = options.pop("preconditioner")
-            options["solver"] = "factorised" if preconditioner == "auto" else preconditioner
-        return BatchedImplicitEuler(target, **options)
-    if method == "explicit":
-        return BatchedSymplecticEuler(target, **options)
+    if method in INTEGRATORS:
+        return INTEGRATORS[method](target, **options)
     QuasiStatic(**options)  # its keywords checked now, not at the first step
     return PerWorld(target, functools.partial(QuasiStatic, **options))  # a partial pickles, a lambda does not
 

@@ -257,7 +257,6 @@ def _implicit_times(full, bare, state, control, repeats):
         "bare_converged_implicit_step_ms": (ImplicitEuler(**jacobi), bare),
         "implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15, **jacobi), full),
         "bare_numba_implicit_fixed15_step_ms": (ImplicitEuler(tolerance=never, max_iterations=15, **jacobi), bare),
-        "implicit_cg_explicit_corrections_step_ms": (ImplicitEuler(corrections="explicit", **jacobi), full),
         "implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15, **jacobi), full),
         "bare_numba_implicit_15_iterations_step_ms": (ImplicitEuler(max_iterations=15, **jacobi), bare),
     }

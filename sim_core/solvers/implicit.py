@@ -1,70 +1,64 @@
-"""Batched solvers for N worlds of one scene stepped together (the vector environments).
+"""Linearised implicit Euler (Baraff and Witkin 1998) for one world or N worlds of one scene
+stepped together (``ImplicitEuler``), one linear solve per world and step:
 
-The N worlds share one topology (the task's block), so they are one sim_core ``Model`` on a mesh
-made of N disjoint copies of the block (``sim_core.models.stack.ModelStack``). A world whose material
-changes (a new episode with another inclusion or Young's modulus) overwrites its slot; nothing is
-rebuilt.
+    (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1.
 
-``BatchedImplicitEuler`` advances all copies by the discrete equation of sim_core's
-``ImplicitEuler`` (corrections="implicit"):
+K holds the springs (geometric term clamped at zero), the corrections' push along the current
+edges and their strain coupling, the volume forces' rank-one stiffness and, for
+"baudet-hyperelastic", the stress correction's element blocks clamped to their positive part
+(docs/physics.md sections 3 and 11). The coupling and the volume terms are not symmetric: each
+world's system is solved by a right-preconditioned BiCGSTAB on the compiled matrix-free operator,
+stopped at ||r|| <= tolerance ||b||.
 
-    (M + dt D + dt^2 K) dv = dt (f(x0, v0) - dt K v0),   v1 = v0 + dv,   x1 = x0 + dt v1,
+N worlds are one ``ModelStack``: the worlds share one topology (the task's block), so they are one
+sim_core ``Model`` on a mesh made of N disjoint copies of the block. A world whose material
+changes overwrites its slot; nothing is rebuilt. One world is the stack of one (``WorldsSolver``'s
+one-world case): studies, validation and the environments run the same step.
 
-with sim_core's fused kernels: one ``kernels.model_forces`` pass over the stacked model (forces,
-clamped geometric stiffness, volume terms, through a ``StackedForceWorkspace``; with more than one
-thread one copy per thread, ``kernels.model_forces_copies``), then the right-hand side's operator
-product and the copies' BiCGSTABs, each with sim_core's stopping test ||r|| <= tolerance ||b||:
-compiled calls that take the copies one at a time on numba's threads (``kernels.apply_copies``,
-``kernels.solve_copies_lu``: solver "factorised"), in lockstep chunks on the threads
-(``kernels.solve_copies_grouped``: solver "reference") or all at once with the copy index last, each
-spring, element and hourglass entry read once for all copies (``kernels.batched_spring_operator``,
-``kernels.batched_solve``: solver "jacobi", in lockstep). Every threaded kernel has a serial version
-with the same floats. No Python loop over copies in the step (but for the factorisations and
-capacitance corrections of solver "factorised").
+A step is one fused force pass over the stacked model (``kernels.model_forces``: forces, clamped
+geometric stiffness, volume terms, through a ``StackedForceWorkspace``; with more than one thread
+one copy per thread, ``kernels.model_forces_copies``), the right-hand side's operator product per
+copy (``kernels.apply_copies``) and the copies' BiCGSTABs in one compiled call
+(``kernels.solve_copies_lu``: the copies one at a time on numba's threads, each with its own
+scratch, so any thread count gives the same floats; one thread, and a forked process: the
+``_serial`` twins). No Python loop over copies in the step (but for factorisations and
+capacitance corrections).
 
-Preconditioner (solver "factorised", the default): each copy's own sparse factor of its free-dof system
-matrix (``kernels.operator_matrix_data``, the matrix of the matrix-free operator; in node blocks, the
-LDL^T of its symmetric part (``SYMMETRIC_FACTOR``: the matrix is symmetric up to about 1e-4 of its
-entries, and the symmetric factor holds, factorises and applies half the values of the LU:
-``sparse.NodeBlockLU(symmetric=True)``, ``kernels.block_ldl_factor``), through
-``preconditioners.node_block_factor``, else SuperLU's scalar LU), kept across steps
-and refreshed as ``ImplicitEuler``'s "factorised" preconditioner does (a node-block LU restricted exactly
-to a contact's newly imposed dofs by a capacitance correction; the copies a step re-factorises are
-assembled and factorised in one compiled call, ``kernels.factor_copies``), and the copies' BiCGSTABs run
-in one compiled call (``kernels.solve_copies_lu``): no copy waits for the slowest, 1-5 iterations
-per copy. Both calls share the copies among numba's threads (``numba.get_num_threads()``, set by the
-vector env's ``threads``), each copy with its own scratch, so any thread count gives the same floats
-(one thread, and a forked process: their ``_serial`` versions). Solver "reference": the sparse factor
-of the copy's system matrix at the start of its episode, applied by triangular solves: in dense
-3 x 3 node blocks when the free dofs are whole nodes (``sparse.NodeBlockLU``: no pivoting, on a
-node ordering; the LDL^T of the symmetric part, as above), else as the factorised solver's scalar
-factor. Copies that start alike share one
-factor (one cache entry) and each copy's BiCGSTAB is preconditioned by its group's factor
-(``_solve_shared``, ``kernels.solve_copies_grouped``): the copies are split into chunks
-(``lockstep_chunk``: half of them, at most 8), shared among the threads, and each chunk runs in
-lockstep, so that a triangular solve reads a shared factor once for all the chunk's running copies
-of it (a pass over a factor costs little more for a chunk of copies than for one), and so does the
-hourglass term of the operator products (most of a product's time); the rest of the products and
-the vector updates stay per copy, and a copy that has converged drops out (it costs its own
-iterations, not the slowest copy's). This beats the per-copy solves (``kernels.solve_copies_lu``,
-each copy reading the factor alone) on one thread and on two (benchmarks/vector_env_speed.py, the
-performance page); the chunks depend on the copy count only, so any thread count gives the same
-trajectories. The
-start matrix stays close to the current one while the tissue moves a few millimetres: about 3
-iterations per copy. When it no longer fits (large deformation, a probe contact that changes the
-imposed dofs), a copy that needed more than ``refresh_iterations`` iterations is re-linearised
-at its new state, and a copy that has not converged after
-``first_pass`` iterations is re-linearised and solved again; a re-linearised copy leaves its group
-(a factor of its own).
-The step's force pass at a state is computed once (``BatchedImplicitEuler.linearise``): a vector
-env that measures with it (``share_force_pass``) gives the next step its forces and linearisation.
-``solver="jacobi"`` uses sim_core's Jacobi diagonal instead. The trajectories equal those of N
-single environments up to the solvers' tolerance (tests/test_env_vector.py). SI units.
+Preconditioners (``PRECONDITIONERS``), each copy its own:
+- "jacobi": the inverse diagonal of its system (``kernels.jacobi_copies``), recomputed each step.
+  Its iteration count grows with resolution, stiffness and dt.
+- "factorised": the sparse factor of its free-dof system matrix (``kernels.operator_matrix_data``,
+  the matrix of the matrix-free operator; in node blocks the LDL^T of its symmetric part
+  (``SYMMETRIC_FACTOR``: the matrix is symmetric up to about 1e-4 of its entries, and the
+  symmetric factor holds, factorises and applies half the values of the LU:
+  ``sparse.NodeBlockLU(symmetric=True)``, ``kernels.block_ldl_factor``), through
+  ``preconditioners.node_block_factor``, else SuperLU's scalar LU), kept across steps and
+  re-factorised at the current state when a solve needs more than max(REFACTOR_MIN, 2 x the
+  iterations right after the last factorisation) (the one refactor rule; ``amortise`` adds a
+  budget of excess iterations). A contact that imposes more dofs keeps the factor, restricted
+  exactly to the free dofs by a capacitance correction; the copies a step re-factorises are
+  assembled and factorised in one compiled call (``kernels.factor_copies``). 1-5 iterations.
+- "auto" (the default): "jacobi" until a copy's solve has not converged after
+  ``auto_switch_iterations(free dofs)`` iterations (the measured crossing of the two step
+  times), then "factorised" for the rest of the copy's episode (that step continues from its
+  iterate with the factor).
+- "reference": the sparse factor of the copy's system matrix at the start of its episode, applied
+  by triangular solves (``sparse.NodeBlockLU`` in node blocks, as above). Copies that start alike
+  share one factor (one cache entry) and the copies that share one are solved in lockstep chunks
+  (``lockstep_chunk``, ``kernels.solve_copies_grouped``), so that a triangular solve reads a shared
+  factor once for all the chunk's running copies of it; the chunks depend on the copy count
+  only, so any thread count gives the same trajectories. A copy that needed more than
+  ``refresh_iterations`` iterations is re-linearised at its new state, and a copy that has not
+  converged after ``first_pass`` iterations is re-linearised and solved again; a re-linearised
+  copy leaves its group.
+The step's force pass at a state is computed once (``ImplicitEuler.linearise``): a vector env that
+measures with it (``share_force_pass``) gives the next step its forces and linearisation. The
+trajectories of N worlds equal those of N single worlds up to the solvers' tolerance
+(tests/test_solver_contract.py, tests/test_env_vector.py). SI units.
 """
 
 from __future__ import annotations
 
-import functools
 import hashlib
 
 import numpy as np
@@ -75,19 +69,20 @@ from numba.typed import List as TypedList
 from .. import kernels
 from ..caches import BudgetCache
 from ..models.forces import stiffness_data
-from .integrators import SymplecticEuler
-from ..models.model import Control, Model, State
+from ..models.model import Model
 from .solver import WorldsSolver
-from .preconditioners import (CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns, free_structure,
-                              node_block_factor)
+from .preconditioners import (AUTO_MAX_DOFS, CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns,
+                              auto_switch_iterations, free_structure, node_block_factor)
 from ..models.sparse import NodeBlockLU, block_structure, symmetric_structure
 from ..models.stack import ModelStack, StackedForceWorkspace
 
 #: Start-of-episode preconditioners an integrator keeps, keyed by the content of (model, reference
 #: positions, dt, imposed dofs): its N copies share them across episodes.
 PRECONDITIONER_CACHE_SIZE = 64
-#: The batched implicit step's linear solvers (``BatchedImplicitEuler``).
-SOLVERS = ("factorised", "reference", "jacobi")
+#: The implicit step's preconditioners (module docstring); "auto" is the default.
+PRECONDITIONERS = ("auto", "factorised", "jacobi", "reference")
+#: ``lu_apply``'s packed form of a Jacobi preconditioner (its floats: the copy's inverse diagonal)
+JACOBI_INTS = np.array([0, 1], dtype=np.int64)
 #: Solver "factorised": each copy's preconditioner is the node-block LDL^T of its system matrix's
 #: symmetric part (the matrix is symmetric up to about 1e-4 of its entries, from the corrections'
 #: coupling and the volume terms) rather than its LU: half the values to store, factorise and read
@@ -169,8 +164,8 @@ class _CopyFactor:
     """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner, or a node-block LU
     with ``refactored``) of one copy's free-dof system matrix, packed for
     ``kernels.solve_copies_lu`` (``ints``, ``floats``). Shared by the copies and episodes that start
-    alike (``BatchedImplicitEuler._kept_first``): what decides its renewal (the iterations right after the factorisation)
-    is each copy's own (``BatchedImplicitEuler._set_baseline``)."""
+    alike (``ImplicitEuler._kept_first``): what decides its renewal (the iterations right after the factorisation)
+    is each copy's own (``ImplicitEuler._set_baseline``)."""
 
     def __init__(self, matrix=None, free=None):
         self._inverse, self._corrections = None, {}
@@ -258,105 +253,122 @@ def _edge_incidence(model: Model):
     return node_edge, node_sign
 
 
-class BatchedImplicitEuler(WorldsSolver):
-    """sim_core's linearised implicit Euler on a ``ModelStack``, one preconditioned BiCGSTAB per
-    copy, run one copy at a time on numba's threads (solver "factorised"), in lockstep per thread
-    with one pass over a shared factor for its copies ("reference") or in lockstep ("jacobi"); see
-    the module docstring.
+class ImplicitEuler(WorldsSolver):
+    """Linearised implicit Euler on one world (a ``Model``, or None and ``bind`` later) or on the
+    N worlds of a ``ModelStack``: one preconditioned BiCGSTAB per world and step; see the module
+    docstring.
 
     Args:
-        stack: the ``ModelStack``.
-        tolerance: relative residual ||r|| / ||b|| each copy's linear solve reaches.
-        max_iterations: cap on each copy's solver iterations.
-        refresh_iterations: solver "reference": a copy whose step needs more iterations has its
-            preconditioner re-linearised (0: never).
-        solver: "factorised", "reference" or "jacobi" (``SOLVERS``).
-        amortise: solver "factorised": see ``self.amortise``.
-        threads: solvers "factorised" and "reference": more than one runs the per-copy kernels on
-            numba's threads (``kernels.threaded``; the count they use is
-            ``numba.get_num_threads()``), one their ``_serial`` versions; None: numba's
-            ``NUMBA_NUM_THREADS``.
+        stack: the ``ModelStack`` of N worlds, or a ``Model`` (one world), or None (one world,
+            ``bind`` it or name the model at ``simulate``).
+        tolerance: relative residual ||r|| / ||b|| each world's linear solve reaches.
+        max_iterations: cap on each world's solver iterations.
+        preconditioner: "auto" (default), "factorised", "jacobi" or "reference"
+            (``PRECONDITIONERS``).
+        refresh_iterations: preconditioner "reference": a world whose step needs more iterations
+            has its preconditioner re-linearised (0: never).
+        amortise: preconditioner "factorised": see ``self.amortise``.
+        threads: more than one runs the per-world kernels on numba's threads
+            (``kernels.threaded``; the count they use is ``numba.get_num_threads()``), one their
+            ``_serial`` versions; None: numba's ``NUMBA_NUM_THREADS``. One world runs on one.
     """
 
-    def __init__(self, stack: ModelStack, tolerance: float = 1e-4, max_iterations: int = 200,
-                 refresh_iterations: int = 8, solver: str = "reference", amortise: int | None = None,
+    name = "implicit"
+
+    def __init__(self, stack: ModelStack | Model | None = None, tolerance: float = 1e-6, max_iterations: int = 200,
+                 preconditioner: str = "auto", refresh_iterations: int = 8, amortise: int | None = None,
                  threads: int | None = None):
-        if solver not in SOLVERS:
-            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        if preconditioner not in PRECONDITIONERS:
+            raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, got {preconditioner!r}")
+        if not float(tolerance) > 0:
+            raise ValueError(f"tolerance must be > 0, got {tolerance}")
+        if int(max_iterations) < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
         self.threads = kernels.available_threads() if threads is None else int(threads)
-        self._start_worlds(stack, self.threads)
-        self.solver = solver
-        #: solver "factorised": None re-factorises a copy when a solve needs more than max(8, 2 x the
-        #: iterations right after its last factorisation) (``ImplicitEuler``'s rule); an integer R also
-        #: re-factorises it (at its next step) once its iterations beyond that baseline add up to
-        #: more than R, and at once when a solve needs more than the baseline + 2 R
+        if self.threads < 1:
+            raise ValueError(f"threads must be >= 1 or None, got {threads}")
+        self.preconditioner = preconditioner
+        #: preconditioner "factorised": None re-factorises a copy when a solve needs more than max(8, 2 x
+        #: the iterations right after its last factorisation); an integer R also re-factorises it (at
+        #: its next step) once its iterations beyond that baseline add up to more than R, and at once
+        #: when a solve needs more than the baseline + 2 R
         self.amortise = None if amortise is None else int(amortise)
         self.tolerance = float(tolerance)
         self.max_iterations = int(max_iterations)
         self.refresh_iterations = int(refresh_iterations)
-        #: iterations before a stalled copy is re-linearised and solved again
+        if self._one_world(stack):
+            return
+        self._start_worlds(stack, self.threads)
+        #: iterations before a stalled copy is re-linearised and solved again ("reference")
         self.first_pass = min(30, self.max_iterations // 2)
         self.refreshes = 0
+        self._factorisations = 0
         count, dofs = stack.count, 3 * stack.n_nodes
         self.warm = np.zeros((count, dofs))
         self._preconditioners = [None] * count
-        # the preconditioners (solver "reference") and first-step factors (solver "factorised") kept
-        # for episodes that start alike, by content (PRECONDITIONER_CACHE_SIZE each, within the
-        # "start_factors" byte budget: sim_core.caches)
+        # the preconditioners ("reference") and first-step factors ("factorised") kept for episodes
+        # that start alike, by content (PRECONDITIONER_CACHE_SIZE each, within the "start_factors"
+        # byte budget: sim_core.caches)
         self._kept_starts = BudgetCache("start_factors", PRECONDITIONER_CACHE_SIZE)
         self._kept_first = BudgetCache("start_factors", PRECONDITIONER_CACHE_SIZE)
         self._groups = None
         self.workspace = StackedForceWorkspace(stack, implicit=True, threads=self.threads)
-        self._elongation = np.empty((stack.n_springs, count))
-        self._delta = np.empty((stack.n_springs, count))
-        self._work = np.empty((8, dofs, count))
-        self._ones = np.ones((dofs, count))
         self._packed = None
         self._packed_groups = None
         self._linearised = None  # (stack version, positions) of the workspace's last force pass
         self._mass = None  # _dof_mass: (stack version, the copies' masses per dof (N, 3 n))
         self._first = None  # _copies_first: (stack version, arrays)
-        if solver == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
+        if preconditioner == "reference":  # solve_copies_grouped's scratch; capacitance corrections: none
             self._group_work = np.empty((8, count, dofs))
             self._no_corrections = (TypedList([np.zeros((0, 0))] * count),
                                     TypedList([np.zeros(0, dtype=np.int64)] * count))
-        if solver == "factorised":
-            self._row_work = np.empty((8, dofs))  # solve_copies_lu's scratch
-            identity = _CopyFactor()
-            self._factors = [None] * count
-            self._pending = [None] * count  # (cache key, free dofs) of a copy's episode start
-            self._factor_free = np.zeros((count, dofs), dtype=bool)  # the free set of each factor
-            self._stale = np.zeros(count, dtype=bool)  # re-factorise at the next step
-            # per copy (a factor may be shared): the iterations right after its factor was made, those
-            # spent beyond them since (``amortise``), the iterations after which it is renewed, and
-            # whether its factor came from the cache at its episode's start (its first solve then
-            # counts as right after a factorisation, as it would have been without the cache)
-            self._baseline = np.zeros(count, dtype=np.int64)
-            self._excess = np.zeros(count, dtype=np.int64)
-            self._threshold = np.full(count, REFACTOR_MIN, dtype=np.int64)
-            self._adopted = np.zeros(count, dtype=bool)
-            self._lu_int = TypedList([identity.ints] * count)
-            self._lu_float = TypedList([identity.floats] * count)
-            self._factor_of = np.arange(count, dtype=np.int64)
-            #: each copy's capacitance correction (``_CopyFactor.correction``) as the kernel takes it
-            self._no_correction = (np.zeros((0, 0)), np.zeros(0, dtype=np.int64))
-            self._correction_of = [self._no_correction] * count
-            self._corrections = TypedList([self._no_correction[0]] * count)
-            self._imposed = TypedList([self._no_correction[1]] * count)
-            self._patterns = {}
-            self._structures = {}  # kernels.factor_copies' structure per node set (``sparse.block_structure``)
-            self._incidence = _edge_incidence(stack.reference)
-            #: factorise the LDL^T of the system matrix's symmetric part (``kernels.block_ldl_factor``)
-            #: instead of its LU: half the values for every preconditioner application
-            self.symmetric = SYMMETRIC_FACTOR
-            reference = stack.reference
-            hg_indptr, hg_indices, _ = reference.hourglass_arrays
-            rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
-            self._hg_positions = (reference.pattern.positions(rows, hg_indices) if len(hg_indices)
-                                  else np.zeros(0, np.int64))
-            self._values = np.empty(reference.pattern.nnz)
-            #: factorisations done so far (a diagnostic)
-            self.factorisations = 0
+            return
+        self._row_work = np.empty((8, dofs))  # solve_copies_lu's scratch
+        identity = _CopyFactor()
+        self._factors = [None] * count
+        self._pending = [None] * count  # (cache key, free dofs) of a copy's episode start
+        self._factor_free = np.zeros((count, dofs), dtype=bool)  # the free set of each factor
+        self._stale = np.zeros(count, dtype=bool)  # re-factorise at the next step
+        self._factor_dt = np.full(count, np.nan)  # the time step of each factor's system (s)
+        #: the copies preconditioned by Jacobi ("jacobi"; "auto" until a solve stalls), their inverse
+        #: diagonals (N, 3 n) (``kernels.jacobi_copies``; their rows are their entries of _lu_float)
+        self._jacobi = np.full(count, preconditioner in ("jacobi", "auto"))
+        self._diagonal = np.zeros((count, dofs))
+        # per copy (a factor may be shared): the iterations right after its factor was made, those
+        # spent beyond them since (``amortise``), the iterations after which it is renewed, and
+        # whether its factor came from the cache at its episode's start (its first solve then
+        # counts as right after a factorisation, as it would have been without the cache)
+        self._baseline = np.zeros(count, dtype=np.int64)
+        self._excess = np.zeros(count, dtype=np.int64)
+        self._threshold = np.full(count, REFACTOR_MIN, dtype=np.int64)
+        self._adopted = np.zeros(count, dtype=bool)
+        self._lu_int = TypedList([identity.ints] * count)
+        self._lu_float = TypedList([identity.floats] * count)
+        self._factor_of = np.arange(count, dtype=np.int64)
+        #: each copy's capacitance correction (``_CopyFactor.correction``) as the kernel takes it
+        self._no_correction = (np.zeros((0, 0)), np.zeros(0, dtype=np.int64))
+        self._correction_of = [self._no_correction] * count
+        self._corrections = TypedList([self._no_correction[0]] * count)
+        self._imposed = TypedList([self._no_correction[1]] * count)
+        self._patterns = {}
+        self._structures = {}  # kernels.factor_copies' structure per node set (``sparse.block_structure``)
+        self._incidence = _edge_incidence(stack.reference)
+        #: factorise the LDL^T of the system matrix's symmetric part (``kernels.block_ldl_factor``)
+        #: instead of its LU: half the values for every preconditioner application
+        self.symmetric = SYMMETRIC_FACTOR
+        reference = stack.reference
+        hg_indptr, hg_indices, _ = reference.hourglass_arrays
+        rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
+        self._hg_positions = (reference.pattern.positions(rows, hg_indices) if len(hg_indices)
+                              else np.zeros(0, np.int64))
+        self._values = np.empty(reference.pattern.nnz)
+
+    @property
+    def factorisations(self) -> int:
+        """The factorisations made so far (a diagnostic; one world: since its last ``reset``)."""
+        if self.one_world:
+            return sum(solver.factorisations for solver in self._worlds.values())
+        return self._factorisations
 
     def __getstate__(self):  # numba's typed Lists do not pickle: their items do
         memo = {}
@@ -368,9 +380,8 @@ class BatchedImplicitEuler(WorldsSolver):
 
     # -- preconditioner ------------------------------------------------------------------------------
     def _options(self):
-        return dict(tolerance=self.tolerance, max_iterations=self.max_iterations,
-                    refresh_iterations=self.refresh_iterations, solver=self.solver, amortise=self.amortise,
-                    threads=self.threads)
+        return dict(tolerance=self.tolerance, max_iterations=self.max_iterations, preconditioner=self.preconditioner,
+                    refresh_iterations=self.refresh_iterations, amortise=self.amortise, threads=self.threads)
 
     def _prepare_shared(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
         """Start an episode of copy ``index``: clear its warm start and (solver "reference") set its
@@ -380,7 +391,8 @@ class BatchedImplicitEuler(WorldsSolver):
         start alike: the copies holding the same factor form one group, solved together."""
         super()._prepare_shared(index, model, positions, dt, fixed)
         self.warm[index] = 0.0
-        if self.solver == "jacobi":
+        if self.preconditioner in ("jacobi", "auto"):  # Jacobi from the episode's start
+            self._use_jacobi(index)
             return
         digest = hashlib.blake2b(digest_size=16)
         for array in (model.stiffness, model.damping, model.mass, model.correction_matrix, model.volume_stiffness,
@@ -388,7 +400,7 @@ class BatchedImplicitEuler(WorldsSolver):
                       np.array([dt, model.n_nodes, len(model.springs)])):
             digest.update(np.ascontiguousarray(array).tobytes())
         key = digest.digest()
-        if self.solver == "factorised":
+        if self.preconditioner == "factorised":
             free = ~np.asarray(fixed, dtype=bool).ravel()
             kind = (key, "ldl" if self.symmetric else "lu")
             entry = self._kept_first.get(kind)
@@ -397,6 +409,7 @@ class BatchedImplicitEuler(WorldsSolver):
                 self._pending[index] = (kind, free)
             else:  # the factor the copy's first step would make (if its imposed set is still ``fixed``)
                 self._set_factor(index, entry, free)
+                self._factor_dt[index] = dt
                 self._pending[index] = None
             self._adopted[index] = entry is not None
             self._stale[index] = False  # a renewal the last episode asked for
@@ -430,10 +443,24 @@ class BatchedImplicitEuler(WorldsSolver):
 
     # -- factorised preconditioner (solver "factorised") ---------------------------------------------
     def _set_factor(self, index, factor, free):
+        self._jacobi[index] = False
         self._factors[index] = factor
         self._factor_free[index] = free
         if factor is not None:
             kernels.set_list_items(self._lu_int, self._lu_float, index, factor.ints, factor.floats)
+
+    def _use_jacobi(self, index):
+        """Copy ``index`` is preconditioned by its inverse diagonal (a row of ``_diagonal``, its
+        entry of the factor lists) until ``_set_factor`` gives it a factor."""
+        self._jacobi[index] = True
+        self._factors[index] = None
+        self._factor_free[index] = False
+        self._stale[index] = False
+        self._pending[index] = None
+        kernels.set_list_items(self._lu_int, self._lu_float, index, JACOBI_INTS, self._diagonal[index])
+        if self._correction_of[index] is not self._no_correction:
+            self._correction_of[index] = self._no_correction
+            kernels.set_list_items(self._corrections, self._imposed, index, *self._no_correction)
 
     def _set_baseline(self, copies, iterations):
         """The copies ``copies`` (N,) bool got their factor (made, or taken from the cache) and their
@@ -448,31 +475,17 @@ class BatchedImplicitEuler(WorldsSolver):
     def _factorise(self, index, system, free):
         """Factorise copy ``index``'s system matrix (``system``: the operator's scales) at the step's
         linearisation (the workspace's last force pass) on its ``free`` dofs (3 n,) bool."""
-        stack, count = self.stack, self.stack.count
-        reference = stack.reference
-
-        def copy(array):
-            size = len(array) // count
-            return array[index * size:(index + 1) * size]
-
-        hg_data = (stack.models[index].hourglass.data if reference.hourglass is not None
-                   else reference.hourglass_arrays[2])
-        workspace, model = self.workspace, stack.model
-        single = (reference.springs, copy(workspace.unit), copy(model.stiffness), copy(model.damping),
-                  copy(workspace.geometric), copy(model.mass), reference.mesh.elements, reference.edge_spring,
-                  copy(model.correction_matrix), copy(model.axis_rest_length), copy(workspace.volume_coefficient),
-                  copy(workspace.volume_direction), copy(workspace.volume_gradient), reference.hourglass_arrays[0],
-                  reference.hourglass_arrays[1], hg_data, copy(workspace.elongation), copy(workspace.delta),
-                  copy(workspace.stress_gradient), copy(workspace.stress_tangent))
+        reference = self.stack.reference
+        single = kernels.copy_data(*self._copies_first(), np.int64(index))
         values = self._values
         kernels.operator_matrix_data(single, system, reference.spring_positions, reference.element_positions,
                                      self._hg_positions, reference.pattern.diagonal_positions, values)
-        block = node_block_factor(stack.models[index], values, free, symmetric=self.symmetric)
+        block = node_block_factor(self.stack.models[index], values, free, symmetric=self.symmetric)
         if block is not None:  # the node-block LU, its structure kept per node set
             factor = _CopyFactor.refactored(block.ints, block.floats)
         else:
             factor = self._scalar_factor(values, free)
-        self.factorisations += 1
+        self._factorisations += 1
         self._set_factor(index, factor, free)
         return factor
 
@@ -508,12 +521,14 @@ class BatchedImplicitEuler(WorldsSolver):
                 index = int(indices[t])
                 if done:  # the kernel set the copy's entries of _lu_int and _lu_float
                     factor = _CopyFactor.refactored(ints, self._lu_float[index])
+                    self._jacobi[index] = False
                     self._factors[index] = factor
                     self._factor_free[index] = covers[t]
-                    self.factorisations += 1
+                    self._factorisations += 1
                 else:
                     factor = self._factorise(index, system, covers[t])
                 factors[t] = factor
+        self._factor_dt[indices] = system[1]
         return factors
 
     def _block_structure(self, key, nodes):
@@ -648,11 +663,12 @@ class BatchedImplicitEuler(WorldsSolver):
             values = stack.copies_last()
             hg_rows = np.ascontiguousarray(values["hourglass"].T)
             hg_indptr, hg_indices, _ = reference.hourglass_arrays
-            stacked = (reference.springs, workspace.unit, model.stiffness, model.damping, workspace.geometric,
-                       model.mass, reference.mesh.elements, reference.edge_spring, model.correction_matrix,
-                       model.axis_rest_length, workspace.volume_coefficient, workspace.volume_direction,
-                       workspace.volume_gradient, hg_indptr, hg_indices, hg_rows[0], workspace.elongation,
-                       workspace.delta, workspace.stress_gradient, workspace.stress_tangent)
+            stacked = kernels.OperatorData(
+                reference.springs, workspace.unit, model.stiffness, model.damping, workspace.geometric, model.mass,
+                reference.mesh.elements, reference.edge_spring, model.correction_matrix, model.axis_rest_length,
+                workspace.volume_coefficient, workspace.volume_direction, workspace.volume_gradient, hg_indptr,
+                hg_indices, hg_rows[0], workspace.elongation, workspace.delta, workspace.stress_gradient,
+                workspace.stress_tangent)
             self._first = (stack.version, (stacked, hg_rows, values["hourglass_group"]))
         return self._first[1]
 
@@ -681,62 +697,61 @@ class BatchedImplicitEuler(WorldsSolver):
         hg_rows), rebuilt after ``ModelStack.assign``."""
         return self.workspace.hourglass_blocks()
 
-    def _solve_factorised(self, system, mask_rows, rhs_rows, guess_rows, active, free_rows, iterations, residual):
-        """Every active copy's BiCGSTAB preconditioned by the sparse LU of its own system matrix, kept
-        across steps (``ImplicitEuler``'s "factorised" rule, per copy), one compiled call solving the
-        copies one after the other (``kernels.solve_copies_lu``: a copy costs its own iterations, no
-        lockstep). A copy without a factor, or whose free dofs are not all in its factor's (a probe
-        contact released), is factorised at this step's linearisation, on the union of its free sets;
-        a contact that imposes more dofs keeps the factor, restricted exactly to the free dofs by a
+    def _solve_copies(self, system, mask_rows, rhs_rows, guess_rows, active, free_rows, iterations, residual):
+        """Every active copy's BiCGSTAB preconditioned by its own preconditioner, one compiled call
+        solving the copies one after the other (``kernels.solve_copies_lu``: a copy costs its own
+        iterations, no lockstep). A copy on Jacobi gets this step's inverse diagonal
+        (``kernels.jacobi_copies``); under "auto", one that has not converged after
+        ``auto_switch_iterations`` gets a factor and continues from its iterate. A copy with a
+        factor: without one, or whose free dofs are not all in its factor's (a probe contact
+        released), it is factorised at this step's linearisation, on the union of its free sets; a
+        contact that imposes more dofs keeps the factor, restricted exactly to the free dofs by a
         capacitance correction (``_correct``; a SuperLU factor, or more than CAPACITANCE_MAX dofs:
         its masked inverse, a close preconditioner). One that needs more than its factor's threshold
         is re-factorised here and continues from its iterate. The copies' vectors are rows (N, 3 n):
         mask_rows (float), rhs_rows, guess_rows, free_rows (bool); returns the solutions (N, 3 n) and
         writes iterations and residual (N,)."""
-        count = self.stack.count
-        # a factor taken from the cache at the episode's start is the one this first step would make
-        # on the same free dofs: its solve counts as fresh; on other free dofs (a contact at the first
-        # step) the copy factorises, as it would have without the cache
-        adopted = self._adopted & active
-        fresh = adopted & np.all(free_rows == self._factor_free, axis=1)
-        self._adopted[active] = False
-        missing = np.array([factor is None for factor in self._factors]) | self._stale | (adopted & ~fresh)
-        uncovered = np.any(free_rows & ~self._factor_free, axis=1)
-        todo = np.flatnonzero(active & (missing | uncovered))
-        covers = free_rows[todo] | (self._factor_free[todo] & ~missing[todo, None])
-        for index, factor in zip(todo, self._factorise_copies(todo, system, covers)):
-            pending = self._pending[index]
-            if pending is not None and np.array_equal(pending[1], free_rows[index]) and factor.ints[0] > 0:
-                self._kept_first.put(pending[0], factor)
-            self._pending[index] = None
-            self._stale[index] = False
-            fresh[index] = True
-        limits = np.where(fresh, self.max_iterations, np.minimum(self._threshold, self.max_iterations))
-        self._correct(np.flatnonzero(active), free_rows)
         stacked, hg_rows, hg_group = self._copies_first()
+        jacobi = active & self._jacobi
+        if jacobi.any():
+            kernels.variant(kernels.jacobi_copies, self.threads)(stacked, system, hg_rows, hg_group, mask_rows, jacobi,
+                                                                 self._diagonal)
+        factored = active & ~self._jacobi
+        fresh = self._factor_where_needed(system, factored, free_rows)
+        limits = np.where(fresh, self.max_iterations, np.minimum(self._threshold, self.max_iterations))
+        if self.preconditioner == "auto":  # Jacobi until auto_switch_iterations, up to AUTO_MAX_DOFS free dofs
+            free = np.count_nonzero(free_rows, axis=1)
+            switch = np.where(free <= AUTO_MAX_DOFS, [auto_switch_iterations(int(n)) for n in free], self.max_iterations)
+            limits = np.where(jacobi, np.minimum(switch, self.max_iterations), limits)
+        else:
+            limits = np.where(jacobi, self.max_iterations, limits)
+        self._correct(np.flatnonzero(factored), free_rows)
         blocks = self._hourglass_blocks()
         rows = np.zeros_like(rhs_rows)
         work = self._row_work
         solve = kernels.variant(kernels.solve_copies_lu, self.threads)
-        solve(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active, self.tolerance, limits,
-              self._lu_int, self._lu_float, self._factor_of, self._corrections, self._imposed, work, rows, iterations,
-              residual, *blocks)
-        stalled = (active & ~fresh & (residual > self.tolerance) & (iterations < self.max_iterations)
-                   & np.all(np.isfinite(rows), axis=1))
+        solve(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, guess_rows, active, self.tolerance,
+              limits.astype(np.int64), self._lu_int, self._lu_float, self._factor_of, self._corrections,
+              self._imposed, work, rows, iterations, residual, *blocks)
+        going = (active & (residual > self.tolerance) & (iterations < self.max_iterations)
+                 & np.all(np.isfinite(rows), axis=1))
+        # a factor that no longer fits, and (auto) a Jacobi solve that stalled: a factor at this step
+        stalled = going & ((factored & ~fresh) | (jacobi & (self.preconditioner == "auto")))
         self._set_baseline(fresh, iterations)
         if self.amortise is not None:
             # amortised: re-factorise (at the next step) once the iterations spent beyond those right
             # after the last factorisation add up to about a factorisation's cost
-            kept = active & ~fresh & ~stalled
+            kept = factored & ~fresh & ~stalled
             self._excess[kept] += np.maximum(0, iterations[kept] - self._baseline[kept])
             self._stale |= kept & (self._excess > self.amortise)
         if stalled.any():
             again_rows = np.flatnonzero(stalled)
-            self._factorise_copies(again_rows, system, free_rows[again_rows] | self._factor_free[again_rows])
-            self._correct(np.flatnonzero(stalled), free_rows)
+            covers = free_rows[again_rows] | (self._factor_free[again_rows] & ~jacobi[again_rows, None])
+            self._factorise_copies(again_rows, system, covers)
+            self._correct(again_rows, free_rows)
             again = np.zeros_like(rows)
-            more = np.zeros(count, dtype=np.int64)
-            more_residual = np.zeros(count)
+            more = np.zeros(self.stack.count, dtype=np.int64)
+            more_residual = np.zeros(self.stack.count)
             limits = (self.max_iterations - iterations).astype(np.int64)
             solve(stacked, system, hg_rows, hg_group, mask_rows, rhs_rows, rows, stalled, self.tolerance, limits,
                   self._lu_int, self._lu_float, self._factor_of, self._corrections, self._imposed, work, again, more,
@@ -746,6 +761,29 @@ class BatchedImplicitEuler(WorldsSolver):
             residual[stalled] = more_residual[stalled]
             iterations += np.where(stalled, more, 0)
         return rows
+
+    def _factor_where_needed(self, system, factored, free_rows):
+        """Factorise the copies ``factored`` (N,) bool that have no factor, a stale one, or one whose
+        free set misses free dofs (``free_rows`` (N, 3 n)); returns the copies whose factor is fresh
+        at this step (made now, or taken from the cache at the episode's start for these free dofs:
+        the one this first step would make)."""
+        adopted = self._adopted & factored
+        fresh = adopted & np.all(free_rows == self._factor_free, axis=1)
+        self._adopted[factored] = False
+        # a factor of another time step's system (a run whose dt changed) is not this one's
+        missing = (np.array([factor is None for factor in self._factors]) | self._stale | (adopted & ~fresh)
+                   | (self._factor_dt != system[1]))
+        uncovered = np.any(free_rows & ~self._factor_free, axis=1)
+        todo = np.flatnonzero(factored & (missing | uncovered))
+        covers = free_rows[todo] | (self._factor_free[todo] & ~missing[todo, None])
+        for index, factor in zip(todo, self._factorise_copies(todo, system, covers)):
+            pending = self._pending[index]
+            if pending is not None and np.array_equal(pending[1], free_rows[index]) and factor.ints[0] > 0:
+                self._kept_first.put(pending[0], factor)
+            self._pending[index] = None
+            self._stale[index] = False
+            fresh[index] = True
+        return fresh
 
     def _solve_shared(self, system, mask, rhs, guess_rows, active, limit, solution, iterations, residual):
         """Solver "reference": every ``active`` copy's BiCGSTAB preconditioned by its group's factor
@@ -764,36 +802,12 @@ class BatchedImplicitEuler(WorldsSolver):
             lockstep_chunk(self.stack.count))
         solution[:] = rows.T
 
-    def lockstep_data(self):
-        """``kernels.batched_apply_operator``'s and ``kernels.batched_solve``'s data (the copy index
-        last) at the workspace's last linearisation: solver "jacobi"'s lockstep kernels."""
-        stack, workspace = self.stack, self.workspace
-        reference, count = stack.reference, stack.count
-        n_springs, n_elements = stack.n_springs, stack.n_elements
-        last = functools.partial(_copies_last, count)
-        values = stack.copies_last()
-        hg_indptr, hg_indices, _ = reference.hourglass_arrays
-        return (reference.springs, last(workspace.unit, n_springs), values["stiffness"], values["damping"],
-                last(workspace.geometric, n_springs), values["mass"], reference.mesh.elements, reference.edge_spring,
-                values["correction_matrix"], values["axis_rest_length"],
-                last(workspace.volume_coefficient, n_elements), last(workspace.volume_direction, n_elements),
-                last(workspace.volume_gradient, n_elements), hg_indptr, hg_indices, values["hourglass"],
-                self._elongation, self._delta, values["hourglass_group"],
-                last(workspace.stress_gradient, len(workspace.stress_gradient) // count),
-                last(workspace.stress_tangent, len(workspace.stress_tangent) // count))
-
     # -- step ------------------------------------------------------------------------------------------
     def _pack_preconditioners(self):
-        """The kernel's view of the copies' preconditioners: (lu_int, lu_float, group_of), the packed
-        LUs of the groups of copies that share one (``kernels.batched_precondition``; group -1:
-        Jacobi)."""
+        """Preconditioner "reference": the kernel's view of the copies' preconditioners: (lu_int,
+        lu_float, group_of), the packed LUs of the groups of copies that share one
+        (``kernels.solve_copies_grouped``)."""
         count = self.stack.count
-        if self.solver != "reference":
-            if self._packed is None:
-                identity = _CopyFactor()
-                self._packed = (TypedList([identity.ints]), TypedList([identity.floats]),
-                                np.full(count, -1, dtype=np.int64))
-            return self._packed
         groups = self._group()
         if self._packed is None or self._packed_groups is not groups:
             group_of = np.full(count, -1, dtype=np.int64)
@@ -818,7 +832,7 @@ class BatchedImplicitEuler(WorldsSolver):
         self._linearised = (stack.version, positions.copy())
         return forces
 
-    def simulate(self, positions, velocities, fixed, target, dt, active, force=None):
+    def advance(self, positions, velocities, fixed, target, dt, active, force=None):
         """One step of every copy in ``active`` (N,) bool; the others keep their state.
 
         Args:
@@ -833,75 +847,41 @@ class BatchedImplicitEuler(WorldsSolver):
         dofs = 3 * n_nodes
         x0 = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
         v0 = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
-        coupled = model.correction_mode is not None
-        implicit_volume = model.has_volume_forces
-        has_hourglass = model.hourglass is not None
         # one fused pass over the stacked model: forces without damping, clamped geometric stiffness,
         # volume terms
         forces = self.linearise(x0) + model.gravity_force
         if force is not None and np.any(force):  # (zero forces add nothing: the floats stay the same)
             forces += np.asarray(force, dtype=float).reshape(-1, 3)
-
-        def scales(mass, damping, stiffness):  # (mass, damping, stiffness, coupling, volume, hourglass)
-            return (float(mass), float(damping), float(stiffness), stiffness if coupled else 0.0,
-                    stiffness if implicit_volume else 0.0, stiffness if has_hourglass else 0.0)
-
-        system = scales(1.0, dt, dt * dt)  # A = M + dt D + dt^2 K
+        stiffness = dt * dt
+        # A = M + dt D + dt^2 K: (mass, damping, stiffness, coupling, volume, hourglass) scales
+        system = (1.0, float(dt), stiffness, stiffness if model.correction_mode is not None else 0.0,
+                  stiffness if model.has_volume_forces else 0.0, stiffness if model.hourglass is not None else 0.0)
         # every vector a row per copy (N, 3 n), as the per-copy kernels take them; the lockstep
-        # solvers ("reference", "jacobi") take the copy index last (transposed for them)
+        # solver ("reference") takes the copy index last (transposed for it)
         x_rows, v_rows = x0.reshape(count, dofs), v0.reshape(count, dofs)
         target_rows = target.reshape(count, dofs)
         imposed = fixed.reshape(count, dofs)
         free = ~imposed
         # rhs = dt f(x0, v0) - dt^2 K v0 - A known = dt f_0 + M v0 - A (v0 + known), known = dv on the
-        # imposed dofs, f_0 without damping (ImplicitEuler's form): one operator product
+        # imposed dofs, f_0 without damping: one operator product
         target_velocity, moved = np.empty((count, dofs)), np.empty((count, dofs))
         kernels.variant(kernels.implicit_rows_start, self.threads)(x_rows, v_rows, target_rows, imposed, dt,
                                                                    target_velocity, moved)
         product = np.empty((count, dofs))
-        if self.solver == "jacobi":
-            data = self.lockstep_data()
-            columns = np.empty((dofs, count))
-            kernels.batched_apply_operator(data, system, self._ones, np.ascontiguousarray(moved.T), columns)
-            product[:] = columns.T
-        else:  # the product of each copy, on numba's threads (the same floats for any count)
-            stacked, hg_rows, hg_group = self._copies_first()
-            kernels.variant(kernels.apply_copies, self.threads)(stacked, system, hg_rows, hg_group, moved, product,
-                                                                *self._hourglass_blocks())
+        stacked, hg_rows, hg_group = self._copies_first()
+        kernels.variant(kernels.apply_copies, self.threads)(stacked, system, hg_rows, hg_group, moved, product,
+                                                            *self._hourglass_blocks())
         rhs = np.empty((count, dofs))
         kernels.variant(kernels.implicit_rows_rhs, self.threads)(forces.reshape(count, dofs), self._dof_mass(), v_rows,
                                                                  product, dt, rhs)
         iterations = np.zeros(count, dtype=np.int64)
         residual = np.zeros(count)
         stalled = np.zeros(count, dtype=bool)
-        if self.solver == "factorised":
-            solution = self._solve_factorised(system, free.astype(float), rhs, self.warm, active, free, iterations,
-                                              residual)
+        if self.preconditioner != "reference":
+            solution = self._solve_copies(system, free.astype(float), rhs, self.warm, active, free, iterations,
+                                          residual)
         else:
-            mask = np.ascontiguousarray(free.T, dtype=float)
-            rhs = np.ascontiguousarray(rhs.T)
-            solution = np.empty((dofs, count))
-            if self.solver == "reference":
-                self._solve_shared(system, mask, rhs, self.warm, active, self.first_pass, solution, iterations,
-                                   residual)
-                # A copy whose start-of-episode preconditioner no longer fits (large deformation, a
-                # contact change) stalls: re-linearise it here, exactly, and solve it again from there.
-                converged = residual <= self.tolerance
-                stalled = active & ~converged & np.all(np.isfinite(solution), axis=0)
-            else:
-                kernels.batched_solve(data, system, mask, rhs, np.ascontiguousarray(self.warm.T), active,
-                                      self.tolerance, self.max_iterations, *self._pack_preconditioners(), self._work,
-                                      solution, iterations, residual)
-            if stalled.any():
-                for index in np.flatnonzero(stalled):
-                    self._refresh(index, x0.reshape(count, n_nodes, 3)[index], dt, fixed[index])
-                again = np.empty((dofs, count))
-                more = np.zeros(count, dtype=np.int64)
-                self._solve_shared(system, mask, rhs, solution.T, stalled, self.max_iterations - self.first_pass,
-                                   again, more, residual)
-                solution = np.where(stalled[None, :], again, solution)
-                iterations = iterations + more
-            solution = solution.T
+            solution, stalled = self._solve_reference(system, free, rhs, active, x0, fixed, dt, iterations, residual)
         self.warm = np.where(active[:, None], solution, self.warm)
         self.last_iterations, self.last_residual = iterations, residual
         # v' = v0 + dv (the solution on free dofs), x' = x0 + dt v'; the imposed dofs at their targets
@@ -910,7 +890,7 @@ class BatchedImplicitEuler(WorldsSolver):
         update(x_rows, v_rows, solution, imposed, target_rows, target_velocity, dt, active,
                positions.reshape(count, dofs), velocities.reshape(count, dofs), new_positions.reshape(count, dofs),
                new_velocities.reshape(count, dofs))
-        if self.solver == "reference" and self.refresh_iterations:
+        if self.preconditioner == "reference" and self.refresh_iterations:
             # per copy, so that a copy's steps do not depend on the other copies
             slow = active & ~stalled & (iterations > self.refresh_iterations)
             for index in np.flatnonzero(slow):
@@ -918,38 +898,31 @@ class BatchedImplicitEuler(WorldsSolver):
                     self._refresh(index, new_positions[index], dt, fixed[index])
         return new_positions, new_velocities
 
+    def _solve_reference(self, system, free, rhs, active, x0, fixed, dt, iterations, residual):
+        """Preconditioner "reference": the copies' lockstep solves (``_solve_shared``); a copy whose
+        start-of-episode preconditioner no longer fits (large deformation, a contact change) stalls
+        after ``first_pass`` iterations: it is re-linearised here, exactly, and solved again from
+        there. Returns the solutions (N, 3 n) and the stalled copies (N,) bool."""
+        count = self.stack.count
+        mask = np.ascontiguousarray(free.T, dtype=float)
+        rhs = np.ascontiguousarray(rhs.T)
+        solution = np.empty((rhs.shape[0], count))
+        self._solve_shared(system, mask, rhs, self.warm, active, self.first_pass, solution, iterations, residual)
+        stalled = active & (residual > self.tolerance) & np.all(np.isfinite(solution), axis=0)
+        if stalled.any():
+            for index in np.flatnonzero(stalled):
+                self._refresh(index, x0.reshape(count, -1, 3)[index], dt, fixed[index])
+            again = np.empty_like(solution)
+            more = np.zeros(count, dtype=np.int64)
+            self._solve_shared(system, mask, rhs, solution.T, stalled, self.max_iterations - self.first_pass,
+                               again, more, residual)
+            solution = np.where(stalled[None, :], again, solution)
+            iterations += more
+        return solution.T, stalled
+
     def _dof_mass(self):
         """(N, 3 n) each copy's mass per dof, kg, kept per stack version (rebuilt after ``assign``)."""
         stack = self.stack
         if self._mass is None or self._mass[0] != stack.version:
             self._mass = (stack.version, np.repeat(stack.model.mass, 3).reshape(stack.count, -1))
         return self._mass[1]
-
-
-class BatchedSymplecticEuler(WorldsSolver):
-    """sim_core's symplectic Euler on a ``ModelStack`` (every operation is per node, so the
-    stacked step is exactly N single steps)."""
-
-    def __init__(self, stack: ModelStack, threads: int = 1):
-        self.threads = int(threads)
-        self._start_worlds(stack, self.threads)
-        self._integrator = SymplecticEuler(monitor=False)
-
-    def _options(self):
-        return dict(threads=self.threads)
-
-    def simulate(self, positions, velocities, fixed, target, dt, active, force=None):
-        count, n_nodes = positions.shape[:2]
-        state = State(np.ascontiguousarray(positions.reshape(-1, 3), dtype=float),
-                      np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float))
-        out = state.copy()
-        force = (np.zeros((count * n_nodes, 3)) if force is None
-                 else np.ascontiguousarray(force, dtype=float).reshape(-1, 3))
-        control = Control(fixed.reshape(-1, 3), target.reshape(-1, 3), force)
-        self._integrator.simulate(self.stack.model, state, out, dt, control)
-        new_positions = out.positions.reshape(count, n_nodes, 3)
-        new_velocities = out.velocities.reshape(count, n_nodes, 3)
-        keep = ~active
-        new_positions[keep] = positions[keep]
-        new_velocities[keep] = velocities[keep]
-        return new_positions, new_velocities
