@@ -25,7 +25,7 @@ demo: $(STAMP)
 
 validate: $(STAMP)
 	$(PY) -m sim_core.studies.demo
-	$(PY) benchmarks/validation.py
+	$(PY) -m benchmarks.validation
 
 test: $(STAMP)
 	$(PY) -m pytest -q
@@ -35,36 +35,36 @@ docs: $(STAMP)
 	$(PY) docs/gen_pages.py && $(PY) -m mkdocs build --strict --site-dir site
 
 bench: $(STAMP)
-	$(PY) benchmarks/step_speed.py
-	$(PY) benchmarks/env_speed.py
-	$(PY) benchmarks/reset_speed.py
-	$(PY) benchmarks/env_speed.py --integrator static --steps 100 --output benchmarks/results/env_speed_static.json
-	$(PY) benchmarks/stability.py
-	$(PY) benchmarks/env_accuracy.py
-	$(PY) benchmarks/dynamic_convergence.py
-	$(PY) benchmarks/dynamic_convergence.py --constant-viscosity --output benchmarks/results/dynamic_convergence_constant_viscosity.json
-	$(PY) benchmarks/dynamic_convergence.py --damping-ratio 3 --output benchmarks/results/dynamic_convergence_damping3.json
-	$(PY) benchmarks/dynamic_convergence.py --integrator static --output benchmarks/results/dynamic_convergence_static.json
-	$(PY) benchmarks/env_models.py
-	$(PY) benchmarks/env_models.py --reference-scale 1.5 --output benchmarks/results/env_models_reference_x1.5.json
-	$(PY) benchmarks/material_range.py
-	$(PY) benchmarks/vector_env_speed.py
-	$(PY) benchmarks/vector_env_speed.py --async --rounds 2 --output benchmarks/results/vector_env_speed_async.json
-	$(PY) benchmarks/training_speed.py
-	$(PY) benchmarks/vector_figure.py
-	$(PY) benchmarks/palpation_map.py
-	$(PY) benchmarks/task_gallery.py
-	$(PY) benchmarks/lag_figure.py
-	$(PY) benchmarks/speed_accuracy.py --budget 90
-	$(PY) benchmarks/memory_soak.py --randomise
-	$(PY) benchmarks/large_mesh.py
+	$(PY) -m benchmarks.step_speed
+	$(PY) -m benchmarks.env_speed
+	$(PY) -m benchmarks.reset_speed
+	$(PY) -m benchmarks.env_speed --integrator static --steps 100 --output benchmarks/results/env_speed_static.json
+	$(PY) -m benchmarks.stability
+	$(PY) -m benchmarks.env_accuracy
+	$(PY) -m benchmarks.dynamic_convergence
+	$(PY) -m benchmarks.dynamic_convergence --constant-viscosity --output benchmarks/results/dynamic_convergence_constant_viscosity.json
+	$(PY) -m benchmarks.dynamic_convergence --damping-ratio 3 --output benchmarks/results/dynamic_convergence_damping3.json
+	$(PY) -m benchmarks.dynamic_convergence --integrator static --output benchmarks/results/dynamic_convergence_static.json
+	$(PY) -m benchmarks.env_models
+	$(PY) -m benchmarks.env_models --reference-scale 1.5 --output benchmarks/results/env_models_reference_x1.5.json
+	$(PY) -m benchmarks.material_range
+	$(PY) -m benchmarks.vector_env_speed
+	$(PY) -m benchmarks.vector_env_speed --async --rounds 2 --output benchmarks/results/vector_env_speed_async.json
+	$(PY) -m benchmarks.training_speed
+	$(PY) -m benchmarks.vector_figure
+	$(PY) -m benchmarks.palpation_map
+	$(PY) -m benchmarks.task_gallery
+	$(PY) -m benchmarks.lag_figure
+	$(PY) -m benchmarks.speed_accuracy --budget 90
+	$(PY) -m benchmarks.memory_soak --randomise
+	$(PY) -m benchmarks.large_mesh
 
 # MuJoCo flex and PyBullet soft body next to ours (optional extra, not needed by anything else)
 bench-peers: $(STAMP)
 	$(PY) -m pip install --quiet -e ".[bench]"
-	$(PY) benchmarks/peers.py
-	$(PY) benchmarks/speed_accuracy_peers.py
-	$(PY) benchmarks/speed_accuracy.py --replot
+	$(PY) -m benchmarks.peers
+	$(PY) -m benchmarks.speed_accuracy_peers
+	$(PY) -m benchmarks.speed_accuracy --replot
 
 $(RLLIB_STAMP): pyproject.toml Makefile
 	python3 -m venv $(RLLIB_VENV)
@@ -78,7 +78,7 @@ test-rllib: $(RLLIB_STAMP)
 	$(RLLIB_VENV)/bin/python -m pytest -q tests/test_rllib.py
 
 bench-rllib: $(RLLIB_STAMP)
-	$(RLLIB_VENV)/bin/python benchmarks/rllib_throughput.py
+	$(RLLIB_VENV)/bin/python -m benchmarks.rllib_throughput
 
 clean:
 	rm -rf $(VENV) $(RLLIB_VENV) build *.egg-info site

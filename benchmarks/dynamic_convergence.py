@@ -24,7 +24,7 @@ too); ``--constant-viscosity`` sets R = h_default / h per shape (h the cube root
 volume), which keeps the viscosity of the env's default mesh: a spring's damping scales like h^2,
 the viscous stress it makes like h, so without it a finer mesh is less viscous.
 
-Usage: python benchmarks/dynamic_convergence.py [--task NAME ...] [--shapes NX,NY,NZ ...]
+Usage: python -m benchmarks.dynamic_convergence [--task NAME ...] [--shapes NX,NY,NZ ...]
        [--fine NX,NY,NZ] [--damping-ratio R | --constant-viscosity] [--integrator implicit|static]
 Writes benchmarks/results/dynamic_convergence.json (``--output``; atomically; --task keeps the
 other tasks' results) and prints a table.
@@ -34,20 +34,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from training.common import write_json  # noqa: E402
-from benchmarks.env_accuracy import (  # noqa: E402
+from training.common import write_json
+from benchmarks.env_accuracy import (
     TASKS, env_default_dt, env_default_shape, env_setting, env_solver_tolerance,
 )
-from sim_core.resolution import dynamic_scene, scene_errors, solve_scene  # noqa: E402
+from sim_core.resolution import dynamic_scene, scene_errors, solve_scene
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: shapes compared by default (the env default among them); the fine dynamic reference is
 #: env_accuracy's fine model (its resolution n, ``Scene.shape``)

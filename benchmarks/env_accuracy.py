@@ -55,19 +55,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from training.common import write_json  # noqa: E402
-from sim_core.resolution import (  # noqa: E402
+from training.common import write_json
+from sim_core.resolution import (
     Scene, choose_resolution, choose_stepping, evaluate, reference_solutions, solve_scene,
 )
+
+ROOT = Path(__file__).resolve().parents[1]
 
 MM = 1e-3
 E, NU, RHO, G = 5.0e3, 0.45, 1060.0, 9.81

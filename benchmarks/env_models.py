@@ -1,7 +1,7 @@
 """The environments' scenes with each mass-spring model against neo-Hookean FEM: which physics should
 the environments use?
 
-Usage: python benchmarks/env_models.py [--task NAME ...] [--models baudet baudet-hyperelastic]
+Usage: python -m benchmarks.env_models [--task NAME ...] [--models baudet baudet-hyperelastic]
        [--reference-scale 1] [--output benchmarks/results/env_models.json]
 
 For each task the static scenes of ``benchmarks/env_accuracy.py`` (tool force, target displacement
@@ -21,13 +21,11 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchmarks import env_accuracy as ea
+from sim_core.studies.resolution import evaluate, reference_solutions
+from training.common import write_json
 
-import env_accuracy as ea  # noqa: E402
-from sim_core.studies.resolution import evaluate, reference_solutions  # noqa: E402
-from training.common import write_json  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv=None):

@@ -1,6 +1,6 @@
 """Env steps per second of every tissue_env task at its defaults, and the time split.
 
-Usage: python benchmarks/env_speed.py [--steps 300] [--rounds 1] [--integrator static]
+Usage: python -m benchmarks.env_speed [--steps 300] [--rounds 1] [--integrator static]
        [--output benchmarks/results/env_speed.json].
 Random actions, resets included in the total rate (per wall-clock second and per CPU second of
 this process, which counts other jobs on a shared machine less); the split (physics = integrator
@@ -13,17 +13,13 @@ and every figure is the median over rounds. One process, one core. Results are w
 import argparse
 import os
 import platform
-import sys
 import time
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tissue_env  # noqa: E402
-from training.common import write_json  # noqa: E402
+import tissue_env
+from training.common import write_json
 
 
 def timed(function, bucket, key):

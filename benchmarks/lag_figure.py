@@ -1,6 +1,6 @@
 """The probe force as the agent reads it, stepped by implicit Euler and by static equilibria.
 
-Usage: python benchmarks/lag_figure.py [--output docs/figures/static_vs_implicit.png]
+Usage: python -m benchmarks.lag_figure [--output docs/figures/static_vs_implicit.png]
 
 Palpation at its defaults, the probe over the middle of the slab (over the inclusion), pressed
 at full speed (``max_step`` = 4 mm per env step) to 8 mm, held for 6 steps and lifted at full

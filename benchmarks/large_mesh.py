@@ -1,6 +1,6 @@
 """Work against mesh size: what a reset and a static solve cost as the block is refined.
 
-Usage: python benchmarks/large_mesh.py [--env-shapes 8 12 14 16] [--static-shapes 10 16 22 30]
+Usage: python -m benchmarks.large_mesh [--env-shapes 8 12 14 16] [--static-shapes 10 16 22 30]
        [--direct-max 22] [--output benchmarks/results/large_mesh.json]
 
 Two measurements, each in one process, wall time on this machine:
@@ -23,17 +23,14 @@ import platform
 import sys
 import time
 import warnings
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tissue_env  # noqa: E402,F401
-from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
-from tissue_env.base import MAX_NODES  # noqa: E402
-from training.common import write_json  # noqa: E402
+import tissue_env  # noqa: F401
+from sim_core import HexMesh, Material, build_model, solve_static
+from tissue_env.base import MAX_NODES
+from training.common import write_json
 
 
 def env_cost(n):

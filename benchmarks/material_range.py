@@ -1,7 +1,7 @@
 """Every task across the stiffness range of real tissue: observations inside their bounds, rewards
 of the same size, the scripted controller still succeeding.
 
-Usage: python benchmarks/material_range.py [--moduli 1e3 1e4 1e5 1e6] [--steps 100] [--seeds 3]
+Usage: python -m benchmarks.material_range [--moduli 1e3 1e4 1e5 1e6] [--steps 100] [--seeds 3]
        [--output benchmarks/results/material_range.json]
 
 For each task and Young's modulus E (Pa): ``--steps`` random actions (action space seeded 0, episodes
@@ -19,16 +19,13 @@ import os
 import platform
 import sys
 import warnings
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tissue_env  # noqa: E402,F401
-from tissue_env.worlds import FEATURE_LIMITS, OBS_LIMIT  # noqa: E402
-from training.common import write_json  # noqa: E402
+import tissue_env  # noqa: F401
+from tissue_env.worlds import FEATURE_LIMITS, OBS_LIMIT
+from training.common import write_json
 
 #: every registered task
 TASKS = tuple(tissue_env.ENV_IDS)

@@ -1,6 +1,6 @@
 """Resident memory of each task over a long run of random actions: does anything grow without bound?
 
-Usage: python benchmarks/memory_soak.py [--steps 100000] [--env ID ...] [--randomise]
+Usage: python -m benchmarks.memory_soak [--steps 100000] [--env ID ...] [--randomise]
        [--envs-in-turn 0] [--output benchmarks/results/memory_soak.json]
 
 One env per task in its own process (so one task's memory does not count against another's),
@@ -21,15 +21,12 @@ import os
 import platform
 import sys
 import time
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tissue_env  # noqa: E402,F401  (registers the envs)
-from training.common import write_json  # noqa: E402
+import tissue_env  # noqa: F401  (registers the envs)
+from training.common import write_json
 
 TASKS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
 WARMUP_SHARE = 0.1

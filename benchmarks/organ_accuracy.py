@@ -26,20 +26,18 @@ Run: python -m benchmarks.organ_accuracy [--rounds 3] [--no-speed]
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.env_accuracy import SPEED_FLOOR, SPEED_MARGIN, env_speeds
+from sim_core.studies.solving import QUANTITIES, SceneSolution, model_solver, scene_errors
+from tissue_env import LiverNeedleAlignmentEnv
+from training.common import write_json
 
-from benchmarks.env_accuracy import SPEED_FLOOR, SPEED_MARGIN, env_speeds  # noqa: E402
-from sim_core.studies.solving import QUANTITIES, SceneSolution, model_solver, scene_errors  # noqa: E402
-from tissue_env import LiverNeedleAlignmentEnv  # noqa: E402
-from training.common import write_json  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 ENV_ID = "tissue_env/LiverNeedleAlignment-v0"
 #: Tool displacements from rest (m) inside the env's workspace (+-20 mm, down 5 mm at most): pull,

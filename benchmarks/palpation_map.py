@@ -1,6 +1,6 @@
 """How much of Palpation's map reading is the mesh: press readings by probe position.
 
-Usage: python benchmarks/palpation_map.py [--output benchmarks/results/palpation_map.json]
+Usage: python -m benchmarks.palpation_map [--output benchmarks/results/palpation_map.json]
 
 At the default scene, the probe is placed above a point and pressed straight down at full speed
 (action (0, -1, 0), two steps: 6 mm under the undeformed surface) from the episode's start height,
@@ -27,16 +27,12 @@ Results are written to ``--output`` (JSON, replaced atomically) and drawn in ``-
 import argparse
 import json
 import os
-import sys
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tissue_env  # noqa: E402,F401  (registers the ids)
-from training.common import write_json  # noqa: E402
+import tissue_env  # noqa: F401  (registers the ids)
+from training.common import write_json
 
 ENV_ID = "tissue_env/Palpation-v0"
 SAMPLINGS = ("projected", "node")

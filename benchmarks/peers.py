@@ -1,6 +1,6 @@
 """Step speed of our model next to MuJoCo's flex and PyBullet's neo-Hookean soft body, one run.
 
-    python benchmarks/peers.py [--rounds 7] [--steps 100] [--no-static]
+    python -m benchmarks.peers [--rounds 7] [--steps 100] [--no-static]
 
 Scene (the same physical block in every engine, ``sim_core.studies.bench``'s): 10 x 10 x 10 cubes
 of 0.1 m (1331 nodes), E = 1e4 Pa, nu = 0.3, rho = 1500 kg/m^3, bottom face (y = 0) fixed, the reduced
@@ -35,13 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from training.common import write_json  # noqa: E402
-from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
-from sim_core.models.material import Material  # noqa: E402
-from sim_core.geometry.mesh import LOCAL_CORNERS, HexMesh  # noqa: E402
-from sim_core.models.model import build_model  # noqa: E402
+from training.common import write_json
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step
+from sim_core.models.material import Material
+from sim_core.geometry.mesh import LOCAL_CORNERS, HexMesh
+from sim_core.models.model import build_model
 
 SCENE = dict(shape=(10, 10, 10), spacing=0.1, young_modulus=1e4, poisson_ratio=0.3, density=1500.0,
              gravity=0.5, duration=1.0, hourglass_control=0.5)

@@ -1,6 +1,6 @@
 """Wall time of each task's ``reset`` over many seeds: what an episode costs before its first step.
 
-Usage: python benchmarks/reset_speed.py [--seeds 1000] [--env ID ...] [--env-kwargs JSON]
+Usage: python -m benchmarks.reset_speed [--seeds 1000] [--env ID ...] [--env-kwargs JSON]
        [--output benchmarks/results/reset_speed.json]
 
 One env per task, reset with seeds 1 .. N in turn after a warm-up reset (seed 0), one process: the
@@ -17,19 +17,15 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
-from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import sim_core.solvers.static as static  # noqa: E402
-import tissue_env  # noqa: E402
-import tissue_env.tumor_positioning as tumor_positioning  # noqa: E402
-from training.common import write_json  # noqa: E402
+import sim_core.solvers.static as static
+import tissue_env
+import tissue_env.tumor_positioning as tumor_positioning
+from training.common import write_json
 
 
 class _Counter:

@@ -1,6 +1,6 @@
 """RLlib PPO throughput on a local Ray instance for 1 and 2 env runners (training/rllib.py's config).
 
-Usage: python benchmarks/rllib_throughput.py [--envs tissue_env/TumorPositioning-v0 ...] [--runners 1 2]
+Usage: python -m benchmarks.rllib_throughput [--envs tissue_env/TumorPositioning-v0 ...] [--runners 1 2]
     [--iterations 4] [--warmup 1] [--num-cpus 2] [--out benchmarks/results/rllib_throughput.json]
 
 For every task and runner count the PPO config of ``python -m training.rllib`` (hyperparameters of
@@ -31,11 +31,9 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-if str(REPO) not in sys.path:
-    sys.path.insert(0, str(REPO))
+from training.common import write_json
 
-from training.common import write_json  # noqa: E402
+REPO = Path(__file__).resolve().parent.parent
 
 DEFAULT_OUT = REPO / "benchmarks" / "results" / "rllib_throughput.json"
 ALL_ENVS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")

@@ -1,6 +1,6 @@
 """Speed against accuracy: node-position error against wall time per simulated second.
 
-    python benchmarks/speed_accuracy.py [--quick] [--resolutions 2 4 8 12 16] [--reference 20] [--replot]
+    python -m benchmarks.speed_accuracy [--quick] [--resolutions 2 4 8 12 16] [--reference 20] [--replot]
 
 The block: a 4 cm cube of soft tissue (E = 5 kPa, nu = 0.45, rho = 1060 kg/m^3), bottom face y = 0
 fixed, no gravity (its 8% sag would mix a second load into the comparison). The tool is the set of
@@ -79,7 +79,6 @@ import io
 import json
 import math
 import signal
-import sys
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -88,17 +87,16 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse.linalg as spla
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from sim_core import HexMesh, Material, build_model, solve_static
+from sim_core.solvers.fem import LinearFEM
+from sim_core.files import atomic_write, save_figure
+from sim_core.solvers.hyperelastic import NeoHookeanFEM
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step
+from sim_core.geometry.mesh import LOCAL_CORNERS
+from sim_core.models.model import Control
+from training.common import write_json
 
-from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
-from sim_core.solvers.fem import LinearFEM  # noqa: E402
-from sim_core.files import atomic_write, save_figure  # noqa: E402
-from sim_core.solvers.hyperelastic import NeoHookeanFEM  # noqa: E402
-from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step  # noqa: E402
-from sim_core.geometry.mesh import LOCAL_CORNERS  # noqa: E402
-from sim_core.models.model import Control  # noqa: E402
-from training.common import write_json  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 # -- the physical block (SI) ---------------------------------------------------------------------
 SIZE = 0.04  # m, cube side

@@ -1,6 +1,6 @@
 """Speed against accuracy of a peer engine: MuJoCo's flex on the speed-accuracy chart's scenes.
 
-    python benchmarks/speed_accuracy_peers.py [--resolutions 4 8 12] [--dts 1e-4 2e-4 5e-4 1e-3]
+    python -m benchmarks.speed_accuracy_peers [--resolutions 4 8 12] [--dts 1e-4 2e-4 5e-4 1e-3]
 
 What it measures: the point (wall time per simulated second, node-position error) of MuJoCo's
 3-D flex on the scenes of ``benchmarks/speed_accuracy.py`` (its module docstring defines them),
@@ -38,21 +38,18 @@ from __future__ import annotations
 
 import argparse
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks import speed_accuracy as sa
+from benchmarks.peers import hex_to_tets, mjcf
+from training.common import write_json
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(HERE))
-
-import speed_accuracy as sa  # noqa: E402
-from peers import hex_to_tets, mjcf  # noqa: E402
-from training.common import write_json  # noqa: E402
 
 RESOLUTIONS = (4, 8, 12)
 DT_LADDER = (2e-5, 5e-5, 1e-4, 2e-4, 5e-4, 1e-3)  # s, ascending

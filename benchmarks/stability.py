@@ -1,6 +1,6 @@
 """Stability map: explicit and implicit Euler across time step, stiffness, Poisson's ratio and physics.
 
-    python benchmarks/stability.py [--quick]
+    python -m benchmarks.stability [--quick]
 
 Scene: a 4 cm cube of soft tissue (4x4x4 elements, rho = 1060 kg/m^3), bottom face fixed, top face
 stretched by 1% (imposed), starting at rest. For every E in [1 kPa, 1 MPa], nu in [0.3, 0.499],
@@ -24,17 +24,14 @@ from __future__ import annotations
 
 import argparse
 import csv
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
-from sim_core.files import atomic_path, save_figure  # noqa: E402
-from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step  # noqa: E402
+from sim_core import HexMesh, Material, build_model, solve_static
+from sim_core.files import atomic_path, save_figure
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {"full": {}, "no corrections": dict(corrections=False), "no volume forces": dict(volume_conservation=False),

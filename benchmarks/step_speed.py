@@ -1,6 +1,6 @@
 """Step speed of the full Baudet model against a bare spring lattice, measured side by side.
 
-    python benchmarks/step_speed.py [--shape 10 10 10] [--repeats 200] [--models-only]
+    python -m benchmarks.step_speed [--shape 10 10 10] [--repeats 200] [--models-only]
 
 Scene and measurements: ``sim_core.studies.bench`` (a block of 0.1 m cubes sagging under a reduced
 gravity). Reports medians of repeated steps (ms), full model and bare lattice (same springs, no
@@ -21,17 +21,14 @@ Writes benchmarks/results/step_speed.json. Timing is never asserted in tests: ma
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from training.common import write_json  # noqa: E402
-from sim_core import HexMesh, Material, build_model  # noqa: E402
-from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run  # noqa: E402
-from sim_core.studies.bench import interleaved_median_ms, measure  # noqa: E402
+from training.common import write_json
+from sim_core import HexMesh, Material, build_model
+from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run
+from sim_core.studies.bench import interleaved_median_ms, measure
 
 #: the models ``model_comparison`` times side by side: label -> build_model keywords
 MODELS = {

@@ -1,6 +1,6 @@
 """Success rate and mean return of the scripted controller and of random actions, per task.
 
-Usage: python benchmarks/success_rates.py [--seeds 20] [--env ID ...] [--stability 100]
+Usage: python -m benchmarks.success_rates [--seeds 20] [--env ID ...] [--stability 100]
 [--difficulty easy default hard --out benchmarks/results/difficulty.json]. Episode k
 uses reset seed k for both policies; the random policy samples the action space seeded with k. Each
 task must be solvable (scripted >= 80 %) and not solvable by chance (random well below it).
@@ -17,18 +17,15 @@ TumorPositioning, the mean start distance of the tumour from its goal, into ``--
 """
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tissue_env  # noqa: E402
-from tissue_env.episodes import random_policy, run_episode, scripted_policy  # noqa: E402
-from training.common import write_json  # noqa: E402
+import tissue_env
+from tissue_env.episodes import random_policy, run_episode, scripted_policy
+from training.common import write_json
 
 
 POLICIES = {"scripted": scripted_policy, "random": random_policy}
@@ -130,7 +127,7 @@ def main():
                     print(f"{env_id:34s} {level:8s} {name:9s} success {result['success_rate']:5.0%} reached "
                           f"{result['reached_rate']:5.0%} steps {steps if steps is None else round(steps, 1)} "
                           f"return {result['mean_return']:8.2f} ({result['seconds']:.0f} s)", flush=True)
-        command = ("python benchmarks/success_rates.py --difficulty " + " ".join(args.difficulty)
+        command = ("python -m benchmarks.success_rates --difficulty " + " ".join(args.difficulty)
                    + f" --seeds {args.seeds}" + ("" if sorted(args.env) == sorted(tissue_env.ENV_IDS)
                                                  else " --env " + " ".join(args.env)) + f" --out {args.out}")
         write_json(Path(args.out), dict(command=command, unit="success rates 0-1, steps, m", results=rows))

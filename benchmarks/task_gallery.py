@@ -1,6 +1,6 @@
 """A picture of every task: frames of the scripted controller's episode (start, middle, end).
 
-Usage: python benchmarks/task_gallery.py [--seed 0] [--output docs/figures/tasks.png]
+Usage: python -m benchmarks.task_gallery [--seed 0] [--output docs/figures/tasks.png]
 
 Each row is one task at its defaults (``render_mode="rgb_array"``: the deformed block coloured by
 displacement, with the tool, target and goal marked), stepped by the task's ``scripted_action``

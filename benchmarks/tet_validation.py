@@ -1,6 +1,6 @@
 """The tetrahedral models (docs/physics.md section 12) measured on the block's cubes split into tetrahedra.
 
-    python benchmarks/tet_validation.py        # about 3 minutes on 2 cores (2 of them the hexahedral
+    python -m benchmarks.tet_validation        # about 3 minutes on 2 cores (2 of them the hexahedral
                                                # baudet-hyperelastic cantilever at nu = 0.499)
 
 Writes benchmarks/results/tet_validation.json:
@@ -19,19 +19,17 @@ Writes benchmarks/results/tet_validation.json:
 from __future__ import annotations
 
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from sim_core import Material, TetMesh, build_model
+from sim_core.files import atomic_write
+from sim_core.models.forces import internal_forces
+from sim_core.studies import experiments
 
-from sim_core import Material, TetMesh, build_model  # noqa: E402
-from sim_core.files import atomic_write  # noqa: E402
-from sim_core.models.forces import internal_forces  # noqa: E402
-from sim_core.studies import experiments  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RESULTS = ROOT / "benchmarks" / "results" / "tet_validation.json"
 MODELS = ("baudet", "baudet-hyperelastic")
@@ -89,7 +87,7 @@ def cantilever_rows():
 
 
 def main():
-    results = dict(command="python benchmarks/tet_validation.py", elongation=elongation_rows(),
+    results = dict(command="python -m benchmarks.tet_validation", elongation=elongation_rows(),
                    spring_share=spring_share_rows(), cantilever=cantilever_rows())
     atomic_write(RESULTS, json.dumps(results, indent=1) + "\n")
     print(f"wrote {RESULTS}")

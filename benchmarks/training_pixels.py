@@ -1,6 +1,6 @@
 """PPO from pixels alone (the camera's 64 x 64 RGB image, SB3's CnnPolicy) against random actions.
 
-Usage: python benchmarks/training_pixels.py [--env tissue_env/Retraction-v0] [--seeds 0]
+Usage: python -m benchmarks.training_pixels [--env tissue_env/Retraction-v0] [--seeds 0]
        [--timesteps N] [--episodes 20] [--output benchmarks/results/training_pixels.json]
 
 Each seed trains with ``training.train`` (hyperparameters: training/hyperparams/ppo_pixels.yml,
@@ -16,16 +16,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from training.common import load_hyperparams, run_name, write_json
+from training.evaluate import evaluate
+from training.train import train
 
-from training.common import load_hyperparams, run_name, write_json  # noqa: E402
-from training.evaluate import evaluate  # noqa: E402
-from training.train import train  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 CONFIG = ROOT / "training" / "hyperparams" / "ppo_pixels.yml"
 ENV_KWARGS = dict(observation_type="rgb", image_size=64)
@@ -71,7 +69,7 @@ def main(argv=None) -> int:
               flush=True)
     out = Path(args.output)
     summary = json.loads(out.read_text()) if out.is_file() else {}
-    command = f"python benchmarks/training_pixels.py --env {args.env} --seeds {' '.join(map(str, args.seeds))}" + (
+    command = f"python -m benchmarks.training_pixels --env {args.env} --seeds {' '.join(map(str, args.seeds))}" + (
         "" if timesteps == budget else f" --timesteps {timesteps}") + (
         "" if args.episodes == 20 else f" --episodes {args.episodes}")
     summary[f"{args.env} ppo rgb"] = dict(

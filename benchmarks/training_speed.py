@@ -1,6 +1,6 @@
 """Training throughput of stable-baselines3 PPO on each vector-env mode of ``training.train``.
 
-Usage: python benchmarks/training_speed.py [--timesteps 16384] [--n-envs 4 16] [--rounds 1] [--env ID ...]
+Usage: python -m benchmarks.training_speed [--timesteps 16384] [--n-envs 4 16] [--rounds 1] [--env ID ...]
        [--modes subproc batched] [--output benchmarks/results/training_speed.json]
 
 For each task, each N and each ``--vec-env`` mode: ``python -m training.train --algo ppo`` with the
@@ -22,10 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from training.common import write_json
 
-from training.common import write_json  # noqa: E402
+REPO = Path(__file__).resolve().parent.parent
 
 TASKS = ("tissue_env/TumorPositioning-v0", "tissue_env/Palpation-v0", "tissue_env/Retraction-v0")
 

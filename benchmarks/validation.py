@@ -1,7 +1,7 @@
 """Validation lab (issue 3): the report's Fig. 12-17 reproduced, our model beside them, FEM as truth.
 
-    python benchmarks/validation.py            # every figure (about 10-15 minutes on 2 cores)
-    python benchmarks/validation.py --only 1 4 # a subset (--only 8 9 10 11 12 13 14: the large-deformation set)
+    python -m benchmarks.validation            # every figure (about 10-15 minutes on 2 cores)
+    python -m benchmarks.validation --only 1 4 # a subset (--only 8 9 10 11 12 13 14: the large-deformation set)
 
 Writes docs/figures/validation_*.png (matplotlib, Agg), one CSV per figure in benchmarks/results/
 and benchmarks/results/validation_summary.json (the number that sums up each figure, quoted in
@@ -32,7 +32,6 @@ import argparse
 import csv
 import json
 import math
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -42,7 +41,6 @@ import scipy.sparse.linalg as spla
 from scipy.interpolate import RegularGridInterpolator
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 import matplotlib  # noqa: E402
 

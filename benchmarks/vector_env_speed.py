@@ -1,6 +1,6 @@
 """Env steps per second of the batched vector envs against gymnasium's SyncVectorEnv.
 
-Usage: python benchmarks/vector_env_speed.py [--num-envs 16 ...] [--steps 100] [--rounds 3] [--env ID ...]
+Usage: python -m benchmarks.vector_env_speed [--num-envs 16 ...] [--steps 100] [--rounds 3] [--env ID ...]
        [--no-reset] [--async] [--output benchmarks/results/vector_env_speed.json]
 
 For each task with a ``vector_entry_point`` and each N: ``gym.make_vec(id, num_envs=N,
@@ -26,20 +26,16 @@ import argparse
 import functools
 import os
 import platform
-import sys
 import threading
 import time
-from pathlib import Path
 
 import gymnasium as gym
 import numba
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-import tissue_env  # noqa: E402
-from training.common import write_json  # noqa: E402
-from tissue_env.base import TissueEnv  # noqa: E402
+import tissue_env
+from training.common import write_json
+from tissue_env.base import TissueEnv
 
 RESET_SECONDS = [0.0]
 _RESET_LOCK = threading.Lock()  # the threaded vector envs reset their copies on several threads

@@ -1,6 +1,6 @@
 """A figure of the vector envs' and the training's throughput, from the benchmarks' JSON results.
 
-Usage: python benchmarks/vector_figure.py [--results benchmarks/results] [--output docs/figures/vector_env_speed.png]
+Usage: python -m benchmarks.vector_figure [--results benchmarks/results] [--output docs/figures/vector_env_speed.png]
 
 Left: env steps per wall second at N = 16 of ``vectorization_mode="sync"``, ``"async"`` and the
 batched vector env on one thread and on every core (``vector_env_speed.json``, the async rates from
@@ -61,7 +61,7 @@ def training_rates(results: Path):
 def draw(results: Path, output: Path):
     envs, training = env_rates(results), training_rates(results)
     if not envs:
-        raise SystemExit(f"no vector_env_speed results at N = 16 in {results}: run benchmarks/vector_env_speed.py")
+        raise SystemExit(f"no vector_env_speed results at N = 16 in {results}: run python -m benchmarks.vector_env_speed")
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
     tasks = sorted(envs)
     width = 0.8 / len(ENV_MODES)

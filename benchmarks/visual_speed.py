@@ -1,6 +1,6 @@
 """Env steps per second with camera observations against the state observation, every task.
 
-Usage: python benchmarks/visual_speed.py [--steps 300] [--rounds 3] [--sizes 64 128]
+Usage: python -m benchmarks.visual_speed [--steps 300] [--rounds 3] [--sizes 64 128]
        [--output benchmarks/results/visual_speed.json]
 
 For each task, observation_type "state", then "rgb" and "depth" at each image size (the task's
@@ -17,19 +17,17 @@ to ``--output`` (JSON, replaced atomically) with the machine's description and t
 import argparse
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import tissue_env
+from benchmarks.env_speed import random_steps_per_s
+from training.common import write_json
 
-import tissue_env  # noqa: E402
-from benchmarks.env_speed import random_steps_per_s  # noqa: E402
-from training.common import write_json  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: the speed floor: a visual observation's steps/s over the state observation's
 FLOOR = 0.5
@@ -83,7 +81,7 @@ def main(argv=None):
               + f"   frame us: {r['frame_us']}")
     machine = dict(platform=platform.platform(), processor=platform.processor(), cpus=os.cpu_count(),
                    python=platform.python_version(), numpy=np.__version__, load_average=list(os.getloadavg()))
-    command = "python benchmarks/visual_speed.py" + (
+    command = "python -m benchmarks.visual_speed" + (
         "" if (args.steps, args.rounds, args.sizes) == (300, 3, [64, 128])
         else f" --steps {args.steps} --rounds {args.rounds} --sizes {' '.join(map(str, args.sizes))}")
     payload = dict(command=command, steps=args.steps, rounds=args.rounds, sizes=args.sizes, floor=FLOOR,

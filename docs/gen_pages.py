@@ -93,10 +93,10 @@ def table(header, rows):
 
 
 def makefile_commands():
-    """Every benchmark command of the Makefile, as ``python benchmarks/...`` (the venv prefix dropped)."""
+    """Every benchmark command of the Makefile, as ``python -m benchmarks.<name> ...`` (the venv prefix dropped)."""
     commands = []
     for line in (ROOT / "Makefile").read_text().splitlines():
-        match = re.match(r"\s*\$\((?:PY|RLLIB_VENV)\)(?:/bin/python)?\s+(benchmarks/\S+\.py.*)$", line)
+        match = re.match(r"\s*\$\((?:PY|RLLIB_VENV)\)(?:/bin/python)?\s+(-m\s+benchmarks\.\S+.*)$", line)
         if match:
             commands.append("python " + match.group(1).strip())
     return commands
@@ -107,19 +107,26 @@ MAKE_COMMANDS = makefile_commands()
 
 def command_for(script, output=None):
     """The Makefile command that runs ``script`` and writes ``output`` (None: its default output)."""
+    module = "benchmarks." + script.removesuffix(".py")
     for command in MAKE_COMMANDS:
-        if f"benchmarks/{script}" not in command:
+        if command.split()[2] != module:  # "python -m benchmarks.<name> ..."
             continue
         has_output = "--output" in command or "--out " in command
         if output is None and not has_output:
             return command
         if output is not None and f"benchmarks/results/{output}" in command:
             return command
-    raise LookupError(f"no Makefile command runs benchmarks/{script} for {output or 'its default output'}")
+    raise LookupError(f"no Makefile command runs {module} for {output or 'its default output'}")
+
+
+def runnable(command):
+    """A command recorded in a results file, in the form that runs today: ``python benchmarks/x.py``
+    (how the scripts were run before benchmarks/ became a package) is ``python -m benchmarks.x``."""
+    return re.sub(r"\bpython benchmarks/(\w+)\.py\b", r"python -m benchmarks.\1", command)
 
 
 def caption(command, source):
-    return f"*Regenerate `benchmarks/results/{source}`:* `{command}`\n"
+    return f"*Regenerate `benchmarks/results/{source}`:* `{runnable(command)}`\n"
 
 
 def figure(name, alt):
@@ -879,7 +886,7 @@ def performance_page():
     out += ["## Other soft-body engines\n\n",
             f"A {'x'.join(map(str, scene['shape']))} block ({scene['nodes']} nodes), E = {num(scene['young_modulus_pa'])} Pa, "
             f"nu = {scene['poisson_ratio']}, sagging under gravity; sag = {peers['method']['sag']}.\n\n",
-            caption("python " + next(c.split(" ", 1)[1] for c in MAKE_COMMANDS if "peers.py" in c), "peers.json"),
+            caption(command_for("peers.py"), "peers.json"),
             "(`make bench-peers` installs the optional engines first.)\n\n"]
     out += [table(["engine", "status", "physics", "dt (s)", "ms per step", "sim s per wall s", "top sag after 1 s (m)"],
                   [[name, e["status"], e.get("physics", "-"), num(e.get("dt_s")), num(e.get("ms_per_step")),
@@ -947,7 +954,7 @@ def pixels_section():
            "controller on the same episode seeds. *Regenerate `benchmarks/results/training_pixels.json`, one "
            "command per row (each runs the training and evaluation commands below it):*\n\n"]
     out += ["```\n" + "\n".join(line for entry in data.values()
-                                 for line in (entry["command"], "  " + entry["train_command"],
+                                 for line in (runnable(entry["command"]), "  " + entry["train_command"],
                                               "  " + entry["evaluate_command"])) + "\n```\n\n"]
     out += [table(["env", "algo", "observation", "timesteps", "seeds", "agent success per seed (%)",
                    "agent return per seed", "random success (%) / return", "scripted success (%) / return",
@@ -1034,7 +1041,7 @@ def training_page():
             envs = sorted({r["env"] for r in data["results"]})
             runners = sorted({r["num_env_runners"] for r in data["results"]})
             per_runner = sorted({r["num_envs_per_env_runner"] for r in data["results"]})
-            command = (f"python benchmarks/rllib_throughput.py --envs {' '.join(envs)} --runners "
+            command = (f"python -m benchmarks.rllib_throughput --envs {' '.join(envs)} --runners "
                        f"{' '.join(map(str, runners))} --envs-per-runner {' '.join(map(str, per_runner))} "
                        f"--out benchmarks/results/{name}")
         out += [f"Ray {data['ray_version']}, {data['cpu_count']} CPUs; {data['note']}.\n\n", caption(command, name), "\n",

@@ -68,7 +68,7 @@ def test_environment_accuracy_page_reads_the_results_files():
     assert generator.num(palpation["lowest_eigenvalue"]) in text
     for source in ("env_accuracy.json", "env_models.json", "env_models_reference_x1.5.json", "dynamic_convergence.json",
                    "dynamic_convergence_static.json", "env_speed.json", "vector_env_speed.json", "material_range.json"):
-        assert f"*Regenerate `benchmarks/results/{source}`:* `python benchmarks/" in text, source
+        assert f"*Regenerate `benchmarks/results/{source}`:* `python -m benchmarks." in text, source
 
 
 def test_readme_tables_come_from_the_task_classes_and_the_training_results():

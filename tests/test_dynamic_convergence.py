@@ -1,15 +1,10 @@
 """benchmarks/dynamic_convergence.py: the env's observations, run dynamically, against a fine mesh's."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks import dynamic_convergence  # noqa: E402
-from benchmarks.env_accuracy import retraction_scenes  # noqa: E402
+from benchmarks import dynamic_convergence
+from benchmarks.env_accuracy import retraction_scenes
 
 
 def test_a_shape_against_itself_is_exact_and_a_coarser_one_is_not():

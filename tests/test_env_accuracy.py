@@ -1,14 +1,11 @@
 """benchmarks/env_accuracy.py: how an environment's default shape is chosen from the measured speeds
 (the budgeted choice) and how those speeds are measured (interleaved rounds, medians)."""
 
-import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks import env_accuracy  # noqa: E402
+from benchmarks import env_accuracy
 
 
 def _candidate(shape, worst, converged=True, stable=True):

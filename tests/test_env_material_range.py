@@ -3,14 +3,9 @@ in units that scale with the tissue (0.1 N x E / 5 kPa) and force limits scale t
 observations stay inside their bounds, the rewards keep their size and the scripted controllers
 keep succeeding (``benchmarks/material_range.py`` records the same measurements)."""
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-
-from material_range import TASKS, measure  # noqa: E402
+from benchmarks.material_range import TASKS, measure
 
 
 @pytest.mark.parametrize("env_id", TASKS)

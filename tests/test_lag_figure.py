@@ -1,12 +1,8 @@
 """benchmarks/lag_figure.py: a press read by implicit and by static stepping."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import lag_figure  # noqa: E402
+from benchmarks import lag_figure
 
 
 def test_implicit_press_settles_on_the_static_reading():

@@ -1,19 +1,13 @@
 """benchmarks/peers.py: the shared geometry (hex-to-tet split, MJCF and VTK writers) and, when the
 peer packages are installed, one tiny run of each engine. Timing is never asserted."""
 
-import importlib.util
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from benchmarks import peers
 from sim_core.geometry.mesh import HexMesh
-
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "peers.py"
-_spec = importlib.util.spec_from_file_location("peers_benchmark", _PATH)
-peers = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(peers)
 
 
 def tiny_scene():

@@ -1,8 +1,5 @@
 """Quasi-static stepping (``integrator="static"``): every step is the static (contact) equilibrium."""
 
-import sys
-from pathlib import Path
-
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -16,8 +13,7 @@ from sim_core.models.model import State
 from sim_core.resolution import dynamic_scene, solve_scene
 from sim_core.solvers.static import QuasiStatic
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from benchmarks.env_accuracy import env_defaults, palpation_scenes  # noqa: E402
+from benchmarks.env_accuracy import env_defaults, palpation_scenes
 
 
 def test_a_step_is_an_equilibrium_with_zero_velocities():

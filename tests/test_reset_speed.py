@@ -1,15 +1,10 @@
 """benchmarks/reset_speed.py: the per-reset timings and the goal-solve counts it reports."""
 
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks import reset_speed  # noqa: E402
-from sim_core.solvers import static  # noqa: E402
-import tissue_env.tumor_positioning as tumor_positioning  # noqa: E402
+from benchmarks import reset_speed
+from sim_core.solvers import static
+import tissue_env.tumor_positioning as tumor_positioning
 
 
 def test_reset_speed_counts_goal_solves_and_restores_the_solvers(tmp_path, monkeypatch):

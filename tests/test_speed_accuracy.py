@@ -1,17 +1,13 @@
 """benchmarks/speed_accuracy.py: interpolation, Pareto front and a tiny function-level run (< 30 s)."""
 
 import csv
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-
-import speed_accuracy as sa  # noqa: E402
-from sim_core import Material  # noqa: E402
-from sim_core.solvers.hyperelastic import NeoHookeanFEM, material_tangent  # noqa: E402
+from benchmarks import speed_accuracy as sa
+from sim_core import Material
+from sim_core.solvers.hyperelastic import NeoHookeanFEM, material_tangent
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5])

@@ -1,12 +1,8 @@
 """benchmarks/task_gallery.py: the scripted episode's frames and the figure."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import task_gallery  # noqa: E402
+from benchmarks import task_gallery
 
 
 def test_gallery_frames_and_figure(tmp_path):

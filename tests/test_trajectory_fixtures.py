@@ -7,7 +7,7 @@ and says why in its commit message.
 Bitwise equality holds on the kind of machine and library versions the fixtures were recorded
 with (BLAS and numba pick their instructions per CPU); elsewhere the test is skipped."""
 
-import sys
+import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +15,10 @@ import pytest
 
 import tissue_env
 
-sys.path.insert(0, str(Path(__file__).parent / "fixtures"))
-import trajectories  # noqa: E402
+# tests/fixtures/trajectories.py is a script (it re-records the fixtures), loaded by its path
+_spec = importlib.util.spec_from_file_location("trajectories", Path(__file__).parent / "fixtures" / "trajectories.py")
+trajectories = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(trajectories)
 
 FIXTURES = np.load(trajectories.PATH)
 SAME_MACHINE = str(FIXTURES["machine"]) == trajectories.machine()

@@ -1,12 +1,10 @@
 """benchmarks/vector_figure.py draws the committed vector-env and training throughput results."""
 
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import vector_figure  # noqa: E402
+from benchmarks import vector_figure
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
 

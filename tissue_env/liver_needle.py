@@ -129,7 +129,7 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     grid grasps and holds a slightly different patch. Random actions can still push the tool to
     combined moves of 15-28 mm that invert an element: 8 of 100 random-action episodes (4804
     steps, no exception, no non-finite observation) ended so, flagged ``info["unstable"]``
-    (``python benchmarks/success_rates.py --env tissue_env/LiverNeedleAlignment-v0 --stability
+    (``python -m benchmarks.success_rates --env tissue_env/LiverNeedleAlignment-v0 --stability
     100``).
 
     ## Action Space
