@@ -106,31 +106,16 @@ class _TypedItems(list):
     """A numba typed List's items in a plain list: how a solver's typed lists pickle and copy."""
 
 
-def _plain(value, memo):
-    """``value`` with its numba typed Lists (also inside tuples) as ``_TypedItems``, each list once."""
-    if isinstance(value, TypedList):
+def _mapped(value, memo, kind, make):
+    """``value`` with its items of type ``kind`` (also inside tuples) replaced by ``make(item)``, each
+    item once: numba typed Lists to ``_TypedItems`` for pickling, and back."""
+    if isinstance(value, kind):
         if id(value) not in memo:
-            memo[id(value)] = _TypedItems(value)
+            memo[id(value)] = make(value)
         return memo[id(value)]
     if isinstance(value, tuple):
-        return tuple(_plain(item, memo) for item in value)
+        return tuple(_mapped(item, memo, kind, make) for item in value)
     return value
-
-
-def _typed(value, memo):
-    """The inverse of ``_plain``."""
-    if isinstance(value, _TypedItems):
-        if id(value) not in memo:
-            memo[id(value)] = TypedList(value)
-        return memo[id(value)]
-    if isinstance(value, tuple):
-        return tuple(_typed(item, memo) for item in value)
-    return value
-
-
-def _copies_last(count, array, rows):
-    """A stacked array (count * rows, ...) as (rows, ..., count): the copy index last, contiguous."""
-    return np.ascontiguousarray(np.moveaxis(array.reshape((count, rows) + array.shape[1:]), 0, -1))
 
 
 def _system_factor(model, positions, dt, fixed):
@@ -372,11 +357,11 @@ class ImplicitEuler(WorldsSolver):
 
     def __getstate__(self):  # numba's typed Lists do not pickle: their items do
         memo = {}
-        return {name: _plain(value, memo) for name, value in self.__dict__.items()}
+        return {name: _mapped(value, memo, TypedList, _TypedItems) for name, value in self.__dict__.items()}
 
     def __setstate__(self, state):
         memo = {}
-        self.__dict__.update({name: _typed(value, memo) for name, value in state.items()})
+        self.__dict__.update({name: _mapped(value, memo, _TypedItems, TypedList) for name, value in state.items()})
 
     # -- preconditioner ------------------------------------------------------------------------------
     def _options(self):
