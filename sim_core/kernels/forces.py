@@ -16,9 +16,10 @@ from .vectors import add, cross, norm, row, sub
 _EDGES = np.ascontiguousarray(EDGES)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def spring_pass(positions, springs, stiffness, rest_length, length, unit, tension):
-    """Lengths (m), unit vectors and elastic tension k (L - L0) (N) of every spring."""
+    """Lengths (m), unit vectors and elastic tension k (L - L0) (N) of every spring. Inlined into
+    ``model_forces``, so there it runs under that kernel's fastmath flags."""
     for s in range(springs.shape[0]):
         a, b = springs[s, 0], springs[s, 1]
         dx = positions[b, 0] - positions[a, 0]
@@ -113,17 +114,7 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
     rank-one terms (coefficient, direction, gradient; see ``volume_jacobian_terms``).
     """
     n_springs = springs.shape[0]
-    for s in range(n_springs):
-        a, b = springs[s, 0], springs[s, 1]
-        dx = positions[b, 0] - positions[a, 0]
-        dy = positions[b, 1] - positions[a, 1]
-        dz = positions[b, 2] - positions[a, 2]
-        current = np.sqrt(dx * dx + dy * dy + dz * dz)
-        length[s] = current
-        unit[s, 0] = dx / current
-        unit[s, 1] = dy / current
-        unit[s, 2] = dz / current
-        tension[s] = stiffness[s] * (current - rest_length[s])
+    spring_pass(positions, springs, stiffness, rest_length, length, unit, tension)
     forces[:] = 0.0
     for m in range(elements.shape[0] if correction_kind != 0 else 0):  # corrections (docs/physics.md 3)
         e0 = 0.25 * (length[edge_spring[m, 0]] + length[edge_spring[m, 1]] + length[edge_spring[m, 2]]
