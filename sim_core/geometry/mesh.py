@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -36,20 +37,26 @@ def _parse_shape(shape) -> tuple[int, int, int]:
     return values
 
 
+@dataclass(frozen=True)
 class MeshGeometry:
-    """What ``HexMesh`` and ``TetMesh`` share: the checks of their nodes and elements, counts,
-    extent, boundary nodes, the structured block's node index and file output (a subclass has
-    ``nodes``, ``elements``, ``shape`` and ``surface_faces``, and names its element kind)."""
+    """What ``HexMesh`` and ``TetMesh`` share: their fields and the checks of their nodes and
+    elements, counts, extent, boundary nodes, the structured block's node index and file output (a
+    subclass names its element kind and has ``surface_faces``)."""
+
+    nodes: np.ndarray
+    elements: np.ndarray
+    shape: tuple[int, int, int] | None = None
+    spacing: np.ndarray | None = field(default=None, repr=False)
 
     #: nodes per element, the element's name in messages and its meshio cell type
-    nodes_per_element: int
-    element_name: str
-    cell_type: str
+    nodes_per_element: ClassVar[int]
+    element_name: ClassVar[str]
+    cell_type: ClassVar[str]
 
-    def _freeze_topology(self) -> None:
+    def __post_init__(self):
         """Check ``nodes`` ((N, 3) finite, m) and ``elements`` ((M, ``nodes_per_element``) integer
         indices into the nodes, no node twice in an element) and store them as read-only float and
-        int64 arrays; the subclass then checks the elements' geometry."""
+        int64 arrays; a subclass then checks its elements' geometry."""
         nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
         corners, name = self.nodes_per_element, self.element_name
         try:
@@ -122,10 +129,6 @@ class HexMesh(MeshGeometry):
     degenerate or inverted elements (a corner Jacobian that is not positive).
     """
 
-    nodes: np.ndarray
-    elements: np.ndarray
-    shape: tuple[int, int, int] | None = None
-    spacing: np.ndarray | None = field(default=None, repr=False)
     element_labels: np.ndarray | None = field(default=None, repr=False)
 
     nodes_per_element = 8
@@ -133,7 +136,7 @@ class HexMesh(MeshGeometry):
     cell_type = "hexahedron"
 
     def __post_init__(self):
-        self._freeze_topology()
+        super().__post_init__()
         check_elements(self.nodes, self.elements)
         elements = self.elements
         if self.element_labels is not None:

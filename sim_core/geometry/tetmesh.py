@@ -10,7 +10,7 @@ hexahedral model of one block can be compared node by node. Lengths are in metre
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -87,17 +87,12 @@ class TetMesh(MeshGeometry):
     degenerate or inverted tetrahedra.
     """
 
-    nodes: np.ndarray
-    elements: np.ndarray
-    shape: tuple[int, int, int] | None = None
-    spacing: np.ndarray | None = field(default=None, repr=False)
-
     nodes_per_element = 4
     element_name = "tetrahedron"
     cell_type = "tetra"
 
     def __post_init__(self):
-        self._freeze_topology()
+        super().__post_init__()
         check_tetrahedra(self.nodes, self.elements)
 
     # -- construction ----------------------------------------------------------------------
