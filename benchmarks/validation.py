@@ -58,7 +58,7 @@ from sim_core.models.laws import baudet_shear_ratio  # noqa: E402
 from sim_core.models.model import MAX_SHEAR_ERROR, MSS_MODELS as MSS_NAMES, Control, baudet_stiffness  # noqa: E402
 from sim_core.solvers.static import lowest_eigenvalue, solve_static, zero_energy_modes  # noqa: E402
 from sim_core.studies.refinement import (  # noqa: E402
-    block_displacement_at, clamped_control, displacement_errors, neo_hookean_chain, rotation_matrix)
+    block_displacement_at, clamped_control, displacement_errors, moved_cantilever, neo_hookean_chain, rotation_matrix)
 
 FIGURES = ROOT / "docs" / "figures"
 RESULTS = ROOT / "benchmarks" / "results"
@@ -1269,13 +1269,7 @@ def loaded_block(label, turn, offset, nu=0.45, increments=8):
     by Q, solved from the moved rest state Q X + c (force-free for every model here: an affine
     motion) with the load ramped in the same ``increments`` either way. An objective model lands on
     Q x + c of the unmoved answer x. Returns (mesh, positions)."""
-    mesh = HexMesh.block((6, 2, 2), 0.1)
-    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
-    tip = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.6))
-    start = mesh.nodes @ turn.T + offset
-    control = Control.free(mesh.n_nodes).impose(clamp, start[clamp])
-    load = np.zeros((mesh.n_nodes, 3))
-    load[tip, 1] = -1.0
+    mesh, start, control, load = moved_cantilever(turn, offset)
     load = load @ turn.T
     if label == "fem-neohookean":
         control.force[:] = load

@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.models.model import Control
-from sim_core.studies.refinement import (block_displacement_at, clamped_control, displacement_errors,
+from sim_core.studies.refinement import (block_displacement_at, clamped_control, displacement_errors, moved_cantilever,
                                          neo_hookean_chain, rotation_matrix)
 
 MODEL = "baudet-hyperelastic"
@@ -50,18 +49,12 @@ def test_refinement_error_falls_and_every_equilibrium_is_stable():
     assert errors[-1] < 2.0, errors
 
 
-def moved_cantilever(turn, offset, gravity, increments=8):
+def loaded_cantilever(turn, offset, gravity, increments=8):
     """6x2x2 cantilever (nu = 0.45) clamped at Q X + c, 1 N on each tip node plus its weight under
     ``gravity`` (m/s^2, as nodal forces m_a g on the model's lumped masses, so that both loads ramp),
     both rotated by Q, solved from the moved rest state Q X + c with the loads ramped in ``increments``."""
-    mesh = HexMesh.block((6, 2, 2), 0.1)
+    mesh, positions, control, load = moved_cantilever(turn, offset)
     model = build_model(mesh, Material(E, 0.45, RHO), model=MODEL)
-    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
-    tip = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.6))
-    positions = mesh.nodes @ turn.T + offset
-    control = Control.free(mesh.n_nodes).impose(clamp, positions[clamp])
-    load = np.zeros((mesh.n_nodes, 3))
-    load[tip, 1] = -1.0
     load[:, 1] -= model.mass * gravity
     for step in range(1, increments + 1):
         control.force[:] = (load @ turn.T) * step / increments
@@ -79,9 +72,9 @@ def test_objectivity_of_a_loaded_block_rotated_through_its_boundary_conditions(a
     the unmoved answer to 0.1% of its largest displacement, 0.45 m (measured 5e-13 to 9e-13 %; in
     figure 13, baudet with hourglass_control=1: up to 18%)."""
     offset = np.array([0.1, -0.2, 0.3])
-    mesh, plain = moved_cantilever(np.eye(3), np.zeros(3), gravity=0.2)
+    mesh, plain = loaded_cantilever(np.eye(3), np.zeros(3), gravity=0.2)
     largest = np.linalg.norm(plain - mesh.nodes, axis=1).max()
     assert largest > 0.1
     turn = rotation_matrix([1.0, 2.0, -0.5], angle)
-    _, turned = moved_cantilever(turn, offset, gravity=0.2)
+    _, turned = loaded_cantilever(turn, offset, gravity=0.2)
     assert np.linalg.norm(turned - (plain @ turn.T + offset), axis=1).max() < 1e-3 * largest

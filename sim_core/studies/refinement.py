@@ -92,6 +92,21 @@ def neo_hookean_chain(meshes, material: Material, gravity: float, control=clampe
     return out
 
 
+def moved_cantilever(turn, offset) -> tuple[HexMesh, np.ndarray, Control, np.ndarray]:
+    """The objectivity checks' cantilever moved by the rigid motion x -> Q x + c (``turn`` Q (3, 3),
+    ``offset`` c m): a 6x2x2 block of 0.1 m cubes, its face x = 0 clamped at Q X + c. Returns (mesh,
+    the moved rest positions Q X + c, the control, the tip load (N, 3) N before rotation: 1 N along
+    -y on each node of the face x = 0.6 m)."""
+    mesh = HexMesh.block((6, 2, 2), 0.1)
+    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
+    tip = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.6))
+    start = mesh.nodes @ np.asarray(turn).T + offset
+    control = Control.free(mesh.n_nodes).impose(clamp, start[clamp])
+    load = np.zeros((mesh.n_nodes, 3))
+    load[tip, 1] = -1.0
+    return mesh, start, control, load
+
+
 def rotation_matrix(axis, angle_deg: float) -> np.ndarray:
     """(3, 3) rotation by ``angle_deg`` degrees about ``axis`` (any length): Rodrigues' formula."""
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
