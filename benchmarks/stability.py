@@ -33,7 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from sim_core import HexMesh, Material, build_model, solve_static  # noqa: E402
-from sim_core.files import atomic_path, save_figure  # noqa: E402
+from sim_core.files import atomic_path, finish_figure  # noqa: E402
 from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -183,9 +183,7 @@ def _figure(rows, moduli, nus, ratios, path):
     handles = [plt.Rectangle((0, 0), 1, 1, color=colours(i)) for i in range(4)]
     figure.legend(handles, CATEGORIES, loc="lower center", ncol=4)
     figure.suptitle("Stability map: 4 cm tissue cube, 500 steps, top stretched 1% (green: stable and accurate)")
-    figure.tight_layout(rect=(0, 0.05, 1, 0.97))
-    save_figure(figure, path, dpi=100)
-    plt.close(figure)
+    finish_figure(figure, path, rect=(0, 0.05, 1, 0.97), dpi=100)
 
 
 if __name__ == "__main__":
