@@ -53,10 +53,15 @@ class MeshGeometry:
     element_name: ClassVar[str]
     cell_type: ClassVar[str]
 
+    @staticmethod
+    def check_geometry(positions: np.ndarray, elements: np.ndarray) -> None:
+        """Raise ``ValueError`` for a degenerate or inverted element (the subclass's test)."""
+        raise NotImplementedError
+
     def __post_init__(self):
         """Check ``nodes`` ((N, 3) finite, m) and ``elements`` ((M, ``nodes_per_element``) integer
-        indices into the nodes, no node twice in an element) and store them as read-only float and
-        int64 arrays; a subclass then checks its elements' geometry."""
+        indices into the nodes, no node twice in an element), store them as read-only float and
+        int64 arrays, then check the elements' geometry (``check_geometry``)."""
         nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
         corners, name = self.nodes_per_element, self.element_name
         try:
@@ -81,6 +86,7 @@ class MeshGeometry:
         elements.setflags(write=False)
         object.__setattr__(self, "nodes", nodes)
         object.__setattr__(self, "elements", elements)
+        self.check_geometry(nodes, elements)
 
     @property
     def n_nodes(self) -> int:
@@ -102,6 +108,17 @@ class MeshGeometry:
     def node_index(self, i, j, k):
         """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
         return block_node_index(self.shape, i, j, k, f"{type(self).__name__}.block")
+
+    @classmethod
+    def _from_cells(cls, mesh, points, path, plural: str, need: str):
+        """The mesh of the ``cell_type`` cells of what meshio read from ``path`` (``read_mesh_file``):
+        ``plural`` names them in messages, ``need`` says what is missing when the file has none.
+        Raises ``ValueError`` naming the file when they do not form a valid mesh."""
+        blocks = cell_blocks(mesh, path, cls.cell_type, plural, need)
+        try:
+            return cls(points, np.concatenate(blocks))
+        except ValueError as error:
+            raise ValueError(f"{path}: its {plural} do not form a valid mesh: {error}") from error
 
     def write(self, path, point_data: dict | None = None, positions=None) -> None:
         """Write the mesh (optionally deformed ``positions`` (N, 3) m and ``point_data``) with meshio.
@@ -135,9 +152,13 @@ class HexMesh(MeshGeometry):
     element_name = "element"
     cell_type = "hexahedron"
 
+    @staticmethod
+    def check_geometry(positions, elements):
+        """``check_elements``: every corner Jacobian positive."""
+        check_elements(positions, elements)
+
     def __post_init__(self):
         super().__post_init__()
-        check_elements(self.nodes, self.elements)
         elements = self.elements
         if self.element_labels is not None:
             labels = np.asarray(self.element_labels)
@@ -275,11 +296,7 @@ class HexMesh(MeshGeometry):
         path = Path(path)
         mesh, points = read_mesh_file(path, "HexMesh.read", "hexahedra", "e.g. .vtu, .vtk, .msh (Gmsh), .xdmf, .med, .inp",
                                       "HexMesh.write")
-        blocks = cell_blocks(mesh, path, "hexahedron", "hexahedra", "HexMesh needs 8-node hexahedral cells")
-        try:
-            return cls(points, np.concatenate(blocks))
-        except ValueError as error:
-            raise ValueError(f"{path}: its hexahedra do not form a valid mesh: {error}") from error
+        return cls._from_cells(mesh, points, path, "hexahedra", "HexMesh needs 8-node hexahedral cells")
 
     def write_obj(self, path, positions=None) -> None:
         """Export the boundary surface as a Wavefront .obj of quads (positions in m)."""

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .mesh import (
-    LOCAL_CORNERS, HexMesh, MeshGeometry, boundary_faces, cell_blocks, read_mesh_file, signed_volumes,
+    LOCAL_CORNERS, HexMesh, MeshGeometry, boundary_faces, read_mesh_file, signed_volumes,
 )
 
 #: The 6 edges of a tetrahedron (local node pairs).
@@ -91,9 +91,7 @@ class TetMesh(MeshGeometry):
     element_name = "tetrahedron"
     cell_type = "tetra"
 
-    def __post_init__(self):
-        super().__post_init__()
-        check_tetrahedra(self.nodes, self.elements)
+    check_geometry = staticmethod(check_tetrahedra)
 
     # -- construction ----------------------------------------------------------------------
     @classmethod
@@ -170,8 +168,4 @@ class TetMesh(MeshGeometry):
         if options:
             raise ValueError(f"{path} holds tetrahedra: the tetrahedralisation keywords {sorted(options)} apply only "
                              "to a surface file")
-        blocks = cell_blocks(mesh, path, "tetra", "tetrahedra", "TetMesh needs 4-node tetrahedral cells")
-        try:
-            return cls(points, np.concatenate(blocks))
-        except ValueError as error:
-            raise ValueError(f"{path}: its tetrahedra do not form a valid mesh: {error}") from error
+        return cls._from_cells(mesh, points, path, "tetrahedra", "TetMesh needs 4-node tetrahedral cells")
