@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import tissue_env  # noqa: E402,F401  (registers the tasks)
-from sim_core.files import save_figure  # noqa: E402
+from sim_core.files import finish_figure  # noqa: E402
 
 DEPTH_STEPS, HOLD_STEPS = 3, 6  # 2 mm above the surface + 2 steps of 4 mm, then held
 
@@ -65,9 +65,7 @@ def main(argv=None):
     bottom.set_xlabel("env step (40 ms)")
     bottom.legend()
     top.set_title("Palpation: a press at full speed, held, lifted (over the inclusion)")
-    fig.tight_layout()
-    save_figure(fig, args.output, dpi=90)
-    plt.close(fig)
+    finish_figure(fig, args.output, dpi=90)
     print(f"wrote {args.output}")
 
 

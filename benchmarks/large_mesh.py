@@ -52,16 +52,18 @@ def env_cost(n):
                 step_median_ms=1e3 * float(np.median(steps)))
 
 
-def static_scene(n):
-    size = 0.07
+def static_scene(n, size=0.07, patch=0.15, move=(0.005, -0.01, 0.0)):
+    """The static scene: a cube of side ``size`` m in n^3 elements (the envs' model) under gravity,
+    its bottom fixed and the top nodes within ``patch`` * ``size`` of the top's centre (along x and
+    z) moved by ``move`` (m). Returns (model, control)."""
     mesh = HexMesh.block((n, n, n), size / n)
     model = build_model(mesh, Material(5e3, 0.45, 1060.0), gravity=(0.0, -9.81, 0.0), hourglass_control=1.0,
                         volume_stiffness=100.0)
     nodes = mesh.nodes
     bottom = np.flatnonzero(nodes[:, 1] == 0.0)
-    top = np.flatnonzero(np.isclose(nodes[:, 1], size) & (np.abs(nodes[:, 0] - size / 2) < 0.15 * size)
-                         & (np.abs(nodes[:, 2] - size / 2) < 0.15 * size))
-    control = model.new_control().impose(bottom, nodes[bottom]).impose(top, nodes[top] + [0.005, -0.01, 0.0])
+    top = np.flatnonzero(np.isclose(nodes[:, 1], size) & (np.abs(nodes[:, 0] - size / 2) < patch * size)
+                         & (np.abs(nodes[:, 2] - size / 2) < patch * size))
+    control = model.new_control().impose(bottom, nodes[bottom]).impose(top, nodes[top] + np.asarray(move))
     return model, control
 
 

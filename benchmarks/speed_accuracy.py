@@ -89,7 +89,7 @@ import scipy.sparse.linalg as spla
 
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.solvers.fem import LinearFEM
-from sim_core.files import atomic_write, save_figure
+from sim_core.files import atomic_write, finish_figure
 from sim_core.solvers.hyperelastic import NeoHookeanFEM
 from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, stable_time_step
 from sim_core.geometry.mesh import LOCAL_CORNERS
@@ -836,9 +836,7 @@ def figure(rows, summary, path: Path, peers: dict | None = None):
     fig.legend(handles=handles, fontsize=7, loc="lower center", ncol=8)  # below the panels: no point hidden
     fig.suptitle(f"4 cm cube, E = {YOUNG / 1e3:g} kPa, nu = {POISSON}: final positions after 1 s (tool ramp 0.5 s) "
                  "against static neo-Hookean FEM", fontsize=10)
-    fig.tight_layout(rect=(0, 0.09, 1, 1))
-    save_figure(fig, path, dpi=110)
-    plt.close(fig)
+    finish_figure(fig, path, rect=(0, 0.09, 1, 1), dpi=110)
 
 
 def main(argv=None):

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from sim_core import HexMesh, Material, build_model, solve_static
-from sim_core.files import atomic_path, save_figure
+from sim_core.files import atomic_path, finish_figure
 from sim_core.solvers.integrators import ImplicitEuler, SymplecticEuler, run, stable_time_step
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -180,9 +180,7 @@ def _figure(rows, moduli, nus, ratios, path):
     handles = [plt.Rectangle((0, 0), 1, 1, color=colours(i)) for i in range(4)]
     figure.legend(handles, CATEGORIES, loc="lower center", ncol=4)
     figure.suptitle("Stability map: 4 cm tissue cube, 500 steps, top stretched 1% (green: stable and accurate)")
-    figure.tight_layout(rect=(0, 0.05, 1, 0.97))
-    save_figure(figure, path, dpi=100)
-    plt.close(figure)
+    finish_figure(figure, path, rect=(0, 0.05, 1, 0.97), dpi=100)
 
 
 if __name__ == "__main__":

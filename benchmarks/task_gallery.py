@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import tissue_env  # noqa: E402,F401  (registers the tasks)
-from sim_core.files import save_figure  # noqa: E402
+from sim_core.files import finish_figure  # noqa: E402
 
 TASKS = ("TumorPositioning", "Palpation", "Retraction", "LiverNeedleAlignment")
 
@@ -50,9 +50,7 @@ def figure(rows, path):
             ax.set_title(f"step {step} {status}", fontsize=9)
         row[0].set_ylabel(task, fontsize=11)
     fig.suptitle("Scripted controller, one episode per task (start, middle, end)", fontsize=11)
-    fig.tight_layout()
-    save_figure(fig, path, dpi=90)
-    plt.close(fig)
+    finish_figure(fig, path, dpi=90)
 
 
 def main(argv=None):

@@ -38,7 +38,6 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse.linalg as spla
-from scipy.interpolate import RegularGridInterpolator
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -56,6 +55,8 @@ from sim_core.solvers.hyperelastic import NeoHookeanFEM  # noqa: E402
 from sim_core.models.laws import baudet_shear_ratio  # noqa: E402
 from sim_core.models.model import MAX_SHEAR_ERROR, MSS_MODELS as MSS_NAMES, Control, baudet_stiffness  # noqa: E402
 from sim_core.solvers.static import lowest_eigenvalue, solve_static, zero_energy_modes  # noqa: E402
+from sim_core.studies.refinement import (  # noqa: E402
+    block_displacement_at, clamped_control, displacement_errors, moved_cantilever, neo_hookean_chain, rotation_matrix)
 
 FIGURES = ROOT / "docs" / "figures"
 RESULTS = ROOT / "benchmarks" / "results"
@@ -82,8 +83,9 @@ SUMMARY: dict = {}
 
 
 def run_model(experiment, label, **kwargs):
-    """Run ``experiment`` with the model named by ``label`` (an MSS variant or an FEM law)."""
-    options = dict(MSS[label]) if label in MSS else dict(model=label)
+    """Run ``experiment`` with the model named by ``label`` (an MSS variant, an FEM law or a
+    ``model_options`` label)."""
+    options = model_options(label)
     if experiment is elongation and kwargs.get("strain", 0) < 0 and label != "fem-linear":
         # Ramp compression in 4 increments: moving the loaded face by a whole element in one
         # go can put two nodes on top of each other before Newton starts.
@@ -103,6 +105,32 @@ def save(fig, name):
     FIGURES.mkdir(parents=True, exist_ok=True)
     fig.savefig(FIGURES / f"{name}.png", dpi=110, bbox_inches="tight")
     plt.close(fig)
+
+
+def fem_errors(label, runs):
+    """Row entries e_dm_vs_<law> and e_max_vs_<law>: %e_dm and %e_max (``position_errors``) of
+    ``runs[label]`` against each FEM law's run in ``runs`` (0 against itself)."""
+    row = {}
+    for reference in FEM:
+        e_dm, e_max = position_errors(runs[label], runs[reference]) if label != reference else (0.0, 0.0)
+        row[f"e_dm_vs_{reference}"], row[f"e_max_vs_{reference}"] = e_dm, e_max
+    return row
+
+
+def plot_errors(ax, x, e_dm, e_max, label, **cross):
+    """A model's %e_dm (its line) and %e_max (crosses of its colour, ``cross`` their options) against x."""
+    ax.plot(x, e_dm, markersize=4, **STYLE[label], label=f"{label} %e_dm")
+    ax.plot(x, e_max, color=STYLE[label]["color"], marker="x", linestyle="none", label=f"{label} %e_max", **cross)
+
+
+def finish_grid(fig, axes, ylabels, title, name):
+    """A grid of panels (a row per quantity, a column per case) labelled on its first column, the
+    legend in its first panel, titled and saved as ``name``."""
+    for ax, label in zip(axes[:, 0], ylabels):
+        ax.set_ylabel(label)
+    axes[0, 0].legend(fontsize=8)
+    fig.suptitle(title)
+    save(fig, name)
 
 
 # -- Fig. 1: measured E and nu against strain ------------------------------------------------
@@ -141,12 +169,9 @@ def figure_moduli():
         axes[1, column].axhline(nu, color="green", linewidth=0.8)
         axes[0, column].set_title(f"nu = {nu}")
         axes[1, column].set_xlabel("imposed strain (%)")
-    axes[0, 0].set_ylabel("measured E / E")
-    axes[1, 0].set_ylabel("measured nu")
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Fig. 1 - elongation/compression of a block (4x4x4; homogeneous branch): measured E and nu "
-                 "(green: imposed)")
-    save(fig, "validation_1_moduli")
+    finish_grid(fig, axes, ("measured E / E", "measured nu"),
+                "Fig. 1 - elongation/compression of a block (4x4x4; homogeneous branch): measured E and nu "
+                "(green: imposed)", "validation_1_moduli")
 
     def worst(label, limit, key):
         data = [r for r in rows if r["model"] == label and abs(r["strain"]) <= limit + 1e-12]
@@ -186,9 +211,7 @@ def figure_elongation_errors():
             if not data:
                 continue
             x = np.array([r["strain"] for r in data]) * 100
-            ax.plot(x, [r["e_dm"] for r in data], markersize=4, **STYLE[label], label=f"{label} %e_dm")
-            ax.plot(x, [r["e_max"] for r in data], markersize=4, color=STYLE[label]["color"], marker="x",
-                    linestyle="none", label=f"{label} %e_max")
+            plot_errors(ax, x, [r["e_dm"] for r in data], [r["e_max"] for r in data], label, markersize=4)
         ax.set_title(f"against {reference}")
         ax.set_xlabel("imposed strain (%)")
         ax.set_yscale("log")
@@ -218,11 +241,8 @@ def figure_shear():
         runs = {label: run_model(shear, label, shape=(10, 10, 10), spacing=0.1, young_modulus=E0,
                                  poisson_ratio=nu, angle_deg=angle) for label in (*MSS, *FEM)}
         for label, result in runs.items():
-            row = dict(angle_deg=angle, model=label, shear_modulus=result.shear_modulus, converged=result.converged)
-            for reference in FEM:
-                e_dm, e_max = position_errors(result, runs[reference]) if label != reference else (0.0, 0.0)
-                row[f"e_dm_vs_{reference}"], row[f"e_max_vs_{reference}"] = e_dm, e_max
-            rows.append(row)
+            rows.append(dict(angle_deg=angle, model=label, shear_modulus=result.shear_modulus,
+                             converged=result.converged, **fem_errors(label, runs)))
     write_csv("validation_3_shear", rows)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.5))
     for label in (*MSS, *FEM):
@@ -232,9 +252,8 @@ def figure_shear():
         for ax, reference in zip(axes[1:], FEM):
             if label == reference:
                 continue
-            ax.plot(angle, [r[f"e_dm_vs_{reference}"] for r in data], markersize=4, **STYLE[label], label=f"{label} %e_dm")
-            ax.plot(angle, [r[f"e_max_vs_{reference}"] for r in data], color=STYLE[label]["color"], marker="x",
-                    linestyle="none", label=f"{label} %e_max")
+            plot_errors(ax, angle, [r[f"e_dm_vs_{reference}"] for r in data], [r[f"e_max_vs_{reference}"] for r in data],
+                        label)
     axes[0].axhline(1.0, color="green", linewidth=0.8)
     axes[0].set_ylabel("measured G / G")
     axes[0].legend(fontsize=7)
@@ -273,12 +292,9 @@ def figure_flexion():
         runs = {label: run_model(flexion, label, gravity=gravity, **CANTILEVER) for label in (*MSS, *FEM)}
         kept[gravity] = runs
         for label, result in runs.items():
-            row = dict(gravity=gravity, model=label, tip_deflection=result.tip_deflection, converged=result.converged,
-                       neo_tip_over_length=-runs["fem-neohookean"].tip_deflection / 1.0)
-            for reference in FEM:
-                e_dm, e_max = position_errors(result, runs[reference]) if label != reference else (0.0, 0.0)
-                row[f"e_dm_vs_{reference}"], row[f"e_max_vs_{reference}"] = e_dm, e_max
-            rows.append(row)
+            rows.append(dict(gravity=gravity, model=label, tip_deflection=result.tip_deflection,
+                             converged=result.converged, neo_tip_over_length=-runs["fem-neohookean"].tip_deflection / 1.0,
+                             **fem_errors(label, runs)))
     write_csv("validation_4_flexion", rows)
     fig = plt.figure(figsize=(16, 9))
     grid = fig.add_gridspec(2, 2)
@@ -307,9 +323,8 @@ def figure_flexion():
                 continue
             data = [r for r in rows if r["model"] == label]
             x = [r["neo_tip_over_length"] * 100 for r in data]
-            ax.plot(x, [r[f"e_dm_vs_{reference}"] for r in data], markersize=4, **STYLE[label], label=f"{label} %e_dm")
-            ax.plot(x, [r[f"e_max_vs_{reference}"] for r in data], color=STYLE[label]["color"], marker="x",
-                    linestyle="none", label=f"{label} %e_max")
+            plot_errors(ax, x, [r[f"e_dm_vs_{reference}"] for r in data], [r[f"e_max_vs_{reference}"] for r in data],
+                        label)
         ax.axvline(5, color="green", linewidth=0.8)
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -930,17 +945,20 @@ LARGE_STRAINS = (-0.30, -0.25, -0.20, -0.15, -0.10, -0.05, 0.05, 0.10, 0.15, 0.2
 LARGE_NUS = (0.3, 0.45, 0.49)
 
 
-def figure_large_elongation():
+def block_strain_rows(nus, labels, strains):
+    """Elongation of the 4x4x4 block of 0.1 m cubes for each nu, label and strain: nominal stress
+    (reaction / rest area, Pa), dV/V0, convergence and the mass-spring tangent's lowest eigenvalue
+    (N/m), each row also against fem-neohookean's (one of ``labels``) at its nu and strain."""
     mesh = HexMesh.block((4, 4, 4), 0.1)
     area = 0.4 * 0.4
     rows = []
-    for nu in LARGE_NUS:
-        for label in LARGE:
-            for strain in LARGE_STRAINS:
+    for nu in nus:
+        for label in labels:
+            for strain in strains:
                 r = run_model(elongation, label, shape=(4, 4, 4), spacing=0.1, young_modulus=E0, poisson_ratio=nu,
                               strain=strain)
                 lowest = (mss_lowest(label, mesh, nu, elongation_control(mesh, strain), r.positions)
-                          if label in MSS else None)
+                          if model_options(label)["model"] in MSS_NAMES else None)
                 rows.append(dict(nu=nu, model=label, strain=strain, nominal_stress=r.reaction / area,
                                  relative_volume_change=volume_change(r), converged=r.converged,
                                  lowest_eigenvalue=lowest))
@@ -949,26 +967,36 @@ def figure_large_elongation():
         ref = neo[(r["nu"], r["strain"])]
         r["stress_ratio_to_neohookean"] = r["nominal_stress"] / ref["nominal_stress"]
         r["volume_change_minus_neohookean"] = r["relative_volume_change"] - ref["relative_volume_change"]
-    write_csv("validation_8_large_elongation", rows)
-    fig, axes = plt.subplots(2, len(LARGE_NUS), figsize=(5.2 * len(LARGE_NUS), 8.5), sharex=True)
-    for column, nu in enumerate(LARGE_NUS):
-        for label in LARGE:
+    return rows
+
+
+def plot_strain_panels(rows, nus, labels, panels, strain_sign, xlabel):
+    """Two rows of panels, one column per nu: ``panels`` ((key, scale), (key, scale)) of ``rows``
+    (``block_strain_rows``) against strain_sign * strain in %, saddles and failures marked."""
+    fig, axes = plt.subplots(2, len(nus), figsize=(5.2 * len(nus), 8.5), sharex=True)
+    for column, nu in enumerate(nus):
+        for label in labels:
             data = [r for r in rows if r["nu"] == nu and r["model"] == label]
-            x = [r["strain"] * 100 for r in data]
-            for row, key, scale in ((0, "nominal_stress", 1e-3), (1, "relative_volume_change", 100)):
+            x = [strain_sign * r["strain"] * 100 for r in data]
+            for row, (key, scale) in enumerate(panels):
                 y = [r[key] * scale for r in data]
                 axes[row, column].plot(x, y, markersize=4, label=label, **style(label))
                 saddle_rings(axes[row, column], data, x, y)
         axes[0, column].set_title(f"nu = {nu}")
-        axes[1, column].set_xlabel("imposed strain (%)")
+        axes[1, column].set_xlabel(xlabel)
         for ax in axes[:, column]:
             ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("nominal axial stress: reaction / rest area (kPa)")
-    axes[1, 0].set_ylabel("dV/V0 (%)")
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Fig. 8 - uniaxial tension and compression to +-30% of a 4x4x4 block, lateral faces free "
-                 "(red ring: the mass-spring equilibrium is a saddle)")
-    save(fig, "validation_8_large_elongation")
+    return fig, axes
+
+
+def figure_large_elongation():
+    rows = block_strain_rows(LARGE_NUS, LARGE, LARGE_STRAINS)
+    write_csv("validation_8_large_elongation", rows)
+    fig, axes = plot_strain_panels(rows, LARGE_NUS, LARGE, (("nominal_stress", 1e-3), ("relative_volume_change", 100)),
+                                   1, "imposed strain (%)")
+    finish_grid(fig, axes, ("nominal axial stress: reaction / rest area (kPa)", "dV/V0 (%)"),
+                "Fig. 8 - uniaxial tension and compression to +-30% of a 4x4x4 block, lateral faces free "
+                "(red ring: the mass-spring equilibrium is a saddle)", "validation_8_large_elongation")
 
     def worst(label, key, limit=0.30):
         data = [r for r in rows if r["model"] == label and abs(r["strain"]) <= limit + 1e-12]
@@ -1026,13 +1054,10 @@ def figure_large_shear():
         axes[2, column].set_xlabel("shear angle (deg)")
         for ax in axes[:, column]:
             ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("top-face force along x (N)")
-    axes[1, 0].set_ylabel("force / fem-neohookean's (green band: +-10%)")
-    axes[2, 0].set_ylabel("%e_dm against fem-neohookean")
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Fig. 9 - simple shear of the 10x10x10 block of 0.1 m cubes to 30 degrees (bottom fixed, top moved, "
-                 "sides free)")
-    save(fig, "validation_9_large_shear")
+    finish_grid(fig, axes, ("top-face force along x (N)", "force / fem-neohookean's (green band: +-10%)",
+                            "%e_dm against fem-neohookean"),
+                "Fig. 9 - simple shear of the 10x10x10 block of 0.1 m cubes to 30 degrees (bottom fixed, top moved, "
+                "sides free)", "validation_9_large_shear")
     at30 = {(r["nu"], r["model"]): r for r in rows if r["angle_deg"] == 30.0}
     SUMMARY["9_large_shear"] = dict(
         headline="force / neo-Hookean at 30 deg: " + "; ".join(
@@ -1054,9 +1079,7 @@ def cantilever(label, gravity, shape=None, spacing=None, nu=None):
     nu = CANTILEVER["poisson_ratio"] if nu is None else nu
     mesh = HexMesh.block(shape, spacing)
     model = build_model(mesh, Material(E0, nu, RHO), gravity=(0.0, -gravity, 0.0), **model_options(label))
-    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
-    control = Control.free(mesh.n_nodes).impose(clamp, mesh.nodes[clamp])
-    result = solve_static(model, control, load_steps=4, check_stability=True)
+    result = solve_static(model, clamped_control(mesh), load_steps=4, check_stability=True)
     return result.positions, result.converged, result.lowest_eigenvalue
 
 
@@ -1135,45 +1158,16 @@ COMPRESSION_MODELS = ("baudet", "baudet, volume_stiffness = 100", HYPER, "fem-ne
 
 
 def figure_compression():
-    mesh = HexMesh.block((4, 4, 4), 0.1)
-    area = 0.4 * 0.4
-    rows = []
-    for nu in COMPRESSION_NUS:
-        for label in COMPRESSION_MODELS:
-            options = model_options(label)
-            if options["model"] != "fem-linear":
-                options["load_steps"] = 4
-            for strain in COMPRESSION_STRAINS:
-                r = elongation((4, 4, 4), 0.1, E0, nu, strain=strain, **options)
-                lowest = (mss_lowest(label, mesh, nu, elongation_control(mesh, strain), r.positions)
-                          if options["model"] in MSS_NAMES else None)
-                rows.append(dict(nu=nu, model=label, strain=strain, relative_volume_change=volume_change(r),
-                                 nominal_stress=r.reaction / area, converged=r.converged, lowest_eigenvalue=lowest))
-    neo = {(r["nu"], r["strain"]): r for r in rows if r["model"] == "fem-neohookean"}
-    for r in rows:
-        ref = neo[(r["nu"], r["strain"])]
-        r["stress_ratio_to_neohookean"] = r["nominal_stress"] / ref["nominal_stress"]
-        r["volume_change_minus_neohookean"] = r["relative_volume_change"] - ref["relative_volume_change"]
+    rows = block_strain_rows(COMPRESSION_NUS, COMPRESSION_MODELS, COMPRESSION_STRAINS)
     write_csv("validation_11_compression", rows)
-    fig, axes = plt.subplots(2, len(COMPRESSION_NUS), figsize=(5.2 * len(COMPRESSION_NUS), 8.5), sharex=True)
-    for column, nu in enumerate(COMPRESSION_NUS):
-        for label in COMPRESSION_MODELS:
-            data = [r for r in rows if r["nu"] == nu and r["model"] == label]
-            x = [-r["strain"] * 100 for r in data]
-            for row, key, scale in ((0, "relative_volume_change", 100), (1, "stress_ratio_to_neohookean", 1)):
-                y = [r[key] * scale for r in data]
-                axes[row, column].plot(x, y, markersize=4, label=label, **style(label))
-                saddle_rings(axes[row, column], data, x, y)
-        axes[0, column].set_title(f"nu = {nu}")
+    fig, axes = plot_strain_panels(rows, COMPRESSION_NUS, COMPRESSION_MODELS,
+                                   (("relative_volume_change", 100), ("stress_ratio_to_neohookean", 1)), -1,
+                                   "compression (%)")
+    for column in range(len(COMPRESSION_NUS)):
         axes[1, column].axhspan(0.9, 1.1, color="green", alpha=0.06)
-        axes[1, column].set_xlabel("compression (%)")
-        for ax in axes[:, column]:
-            ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("dV/V0 (%)")
-    axes[1, 0].set_ylabel("axial stress / fem-neohookean's (green band: +-10%)")
-    axes[0, 0].legend(fontsize=8)
-    fig.suptitle("Fig. 11 - unconfined compression of a 4x4x4 block near incompressibility (red ring: saddle)")
-    save(fig, "validation_11_compression")
+    finish_grid(fig, axes, ("dV/V0 (%)", "axial stress / fem-neohookean's (green band: +-10%)"),
+                "Fig. 11 - unconfined compression of a 4x4x4 block near incompressibility (red ring: saddle)",
+                "validation_11_compression")
     pick = {(r["nu"], r["model"], r["strain"]): r for r in rows}
     hyper = [r for r in rows if r["model"] == HYPER]
     SUMMARY["11_compression"] = dict(
@@ -1220,8 +1214,7 @@ def mode_setups():
     setups.append(("indentation 6x6x6", mesh, Control.free(mesh.n_nodes).impose(bottom, mesh.nodes[bottom])
                    .impose(tool, mesh.nodes[tool], components=1), 0))
     beam = HexMesh.block(CANTILEVER["shape"], CANTILEVER["spacing"])
-    clamp = np.flatnonzero(np.isclose(beam.nodes[:, 0], 0.0))
-    setups.append(("flexion 10x5x4", beam, Control.free(beam.n_nodes).impose(clamp, beam.nodes[clamp]), 0))
+    setups.append(("flexion 10x5x4", beam, clamped_control(beam), 0))
     return setups
 
 
@@ -1268,26 +1261,13 @@ OBJECTIVITY_MODELS = ("baudet", "baudet, alpha = 1", HYPER, "fem-neohookean")
 OBJECTIVITY_AXIS = (1.0, 2.0, -0.5)
 
 
-def rotation_matrix(axis, angle_deg):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    cross = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    angle = math.radians(angle_deg)
-    return np.eye(3) + math.sin(angle) * cross + (1 - math.cos(angle)) * cross @ cross
-
-
 def loaded_block(label, turn, offset, nu=0.45, increments=8):
     """A 6x2x2 cantilever of 0.1 m cubes, clamped at x = 0, 1 N down on each of its 9 tip nodes,
     with the whole problem moved by the rigid motion x -> Q x + c: clamp at Q X + c, loads rotated
     by Q, solved from the moved rest state Q X + c (force-free for every model here: an affine
     motion) with the load ramped in the same ``increments`` either way. An objective model lands on
     Q x + c of the unmoved answer x. Returns (mesh, positions)."""
-    mesh = HexMesh.block((6, 2, 2), 0.1)
-    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
-    tip = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.6))
-    start = mesh.nodes @ turn.T + offset
-    control = Control.free(mesh.n_nodes).impose(clamp, start[clamp])
-    load = np.zeros((mesh.n_nodes, 3))
-    load[tip, 1] = -1.0
+    mesh, start, control, load = moved_cantilever(turn, offset)
     load = load @ turn.T
     if label == "fem-neohookean":
         control.force[:] = load
@@ -1350,75 +1330,11 @@ def refine_mesh(m):
     return HexMesh.block((5 * m, m, m), 0.2 / m)
 
 
-def clamp_control(mesh):
-    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
-    return Control.free(mesh.n_nodes).impose(clamp, mesh.nodes[clamp])
-
-
-def block_displacement_at(mesh, positions, points):
-    """Displacement (P, 3) of a structured block solution at material ``points`` (rest coordinates, m),
-    trilinear in the block's cells (nodes: i + (nx+1)(j + (ny+1) k))."""
-    shape = np.array(mesh.shape)
-    u = (positions - mesh.nodes).reshape(shape[2] + 1, shape[1] + 1, shape[0] + 1, 3).transpose(2, 1, 0, 3)
-    axes = [np.linspace(0.0, mesh.size[a], shape[a] + 1) for a in range(3)]
-    return RegularGridInterpolator(axes, u)(np.clip(points, 0.0, mesh.size))
-
-
-def neo_hookean_newton(fem, control, gravity, start, tolerance=1e-9, max_iterations=30):
-    """Newton (consistent tangent, backtracking on the residual norm, det F > 0) from ``start``."""
-    x = np.array(start, float)
-    x[control.fixed] = control.target[control.fixed]
-    load = (fem.mass[:, None] * np.array([0.0, -gravity, 0.0])[None, :] + control.force).ravel()
-    free = np.flatnonzero(~control.fixed.ravel())
-    scale = np.linalg.norm(load)
-    for iteration in range(max_iterations):
-        residual = fem.internal_forces(x).ravel() - load
-        norm = np.linalg.norm(residual[free])
-        if norm < tolerance * scale:
-            return x, iteration
-        stiffness = fem.tangent_stiffness(x).tocsr()[free][:, free].tocsc()
-        step = spla.splu(stiffness, permc_spec="MMD_AT_PLUS_A").solve(-residual[free])
-        length = 1.0
-        for _ in range(30):
-            trial = x.copy()
-            trial.ravel()[free] += length * step
-            if (fem.min_jacobian(trial) > 0
-                    and np.linalg.norm((fem.internal_forces(trial).ravel() - load)[free]) < (1 - 1e-4 * length) * norm):
-                break
-            length *= 0.5
-        x = trial
-    raise RuntimeError("the neo-Hookean reference did not converge")
-
-
-def refinement_reference(levels=REFINE_REFERENCE, nu=REFINE_NU, gravity=REFINE_GRAVITY):
-    """{m: positions} of fem-neohookean on the meshes ``levels``: the first from rest
-    (``NeoHookeanFEM.solve``), each next one by Newton from the previous one interpolated."""
-    out, previous = {}, None
-    for m in levels:
-        mesh = refine_mesh(m)
-        fem = NeoHookeanFEM(mesh, Material(E0, nu, RHO))
-        control = clamp_control(mesh)
-        if previous is None:
-            result = fem.solve(control, (0.0, -gravity, 0.0), load_steps=4)
-            positions = result.positions
-        else:
-            coarse = refine_mesh(previous)
-            start = mesh.nodes + block_displacement_at(coarse, out[previous], mesh.nodes)
-            positions = neo_hookean_newton(fem, control, gravity, start)[0]
-        out[m], previous = positions, m
-    return out
-
-
-def refinement_error(mesh, positions, u_ref, points):
-    """(%e_dm, %e_max) at the material points: rms and max |u - u_ref| over max |u_ref|, in %."""
-    distance = np.linalg.norm(block_displacement_at(mesh, positions, points) - u_ref, axis=1)
-    scale = np.linalg.norm(u_ref, axis=1).max()
-    return float(np.sqrt(np.mean(distance**2)) / scale * 100), float(distance.max() / scale * 100)
-
-
 def figure_refinement():
     points = refine_mesh(1).nodes  # the 6x2x2 coarsest nodes: nodes of every mesh here
-    reference = refinement_reference()
+    # fem-neohookean on the chain's meshes, each from the previous one: the last is the reference
+    reference = dict(zip(REFINE_REFERENCE, neo_hookean_chain([refine_mesh(m) for m in REFINE_REFERENCE],
+                                                            Material(E0, REFINE_NU, RHO), REFINE_GRAVITY)))
     finest = REFINE_REFERENCE[-1]
     u_ref = block_displacement_at(refine_mesh(finest), reference[finest], points)
     tip_ref = float(-u_ref[np.isclose(points[:, 0], 1.0), 1].mean())
@@ -1429,12 +1345,12 @@ def figure_refinement():
         fem = reference.get(m)
         if fem is None:
             fem = NeoHookeanFEM(mesh, Material(E0, REFINE_NU, RHO)).solve(
-                clamp_control(mesh), (0.0, -REFINE_GRAVITY, 0.0), load_steps=4).positions
+                clamped_control(mesh), (0.0, -REFINE_GRAVITY, 0.0), load_steps=4).positions
         runs["fem-neohookean"] = (fem, True, None)
         for label in REFINE_MSS:
             runs[label] = cantilever(label, REFINE_GRAVITY, shape=mesh.shape, spacing=mesh.spacing.tolist(), nu=REFINE_NU)
         for label, (positions, converged, lowest) in runs.items():
-            e_dm, e_max = refinement_error(mesh, positions, u_ref, points)
+            e_dm, e_max = displacement_errors(mesh, positions, u_ref, points)
             tip = np.isclose(mesh.nodes[:, 0], 1.0)
             rows.append(dict(model=label, elements_through_side=m, shape="x".join(map(str, mesh.shape)), e_dm=e_dm,
                              e_max=e_max, tip_drop=float(-(positions[tip, 1] - mesh.nodes[tip, 1]).mean()),
@@ -1442,7 +1358,7 @@ def figure_refinement():
     chain = []
     for m in REFINE_REFERENCE:
         mesh = refine_mesh(m)
-        e_dm, e_max = refinement_error(mesh, reference[m], u_ref, points)
+        e_dm, e_max = displacement_errors(mesh, reference[m], u_ref, points)
         tip = np.isclose(mesh.nodes[:, 0], 1.0)
         chain.append(dict(elements_through_side=m, e_dm=e_dm, e_max=e_max,
                           tip_drop=float(-(reference[m][tip, 1] - mesh.nodes[tip, 1]).mean())))

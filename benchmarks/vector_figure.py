@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from sim_core.files import save_figure  # noqa: E402
+from sim_core.files import finish_figure  # noqa: E402
 
 ENV_MODES = (("sync", "sync"), ("async", "async"), ("vector 1 thread", "vector, 1 thread"),
              ("vector", "vector, all threads"))
@@ -87,9 +87,7 @@ def draw(results: Path, output: Path):
         right.set_ylabel("PPO env steps per wall second")
         right.set_title("PPO training (sampling and updates)")
         right.legend(fontsize=8)
-    fig.tight_layout()
-    save_figure(fig, output, dpi=90)
-    plt.close(fig)
+    finish_figure(fig, output, dpi=90)
     return output
 
 

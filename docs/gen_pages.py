@@ -275,6 +275,17 @@ def stability(value):
     return "stable" if float(value) > 0 else ("saddle" if float(value) < 0 else "marginal")
 
 
+def pivot(rows, row_key, column_key, value):
+    """The ``value`` of CSV ``rows`` as a grid: (row names, column names, one list of values per row
+    name), names in order of first appearance, a cell the first row of its pair."""
+    row_names = list(dict.fromkeys(r[row_key] for r in rows))
+    column_names = list(dict.fromkeys(r[column_key] for r in rows))
+    cells = {}
+    for r in rows:
+        cells.setdefault((r[row_key], r[column_key]), r[value])
+    return row_names, column_names, [[cells[(a, b)] for b in column_names] for a in row_names]
+
+
 def large_deformation_sections(validate):
     """Figures 8-14: baudet-hyperelastic beside baudet and the FEM laws at large deformation."""
     out = ["## 8. Tension and compression to +-30%\n\n",
@@ -313,22 +324,17 @@ def large_deformation_sections(validate):
     out += ["## 12. Zero-energy modes of each model\n\n",
             "Non-rigid zero-energy modes of the constrained tangent at rest (nu = 0.3).\n\n",
             caption(validate, "validation_12_mode_counts.csv"), "\n"]
-    rows = load_csv("validation_12_mode_counts.csv")
-    models = list(dict.fromkeys(r["model"] for r in rows))
-    setups = list(dict.fromkeys(r["setup"] for r in rows))
-    out += [table(["set-up"] + models,
-                  [[s] + [next(r["non_rigid"] for r in rows if r["setup"] == s and r["model"] == m) for m in models]
-                   for s in setups]), "\n", figure("validation_12_mode_counts.png", "mode counts"), "\n"]
+    setups, models, counts = pivot(load_csv("validation_12_mode_counts.csv"), "setup", "model", "non_rigid")
+    out += [table(["set-up"] + models, [[s] + row for s, row in zip(setups, counts)]),
+            "\n", figure("validation_12_mode_counts.png", "mode counts"), "\n"]
 
     out += ["## 13. Objectivity\n\n",
             "Deviation of the rotated problem's equilibrium from the rotated answer, over the largest displacement.\n\n",
             caption(validate, "validation_13_objectivity.csv"), "\n"]
-    rows = load_csv("validation_13_objectivity.csv")
-    angles = list(dict.fromkeys(r["angle_deg"] for r in rows))
-    models = list(dict.fromkeys(r["model"] for r in rows))
+    models, angles, deviations = pivot(load_csv("validation_13_objectivity.csv"), "model", "angle_deg",
+                                       "deviation_over_largest")
     out += [table(["model"] + [f"{num(a)} deg (%)" for a in angles],
-                  [[m] + [pct(float(next(r["deviation_over_largest"] for r in rows if r["model"] == m
-                                         and r["angle_deg"] == a)), 2) for a in angles] for m in models]),
+                  [[m] + [pct(float(d), 2) for d in row] for m, row in zip(models, deviations)]),
             "\n", figure("validation_13_objectivity.png", "objectivity"), "\n"]
 
     summary = load("validation_summary.json")["14_refinement"]

@@ -47,3 +47,14 @@ def save_figure(figure, path, **options) -> Path:
     with atomic_path(path) as temporary:
         figure.savefig(temporary, **options)
     return Path(path)
+
+
+def finish_figure(figure, path, *, rect=None, **options) -> Path:
+    """Lay ``figure`` out (``tight_layout`` within ``rect``, the whole figure when None), write it
+    to ``path`` atomically (``save_figure``, ``options`` for ``savefig``) and close it."""
+    import matplotlib.pyplot as plt  # only the scripts that draw need matplotlib
+
+    figure.tight_layout(rect=rect)
+    save_figure(figure, path, **options)
+    plt.close(figure)
+    return Path(path)

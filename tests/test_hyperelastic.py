@@ -40,14 +40,10 @@ def test_first_piola_stress_is_the_energy_derivative():
     """P = dW/dF to 1e-7 relative (central differences on W, step 1e-6)."""
     mu, lam = lame_parameters(E, NU)
     stress = first_piola_stress(HOMOGENEOUS, mu, lam)
-    numeric = np.zeros((3, 3))
     h = 1e-6
-    for a in range(3):
-        for b in range(3):
-            plus, minus = HOMOGENEOUS.copy(), HOMOGENEOUS.copy()
-            plus[a, b] += h
-            minus[a, b] -= h
-            numeric[a, b] = (strain_energy_density(plus, mu, lam) - strain_energy_density(minus, mu, lam)) / (2 * h)
+    steps = h * np.eye(9).reshape(9, 3, 3)  # one entry of F moved per step (the law takes a stack of F)
+    energy = strain_energy_density(HOMOGENEOUS + steps, mu, lam) - strain_energy_density(HOMOGENEOUS - steps, mu, lam)
+    numeric = (energy / (2 * h)).reshape(3, 3)
     assert np.abs(stress - numeric).max() < 1e-7 * np.abs(stress).max()
 
 

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import gymnasium as gym
@@ -21,6 +23,26 @@ class UsageError(Exception):
 def fail(program: str, message: str) -> None:
     sys.stderr.write(f"{program}: error: {message}\n")
     raise SystemExit(2)
+
+
+class CommandParser(argparse.ArgumentParser):
+    """The argument parser of ``python -m <program>``: its errors are reported by ``fail``."""
+
+    def __init__(self, program: str, **options):
+        super().__init__(prog=f"python -m {program}", **options)
+        self.program = program
+
+    def error(self, message):
+        fail(self.program, message)
+
+
+@contextmanager
+def usage_errors(program: str):
+    """A ``UsageError`` raised in the block is reported by ``fail`` (one line, exit code 2)."""
+    try:
+        yield
+    except UsageError as error:
+        fail(program, str(error))
 
 
 def make_env(env_id: str, **kwargs):

@@ -9,7 +9,6 @@ std_return, success_rate, mean_episode_length, episodes.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -18,14 +17,9 @@ import numpy as np
 
 from tissue_env.episodes import run_episode
 
-from .common import UsageError, algorithm_class, check_env_id, fail, load_model
+from .common import CommandParser, UsageError, algorithm_class, check_env_id, load_model, usage_errors
 
 PROGRAM = "training.evaluate"
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        fail(PROGRAM, message)
 
 
 def _episodes(env, policy, seeds, frames=None):
@@ -139,21 +133,19 @@ def evaluate(run_dir: Path, episodes: int, seed: int, render: str | None = None)
 
 
 def main(argv=None) -> int:
-    parser = _Parser(prog=f"python -m {PROGRAM}", description="Evaluate a training run (JSON on stdout).")
+    parser = CommandParser(PROGRAM, description="Evaluate a training run (JSON on stdout).")
     parser.add_argument("run_dir")
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--seed", type=int, default=1000, help="first episode seed (episodes use seed, seed+1, ...)")
     parser.add_argument("--render", default=None, metavar="FILE.gif", help="animate the agent's first episode")
     args = parser.parse_args(argv)
-    try:
+    with usage_errors(PROGRAM):
         if args.episodes <= 0:
             raise UsageError(f"--episodes must be positive, got {args.episodes}")
         run_dir = Path(args.run_dir)
         if not run_dir.is_dir():
             raise UsageError(f"run folder {run_dir} does not exist")
         result = evaluate(run_dir, args.episodes, args.seed, args.render)
-    except UsageError as error:
-        fail(PROGRAM, str(error))
     json.dump(result, sys.stdout)
     sys.stdout.write("\n")
     return 0

@@ -8,16 +8,15 @@ monitor CSVs, binned over environment steps.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from pathlib import Path
 
 import numpy as np
 
-from sim_core.files import save_figure
+from sim_core.files import finish_figure
 
-from .common import UsageError, fail
+from .common import CommandParser, UsageError, usage_errors
 
 PROGRAM = "training.plot"
 
@@ -77,22 +76,17 @@ def plot(run_dirs, out: Path, bins: int = 30) -> Path:
     axis.set(xlabel="environment steps", ylabel="episode return (mean, min-max over seeds)")
     wall.set_xlabel("wall-clock (s), mean over seeds")
     axis.legend(fontsize=8)
-    figure.tight_layout()
-    save_figure(figure, out, dpi=110)
-    plt.close(figure)
+    finish_figure(figure, out, dpi=110)
     return out
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog=f"python -m {PROGRAM}", description=__doc__.splitlines()[0])
-    parser.error = lambda message: fail(PROGRAM, message)
+    parser = CommandParser(PROGRAM, description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+")
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
-    try:
+    with usage_errors(PROGRAM):
         path = plot(args.runs, Path(args.out))
-    except UsageError as error:
-        fail(PROGRAM, str(error))
     print(path)
     return 0
 

@@ -30,7 +30,6 @@ as the last line. Torch uses one thread in the driver (learner) and in every Env
 
 from __future__ import annotations
 
-import argparse
 import functools
 import math
 import os
@@ -39,7 +38,8 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from .common import UsageError, parse_env_kwargs, check_env_id, fail, load_hyperparams, run_name, write_json
+from .common import (CommandParser, UsageError, check_env_id, fail, load_hyperparams, parse_env_kwargs, run_name,
+                     usage_errors, write_json)
 
 PROGRAM = "training.rllib"
 INSTALL_HINT = 'pip install "tissue-gym[rllib]" (install torch==2.13.0 first, see docs/rllib.md)'
@@ -47,13 +47,8 @@ ALGORITHMS = ("ppo",)
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        fail(PROGRAM, message)
-
-
 def parse_args(argv=None):
-    parser = _Parser(prog=f"python -m {PROGRAM}", description="Train an RLlib agent on a tissue_env task.")
+    parser = CommandParser(PROGRAM, description="Train an RLlib agent on a tissue_env task.")
     parser.add_argument("--env", required=True, help="environment id, e.g. tissue_env/TumorPositioning-v0")
     parser.add_argument("--algo", default="ppo", help="ppo (the only one wired up so far)")
     parser.add_argument("--iterations", type=int, required=True, help="training iterations (algo.train() calls)")
@@ -380,10 +375,8 @@ def _summarise(result):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    try:
+    with usage_errors(PROGRAM):
         run_dir, config = _validated(args)
-    except UsageError as error:
-        fail(PROGRAM, str(error))
     ray = require_ray()
     init_ray(ray, config)
     try:

@@ -24,26 +24,21 @@ Hyperparameters come from training/hyperparams/<algo>.yml (or ``--config``), rl_
 
 from __future__ import annotations
 
-import argparse
 import functools
 import json
 import warnings
 from datetime import datetime
 from pathlib import Path
 
-from .common import (UsageError, action_noise, algorithm_class, check_algo, check_env_id, fail, load_hyperparams,
-                     make_env, parse_env_kwargs, replay_buffer_class, run_name, write_json)
+from .common import (CommandParser, UsageError, action_noise, algorithm_class, check_algo, check_env_id,
+                     load_hyperparams, make_env, parse_env_kwargs, replay_buffer_class, run_name, usage_errors,
+                     write_json)
 
 PROGRAM = "training.train"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        fail(PROGRAM, message)
-
-
 def parse_args(argv=None):
-    parser = _Parser(prog=f"python -m {PROGRAM}", description="Train an SB3 agent on a tissue_env task.")
+    parser = CommandParser(PROGRAM, description="Train an SB3 agent on a tissue_env task.")
     parser.add_argument("--env", help="environment id, e.g. tissue_env/TumorPositioning-v0")
     parser.add_argument("--algo", default="ppo", help="ppo | sac | td3")
     parser.add_argument("--timesteps", type=int,
@@ -268,10 +263,8 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    try:
+    with usage_errors(PROGRAM):
         run_dir, config = _validated(args)
-    except UsageError as error:
-        fail(PROGRAM, str(error))
     run_dir = train(config, run_dir, resume=bool(args.resume), progress=not args.no_progress)
     print(run_dir)
     return 0

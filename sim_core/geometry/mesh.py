@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -36,9 +37,56 @@ def _parse_shape(shape) -> tuple[int, int, int]:
     return values
 
 
+@dataclass(frozen=True)
 class MeshGeometry:
-    """What ``HexMesh`` and ``TetMesh`` share: counts, extent, boundary nodes and the structured
-    block's node index (a subclass has ``nodes``, ``elements``, ``shape`` and ``surface_faces``)."""
+    """What ``HexMesh`` and ``TetMesh`` share: their fields and the checks of their nodes and
+    elements, counts, extent, boundary nodes, the structured block's node index and file output (a
+    subclass names its element kind and has ``surface_faces``)."""
+
+    nodes: np.ndarray
+    elements: np.ndarray
+    shape: tuple[int, int, int] | None = None
+    spacing: np.ndarray | None = field(default=None, repr=False)
+
+    #: nodes per element, the element's name in messages and its meshio cell type
+    nodes_per_element: ClassVar[int]
+    element_name: ClassVar[str]
+    cell_type: ClassVar[str]
+
+    @staticmethod
+    def check_geometry(positions: np.ndarray, elements: np.ndarray) -> None:
+        """Raise ``ValueError`` for a degenerate or inverted element (the subclass's test)."""
+        raise NotImplementedError
+
+    def __post_init__(self):
+        """Check ``nodes`` ((N, 3) finite, m) and ``elements`` ((M, ``nodes_per_element``) integer
+        indices into the nodes, no node twice in an element), store them as read-only float and
+        int64 arrays, then check the elements' geometry (``check_geometry``)."""
+        nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
+        corners, name = self.nodes_per_element, self.element_name
+        try:
+            elements = np.asarray(self.elements)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"elements must be an (M, {corners}) integer array ({name} node indices)") from error
+        if elements.ndim != 2 or elements.shape[1] != corners or len(elements) == 0:
+            raise ValueError(f"elements must have shape (M, {corners}) (one {name} per row) with M >= 1, "
+                             f"got {elements.shape}")
+        if not np.issubdtype(elements.dtype, np.integer):
+            if not np.issubdtype(elements.dtype, np.number) or not np.all(np.equal(np.mod(elements, 1), 0)):
+                raise ValueError("elements must hold integer node indices")
+        elements = elements.astype(np.int64)
+        if elements.min() < 0 or elements.max() >= len(nodes):
+            raise ValueError(
+                f"element node indices must lie in [0, {len(nodes) - 1}], got [{elements.min()}, {elements.max()}]")
+        repeated = np.any(np.diff(np.sort(elements, axis=1), axis=1) == 0, axis=1)
+        if np.any(repeated):
+            bad = int(np.argmax(repeated))
+            raise ValueError(f"degenerate {name} {bad}: a node appears twice in {elements[bad].tolist()}")
+        nodes.setflags(write=False)
+        elements.setflags(write=False)
+        object.__setattr__(self, "nodes", nodes)
+        object.__setattr__(self, "elements", elements)
+        self.check_geometry(nodes, elements)
 
     @property
     def n_nodes(self) -> int:
@@ -61,6 +109,26 @@ class MeshGeometry:
         """Index of structured-block node (i, j, k) (only for meshes built by ``block``)."""
         return block_node_index(self.shape, i, j, k, f"{type(self).__name__}.block")
 
+    @classmethod
+    def _from_cells(cls, mesh, points, path, plural: str, need: str):
+        """The mesh of the ``cell_type`` cells of what meshio read from ``path`` (``read_mesh_file``):
+        ``plural`` names them in messages, ``need`` says what is missing when the file has none.
+        Raises ``ValueError`` naming the file when they do not form a valid mesh."""
+        blocks = cell_blocks(mesh, path, cls.cell_type, plural, need)
+        try:
+            return cls(points, np.concatenate(blocks))
+        except ValueError as error:
+            raise ValueError(f"{path}: its {plural} do not form a valid mesh: {error}") from error
+
+    def write(self, path, point_data: dict | None = None, positions=None) -> None:
+        """Write the mesh (optionally deformed ``positions`` (N, 3) m and ``point_data``) with meshio.
+
+        The format follows the extension: .vtu, .msh (Gmsh 4.1, binary: meshio's ASCII reader
+        cannot read point data back), .vtk, .xdmf, ...
+        """
+        points = self.nodes if positions is None else finite_array("positions", positions, (self.n_nodes, 3))
+        write_mesh_file(path, points, self.cell_type, self.elements, point_data)
+
 
 @dataclass(frozen=True)
 class HexMesh(MeshGeometry):
@@ -78,37 +146,20 @@ class HexMesh(MeshGeometry):
     degenerate or inverted elements (a corner Jacobian that is not positive).
     """
 
-    nodes: np.ndarray
-    elements: np.ndarray
-    shape: tuple[int, int, int] | None = None
-    spacing: np.ndarray | None = field(default=None, repr=False)
     element_labels: np.ndarray | None = field(default=None, repr=False)
 
+    nodes_per_element = 8
+    element_name = "element"
+    cell_type = "hexahedron"
+
+    @staticmethod
+    def check_geometry(positions, elements):
+        """``check_elements``: every corner Jacobian positive."""
+        check_elements(positions, elements)
+
     def __post_init__(self):
-        nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
-        try:
-            elements = np.asarray(self.elements)
-        except (TypeError, ValueError) as error:
-            raise ValueError("elements must be an (M, 8) integer array") from error
-        if elements.ndim != 2 or elements.shape[1] != 8 or len(elements) == 0:
-            raise ValueError(f"elements must have shape (M, 8) with M >= 1, got {elements.shape}")
-        if not np.issubdtype(elements.dtype, np.integer):
-            if not np.all(np.equal(np.mod(elements, 1), 0)):
-                raise ValueError("elements must hold integer node indices")
-        elements = elements.astype(np.int64)
-        if elements.min() < 0 or elements.max() >= len(nodes):
-            raise ValueError(
-                f"element node indices must lie in [0, {len(nodes) - 1}], got "
-                f"[{elements.min()}, {elements.max()}]"
-            )
-        if np.any(np.diff(np.sort(elements, axis=1), axis=1) == 0):
-            bad = int(np.nonzero(np.any(np.diff(np.sort(elements, axis=1), axis=1) == 0, axis=1))[0][0])
-            raise ValueError(f"degenerate element {bad}: a node appears twice in {elements[bad].tolist()}")
-        nodes.setflags(write=False)
-        elements.setflags(write=False)
-        object.__setattr__(self, "nodes", nodes)
-        object.__setattr__(self, "elements", elements)
-        check_elements(nodes, elements)
+        super().__post_init__()
+        elements = self.elements
         if self.element_labels is not None:
             labels = np.asarray(self.element_labels)
             if labels.shape != (len(elements),) or not np.issubdtype(labels.dtype, np.integer):
@@ -231,15 +282,6 @@ class HexMesh(MeshGeometry):
         return boundary_faces(self.elements, FACES)
 
     # -- files -----------------------------------------------------------------------------
-    def write(self, path, point_data: dict | None = None, positions=None) -> None:
-        """Write the mesh (optionally deformed ``positions`` and ``point_data``) with meshio.
-
-        The format follows the extension: .vtu, .msh (Gmsh 4.1, binary: meshio's ASCII reader
-        cannot read point data back), .vtk, .xdmf, ...
-        """
-        points = self.nodes if positions is None else finite_array("positions", positions, (self.n_nodes, 3))
-        write_mesh_file(path, points, "hexahedron", self.elements, point_data)
-
     @classmethod
     def read(cls, path) -> "HexMesh":
         """Read the hexahedra of a mesh file with meshio (.msh, .vtu, .vtk, ...).
@@ -254,11 +296,7 @@ class HexMesh(MeshGeometry):
         path = Path(path)
         mesh, points = read_mesh_file(path, "HexMesh.read", "hexahedra", "e.g. .vtu, .vtk, .msh (Gmsh), .xdmf, .med, .inp",
                                       "HexMesh.write")
-        blocks = cell_blocks(mesh, path, "hexahedron", "hexahedra", "HexMesh needs 8-node hexahedral cells")
-        try:
-            return cls(points, np.concatenate(blocks))
-        except ValueError as error:
-            raise ValueError(f"{path}: its hexahedra do not form a valid mesh: {error}") from error
+        return cls._from_cells(mesh, points, path, "hexahedra", "HexMesh needs 8-node hexahedral cells")
 
     def write_obj(self, path, positions=None) -> None:
         """Export the boundary surface as a Wavefront .obj of quads (positions in m)."""

@@ -10,14 +10,13 @@ hexahedral model of one block can be compared node by node. Lengths are in metre
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .._validate import finite_array
 from .mesh import (
-    LOCAL_CORNERS, HexMesh, MeshGeometry, boundary_faces, cell_blocks, read_mesh_file, signed_volumes, write_mesh_file,
+    LOCAL_CORNERS, HexMesh, MeshGeometry, boundary_faces, read_mesh_file, signed_volumes,
 )
 
 #: The 6 edges of a tetrahedron (local node pairs).
@@ -88,35 +87,11 @@ class TetMesh(MeshGeometry):
     degenerate or inverted tetrahedra.
     """
 
-    nodes: np.ndarray
-    elements: np.ndarray
-    shape: tuple[int, int, int] | None = None
-    spacing: np.ndarray | None = field(default=None, repr=False)
+    nodes_per_element = 4
+    element_name = "tetrahedron"
+    cell_type = "tetra"
 
-    def __post_init__(self):
-        nodes = finite_array("nodes", self.nodes, shape=(-1, 3))
-        try:
-            elements = np.asarray(self.elements)
-        except (TypeError, ValueError) as error:
-            raise ValueError("elements must be an (M, 4) integer array of tetrahedra") from error
-        if elements.ndim != 2 or elements.shape[1] != 4 or len(elements) == 0:
-            raise ValueError(f"elements must have shape (M, 4) (4-node tetrahedra) with M >= 1, got {elements.shape}")
-        if not np.issubdtype(elements.dtype, np.integer):
-            if not np.issubdtype(elements.dtype, np.number) or not np.all(np.equal(np.mod(elements, 1), 0)):
-                raise ValueError("elements must hold integer node indices")
-        elements = elements.astype(np.int64)
-        if elements.min() < 0 or elements.max() >= len(nodes):
-            raise ValueError(
-                f"element node indices must lie in [0, {len(nodes) - 1}], got [{elements.min()}, {elements.max()}]")
-        repeated = np.any(np.diff(np.sort(elements, axis=1), axis=1) == 0, axis=1)
-        if np.any(repeated):
-            bad = int(np.argmax(repeated))
-            raise ValueError(f"degenerate tetrahedron {bad}: a node appears twice in {elements[bad].tolist()}")
-        nodes.setflags(write=False)
-        elements.setflags(write=False)
-        object.__setattr__(self, "nodes", nodes)
-        object.__setattr__(self, "elements", elements)
-        check_tetrahedra(nodes, elements)
+    check_geometry = staticmethod(check_tetrahedra)
 
     # -- construction ----------------------------------------------------------------------
     @classmethod
@@ -166,12 +141,6 @@ class TetMesh(MeshGeometry):
         return boundary_faces(self.elements, TET_FACES)
 
     # -- files -----------------------------------------------------------------------------
-    def write(self, path, point_data: dict | None = None, positions=None) -> None:
-        """Write the mesh (optionally deformed ``positions`` and ``point_data``) with meshio; the
-        format follows the extension (.vtu, .msh: Gmsh 4.1 binary, as ``HexMesh.write``)."""
-        points = self.nodes if positions is None else finite_array("positions", positions, (self.n_nodes, 3))
-        write_mesh_file(path, points, "tetra", self.elements, point_data)
-
     @classmethod
     def read(cls, path, **options) -> "TetMesh":
         """Read a mesh file with meshio: its tetrahedra (.vtu, .msh, .vtk, ...), or, when it holds
@@ -199,8 +168,4 @@ class TetMesh(MeshGeometry):
         if options:
             raise ValueError(f"{path} holds tetrahedra: the tetrahedralisation keywords {sorted(options)} apply only "
                              "to a surface file")
-        blocks = cell_blocks(mesh, path, "tetra", "tetrahedra", "TetMesh needs 4-node tetrahedral cells")
-        try:
-            return cls(points, np.concatenate(blocks))
-        except ValueError as error:
-            raise ValueError(f"{path}: its tetrahedra do not form a valid mesh: {error}") from error
+        return cls._from_cells(mesh, points, path, "tetrahedra", "TetMesh needs 4-node tetrahedral cells")

@@ -14,17 +14,25 @@ from .operator import copy_data, operator_matrix_data, operator_matrix_data_bloc
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _triangle_offsets(header, rows, nnz_l, nnz_u):
+    """Offsets of the two triangles packed in a factor's ``ints`` after its ``header`` entries:
+    L indptr (rows + 1), L indices (nnz_l), U indptr (rows + 1), U indices (nnz_u). Returns
+    (L indptr, L indices, U indptr, U indices, the entry after U's indices)."""
+    lp = header
+    li = lp + rows + 1
+    up = li + nnz_l
+    ui = up + rows + 1
+    return lp, li, up, ui, ui + nnz_u
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _lu_offsets(ints):
     """Offsets in a packed sparse LU's ``ints`` ([k, nnz_L, nnz_U, L indptr (k + 1), L indices,
     U indptr (k + 1), U indices, gather (k), free (k), perm_c (k)], see ``lu_apply``): (nnz_L,
     L indptr, L indices, U indptr, U indices, gather, free, perm_c)."""
     k = ints[0]
     nnz_l = ints[1]
-    lp = 3
-    li = lp + k + 1
-    up = li + nnz_l
-    ui = up + k + 1
-    gather = ui + ints[2]
+    lp, li, up, ui, gather = _triangle_offsets(3, k, nnz_l, ints[2])
     return nnz_l, lp, li, up, ui, gather, gather + k, gather + 2 * k
 
 
@@ -61,11 +69,7 @@ def block_lu_solve(ints, values, vector, out, columns, used, buffer, accumulator
     k = -ints[0]
     nb = ints[1]
     nnz_l = ints[2]
-    lp = 4
-    li = lp + nb + 1
-    up = li + nnz_l
-    ui = up + nb + 1
-    order = ui + ints[3]
+    lp, li, up, ui, order = _triangle_offsets(4, nb, nnz_l, ints[3])
     u_values = 9 * nnz_l
     for j in range(k):
         row = ints[order + j]

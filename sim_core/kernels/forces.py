@@ -16,9 +16,10 @@ from .vectors import add, cross, norm, row, sub
 _EDGES = np.ascontiguousarray(EDGES)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def spring_pass(positions, springs, stiffness, rest_length, length, unit, tension):
-    """Lengths (m), unit vectors and elastic tension k (L - L0) (N) of every spring."""
+    """Lengths (m), unit vectors and elastic tension k (L - L0) (N) of every spring. Inlined into
+    ``model_forces``, so there it runs under that kernel's fastmath flags."""
     for s in range(springs.shape[0]):
         a, b = springs[s, 0], springs[s, 1]
         dx = positions[b, 0] - positions[a, 0]
@@ -32,27 +33,51 @@ def spring_pass(positions, springs, stiffness, rest_length, length, unit, tensio
         tension[s] = stiffness[s] * (current - rest_length[s])
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _element_push(length, edge_spring, correction_matrix, axis_rest_length, push, m):
+    """T_j of element m (docs/physics.md 3): push[m, j] = sum_k W[m, j, k] eps_k, eps_k the mean
+    strain of its four edges along local axis k."""
+    e0 = 0.25 * (length[edge_spring[m, 0]] + length[edge_spring[m, 1]] + length[edge_spring[m, 2]]
+                 + length[edge_spring[m, 3]]) / axis_rest_length[m, 0] - 1.0
+    e1 = 0.25 * (length[edge_spring[m, 4]] + length[edge_spring[m, 5]] + length[edge_spring[m, 6]]
+                 + length[edge_spring[m, 7]]) / axis_rest_length[m, 1] - 1.0
+    e2 = 0.25 * (length[edge_spring[m, 8]] + length[edge_spring[m, 9]] + length[edge_spring[m, 10]]
+                 + length[edge_spring[m, 11]]) / axis_rest_length[m, 2] - 1.0
+    for j in range(3):
+        push[m, j] = correction_matrix[m, j, 0] * e0 + correction_matrix[m, j, 1] * e1 \
+            + correction_matrix[m, j, 2] * e2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _subtract_element_push(edge_spring, push, tension, m):
+    """Projected corrections act along the current edge: element m's push T lowers its edges' tension by T."""
+    for e in range(12):
+        tension[edge_spring[m, e]] -= push[m, e // 4]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _fixed_direction_element(elements, push, rest_direction, forces, m):
+    """Element m's corrections along the rest directions of its edges (the published variant)."""
+    for e in range(12):
+        t = push[m, e // 4]
+        p, q = elements[m, _EDGES[e, 0]], elements[m, _EDGES[e, 1]]
+        for c in range(3):
+            forces[q, c] += t * rest_direction[m, e, c]
+            forces[p, c] -= t * rest_direction[m, e, c]
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def correction_pass(length, edge_spring, correction_matrix, axis_rest_length, push):
     """T_j per element (docs/physics.md 3): push[m, j] = sum_k W[m, j, k] eps_k."""
-    eps = np.empty(3)
     for m in range(edge_spring.shape[0]):
-        for axis in range(3):
-            total = 0.0
-            for q in range(4):
-                total += length[edge_spring[m, 4 * axis + q]]
-            eps[axis] = 0.25 * total / axis_rest_length[m, axis] - 1.0
-        for j in range(3):
-            push[m, j] = (correction_matrix[m, j, 0] * eps[0] + correction_matrix[m, j, 1] * eps[1]
-                          + correction_matrix[m, j, 2] * eps[2])
+        _element_push(length, edge_spring, correction_matrix, axis_rest_length, push, m)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def subtract_pushes(edge_spring, push, tension):
     """Projected corrections act along the current edge: a push T lowers the edge's tension by T."""
     for m in range(edge_spring.shape[0]):
-        for e in range(12):
-            tension[edge_spring[m, e]] -= push[m, e // 4]
+        _subtract_element_push(edge_spring, push, tension, m)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -74,12 +99,7 @@ def scatter_springs(springs, unit, tension, damping, velocities, use_velocity, f
 def fixed_direction_corrections(elements, push, rest_direction, forces):
     """The published variant: corrections along the rest directions of the element edges."""
     for m in range(elements.shape[0]):
-        for e in range(12):
-            t = push[m, e // 4]
-            p, q = elements[m, _EDGES[e, 0]], elements[m, _EDGES[e, 1]]
-            for c in range(3):
-                forces[q, c] += t * rest_direction[m, e, c]
-                forces[p, c] -= t * rest_direction[m, e, c]
+        _fixed_direction_element(elements, push, rest_direction, forces, m)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -113,38 +133,14 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
     rank-one terms (coefficient, direction, gradient; see ``volume_jacobian_terms``).
     """
     n_springs = springs.shape[0]
-    for s in range(n_springs):
-        a, b = springs[s, 0], springs[s, 1]
-        dx = positions[b, 0] - positions[a, 0]
-        dy = positions[b, 1] - positions[a, 1]
-        dz = positions[b, 2] - positions[a, 2]
-        current = np.sqrt(dx * dx + dy * dy + dz * dz)
-        length[s] = current
-        unit[s, 0] = dx / current
-        unit[s, 1] = dy / current
-        unit[s, 2] = dz / current
-        tension[s] = stiffness[s] * (current - rest_length[s])
+    spring_pass(positions, springs, stiffness, rest_length, length, unit, tension)
     forces[:] = 0.0
     for m in range(elements.shape[0] if correction_kind != 0 else 0):  # corrections (docs/physics.md 3)
-        e0 = 0.25 * (length[edge_spring[m, 0]] + length[edge_spring[m, 1]] + length[edge_spring[m, 2]]
-                     + length[edge_spring[m, 3]]) / axis_rest_length[m, 0] - 1.0
-        e1 = 0.25 * (length[edge_spring[m, 4]] + length[edge_spring[m, 5]] + length[edge_spring[m, 6]]
-                     + length[edge_spring[m, 7]]) / axis_rest_length[m, 1] - 1.0
-        e2 = 0.25 * (length[edge_spring[m, 8]] + length[edge_spring[m, 9]] + length[edge_spring[m, 10]]
-                     + length[edge_spring[m, 11]]) / axis_rest_length[m, 2] - 1.0
-        for j in range(3):
-            push[m, j] = correction_matrix[m, j, 0] * e0 + correction_matrix[m, j, 1] * e1 \
-                + correction_matrix[m, j, 2] * e2
+        _element_push(length, edge_spring, correction_matrix, axis_rest_length, push, m)
         if correction_kind == 1:
-            for e in range(12):
-                tension[edge_spring[m, e]] -= push[m, e // 4]
+            _subtract_element_push(edge_spring, push, tension, m)
         else:
-            for e in range(12):
-                t = push[m, e // 4]
-                p, q = elements[m, _EDGES[e, 0]], elements[m, _EDGES[e, 1]]
-                for c in range(3):
-                    forces[q, c] += t * rest_edge_direction[m, e, c]
-                    forces[p, c] -= t * rest_edge_direction[m, e, c]
+            _fixed_direction_element(elements, push, rest_edge_direction, forces, m)
     if has_volume:
         if want_volume_jacobian:
             volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, volume_coefficient,

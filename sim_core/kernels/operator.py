@@ -220,15 +220,22 @@ def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_sca
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def apply_packed(data, scales, mask, vector, out):
+def _packed_spring_operator(data, scales, hg_scale, mask, vector, out):
+    """``spring_operator`` on the packed ``data`` (``ForceWorkspace.operator_data``) with the scales
+    ``scales[:5]`` and ``hg_scale`` for the hourglass term's CSR arrays in ``data``."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
      stress_gradient, stress_tangent) = data
     spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
                     elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
                     volume_coefficient, volume_direction, volume_gradient, scales[4],
-                    hg_indptr, hg_indices, hg_data, scales[5], mask, vector, out, elongation, delta,
+                    hg_indptr, hg_indices, hg_data, hg_scale, mask, vector, out, elongation, delta,
                     stress_gradient, stress_tangent)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def apply_packed(data, scales, mask, vector, out):
+    _packed_spring_operator(data, scales, scales[5], mask, vector, out)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_REDUCE)
@@ -401,14 +408,7 @@ def apply_blocks(data, scales, ones, hg_block_indptr, hg_block_indices, hg_block
     row-major 3 x 3 blocks) instead of the CSR arrays in ``data``: one index and three vector loads
     per 9 values (faster than the scalar CSR loop, which dominated the operator product). The same
     sums, in the same column order per row (rounding aside)."""
-    (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
-     volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
-     stress_gradient, stress_tangent) = data
-    spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
-                    elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
-                    volume_coefficient, volume_direction, volume_gradient, scales[4],
-                    hg_indptr, hg_indices, hg_data, 0.0, ones, vector, out, elongation, delta,
-                    stress_gradient, stress_tangent)
+    _packed_spring_operator(data, scales, 0.0, ones, vector, out)
     if scales[5] != 0.0:
         bsr3_matvec_add(hg_block_indptr, hg_block_indices, hg_block_data, vector, scales[5], out)
     for i in range(out.shape[0]):

@@ -39,3 +39,14 @@ def check_integer(name, value, low):
     if not exact or number < low:
         raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
     return number
+
+
+def check_shape(name, value):
+    """Three integers >= 1 (elements per axis) as a tuple."""
+    try:
+        shape = tuple(int(s) for s in value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be three integers >= 1, got {value!r}") from error
+    if len(shape) != 3 or min(shape) < 1:
+        raise ValueError(f"{name} must be three integers >= 1, got {value!r}")
+    return shape

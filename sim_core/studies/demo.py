@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..files import atomic_write, save_figure
+from ..files import atomic_write, finish_figure
 from ..solvers.integrators import stable_time_step
 from ..models.material import Material
 from ..geometry.mesh import HexMesh
@@ -101,8 +101,7 @@ def elongation_figure(path: Path) -> None:
     right.set(xlabel="imposed strain (%)", ylabel="measured nu", title="Poisson's ratio (thin lines: imposed)")
     left.legend(title="o baudet   x springs only", fontsize=8)
     figure.suptitle("Elongation of a 10x10x10 block: corrected Baudet model vs springs without corrections")
-    figure.tight_layout()
-    save_figure(figure, path, dpi=110)
+    finish_figure(figure, path, dpi=110)
 
 
 def main(argv=None) -> None:

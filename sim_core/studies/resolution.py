@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .checks import check_scalar
+from .checks import check_scalar, check_shape
 from .scenes import Scene, check_scenes
 from .solving import QUANTITIES, check_quantities, check_tolerances, scene_errors, solve_scene
 
@@ -223,13 +223,7 @@ def _reference_shape_arguments(reference_resolution, reference_shape):
         if value < 2 or not exact:
             raise ValueError(f"reference_resolution must be an integer >= 2, got {reference_resolution!r}")
         return value, None
-    try:
-        shape = tuple(int(s) for s in reference_shape)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"reference_shape must be three integers >= 1, got {reference_shape!r}") from error
-    if len(shape) != 3 or min(shape) < 1:
-        raise ValueError(f"reference_shape must be three integers >= 1, got {reference_shape!r}")
-    return reference_resolution, shape
+    return reference_resolution, check_shape("reference_shape", reference_shape)
 
 
 def reference_solutions(scenes, *, reference_resolution=10, reference_shape=None, model="fem-neohookean",

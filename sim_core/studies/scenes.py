@@ -22,7 +22,7 @@ import numpy as np
 from ..solvers import contact as contact_
 from ..models.material import Material
 from ..geometry.mesh import LOCAL_CORNERS, HexMesh
-from .checks import check_scalar, check_vector
+from .checks import check_scalar, check_shape, check_vector
 
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 
@@ -129,13 +129,7 @@ class Scene:
             set_("inclusion_low", check_vector("inclusion_low", self.inclusion_low))
             set_("inclusion_high", check_vector("inclusion_high", self.inclusion_high))
         set_("inclusion_ratio", check_scalar("inclusion_ratio", self.inclusion_ratio, low=0.0))
-        try:
-            min_shape = tuple(int(s) for s in self.min_shape)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"min_shape must be three integers >= 1, got {self.min_shape!r}") from error
-        if len(min_shape) != 3 or min(min_shape) < 1:
-            raise ValueError(f"min_shape must be three integers >= 1, got {self.min_shape!r}")
-        set_("min_shape", min_shape)
+        set_("min_shape", check_shape("min_shape", self.min_shape))
 
     # -- contact ----------------------------------------------------------------------------
     def obstacle(self, mesh=None, candidates=None):

@@ -18,7 +18,7 @@ from ..models.forces import external_forces, internal_forces
 from ..solvers.integrators import make_integrator
 from ..models.model import Control, State
 from ..solvers.static import STATIC_CONTACT_PASSES, same_contact
-from .checks import check_integer, check_scalar
+from .checks import check_integer, check_scalar, check_shape
 from .scenes import check_scenes
 from .solving import (
     QUANTITIES, SceneSolution, check_quantities, check_tolerances, contact_candidates, from_surface, mss_model,
@@ -251,12 +251,7 @@ def stepping_error(scene, shape, *, dt=0.02, substeps=1, max_step=0.002, hold_st
         ValueError naming the argument when an input is invalid.
     """
     scenes = check_scenes(scene)
-    try:
-        shape = tuple(int(s) for s in shape)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"shape must be three integers >= 1, got {shape!r}") from error
-    if len(shape) != 3 or min(shape) < 1:
-        raise ValueError(f"shape must be three integers >= 1, got {shape!r}")
+    shape = check_shape("shape", shape)
     dt = check_scalar("dt", dt, low=0.0)
     substeps = check_integer("substeps", substeps, 1)
     max_step = check_scalar("max_step", max_step, low=0.0)
