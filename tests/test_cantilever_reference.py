@@ -3,24 +3,15 @@
 On a coarse mesh (10x2x2 cubes, seconds): at nu = 0.3 the mixed u-p solution agrees with the
 pure-displacement P2 one; at nu = 0.499 the mixed tip deflection follows its nu = 0.3 value times
 Timoshenko's change, while the pure-displacement linear tetrahedron locks.
-
-benchmarks/ is not a package in this tree, so the module is loaded by its path with importlib.
 """
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import pytest
 
 pytest.importorskip("skfem")
 
-PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "cantilever_reference.py"
-_spec = importlib.util.spec_from_file_location("cantilever_reference", PATH)
-ref = importlib.util.module_from_spec(_spec)
-sys.modules[_spec.name] = ref  # its dataclass looks its module up there
-_spec.loader.exec_module(ref)
+from benchmarks import cantilever_reference as ref  # noqa: E402
 
 COARSE = (10, 2, 2)
 E = 1e4  # Pa
