@@ -58,6 +58,8 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.speed_accuracy --budget 90
 	$(PY) -m benchmarks.memory_soak --randomise
 	$(PY) -m benchmarks.large_mesh
+	$(PY) -m benchmarks.cantilever_reference
+	$(PY) -m benchmarks.tet_formulations
 
 # MuJoCo flex and PyBullet soft body next to ours (optional extra, not needed by anything else)
 bench-peers: $(STAMP)
