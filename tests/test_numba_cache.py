@@ -10,6 +10,8 @@ apart by rounding depending on what earlier processes cached. With fastmath "rea
 import os
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -51,24 +53,92 @@ np.savez(sys.argv[1], *trace)
 """
 
 
-def _run(path, cache):
-    environment = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=ROOT)
-    subprocess.run([sys.executable, "-c", SCRIPT, str(path)], check=True, env=environment, cwd=ROOT, timeout=900)
-    with np.load(path) as data:
-        return [data[f"arr_{i}"] for i in range(len(data.files))]
+#: runs the script of each argument after the first (the script's path) in turn, with argv[1] the
+#: output file: the first process compiles every kernel into the empty cache, the second loads them
+RUNNER = """
+import subprocess
+import sys
+for out in sys.argv[2:]:
+    subprocess.run([sys.executable, sys.argv[1], out], check=True, timeout=900)
+"""
 
 
-@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two cores for numba's threads")
-def test_threaded_and_serial_kernels_give_the_same_floats_compiled_or_cached(tmp_path):
+def needs_two_threads():
+    return numba.config.NUMBA_NUM_THREADS < 2
+
+
+class Runs:
+    """The two processes of the test below, one after the other, in the background: compiling the
+    kernels is a single-threaded 3 minutes, so they start when the test session starts
+    (``tests/conftest.py``, when this test is selected) and overlap the other tests instead of
+    holding up the suite. ``result()`` waits for them and loads their trajectories."""
+
+    def __init__(self):
+        self.folder = tempfile.TemporaryDirectory(prefix="numba_cache_test")
+        folder = Path(self.folder.name)
+        (folder / "script.py").write_text(SCRIPT)
+        self.paths = [folder / "compiled.npz", folder / "cached.npz"]
+        self.log = folder / "output.txt"
+        environment = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba_cache"), PYTHONPATH=ROOT)
+        with open(self.log, "wb") as log:
+            self.process = subprocess.Popen([sys.executable, "-c", RUNNER, str(folder / "script.py"),
+                                             *map(str, self.paths)], env=environment, cwd=ROOT, stdout=log,
+                                            stderr=subprocess.STDOUT)
+
+    def result(self):
+        try:
+            code = self.process.wait(timeout=1800)
+            assert code == 0, self.log.read_text(errors="replace")[-4000:]
+            return [self._load(path) for path in self.paths]
+        finally:
+            self.close()
+
+    def close(self):
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+        self.folder.cleanup()
+
+    @staticmethod
+    def _load(path):
+        with np.load(path) as data:
+            return [data[f"arr_{i}"] for i in range(len(data.files))]
+
+
+#: the runs started by ``start_in_background`` (tests/conftest.py), or None
+background = None
+
+
+def start_in_background(name):
+    """tests/conftest.py, after collection, for each selected test of this module: start the
+    processes of the test below now if ``name`` is it; whether they were started."""
+    global background
+    if name != test_threaded_and_serial_kernels_give_the_same_floats_compiled_or_cached.__name__ or needs_two_threads():
+        return False
+    if background is None:
+        background = Runs()
+    return True
+
+
+def stop_background():
+    """The session ended without running the test (-x, a keyboard interrupt): end its processes."""
+    global background
+    if background is not None:
+        background.close()
+        background = None
+
+
+@pytest.mark.skipif(needs_two_threads(), reason="needs two cores for numba's threads")
+def test_threaded_and_serial_kernels_give_the_same_floats_compiled_or_cached():
     """A first process (empty cache) compiles every kernel: it runs the vector envs of ``TASKS`` on two
     threads, then on one, then single envs. A second process does the same with every kernel loaded
     from the cache. The six trajectories of each task are equal bit for bit. (With fastmath
     "contract" in the stress correction's kernels, the second process's threaded run differed from
     its single envs by 1e-15 in Retraction's observation: ``kernels.FAST_EXACT``. With "reassoc",
     kernels compiled against cached callees rounded differently: ``kernels.FAST``.)"""
-    cache = tmp_path / "numba_cache"
-    compiled = _run(tmp_path / "compiled.npz", cache)
-    cached = _run(tmp_path / "cached.npz", cache)
+    global background
+    runs, background = background or Runs(), None
+    compiled, cached = runs.result()
     assert len(compiled) == len(cached) == 2 * 3 * 2
     for task in range(2):
         runs = compiled[6 * task:6 * task + 6] + cached[6 * task:6 * task + 6]

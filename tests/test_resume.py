@@ -20,7 +20,10 @@ BUDGET = 2048
 N_STEPS = 64  # PPO rollout: a checkpoint every rollout
 CHECKPOINT_EVERY = 64
 EVAL_EVERY = 128
-KILLS = 22
+#: a third at start-up, a third in a checkpoint write, a third at a random moment (seeded): each kind
+#: of kill three or four times, two of them before a resume that meets a damaged checkpoint. (22 kills
+#: took 2 min of the suite: each session is a process that imports torch and loads the kernels.)
+KILLS = 11
 HEARTBEAT = 0.2  # training.checkpoints.RunRecord's
 
 
@@ -80,9 +83,9 @@ def _wait_for(condition, session, timeout=60.0, pause=0.002):
     return False
 
 
-def test_training_survives_twenty_sigkills(tmp_path):
-    """22 SIGKILLs (seeded): a third during start-up or the resume's loading, a third timed to hit
-    a checkpoint write (the test polls for its temporary file and kills then), a third at a random
+def test_training_survives_repeated_sigkills(tmp_path):
+    """11 SIGKILLs (seeded): three during start-up or the resume's loading, four timed to hit a
+    checkpoint write (the test polls for its temporary file and kills then), four at a random
     moment after some progress; twice the newest checkpoint is damaged (cut to 0 bytes, truncated)
     before a resume. The run ends at its budget, its model loads, evaluations.npz holds every
     scheduled evaluation once and in order, and wall_clock_s sums the sessions."""
@@ -93,7 +96,7 @@ def test_training_survives_twenty_sigkills(tmp_path):
              "--checkpoint-freq", str(CHECKPOINT_EVERY), "--config", str(_config(tmp_path)),
              "--env-kwargs", '{"max_episode_steps": 8}']
     plan = ["progress"] + [rng.choice(["startup", "write", "progress"]) for _ in range(KILLS - 1)]
-    damage = {8: "empty", 15: "truncated"}  # after these kills the newest checkpoint is damaged
+    damage = {5: "empty", 9: "truncated"}  # after these kills the newest checkpoint is damaged
     for index in damage:
         plan[index + 1] = "write"  # the resume that meets the damage gets past its loading
     run_dir, folder = None, None
@@ -136,7 +139,7 @@ def test_training_survives_twenty_sigkills(tmp_path):
     print(f"{len(plan)} kills ({', '.join(f'{m}: {modes.count(m)}' for m in set(modes))}, {write_hits} during a "
           f"checkpoint write, leaving its temporary) in {time.perf_counter() - began:.1f} s")
 
-    assert len(modes) >= 20 and modes.count("write") >= 3 and write_hits >= 2
+    assert len(modes) == KILLS and modes.count("startup") >= 2 and modes.count("write") >= 3 and write_hits >= 2
     # the damaged checkpoints were skipped on the next resume, with the file and the reason
     for index, name in damaged.items():
         said = sessions[index + 1].out.read_text()
@@ -174,8 +177,9 @@ def test_training_survives_twenty_sigkills(tmp_path):
 
 
 def test_sac_killed_resumes_with_every_transition(tmp_path):
-    """Off-policy: killed five times (twice in a checkpoint write), SAC ends at its budget and each
-    checkpoint's replay buffer holds as many transitions as its step (none lost, none twice)."""
+    """Off-policy: killed three times (twice in a checkpoint write, once at a random moment), SAC ends
+    at its budget and each checkpoint's replay buffer holds as many transitions as its step (none
+    lost, none twice)."""
     import pickle
 
     rng = random.Random(31)
@@ -187,7 +191,7 @@ def test_sac_killed_resumes_with_every_transition(tmp_path):
              str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "100", "--checkpoint-freq", "25",
              "--config", str(config), "--env-kwargs", '{"max_episode_steps": 8}']
     run_dir = None
-    for index, mode in enumerate(["progress", "write", "progress", "write", "progress"]):
+    for index, mode in enumerate(["write", "progress", "write"]):
         session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path, index)
         if run_dir is None:
             assert _wait_for(lambda: list(runs.glob("*/sac/*/config.json")), session), session.err.read_text()
@@ -205,13 +209,13 @@ def test_sac_killed_resumes_with_every_transition(tmp_path):
         for buffer in folder.glob("model_replay_buffer_*_steps.pkl"):
             with open(buffer, "rb") as stream:
                 assert pickle.load(stream).size() == int(buffer.name.split("_")[3]), buffer.name
-    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 5)
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 3)
     assert final.wait(timeout=180) == 0, final.err.read_text()
     with open(run_dir / "checkpoints" / "model_replay_buffer_400_steps.pkl", "rb") as stream:
         assert pickle.load(stream).size() == 400
     assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [100, 200, 300, 400]
     result = json.loads((run_dir / "result.json").read_text())
-    assert result["finished"] and result["timesteps"] == 400 and len(result["resumes"]) == 5
+    assert result["finished"] and result["timesteps"] == 400 and len(result["resumes"]) == 3
 
 
 def _ppo_checkpoints(folder: Path, steps):
