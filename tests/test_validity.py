@@ -39,6 +39,16 @@ def test_tissue_that_cannot_carry_its_weight_is_refused_at_reset(env_id, young_m
         env.reset(seed=0)
 
 
+def test_tissue_too_stiff_to_resolve_is_told_so_not_to_stiffen():
+    """E = 1e12 Pa on TumorPositioning's 5 cm block: the sag under gravity (about 2.6e-11 m) is
+    2.4e6 rounding steps of the node positions and Newton's residual stalls at 2e-3 of the load;
+    the reset names precision and a softer material, and does not advise a stiffer one."""
+    env = gym.make("tissue_env/TumorPositioning-v0", young_modulus=1e12)
+    with pytest.raises(ValueError, match="too stiff for double precision.*softer material") as error:
+        env.reset(seed=0)
+    assert "stiffer" not in str(error.value)
+
+
 @pytest.mark.parametrize("young_modulus", [1.0, 10.0])
 def test_soft_flap_steps_are_flagged_out_of_range(young_modulus):
     """Retraction starts flat on its floor (no start solve): at E = 1 and 10 Pa every step that
