@@ -218,6 +218,99 @@ def test_sac_killed_resumes_with_every_transition(tmp_path):
     assert result["finished"] and result["timesteps"] == 400 and len(result["resumes"]) == 3
 
 
+def _monitor_steps(run_dir: Path) -> dict:
+    """{monitor file: the summed lengths of its episodes} of a run (whole rows only)."""
+    steps = {}
+    for path in (run_dir / "monitor").glob("*.monitor.csv"):
+        rows = path.read_text().splitlines()[2:]
+        steps[path.name] = sum(int(row.split(",")[1]) for row in rows if row.count(",") >= 3)
+    return steps
+
+
+def _plot(run_dir: Path, out: Path):
+    process = subprocess.run([sys.executable, "-m", "training.plot", str(run_dir), "--out", str(out)],
+                             capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
+    return process.returncode, process.stderr
+
+
+def test_a_run_killed_in_its_first_seconds_resumes_from_the_start(tmp_path):
+    """SIGKILL 3 s after the start (the imports, the env and model builds): config.json is there, so
+    the run folder plots (no episode yet: skipped, exit 0) and --resume trains it from step 0 to its
+    budget."""
+    runs = tmp_path / "runs"
+    session = Session(["--env", ENV, "--algo", "ppo", "--timesteps", "128", "--seed", "0", "--n-envs", "1",
+                       "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "64",
+                       "--checkpoint-freq", "64", "--config", str(_config(tmp_path)),
+                       "--env-kwargs", '{"max_episode_steps": 8}'], tmp_path, 0)
+    time.sleep(max(0.0, 3.0 - (time.perf_counter() - session.start)))
+    assert session.running(), session.err.read_text()[-2000:]
+    assert session.kill() == -signal.SIGKILL
+    folders = list(runs.glob("*/ppo/*"))
+    assert len(folders) == 1 and (folders[0] / "config.json").is_file(), folders
+    run_dir = folders[0]
+    from training import plot
+
+    assert plot.main([str(run_dir), "--out", str(tmp_path / "early.png")]) == 0  # as python -m training.plot
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
+    assert final.wait(timeout=180) == 0, final.err.read_text()
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["finished"] and result["timesteps"] == 128 and len(result["resumes"]) == 1
+    assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [64, 128]
+    code, err = _plot(run_dir, tmp_path / "curve.png")
+    assert code == 0 and (tmp_path / "curve.png").stat().st_size > 1000, err
+
+
+def test_resumed_learning_curve_has_the_episodes_of_the_run_once(tmp_path):
+    """Killed (SIGKILL) with episodes logged past its newest checkpoint, a run of two envs resumes
+    from the checkpoint: the monitor logs drop the episodes of the steps trained again, so that at
+    the end their episodes cover at most the run's steps (plus one episode), and the run plots."""
+    budget, episode = 384, 8
+    runs = tmp_path / "runs"
+    session = Session(["--env", ENV, "--algo", "ppo", "--timesteps", str(budget), "--seed", "0", "--n-envs", "2",
+                       "--vec-env", "dummy", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
+                       "--eval-freq", "128", "--checkpoint-freq", "128", "--config", str(_config(tmp_path)),
+                       "--env-kwargs", f'{{"max_episode_steps": {episode}}}'], tmp_path, 0)
+    assert _wait_for(lambda: list(runs.glob("*/ppo/*/config.json")), session), session.err.read_text()
+    run_dir = next(runs.glob("*/ppo/*/config.json")).parent
+    folder = run_dir / "checkpoints"
+
+    def ahead():  # episodes logged well past the newest checkpoint
+        newest = _newest_step(folder)
+        return newest >= 128 and sum(_monitor_steps(run_dir).values()) > newest + 4 * episode
+    assert _wait_for(ahead, session, pause=0.01), session.err.read_text()
+    assert session.kill() == -signal.SIGKILL
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
+    assert final.wait(timeout=180) == 0, final.err.read_text()
+    result = json.loads((run_dir / "result.json").read_text())
+    assert result["finished"] and result["timesteps"] == budget
+    assert result["resumes"][0]["dropped_episodes"] > 0
+    steps = _monitor_steps(run_dir)
+    assert len(steps) == 2 and sum(steps.values()) <= budget + episode, steps
+    assert all(total <= budget // 2 + episode for total in steps.values()), steps
+    code, err = _plot(run_dir, tmp_path / "curve.png")
+    assert code == 0, err
+
+
+def test_monitor_logs_are_cut_to_the_episodes_of_the_checkpoint(tmp_path):
+    """One file per env: the episodes ending within step / n_envs steps each; one file of every env's
+    episodes (batched): those whose lengths sum to at most step. Rewritten whole (no temporary left)."""
+    from training.checkpoints import truncate_monitor_logs
+
+    header = '#{"t_start": 1}\nr,l,t,is_success\n'
+    rows = "".join(f"{i}.0,8,{i}.5,False\n" for i in range(6))  # episodes ending at 8, 16, ..., 48 steps
+    for name in ("0", "1"):
+        (tmp_path / f"{name}.monitor.csv").write_text(header + rows)
+    assert truncate_monitor_logs(tmp_path, 48, n_envs=2) == {"0.monitor.csv": 3, "1.monitor.csv": 3}
+    assert (tmp_path / "0.monitor.csv").read_text() == header + rows[:rows.index("3.0")]
+    assert truncate_monitor_logs(tmp_path, 48, n_envs=2) == {}
+    batched = tmp_path / "batched"
+    batched.mkdir()
+    (batched / "batched.monitor.csv").write_text(header + rows)
+    assert truncate_monitor_logs(batched, 40, n_envs=2, batched=True) == {"batched.monitor.csv": 1}
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["0.monitor.csv", "1.monitor.csv", "batched",
+                                                           "batched.monitor.csv"]
+
+
 def _ppo_checkpoints(folder: Path, steps):
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env

@@ -98,6 +98,17 @@ def test_bad_arguments_exit_2(args, word, capsys):
     assert word in err and "Traceback" not in err
 
 
+@pytest.mark.parametrize("env_kwargs, word", [('{"bogus": 1}', "unexpected keyword argument 'bogus'"),
+                                              ('[1, 2]', "must be a JSON object")])
+def test_bad_env_kwargs_exit_2_before_a_run_folder_is_made(env_kwargs, word, tmp_path, capsys):
+    """--env-kwargs the environment refuses are reported on one line (exit code 2) before the run
+    folder is made: no folder without its config.json is left behind."""
+    code, err = run_main(capsys, "training.train", "--env", ENV, "--timesteps", "10", "--runs-dir", str(tmp_path),
+                         "--env-kwargs", env_kwargs)
+    assert code == 2 and word in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert not list(tmp_path.iterdir())
+
+
 def test_sac_checkpoints_keep_the_latest_replay_buffers_and_resume_with_them(tmp_path):
     import pickle
 

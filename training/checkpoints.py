@@ -276,6 +276,36 @@ def repair_monitor_logs(folder) -> list[Path]:
     return repaired
 
 
+def truncate_monitor_logs(folder, step: int, n_envs: int, batched: bool = False) -> dict[str, int]:
+    """Keep in the monitor CSVs of ``folder`` the episodes that end at or before a checkpoint of
+    ``step`` env steps, so that the episodes of the steps a resumed run trains again are not in the
+    learning curve twice. An episode's end is the cumulative sum of the episode lengths (``l``) in its
+    file: a file per env (SB3's Monitor: ``step / n_envs`` steps each, the envs step in lockstep), or
+    one file of every env's episodes (``batched``: the VecMonitor of the batched vector env; the
+    lengths of its episodes up to the checkpoint sum to at most ``step``). Each file is rewritten
+    atomically; returns {file name: rows dropped} of the files cut."""
+    limit = int(step) if batched else int(step) // max(int(n_envs), 1)
+    cut = {}
+    for path in sorted(Path(folder).glob("*.monitor.csv")) if Path(folder).is_dir() else []:
+        lines = path.read_text().splitlines(keepends=True)
+        header = [line for line in lines[:2] if line.startswith("#") or line.startswith("r,")]
+        rows = lines[len(header):]
+        if len(header) < 2 or not rows:
+            continue
+        column = header[1].strip().split(",").index("l")
+        total, keep = 0, 0
+        for row in rows:
+            total += int(float(row.split(",")[column]))
+            if total > limit:
+                break
+            keep += 1
+        if keep < len(rows):
+            with atomic_path(path) as temporary:
+                temporary.write_text("".join(header + rows[:keep]))
+            cut[path.name] = len(rows) - keep
+    return cut
+
+
 def process_start_time() -> float:
     """This process's start (seconds since the epoch; from /proc, else now): a session's wall
     clock includes the interpreter's start and the imports."""

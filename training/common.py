@@ -72,6 +72,22 @@ def parse_env_kwargs(text: str) -> dict:
     return env_kwargs
 
 
+def check_env_kwargs(env_id: str, env_kwargs: dict) -> dict:
+    """Make ``env_id`` once with ``env_kwargs`` (and close it): a keyword the environment does not
+    take, or a value it refuses, is a ``UsageError`` before a run folder is made. Without keywords
+    nothing is built (the environment's defaults)."""
+    if not env_kwargs:
+        return env_kwargs
+    try:
+        env = make_env(env_id, **env_kwargs)
+    except Exception as error:  # noqa: BLE001 -- whatever the constructor raises is the user's input error
+        reason = (str(error).strip().splitlines() or [""])[0]
+        raise UsageError(f"--env-kwargs {json.dumps(env_kwargs)} rejected by {env_id}: "
+                         f"{type(error).__name__}: {reason}") from error
+    env.close()
+    return env_kwargs
+
+
 def check_algo(algo: str) -> str:
     if algo not in ALGORITHMS:
         raise UsageError(f"unknown algorithm {algo!r}; choose one of {', '.join(ALGORITHMS)}")

@@ -11,10 +11,12 @@ normaliser and an off-policy replay buffer), tb/ (tensorboard) and result.json. 
 is printed as the last line.
 
 A run may be killed at any moment (SIGKILL included) and continued with ``--resume RUN_DIR``
-(``training.checkpoints``): every file it writes (but SB3's monitor CSVs and tensorboard
-events, appended a row at a time) goes to a temporary name and is renamed; the resume takes the
-newest checkpoint that loads (printing each one skipped and why), keeps the evaluations up to
-its step and continues to the full ``--timesteps``. result.json is kept current while the run
+(``training.checkpoints``): config.json is written first, before the heavy imports and builds
+(a run killed in its first seconds resumes from step 0); every file it writes (but SB3's monitor
+CSVs and tensorboard events, appended a row at a time) goes to a temporary name and is renamed;
+the resume takes the newest checkpoint that loads (printing each one skipped and why), keeps the
+evaluations and the monitor episodes up to its step (the monitor CSVs cut atomically) and
+continues to the full ``--timesteps``. result.json is kept current while the run
 trains: ``wall_clock_s`` sums the run's sessions, ``resumes`` lists each resume's step and the
 files it skipped, ``finished`` is true once model.zip is written.
 
@@ -31,8 +33,8 @@ from datetime import datetime
 from pathlib import Path
 
 from .common import (CommandParser, UsageError, action_noise, algorithm_class, check_algo, check_env_id,
-                     load_hyperparams, make_env, parse_env_kwargs, replay_buffer_class, run_name, usage_errors,
-                     write_json)
+                     check_env_kwargs, load_hyperparams, make_env, parse_env_kwargs, replay_buffer_class, run_name,
+                     usage_errors, write_json)
 
 PROGRAM = "training.train"
 
@@ -106,6 +108,7 @@ def _validated(args):
             raise UsageError("--timesteps is required: the hyperparameter file has no n_timesteps "
                              f"for {args.env}")
         args.timesteps = int(budget)
+    check_env_kwargs(args.env, env_kwargs)  # before the run folder: a bad keyword leaves nothing behind
     n_envs = args.n_envs or int(hyperparams.pop("n_envs", 1))
     hyperparams.pop("n_envs", None)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -187,9 +190,11 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     from . import checkpoints as ckpt
 
     run_dir.mkdir(parents=True, exist_ok=True)
+    if not resume:  # first of all: a run killed from here on (even during the imports) can be resumed
+        write_json(run_dir / "config.json", config)
     folder = run_dir / "checkpoints"
     if resume:
-        ckpt.remove_stale_temporaries(run_dir, folder)
+        ckpt.remove_stale_temporaries(run_dir, folder, run_dir / "monitor")
         ckpt.repair_monitor_logs(run_dir / "monitor")
     record = ckpt.RunRecord(run_dir / "result.json")
     record.open()  # before the heavy imports: their time is part of the session's
@@ -209,13 +214,15 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
     off_policy = issubclass(algo_cls, OffPolicyAlgorithm)
     n_envs = config["n_envs"]
 
-    step, loaded, skipped = None, None, []
+    step, loaded, skipped, cut = None, None, [], {}
     if resume:
         load = ckpt.checkpoint_loader(folder, algo_cls, bool(normalize), off_policy, n_envs, device="cpu",
                                       tensorboard_log=str(run_dir / "tb"))
         step, loaded, skipped = ckpt.pick_checkpoint(folder, load)
         if step is None:
             print(f"no loadable checkpoint in {folder}: training from the start", flush=True)
+        else:  # the episodes of the steps trained again after the checkpoint leave the learning curve
+            cut = ckpt.truncate_monitor_logs(run_dir / "monitor", step, n_envs, config["vec_env"] == "batched")
     train_env, eval_env = _make_envs(config, run_dir, seed_offset=step or 0, resume=step is not None)
     train_env, eval_env = _normalise(train_env, eval_env, run_dir, normalize, loaded[1] if loaded else None)
 
@@ -231,14 +238,13 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
             hyperparams["action_noise"] = exploration
         model = algo_cls(policy, train_env, seed=config["seed"], verbose=0, tensorboard_log=str(run_dir / "tb"),
                          **hyperparams)
-        write_json(run_dir / "config.json", config)
     done = int(model.num_timesteps)
     evaluations, dropped = ckpt.load_evaluations(run_dir / "evaluations.npz", up_to=done)
     if dropped:  # evaluations of the steps to be trained again: the resumed run evaluates them anew
         ckpt.save_evaluations(run_dir / "evaluations.npz", evaluations)
     if resume:
         record.begin(done, dict(step=step, skipped=skipped, dropped_evaluations=dropped,
-                                at=datetime.now().isoformat(timespec="seconds")))
+                                dropped_episodes=sum(cut.values()), at=datetime.now().isoformat(timespec="seconds")))
         print(f"resuming {run_dir} at step {step}" if step is not None else f"restarting {run_dir}", flush=True)
     else:
         record.begin(0, None)
