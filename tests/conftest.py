@@ -6,8 +6,8 @@ _started = []
 
 
 def pytest_collection_finish(session):
-    if session.config.option.collectonly:
-        return
+    if session.config.option.collectonly or hasattr(session.config, "workerinput"):
+        return  # nothing to run; or a pytest-xdist worker, which collects the tests other workers run
     for item in session.items:
         module = getattr(item, "module", None)
         start = getattr(module, "start_in_background", None)

@@ -8,6 +8,7 @@ apart by rounding depending on what earlier processes cached. With fastmath "rea
 """
 
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -81,9 +82,10 @@ class Runs:
         self.log = folder / "output.txt"
         environment = dict(os.environ, NUMBA_CACHE_DIR=str(folder / "numba_cache"), PYTHONPATH=ROOT)
         with open(self.log, "wb") as log:
+            # a session of its own: ``close`` ends the runner and the process it is waiting for
             self.process = subprocess.Popen([sys.executable, "-c", RUNNER, str(folder / "script.py"),
                                              *map(str, self.paths)], env=environment, cwd=ROOT, stdout=log,
-                                            stderr=subprocess.STDOUT)
+                                            stderr=subprocess.STDOUT, start_new_session=True)
 
     def result(self):
         try:
@@ -95,7 +97,7 @@ class Runs:
 
     def close(self):
         if self.process.poll() is None:
-            self.process.kill()
+            os.killpg(self.process.pid, signal.SIGKILL)  # the runner's process group: it and its child
             self.process.wait()
         self.folder.cleanup()
 
