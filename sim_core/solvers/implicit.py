@@ -362,6 +362,10 @@ class ImplicitEuler(WorldsSolver):
     def __setstate__(self, state):
         memo = {}
         self.__dict__.update({name: _mapped(value, memo, _TypedItems, TypedList) for name, value in state.items()})
+        # a Jacobi copy's list entry is a view of its row of _diagonal, which jacobi_copies rewrites
+        # each step; pickling copied the two apart
+        for index in np.flatnonzero(self.__dict__.get("_jacobi", ())):
+            kernels.set_list_items(self._lu_int, self._lu_float, index, JACOBI_INTS, self._diagonal[index])
 
     # -- preconditioner ------------------------------------------------------------------------------
     def _options(self):
