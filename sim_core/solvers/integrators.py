@@ -21,7 +21,7 @@ from ..models.forces import ForceWorkspace, stiffness_data
 from ..models.model import Control, Model, State
 from ..models.stack import ModelStack
 from .implicit import ImplicitEuler
-from .solver import StepReport, WorldsSolver
+from .solver import WorldsSolver
 from .static import QuasiStatic
 
 
@@ -34,7 +34,7 @@ class SymplecticEuler(WorldsSolver):
 
     Args:
         stack: the ``ModelStack``, a ``Model`` (one world) or None.
-        threads: the force pass's threads (``StackedForceWorkspace``); one world runs on one.
+        threads: the divergence checks' threads (``DivergenceMonitors``); one world runs on one.
     """
 
     name = "explicit"

@@ -4,10 +4,11 @@ Every solver has one verb, ``solver.step(state_in, state_out, control, dt, activ
 advances the worlds of its model by ``dt`` seconds under ``control`` (imposed positions, external
 forces) from ``state_in`` into ``state_out`` and returns a ``StepReport`` of what it did and whether
 a world diverged; ``reset(world_mask)`` starts worlds again and ``model_changed(index)`` follows a
-changed model. A solver of one world (``OneWorldSolver``: ``sim_core.solvers.integrators``' explicit and
-implicit Euler, ``sim_core.solvers.static.QuasiStatic``; ``bind`` gives it its model) steps (n, 3) states; a
-solver of N worlds (``WorldsSolver``: ``sim_core.solvers.implicit``, ``integrators``; ``sim_core.solvers.worlds.PerWorld``) steps the
-(N, n, 3) states of a ``ModelStack`` with ``active`` an (N,) world mask, and reports per world. Both
+changed model. A solver of one world (``OneWorldSolver``: ``sim_core.solvers.static.QuasiStatic``, and
+the integrators' one-world case; ``bind`` gives it its model) steps (n, 3) states; a solver of N worlds
+(``WorldsSolver``: ``sim_core.solvers.implicit.ImplicitEuler``, ``sim_core.solvers.integrators.SymplecticEuler``;
+``sim_core.solvers.worlds.PerWorld``) steps the (N, n, 3) states of a ``ModelStack`` with ``active`` an
+(N,) world mask, and reports per world. Both
 run the same divergence checks (``DivergenceMonitors``, of which ``DivergenceMonitor`` is the
 one-world case). ``sim_core.make_solver`` builds either. Here also: the time step check and the
 imposed components of a control. SI units."""
@@ -62,9 +63,9 @@ class OneWorldSolver:
         """Start a new episode (``world_mask`` None or True; False leaves it as it is): the
         divergence history, warm starts and kept factors start again, as with a fresh solver."""
         if world_mask is None or bool(np.all(world_mask)):
-            kept = {name: self.__dict__[name] for name in ("model", "factor_store") if name in self.__dict__}
+            model = self.model
             self.__dict__.update(type(self)(**self._options()).__dict__)
-            self.__dict__.update(kept)  # what the user set: the model and a shared factor store
+            self.model = model  # what the user set
 
     def model_changed(self, index: int = 0, model: Model | None = None):
         """The world's model changed: step ``model`` from now on (None: the bound one), from a fresh
@@ -96,6 +97,15 @@ def check_world_mask(mask, count: int) -> np.ndarray:
     if mask.shape != (count,):
         raise ValueError(f"a world mask must be None or an ({count},) bool array, got shape {mask.shape}")
     return mask
+
+
+def check_shapes(state: State, control: Control, shape: tuple, meaning: str):
+    """ValueError unless the state's positions and velocities and the control's fixed and target
+    arrays all have ``shape`` (``meaning`` names its axes in the message)."""
+    for name, array in (("positions", state.positions), ("velocities", state.velocities),
+                        ("control.fixed", control.fixed), ("control.target", control.target)):
+        if np.shape(array) != shape:
+            raise ValueError(f"{name} must have shape {shape} {meaning}, got {np.shape(array)}")
 
 
 def check_dt(dt) -> float:
@@ -309,11 +319,7 @@ class WorldsSolver(OneWorldSolver):
         if not self.one_world:
             raise ValueError("simulate(model, ...) is for a solver of one world; step the ModelStack instead")
         control = model.new_control() if control is None else control
-        rows = model.n_nodes
-        for name, array in (("positions", state_in.positions), ("velocities", state_in.velocities),
-                            ("control.fixed", control.fixed), ("control.target", control.target)):
-            if np.shape(array) != (rows, 3):
-                raise ValueError(f"{name} must have shape {(rows, 3)} (nodes, 3), got {np.shape(array)}")
+        check_shapes(state_in, control, (model.n_nodes, 3), "(nodes, 3)")
         force = None if control.force is None else np.asarray(control.force, dtype=float)[None]
         out = State(None, None)
         report = self.world(model).step(
@@ -384,10 +390,7 @@ class WorldsSolver(OneWorldSolver):
         stack, count = self.stack, self.stack.count
         active = check_world_mask(active, stack.count)
         shape = (count, stack.n_nodes, 3)
-        for name, array in (("positions", state_in.positions), ("velocities", state_in.velocities),
-                            ("control.fixed", control.fixed), ("control.target", control.target)):
-            if np.shape(array) != shape:
-                raise ValueError(f"{name} must have shape {shape} (worlds, node rows, 3), got {np.shape(array)}")
+        check_shapes(state_in, control, shape, "(worlds, node rows, 3)")
         force = control.force
         if force is not None and np.shape(force) != shape:
             raise ValueError(f"control.force must be None or of shape {shape} in N, got {np.shape(force)}")
