@@ -710,7 +710,7 @@ class ImplicitEuler(WorldsSolver):
         limits = np.where(fresh, self.max_iterations, np.minimum(self._threshold, self.max_iterations))
         if self.preconditioner == "auto":  # Jacobi until auto_switch_iterations, up to AUTO_MAX_DOFS free dofs
             free = np.count_nonzero(free_rows, axis=1)
-            switch = np.where(free <= AUTO_MAX_DOFS, [auto_switch_iterations(int(n)) for n in free], self.max_iterations)
+            switch = np.where(free <= AUTO_MAX_DOFS, auto_switch_iterations(free), self.max_iterations)
             limits = np.where(jacobi, np.minimum(switch, self.max_iterations), limits)
         else:
             limits = np.where(jacobi, self.max_iterations, limits)

@@ -14,12 +14,13 @@ from ..models.model import Model
 from ..models.sparse import NodeBlockLU
 
 
-def auto_switch_iterations(n_free: int) -> int:
+def auto_switch_iterations(n_free):
     """Jacobi iterations above which "auto" switches to the factorised preconditioner: where the
     two step times cross, which moves to more iterations as the mesh grows (an LU solve costs more,
     relative to an operator product, as the fill grows): 5 sqrt(n_free / 400), at least 6, fitted
-    to where they crossed in interleaved timings (docs/performance_notes.md)."""
-    return max(6, int(round(5.0 * np.sqrt(n_free / 400.0))))
+    to where they crossed in interleaved timings (docs/performance_notes.md). ``n_free``: an int or
+    an array (one per world)."""
+    return np.maximum(6, np.rint(5.0 * np.sqrt(np.asarray(n_free) / 400.0)).astype(np.int64))
 
 
 #: "auto" stays with Jacobi above this many free dofs (LU fill and memory grow like dofs^(4/3)).
