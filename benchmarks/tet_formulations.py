@@ -38,6 +38,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from sim_core.geometry.tetmesh import TetMesh
+from sim_core.models.elements import quadrature, strain_displacement
 from training.common import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,21 +61,9 @@ def deviatoric_matrix(mu: float) -> np.ndarray:
 
 def element_strains(nodes: np.ndarray, elements: np.ndarray):
     """(B (M, 6, 12), volumes (M,)): each linear tetrahedron's Voigt strain-displacement matrix
-    (1/m) and volume (m^3)."""
-    corners = nodes[elements]
-    edges = np.stack([corners[:, k] - corners[:, 0] for k in (1, 2, 3)], axis=2)
-    volumes = np.linalg.det(edges) / 6.0
-    gradients = np.zeros((len(elements), 4, 3))
-    gradients[:, 1:] = np.linalg.inv(edges)
-    gradients[:, 0] = -gradients[:, 1:].sum(axis=1)
-    strain = np.zeros((len(elements), 6, 12))
-    for a in range(4):
-        gx, gy, gz = gradients[:, a, 0], gradients[:, a, 1], gradients[:, a, 2]
-        strain[:, 0, 3 * a], strain[:, 1, 3 * a + 1], strain[:, 2, 3 * a + 2] = gx, gy, gz
-        strain[:, 3, 3 * a], strain[:, 3, 3 * a + 1] = gy, gx
-        strain[:, 4, 3 * a + 1], strain[:, 4, 3 * a + 2] = gz, gy
-        strain[:, 5, 3 * a], strain[:, 5, 3 * a + 2] = gz, gx
-    return strain, volumes
+    (1/m) and volume (m^3), from sim_core's element quadrature (one exact point)."""
+    gradients, weights = quadrature(nodes, elements)
+    return strain_displacement(gradients[:, 0]), weights[:, 0]
 
 
 def smoothing(elements: np.ndarray, volumes: np.ndarray, kind: str):

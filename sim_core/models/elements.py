@@ -73,18 +73,24 @@ def elasticity_matrices(young_modulus, poisson_ratio) -> np.ndarray:
     return d
 
 
+def strain_displacement(gradients: np.ndarray) -> np.ndarray:
+    """(..., 6, 3n) Voigt strain-displacement matrices B (1/m; rows xx, yy, zz, xy, yz, zx with
+    engineering shear, node-major dofs x0 y0 z0 x1 ...) of shape-function gradients (..., n, 3)."""
+    shape, n_nodes = gradients.shape[:-2], gradients.shape[-2]
+    b = np.zeros(shape + (6, n_nodes, 3))
+    for axis in range(3):
+        b[..., axis, :, axis] = gradients[..., axis]
+    for row, (p, q) in zip((3, 4, 5), ((0, 1), (1, 2), (2, 0))):
+        b[..., row, :, p] = gradients[..., q]
+        b[..., row, :, q] = gradients[..., p]
+    return b.reshape(shape + (6, 3 * n_nodes))
+
+
 def element_stiffness(nodes: np.ndarray, elements: np.ndarray, young_modulus, poisson_ratio) -> np.ndarray:
     """(M, 3n, 3n) element stiffness matrices in N/m (node-major dofs: x0 y0 z0 x1 ...), n = 8
     (hexahedra) or 4 (tetrahedra)."""
     grad, weight = quadrature(nodes, elements)
-    n_elements, n_points, n_nodes = grad.shape[:3]
-    b = np.zeros((n_elements, n_points, 6, n_nodes, 3))
-    for axis in range(3):
-        b[:, :, axis, :, axis] = grad[..., axis]
-    for row, (p, q) in zip((3, 4, 5), ((0, 1), (1, 2), (2, 0))):
-        b[:, :, row, :, p] = grad[..., q]
-        b[:, :, row, :, q] = grad[..., p]
-    b = b.reshape(n_elements, n_points, 6, 3 * n_nodes)
+    b = strain_displacement(grad)
     d = elasticity_matrices(young_modulus, poisson_ratio)
     # sum_p w_p B_p^T D B_p as batched matrix products (BLAS; a 4-operand einsum is much slower)
     stress = np.matmul(d[:, None], b)  # (M, P, 6, 3n)
