@@ -37,14 +37,17 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from sim_core import Material, build_model
 from sim_core.geometry.tetmesh import TetMesh
 from sim_core.models.elements import quadrature, strain_displacement
+from sim_core.models.forces import stiffness_data
 from training.common import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 POISSON_RATIOS = (0.3, 0.45, 0.49, 0.499)
 YOUNG = 1.0e4  # Pa
+DENSITY = 1000.0  # kg/m^3, the reference's
 LOAD = 10.0  # N, total tip load in -y
 SHAPE = (20, 4, 4)  # cubes of 0.05 m along x, y, z
 #: Voigt form of the identity (the volumetric direction)
@@ -152,22 +155,52 @@ def reference_deflections(young: float) -> dict | None:
             for row in data["results"]}
 
 
+def bending_frequency(mesh: TetMesh, stiffness: sp.csr_matrix, masses: np.ndarray) -> float:
+    """The lowest eigenfrequency (Hz) of the clamped (x = 0) cantilever with lumped node masses (kg)."""
+    clamped = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
+    free = np.setdiff1d(np.arange(3 * mesh.n_nodes), (3 * clamped[:, None] + np.arange(3)).ravel())
+    mass = sp.diags(np.repeat(masses, 3)[free]).tocsc()
+    value = spla.eigsh(stiffness[free][:, free].tocsc(), k=1, M=mass, sigma=0.0, which="LM")[0][0]
+    return float(np.sqrt(value) / (2 * np.pi))
+
+
+def reference_frequencies() -> dict | None:
+    """{nu: converged first bending frequency (Hz)} from ``benchmarks.cantilever_reference``'s results
+    (E and rho as here), or None where that file is missing."""
+    path = RESULTS / "cantilever_reference.json"
+    if not path.exists():
+        return None
+    data = json.loads(path.read_text())
+    return {float(row["poisson_ratio"]): float(row["convergence"]["bending_frequency"]["extrapolated"])
+            for row in data["results"]}
+
+
 def main():
     start = time.perf_counter()
     mesh = TetMesh.block(SHAPE, 1.0 / SHAPE[0])
-    references = reference_deflections(YOUNG)
+    references, frequencies = reference_deflections(YOUNG), reference_frequencies()
     rows = []
     for nu in POISSON_RATIOS:
         reference = references.get(nu) if references else None
         against = reference if reference is not None else timoshenko(YOUNG, nu)
-        for name, stiffness in formulations(mesh, YOUNG, nu).items():
+        # sim_core's tetrahedral model (its default smoothing) on the same mesh, assembled by sim_core
+        model = build_model(mesh, Material(YOUNG, nu, DENSITY), model="baudet")
+        candidates = dict(formulations(mesh, YOUNG, nu))
+        candidates["sim_core baudet"] = model.pattern.matrix(stiffness_data(model, mesh.nodes)).tocsr()
+        for name, stiffness in candidates.items():
             deflection = tip_deflection(mesh, stiffness)
-            rows.append(dict(poisson_ratio=nu, formulation=name, tip_deflection=deflection,
-                             ratio=deflection / against, against="reference" if reference is not None else "timoshenko"))
-            print(f"nu {nu:<5} {name:<10} tip {deflection:.4e} m  ratio {deflection / against:.3f}")
+            frequency = bending_frequency(mesh, stiffness, model.mass)
+            row = dict(poisson_ratio=nu, formulation=name, tip_deflection=deflection, ratio=deflection / against,
+                       against="reference" if reference is not None else "timoshenko", bending_frequency=frequency)
+            if frequencies:
+                row["frequency_ratio"] = frequency / frequencies[nu]
+            rows.append(row)
+            print(f"nu {nu:<5} {name:<16} tip {deflection:.4e} m  ratio {deflection / against:.3f}  "
+                  f"f {frequency:.4f} Hz")
     write_json(RESULTS / "tet_formulations.json", dict(
         command="python -m benchmarks.tet_formulations", mesh=f"{SHAPE} cubes split into 6 tetrahedra each",
-        young_modulus=YOUNG, load=LOAD, rows=rows, seconds=time.perf_counter() - start))
+        young_modulus=YOUNG, density=DENSITY, masses="lumped, rho V / 4 per node of each tetrahedron (sim_core's)",
+        load=LOAD, rows=rows, seconds=time.perf_counter() - start))
 
 
 if __name__ == "__main__":

@@ -278,17 +278,24 @@ def tetrahedral_bending_section():
     ratios = sorted({row["poisson_ratio"] for row in study["rows"]})
     names = list(dict.fromkeys(row["formulation"] for row in study["rows"]))
     value = {(row["formulation"], row["poisson_ratio"]): row["ratio"] for row in study["rows"]}
+    frequency = {(row["formulation"], row["poisson_ratio"]): row.get("frequency_ratio") for row in study["rows"]}
     converged = {row["poisson_ratio"]: row["convergence"]["tip_mean_uy"] for row in reference["results"]}
     return ["## Tetrahedra in bending at tissue Poisson ratios\n\n",
             "The cantilever 1 x 0.2 x 0.2 m (clamped at x = 0, 10 N at the tip, E = 10 kPa) on 20 x 4 x 4 cubes "
             "each split into 6 tetrahedra: the mean tip deflection of each small-strain formulation on those "
             "nodes over the converged locking-free reference (Taylor-Hood P2-P1, Richardson-extrapolated; "
-            "1 is exact). FEM-T4 is the tetrahedral model today; the others smooth the elements' strains "
-            "over node (ANP: the volumetric part only; NS), edge (ES) or both (ES/NS: edge-smoothed deviatoric "
-            "with node-smoothed volumetric strain) domains.\n\n",
+            "1 is exact). FEM-T4 is each tetrahedron on its own strain (sim_core's smoothing=\"none\"); the others "
+            "smooth the elements' strains over node (ANP: the volumetric part only; NS), edge (ES) or both (ES/NS: "
+            "edge-smoothed deviatoric with node-smoothed volumetric strain) domains, assembled by the study; "
+            "\"sim_core baudet\" is sim_core's default tetrahedral model (ES/NS) as sim_core assembles it.\n\n",
             caption(study["command"], "tet_formulations.json"), "\n",
             table(["formulation"] + [f"nu {nu:g}" for nu in ratios],
                   [[name] + [num(value[(name, nu)], 3) for nu in ratios] for name in names]), "\n",
+            *([] if "frequency_ratio" not in study["rows"][0] else [
+                "The first bending frequency with lumped masses over the reference's (consistent masses, "
+                "converged):\n\n",
+                table(["formulation"] + [f"nu {nu:g}" for nu in ratios],
+                      [[name] + [num(frequency[(name, nu)], 3) for nu in ratios] for name in names]), "\n"]),
             caption(reference["command"], "cantilever_reference.json"), "\n",
             table(["nu", "reference tip deflection (m)", "estimated error (GCI, finest mesh)"],
                   [[f"{nu:g}", num(-converged[nu]["extrapolated"], 5), pct(converged[nu]["gci_fine"], 2) + "%"]

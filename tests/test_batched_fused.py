@@ -151,17 +151,12 @@ def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
     stacked, hg_rows, hg_group = integrator.copies_first()
     indptr, indices, values = integrator.workspace.hourglass_blocks()
     assert values.shape == (len(hg_rows), 9 * len(indices))
-    springs, elements, nodes = len(stack.reference.springs), stack.n_elements, stack.n_nodes
+    nodes = stack.n_nodes
     dt = envs.worlds.dt
     system = (1.0, dt, dt * dt, dt * dt, dt * dt, dt * dt)
     rng = np.random.default_rng(0)
     for c in range(envs.num_envs):
-        def part(array, size):
-            return array[c * size:(c + 1) * size]
-        sizes = (None, springs, springs, springs, springs, nodes, None, None, elements, elements, elements,
-                 elements, elements, None, None, None, springs, springs, elements, elements)
-        data = tuple(array if size is None else part(array, size) for array, size in zip(stacked, sizes))
-        data = data[:15] + (hg_rows[hg_group[c]],) + data[16:]
+        data = kernels.copy_data(stacked, hg_rows, hg_group, np.int64(c))  # copy c's slices, its hourglass values
         vector = rng.normal(size=3 * nodes)
         mask = (rng.uniform(size=3 * nodes) > 0.2).astype(float)
         expected, out = np.empty_like(vector), np.empty_like(vector)

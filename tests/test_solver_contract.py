@@ -11,7 +11,9 @@ from sim_core import HexMesh, Material, ModelStack, State, StepReport, TetMesh, 
 
 #: method: (dt s, steps, options): a few steps of each, the linear and Newton solves converged tightly
 METHODS = {"explicit": (1e-4, 30, {}), "implicit": (0.01, 4, dict(tolerance=1e-10)),
-           "static": (0.01, 2, dict(tolerance=1e-10))}
+           # 80 Newton iterations per increment: the cut tetrahedral beam's smoothed strain sags 2.7x as far as
+           # each tetrahedron's own strain did (a quarter of its length), beyond QuasiStatic's default 20
+           "static": (0.01, 2, dict(tolerance=1e-10, max_iterations=80))}
 MATERIALS = (Material(20e3, 0.45, 1060), Material(30e3, 0.3, 1000), Material(15e3, 0.4, 1100))
 
 

@@ -180,7 +180,7 @@ def test_linear_fem_on_tets_matches_scikit_fem():
     tip = np.abs(reference).max()
     assert tip > 1e-4
     assert np.abs(positions - mesh.nodes - reference).max() < 1e-8 * tip
-    model = build_model(mesh, material, model="baudet", gravity=gravity)
+    model = build_model(mesh, material, model="baudet", gravity=gravity, smoothing="none")
     equilibrium = solve_static(model, control, tolerance=1e-10)
     assert equilibrium.converged
     assert np.abs(equilibrium.positions - mesh.nodes - reference).max() < 1e-6 * tip
@@ -211,7 +211,8 @@ def test_tet_elongation_under_force_spreads_the_load_consistently():
 def test_tet_cantilever_against_hexahedral_fem(name):
     """A 1 x 0.5 x 0.4 m cantilever under its own weight (tip deflection 1.4% of its length), nu = 0.3,
     20x10x8 cubes: the tetrahedral models' tip deflection within 10% of fem-linear on the hexahedra of
-    the same nodes (measured 3.4% low: linear tetrahedra are stiffer in bending). The hexahedral
+    the same nodes (measured +1.2% with the default smoothed strain; 3.4% low with smoothing="none",
+    each linear tetrahedron's own strain, stiffer in bending). The hexahedral
     reference is converged to about 1%: it moves 2.5% from 10x5x4 to 20x10x8 cubes, so its
     second-order extrapolation is 0.8% beyond it."""
     reference = experiments.flexion((20, 10, 8), 0.05, 5e6, 0.3, density=RHO, model="fem-linear")
@@ -224,12 +225,13 @@ def test_tet_cantilever_against_hexahedral_fem(name):
                                                      ("baudet-hyperelastic", "fem-neohookean", 5.0),
                                                      ("baudet-hyperelastic", "fem-neohookean", 30.0)])
 def test_tet_shear_against_fem_on_the_same_tetrahedra(name, reference, angle):
-    """Simple shear of a 3x3x3 block of tetrahedra, up to 30 degrees: %e_dm below 5% against FEM of
-    the same law on the same tetrahedra (the element energies are the same, so it is at the solvers'
-    tolerance: below 1e-4 %)."""
+    """Simple shear of a 3x3x3 block of tetrahedra, up to 30 degrees, each tetrahedron on its own
+    strain (smoothing="none"): %e_dm below 5% against FEM of the same law on the same tetrahedra (the
+    element energies are the same, so it is at the solvers' tolerance: below 1e-4 %)."""
     fem = experiments.shear((3, 3, 3), 0.1, E, 0.4, angle_deg=angle, model=reference, element="tet")
     with pytest.warns(UserWarning) if angle > experiments.VALIDATED_SHEAR_DEG else contextlib.nullcontext():
-        mss = experiments.shear((3, 3, 3), 0.1, E, 0.4, angle_deg=angle, model=name, element="tet")
+        mss = experiments.shear((3, 3, 3), 0.1, E, 0.4, angle_deg=angle, model=name, element="tet",
+                                smoothing="none")
     e_dm, e_max = experiments.position_errors(mss, fem)
     assert mss.converged and fem.converged
     assert e_dm < 5.0 and e_dm < 1e-4
@@ -307,18 +309,20 @@ def test_dynamics_settle_on_the_static_equilibrium(name):
 @pytest.mark.parametrize("name", MODELS)
 @pytest.mark.parametrize("nu", [0.0, 0.3, 0.49])
 def test_springs_never_exceed_the_element_and_a_free_block_has_only_rigid_modes(name, nu):
-    """At rest the springs' stiffness is bounded by the element's (K - K_springs positive
+    """Each tetrahedron on its own strain (smoothing="none"): at rest the springs' stiffness is
+    bounded by the element's (K - K_springs positive
     semi-definite, to 1e-9 of the largest eigenvalue), so the implicit step's positive part leaves
     the correction's stiffness as it is (to 1e-12); a free 2x2x2 block of tetrahedra has exactly its 6 rigid
     zero-energy modes."""
     mesh = TetMesh.block((2, 1, 1), 0.01)
     material = Material(E, nu, RHO)
-    model = build_model(mesh, material, model=name)
+    model = build_model(mesh, material, model=name, smoothing="none")
     full = stiffness_data(model, mesh.nodes)
     assert np.abs(stiffness_data(model, mesh.nodes, clamp=True) - full).max() < 1e-12 * np.abs(full).max()
-    springs = model.pattern.matrix(stiffness_data(build_model(mesh, material, model=name, corrections=False),
-                                                  mesh.nodes)).toarray()
+    springs = model.pattern.matrix(stiffness_data(build_model(mesh, material, model=name, corrections=False,
+                                                              smoothing="none"), mesh.nodes)).toarray()
     difference = np.linalg.eigvalsh(model.pattern.matrix(full).toarray() - springs)
     assert difference.min() > -1e-9 * difference.max()
-    count, _, _ = zero_energy_modes(build_model(TetMesh.block((2, 2, 2), 0.01), material, model=name))
+    count, _, _ = zero_energy_modes(build_model(TetMesh.block((2, 2, 2), 0.01), material, model=name,
+                                                smoothing="none"))
     assert count == 6

@@ -216,7 +216,7 @@ def inverse_diagonal(data, scales, mask, out):
     (axial stiffness and damping, clamped geometric term), the stress correction's element blocks
     and the hourglass matrix; 0 where it is not positive (an imposed or degenerate dof)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, _, _, _, _, _, _, hg_indptr, hg_indices, hg_data,
-     _, _, stress_gradient, stress_tangent) = data
+     _, _, stress_indptr, stress_nodes, stress_gradient, stress_tangent, _) = data
     mass_scale, damping_scale, stiffness_scale, hg_scale = scales[0], scales[1], scales[2], scales[5]
     for node in range(mass.shape[0]):
         for c in range(3):
@@ -230,7 +230,7 @@ def inverse_diagonal(data, scales, mask, out):
             out[3 * a + c] += value
             out[3 * b + c] += value
     if stress_tangent.shape[0] != 0:  # the stress correction's element blocks (baudet-hyperelastic)
-        stress_diagonal_add(elements, stress_gradient, stress_tangent, stiffness_scale, out)
+        stress_diagonal_add(stress_indptr, stress_nodes, stress_gradient, stress_tangent, stiffness_scale, out)
     for row in range(out.shape[0]):
         value = out[row]
         if value > 0.0:

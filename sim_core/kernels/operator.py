@@ -22,13 +22,16 @@ _EDGES = np.ascontiguousarray(EDGES)
 #: (N,) kg; the elements (M, 8 or 4), each element's spring per edge (M, 12), the corrections'
 #: matrices (M, 3, 3) and axis rest lengths (M, 3) m; the volume forces' coefficient (M,),
 #: direction and gradient (M, 8, 3); the hourglass matrix in CSR (indptr, indices, data N/m);
-#: the corrections' elongations and deltas (S,) (scratch); the stress correction's mean gradient
-#: (M, n, 3) and tangent (M, 9, 9), empty without it. Built by ``models.forces.ForceWorkspace``
-#: (one model) and ``copy_data`` (copy c of a stacked model).
+#: the corrections' elongations and deltas (S,) (scratch); the stress correction's cells in
+#: compressed rows (``Model.stress_cells``: indptr (C + 1,), nodes (nnz,), gradients (nnz, 3) 1/m),
+#: their tangents (C, 9, 9) and the pattern positions of their node pairs' rows (P, 3)
+#: (``Model.stress_pair_rows``), empty without it. Built by ``models.forces.ForceWorkspace`` (one
+#: model) and ``copy_data`` (copy c of a stacked model).
 OperatorData = namedtuple("OperatorData", (
     "springs", "unit", "stiffness", "damping", "geometric", "mass", "elements", "edge_spring",
     "correction_matrix", "axis_rest_length", "volume_coefficient", "volume_direction", "volume_gradient",
-    "hg_indptr", "hg_indices", "hg_data", "elongation", "delta", "stress_gradient", "stress_tangent"))
+    "hg_indptr", "hg_indices", "hg_data", "elongation", "delta", "stress_indptr", "stress_nodes", "stress_gradient",
+    "stress_tangent", "stress_positions"))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -75,20 +78,20 @@ def _row_product(tangent, r, d0, d1, d2, d3, d4, d5, d6, d7, d8):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
-def _stress_product(elements, stress_gradient, stress_tangent, scale, vector, out):
-    """out += scale * K_s vector, K_s the stress correction's stiffness (``baudet-hyperelastic``):
-    per element dF = sum_a v_a (x) b_a (9), dP = T dF with T (9, 9) its stiffness on F
+def _stress_product(indptr, nodes, stress_gradient, stress_tangent, scale, vector, out):
+    """out += scale * K_s vector, K_s the stress correction's stiffness: per cell (an element, or a
+    smoothing domain) dF = sum_a v_a (x) b_a (9), dP = T dF with T (9, 9) its stiffness on F
     (``kernels.stress_correction_tangent_add``: V0 (A_NH - A_S), the implicit step's positive part),
-    and out_a += dP b_a. stress_gradient (M, n, 3) b_a (n nodes per element), stress_tangent (M, 9, 9);
-    flat dof vectors. dF and dP are held in scalars, so that no product's entries go through memory
-    (docs/performance_notes.md, "Kernel-level choices")."""
-    n_nodes = stress_gradient.shape[1]
-    for m in range(elements.shape[0]):
+    and out_a += dP b_a. Cells in compressed rows (``Model.stress_cells``: indptr (C + 1,), nodes and
+    stress_gradient (nnz,), (nnz, 3) b_a), stress_tangent (C, 9, 9); flat dof vectors. dF and dP are
+    held in scalars, so that no product's entries go through memory (docs/performance_notes.md,
+    "Kernel-level choices")."""
+    for m in range(indptr.shape[0] - 1):
         d = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        for a in range(n_nodes):
-            node = elements[m, a]
-            d = add_outer(d, vector[3 * node], vector[3 * node + 1], vector[3 * node + 2], stress_gradient[m, a, 0],
-                          stress_gradient[m, a, 1], stress_gradient[m, a, 2])
+        for e in range(indptr[m], indptr[m + 1]):
+            node = nodes[e]
+            d = add_outer(d, vector[3 * node], vector[3 * node + 1], vector[3 * node + 2], stress_gradient[e, 0],
+                          stress_gradient[e, 1], stress_gradient[e, 2])
         d0, d1, d2, d3, d4, d5, d6, d7, d8 = d
         t = stress_tangent[m]
         p0 = scale * _row_product(t, 0, d0, d1, d2, d3, d4, d5, d6, d7, d8)
@@ -100,27 +103,27 @@ def _stress_product(elements, stress_gradient, stress_tangent, scale, vector, ou
         p6 = scale * _row_product(t, 6, d0, d1, d2, d3, d4, d5, d6, d7, d8)
         p7 = scale * _row_product(t, 7, d0, d1, d2, d3, d4, d5, d6, d7, d8)
         p8 = scale * _row_product(t, 8, d0, d1, d2, d3, d4, d5, d6, d7, d8)
-        for a in range(n_nodes):
-            node = elements[m, a]
-            b0, b1, b2 = stress_gradient[m, a, 0], stress_gradient[m, a, 1], stress_gradient[m, a, 2]
+        for e in range(indptr[m], indptr[m + 1]):
+            node = nodes[e]
+            b0, b1, b2 = stress_gradient[e, 0], stress_gradient[e, 1], stress_gradient[e, 2]
             out[3 * node] += p0 * b0 + p1 * b1 + p2 * b2
             out[3 * node + 1] += p3 * b0 + p4 * b1 + p5 * b2
             out[3 * node + 2] += p6 * b0 + p7 * b1 + p8 * b2
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def stress_diagonal_add(elements, stress_gradient, stress_tangent, scale, diagonal):
-    """diagonal (3 n,) += scale * the diagonal of K_s (``_stress_product``): entry (a, i) of element
-    m is sum_JL b_aJ T[3 i + J, 3 i + L] b_aL (the Jacobi preconditioners)."""
-    for m in range(elements.shape[0]):
-        for a in range(stress_gradient.shape[1]):
-            node = elements[m, a]
+def stress_diagonal_add(indptr, nodes, stress_gradient, stress_tangent, scale, diagonal):
+    """diagonal (3 n,) += scale * the diagonal of K_s (``_stress_product``): entry (a, i) of cell m
+    is sum_JL b_aJ T[3 i + J, 3 i + L] b_aL (the Jacobi preconditioners)."""
+    for m in range(indptr.shape[0] - 1):
+        for e in range(indptr[m], indptr[m + 1]):
+            node = nodes[e]
             for i in range(3):
                 total = 0.0
                 for j in range(3):
                     for ll in range(3):
-                        total += stress_gradient[m, a, j] * stress_tangent[m, 3 * i + j, 3 * i + ll] \
-                            * stress_gradient[m, a, ll]
+                        total += stress_gradient[e, j] * stress_tangent[m, 3 * i + j, 3 * i + ll] \
+                            * stress_gradient[e, ll]
                 diagonal[3 * node + i] += scale * total
 
 
@@ -129,7 +132,7 @@ def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_sca
                     elements, edge_spring, correction_matrix, axis_rest_length, coupling_scale,
                     volume_coefficient, volume_direction, volume_gradient, volume_scale,
                     hg_indptr, hg_indices, hg_data, hg_scale, mask, vector, out, elongation, delta,
-                    stress_gradient, stress_tangent):
+                    stress_indptr, stress_nodes, stress_gradient, stress_tangent):
     """out = mask * (mass_scale M + damping_scale D + stiffness_scale (K_springs + K_s) + hg_scale K_hourglass
     + coupling_scale K_c + volume_scale K_v) @ vector, matrix-free from per-spring data.
 
@@ -188,7 +191,7 @@ def spring_operator(springs, unit, stiffness, damping, geometric, mass, mass_sca
                 out[3 * node + 1] += rate * volume_direction[m, n, 1]
                 out[3 * node + 2] += rate * volume_direction[m, n, 2]
     if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:
-        _stress_product(elements, stress_gradient, stress_tangent, stiffness_scale, vector, out)
+        _stress_product(stress_indptr, stress_nodes, stress_gradient, stress_tangent, stiffness_scale, vector, out)
     for s in range(n_springs):
         a, b = springs[s, 0], springs[s, 1]
         u0, u1, u2 = unit[s, 0], unit[s, 1], unit[s, 2]
@@ -225,12 +228,12 @@ def _packed_spring_operator(data, scales, hg_scale, mask, vector, out):
     ``scales[:5]`` and ``hg_scale`` for the hourglass term's CSR arrays in ``data``."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
-     stress_gradient, stress_tangent) = data
+     stress_indptr, stress_nodes, stress_gradient, stress_tangent, _) = data
     spring_operator(springs, unit, stiffness, damping, geometric, mass, scales[0], scales[1], scales[2],
                     elements, edge_spring, correction_matrix, axis_rest_length, scales[3],
                     volume_coefficient, volume_direction, volume_gradient, scales[4],
                     hg_indptr, hg_indices, hg_data, hg_scale, mask, vector, out, elongation, delta,
-                    stress_gradient, stress_tangent)
+                    stress_indptr, stress_nodes, stress_gradient, stress_tangent)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -247,6 +250,35 @@ def apply_operator(data, scales, mask, vector, out):
     apply_packed(data, scales, mask, vector, out)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _stress_matrix_add(indptr, nodes, gradient, tangent, positions, scale, out):
+    """out (pattern data) += scale * B^T T B of every cell (``_stress_product``'s matrix): block (a, b)
+    of cell m is sum_JL b_aJ T[3 i + J, 3 k + L] b_bL, added at ``positions`` (P, 3) (the rows of
+    each of the cell's node pairs, cell by cell, a-major: ``Model.stress_pair_rows``)."""
+    size = 0
+    for m in range(indptr.shape[0] - 1):
+        size = max(size, indptr[m + 1] - indptr[m])
+    h = np.empty((9, size, 3))  # h[r, b, k] = scale sum_L T[r, 3 k + L] b_bL, per cell
+    pair = 0
+    for m in range(indptr.shape[0] - 1):
+        first, count = indptr[m], indptr[m + 1] - indptr[m]
+        for r in range(9):
+            for n in range(count):
+                for k in range(3):
+                    total = 0.0
+                    for ll in range(3):
+                        total += tangent[m, r, 3 * k + ll] * gradient[first + n, ll]
+                    h[r, n, k] = scale * total
+        for a in range(count):
+            b0, b1, b2 = gradient[first + a, 0], gradient[first + a, 1], gradient[first + a, 2]
+            for n in range(count):
+                for i in range(3):
+                    row = positions[pair, i]
+                    for k in range(3):
+                        out[row + k] += b0 * h[3 * i, n, k] + b1 * h[3 * i + 1, n, k] + b2 * h[3 * i + 2, n, k]
+                pair += 1
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def operator_matrix_data(data, scales, spring_positions, element_positions, hg_positions, diagonal_positions, out):
     """``out`` (the model's ``BlockPattern`` data, zeroed here) = the matrix that ``apply_operator``
@@ -259,7 +291,7 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
     in ``out`` (``Model``'s derived arrays)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
-     stress_gradient, stress_tangent) = data
+     stress_indptr, stress_nodes, stress_gradient, stress_tangent, stress_positions) = data
     mass_scale, damping_scale, stiffness_scale = scales[0], scales[1], scales[2]
     coupling_scale, volume_scale, hg_scale = scales[3], scales[4], scales[5]
     out[:] = 0.0
@@ -314,24 +346,9 @@ def operator_matrix_data(data, scales, spring_positions, element_positions, hg_p
                         for j in range(3):
                             out[element_positions[m, k, n, i, j]] += \
                                 coefficient * volume_direction[m, k, i] * volume_gradient[m, n, j]
-    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:  # B^T T B per element
-        n_nodes = stress_gradient.shape[1]
-        h = np.empty((9, n_nodes, 3))
-        for m in range(elements.shape[0]):
-            for r in range(9):
-                for n in range(n_nodes):
-                    for k in range(3):
-                        total = 0.0
-                        for ll in range(3):
-                            total += stress_tangent[m, r, 3 * k + ll] * stress_gradient[m, n, ll]
-                        h[r, n, k] = stiffness_scale * total
-            for a in range(n_nodes):
-                b0, b1, b2 = stress_gradient[m, a, 0], stress_gradient[m, a, 1], stress_gradient[m, a, 2]
-                for n in range(n_nodes):
-                    for i in range(3):
-                        for k in range(3):
-                            out[element_positions[m, a, n, i, k]] += (b0 * h[3 * i, n, k] + b1 * h[3 * i + 1, n, k]
-                                                                      + b2 * h[3 * i + 2, n, k])
+    if stress_tangent.shape[0] != 0 and stiffness_scale != 0.0:  # B^T T B per cell
+        _stress_matrix_add(stress_indptr, stress_nodes, stress_gradient, stress_tangent, stress_positions,
+                           stiffness_scale, out)
     if hg_scale != 0.0:
         for k in range(hg_data.shape[0]):
             out[hg_positions[k]] += hg_scale * hg_data[k]
@@ -348,7 +365,7 @@ def operator_matrix_data_blocks(data, scales, spring_positions, element_position
     element instead of 144 edge pairs of 36 scattered entries (4x fewer operations)."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_data, elongation, delta,
-     stress_gradient, stress_tangent) = data
+     stress_indptr, stress_nodes, stress_gradient, stress_tangent, stress_positions) = data
     coupling_scale = scales[3]
     no_coupling = (scales[0], scales[1], scales[2], 0.0, scales[4], scales[5])
     operator_matrix_data(data, no_coupling, spring_positions, element_positions, hg_positions, diagonal_positions,
@@ -431,14 +448,16 @@ def copy_data(stacked, hg_rows, hg_group, c):
     inside a ``prange`` body."""
     (springs, unit, stiffness, damping, geometric, mass, elements, edge_spring, correction_matrix, axis_rest_length,
      volume_coefficient, volume_direction, volume_gradient, hg_indptr, hg_indices, hg_unused, elongation,
-     delta, stress_gradient, stress_tangent) = stacked
+     delta, stress_indptr, stress_nodes, stress_gradient, stress_tangent, stress_positions) = stacked
     n_springs, n_elements, n_nodes = springs.shape[0], elements.shape[0], mass.shape[0] // hg_group.shape[0]
     a, b = c * n_springs, (c + 1) * n_springs
     e0, e1 = c * n_elements, (c + 1) * n_elements
+    n_cells, nnz = max(stress_indptr.shape[0] - 1, 0), stress_nodes.shape[0]
     return (springs, unit[a:b], stiffness[a:b], damping[a:b], geometric[a:b], mass[c * n_nodes:(c + 1) * n_nodes],
             elements, edge_spring, correction_matrix[e0:e1], axis_rest_length[e0:e1], volume_coefficient[e0:e1],
             volume_direction[e0:e1], volume_gradient[e0:e1], hg_indptr, hg_indices, hg_rows[hg_group[c]],
-            elongation[a:b], delta[a:b], stress_gradient[e0:e1], stress_tangent[e0:e1])
+            elongation[a:b], delta[a:b], stress_indptr, stress_nodes, stress_gradient[c * nnz:(c + 1) * nnz],
+            stress_tangent[c * n_cells:(c + 1) * n_cells], stress_positions)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")

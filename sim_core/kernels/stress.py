@@ -14,7 +14,8 @@ across lanes), so they do not depend on the block size. The per-element branches
 part of a compressed element's stress, with its arccos and cosines, and the positive part of an
 indefinite tangent) run lane by lane.
 
-One body for every pass: ``_block_stress`` (F, its cofactor, P_NH - P_S), ``_block_tangent`` and
+One body for every pass: ``_block_deformation`` (F; ``_cell_deformation`` for cells held in compressed
+rows, the smoothing domains of tetrahedral models), ``_block_law`` (its cofactor, P_NH - P_S), ``_block_tangent`` and
 ``_block_clamp`` are inlined into ``stress_correction_range`` (forces, and with ``tangent`` the
 stiffness), which the single-model passes (``stress_correction_add``,
 ``stress_correction_tangent_add``) and their per-copy threaded versions (``*_copies``: a stacked
@@ -56,13 +57,9 @@ def _spring_image(f, spring_vector, s, m, j):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
-def _block_stress(positions, elements, offset, start, n, gradient, volume, mu, lam, spring_vector, spring_length,
-                  spring_stiffness, linear, f, c, p, det, log_j, inverse_volume):
-    """Elements start .. start + n - 1 of ``elements`` (n, M_local) (lane j: local element start + j,
-    row offset + start + j of the per-element arrays): f, c, p (9, LANES) rows 3 i + J of F,
-    cof F = det F F^-T and P_NH(F) - P_S(F) in Pa, or with ``linear`` P_lin(F) - P_S(F), P_lin the
-    small-strain Hooke stress lam tr(eps) I + 2 mu eps of eps = sym(F) - I; det, log_j (LANES,)
-    det F and ln det F (0 if linear); inverse_volume (LANES,) scratch."""
+def _block_deformation(positions, elements, offset, start, n, gradient, f):
+    """f (9, LANES): rows 3 i + J of F of the elements start .. start + n - 1 of ``elements``
+    (n, M_local) (lane j: local element start + j, row offset + start + j of ``gradient`` (n, 3, M))."""
     for j in range(n):  # F lane by lane in scalars: in the rows of f every term went through memory
         m = offset + start + j
         g = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -72,6 +69,48 @@ def _block_stress(positions, elements, offset, start, n, gradient, volume, mu, l
                           gradient[a, 1, m], gradient[a, 2, m])
         for r in range(9):
             f[r, j] = g[r]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _cell_deformation(positions, indptr, nodes, entry_gradient, start, n, f):
+    """f (9, LANES): rows 3 i + J of F of the cells (smoothing domains) start .. start + n - 1 held
+    in compressed rows: cell d's nodes ``nodes[indptr[d]:indptr[d + 1]]`` with gradients
+    ``entry_gradient`` (nnz, 3) 1/m (``smoothing.SmoothedStrain``)."""
+    for j in range(n):
+        d = start + j
+        g = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        for e in range(indptr[d], indptr[d + 1]):
+            node = nodes[e]
+            g = add_outer(g, positions[node, 0], positions[node, 1], positions[node, 2], entry_gradient[e, 0],
+                          entry_gradient[e, 1], entry_gradient[e, 2])
+        for r in range(9):
+            f[r, j] = g[r]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _cell_scatter(indptr, nodes, entry_gradient, offset, start, n, volume, p, forces):
+    """forces (N, 3) -= V p b_a on the nodes of the cells start .. start + n - 1 (``_cell_deformation``'s
+    compressed rows; their per-cell rows of ``volume`` start at ``offset``)."""
+    for j in range(n):
+        d = start + j
+        v = volume[offset + d]
+        p0, p1, p2, p3, p4, p5, p6, p7, p8 = p[0, j], p[1, j], p[2, j], p[3, j], p[4, j], p[5, j], p[6, j], p[7, j], p[8, j]
+        for e in range(indptr[d], indptr[d + 1]):
+            node = nodes[e]
+            b0, b1, b2 = entry_gradient[e, 0], entry_gradient[e, 1], entry_gradient[e, 2]
+            forces[node, 0] -= v * (p0 * b0 + p1 * b1 + p2 * b2)
+            forces[node, 1] -= v * (p3 * b0 + p4 * b1 + p5 * b2)
+            forces[node, 2] -= v * (p6 * b0 + p7 * b1 + p8 * b2)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _block_law(offset, start, n, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, f, c, p, det,
+               log_j, inverse_volume):
+    """The block's stress from its deformation gradients f (9, LANES) (rows 3 i + J; lane j: row
+    offset + start + j of the per-element arrays): c, p (9, LANES) rows of cof F = det F F^-T and
+    P_NH(F) - P_S(F) in Pa, or with ``linear`` P_lin(F) - P_S(F), P_lin the small-strain Hooke
+    stress lam tr(eps) I + 2 mu eps of eps = sym(F) - I; det, log_j (LANES,) det F and ln det F
+    (0 if linear); inverse_volume (LANES,) scratch."""
     for j in range(n):
         f00, f01, f02 = f[0, j], f[1, j], f[2, j]
         f10, f11, f12 = f[3, j], f[4, j], f[5, j]
@@ -142,7 +181,7 @@ def _block_scatter(elements, offset, start, n, gradient, volume, p, forces):
 def _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, f, c,
                    det, log_j, t, products, row, g, scalars):
     """t (81, LANES): row 9 r + q of lane j the entry (r, q) of T = V0 (A_NH(F) - A_S(F)) of the lane's
-    element (r = 3 i + J: dP_iJ; q = 3 k + L: dF_kL), with f, c, det, log_j from ``_block_stress``:
+    element (r = 3 i + J: dP_iJ; q = 3 k + L: dF_kL), with f, c, det, log_j from ``_block_law``:
     A_NH = mu d_ik d_JL + (mu - lam ln J) G_kJ G_iL + lam G_iJ G_kL (G = F^-T = c / det), or with
     ``linear`` the constant A_lin = lam d_iJ d_kL + mu (d_ik d_JL + d_iL d_kJ), and
     A_S = (1/V0) sum_s k_s [(1 - L_s/l_s) d_ik D_J D_L + (L_s / l_s^3) (F D_s)_i D_J (F D_s)_k D_L].
@@ -505,9 +544,12 @@ def _block_clamp(offset, start, n, volume, root, root_inverse, linear, det, c, p
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
 def stress_correction_range(positions, elements, offset, gradient, volume, mu, lam, spring_vector, spring_length,
-                            spring_stiffness, linear, root, root_inverse, clamp, with_tangent, forces, tangent):
-    """The correction of the elements ``elements`` (n, M_local) (node indices into ``positions``)
-    whose per-element rows start at ``offset``: forces (N, 3) N += their nodal forces and, with
+                            spring_stiffness, linear, root, root_inverse, clamp, with_tangent, forces, tangent, indptr,
+                            cell_nodes, entry_gradient):
+    """The correction of the elements ``elements`` (n, M_local) (node indices into ``positions``),
+    or, where ``indptr`` has rows, of the cells (smoothing domains) in compressed rows ``indptr``
+    (D_local + 1,), ``cell_nodes`` (nnz,), ``entry_gradient`` (nnz, 3) 1/m (``_cell_deformation``),
+    whose per-element (per-cell) rows start at ``offset``: forces (N, 3) N += their nodal forces and, with
     ``with_tangent``, tangent[offset + e] (9, 9) N m = their stiffness on F (``_block_tangent``), with
     ``clamp`` the implicit step's SPD treatment (``_block_clamp``). The per-element arrays are
     element-last (``stress_correction.stress_lanes``): gradient (n, 3, M) b_a in 1/m, volume (M,)
@@ -539,12 +581,20 @@ def stress_correction_range(positions, elements, offset, gradient, volume, mu, l
     square = np.empty((9, 9))
     w = np.empty((9, 9))
     clamped = 0
-    n_elements = elements.shape[1]
+    cells = indptr.shape[0] > 0
+    n_elements = indptr.shape[0] - 1 if cells else elements.shape[1]
     for start in range(0, n_elements, LANES):
         n = min(LANES, n_elements - start)
-        _block_stress(positions, elements, offset, start, n, gradient, volume, mu, lam, spring_vector, spring_length,
-                      spring_stiffness, linear, f, c, p, det, log_j, inverse_volume)
-        _block_scatter(elements, offset, start, n, gradient, volume, p, forces)
+        if cells:
+            _cell_deformation(positions, indptr, cell_nodes, entry_gradient, start, n, f)
+        else:
+            _block_deformation(positions, elements, offset, start, n, gradient, f)
+        _block_law(offset, start, n, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear, f, c, p,
+                   det, log_j, inverse_volume)
+        if cells:
+            _cell_scatter(indptr, cell_nodes, entry_gradient, offset, start, n, volume, p, forces)
+        else:
+            _block_scatter(elements, offset, start, n, gradient, volume, p, forces)
         if with_tangent:
             _block_tangent(offset, start, n, volume, mu, lam, spring_vector, spring_length, spring_stiffness, linear,
                            f, c, det, log_j, t, products, row, g, scalars)
@@ -561,56 +611,63 @@ def stress_correction_range(positions, elements, offset, gradient, volume, mu, l
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
 def stress_correction_add(positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
-                          spring_stiffness, linear, forces):
-    """forces (N, 3) N += every element's stress correction (``stress_correction_range``'s arrays,
-    ``elements`` (n, M) the element nodes, element-last; ``linear`` the law: False neo-Hookean, True
+                          spring_stiffness, linear, indptr, cell_nodes, entry_gradient, forces):
+    """forces (N, 3) N += every element's (cell's) stress correction (``stress_correction_range``'s
+    arrays, ``elements`` (n, M) the element nodes, element-last, or the cells' compressed rows
+    ``indptr``, ``cell_nodes``, ``entry_gradient``; ``linear`` the law: False neo-Hookean, True
     small-strain Hooke, ``stress_correction.StressCorrection``)."""
     stress_correction_range(positions, elements, 0, gradient, volume, mu, lam, spring_vector, spring_length,
                             spring_stiffness, linear, np.empty((0, 3, 3)), np.empty((0, 3, 3)), False, False, forces,
-                            np.empty((0, 9, 9)))
+                            np.empty((0, 9, 9)), indptr, cell_nodes, entry_gradient)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
 def stress_correction_tangent_add(positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
-                                  spring_stiffness, linear, root, root_inverse, clamp, forces, tangent):
-    """``stress_correction_add`` that also writes each element's stiffness on F, tangent (M, 9, 9)
-    N/m * m^2 = V0 (A_NH - A_S), with ``clamp`` the implicit step's SPD treatment (the negative part
-    of its geometric term dropped, and its positive part in the element's displacement metric where
-    that is not enough; docs/physics.md section 11). Returns the number of elements whose positive
-    part was taken."""
+                                  spring_stiffness, linear, indptr, cell_nodes, entry_gradient, root, root_inverse,
+                                  clamp, forces, tangent):
+    """``stress_correction_add`` that also writes each element's (cell's) stiffness on F, tangent
+    (M, 9, 9) N/m * m^2 = V0 (A_NH - A_S), with ``clamp`` the implicit step's SPD treatment (the
+    negative part of its geometric term dropped, and its positive part in the element's displacement
+    metric where that is not enough; docs/physics.md section 11). Returns the number of elements
+    whose positive part was taken."""
     return stress_correction_range(positions, elements, 0, gradient, volume, mu, lam, spring_vector, spring_length,
-                                   spring_stiffness, linear, root, root_inverse, clamp, True, forces, tangent)
+                                   spring_stiffness, linear, root, root_inverse, clamp, True, forces, tangent, indptr,
+                                   cell_nodes, entry_gradient)
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
 def stress_correction_add_copies(count, positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
-                                 spring_stiffness, linear, forces):
+                                 spring_stiffness, linear, indptr, cell_nodes, entry_gradient, forces):
     """``stress_correction_add`` of a stacked model of ``count`` copies (copies first), one copy per numba
-    thread at a time: ``elements`` (n, M_copy) is ONE copy's (local node indices), every other array
-    the stacked model's. The copies are disjoint, so each writes only its own nodes, in the stacked
-    pass's order: the same floats as ``stress_correction_add`` on the stacked model."""
+    thread at a time: ``elements`` (n, M_copy) (or the cells' ``indptr`` and ``cell_nodes``) are ONE
+    copy's (local node indices), every other array the stacked model's (``entry_gradient`` too:
+    each copy's nnz rows in turn). The copies are disjoint, so each writes only its own nodes, in
+    the stacked pass's order: the same floats as ``stress_correction_add`` on the stacked model."""
     n = positions.shape[0] // count
-    n_elements = elements.shape[1]
+    n_elements = indptr.shape[0] - 1 if indptr.shape[0] > 0 else elements.shape[1]
+    nnz = indptr[-1] if indptr.shape[0] > 0 else 0
     empty_root = np.empty((0, 3, 3))
     empty_tangent = np.empty((0, 9, 9))
     for copy in prange(count):
         stress_correction_range(positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu,
                                 lam, spring_vector, spring_length, spring_stiffness, linear, empty_root, empty_root,
-                                False, False, forces[copy * n:(copy + 1) * n], empty_tangent)
+                                False, False, forces[copy * n:(copy + 1) * n], empty_tangent, indptr, cell_nodes,
+                                entry_gradient[copy * nnz:(copy + 1) * nnz])
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
 def stress_correction_tangent_add_copies(count, positions, elements, gradient, volume, mu, lam, spring_vector,
-                                         spring_length, spring_stiffness, linear, root, root_inverse, clamp, forces,
-                                         tangent):
+                                         spring_length, spring_stiffness, linear, indptr, cell_nodes, entry_gradient,
+                                         root, root_inverse, clamp, forces, tangent):
     """``stress_correction_tangent_add`` per copy on numba's threads (``stress_correction_add_copies``'
     layout; the same floats as the stacked pass)."""
     n = positions.shape[0] // count
-    n_elements = elements.shape[1]
+    n_elements = indptr.shape[0] - 1 if indptr.shape[0] > 0 else elements.shape[1]
+    nnz = indptr[-1] if indptr.shape[0] > 0 else 0
     clamped = np.zeros(count, dtype=np.int64)
     for copy in prange(count):
         clamped[copy] = stress_correction_range(
             positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu, lam, spring_vector,
             spring_length, spring_stiffness, linear, root, root_inverse, clamp, True, forces[copy * n:(copy + 1) * n],
-            tangent)
+            tangent, indptr, cell_nodes, entry_gradient[copy * nnz:(copy + 1) * nnz])
     return clamped.sum()

@@ -16,6 +16,7 @@ from .. import kernels
 from .elements import element_blocks
 from ..geometry.mesh import EDGE_AXIS, EDGES, FACES, GAUSS_GRADIENTS, hex_jacobians
 from .model import Model
+from . import smoothing as _smoothing
 from . import stress_correction as _stress
 
 
@@ -151,7 +152,7 @@ class ForceWorkspace:
     step. Owned by one integrator (or one call); the arrays are overwritten by every ``compute``.
     """
 
-    def __init__(self, model: Model, implicit: bool = True):
+    def __init__(self, model: Model, implicit: bool = True, pair_rows: bool = True):
         n_springs, n_elements, n_nodes = len(model.springs), model.mesh.n_elements, model.n_nodes
         self.model = model
         self.length = np.empty(n_springs)
@@ -178,8 +179,11 @@ class ForceWorkspace:
         # filled by a ``compute`` with ``geometric``; empty for the other models
         correction = model.stress_correction
         stressed = correction is not None and implicit
-        self.stress_gradient = correction.mean_gradient if stressed else np.zeros((0, model.mesh.elements.shape[1], 3))
-        self.stress_tangent = np.zeros((n_elements if stressed else 0, 9, 9))
+        self.stress_indptr, self.stress_nodes, self.stress_gradient = model.stress_cells if stressed else _NO_CELLS
+        self.stress_tangent = np.zeros((len(correction.volume) if stressed else 0, 9, 9))
+        # the assembly's positions (a stacked model's copies are assembled on one copy's: ``pair_rows`` False)
+        self.stress_positions = (model.stress_pair_rows if stressed and pair_rows
+                                 else np.zeros((0, 3), dtype=np.int64))
         #: elements whose correction stiffness the last ``compute`` clamped to its positive part
         self.clamped_elements = 0
         hg_indptr, hg_indices, hg_data = self.hourglass_arrays
@@ -188,7 +192,7 @@ class ForceWorkspace:
             model.springs, self.unit, model.stiffness, model.damping, self.geometric, model.mass, model.mesh.elements,
             model.edge_spring, model.correction_matrix, model.axis_rest_length, self.volume_coefficient,
             self.volume_direction, self.volume_gradient, hg_indptr, hg_indices, hg_data, self.elongation, self.delta,
-            self.stress_gradient, self.stress_tangent)
+            self.stress_indptr, self.stress_nodes, self.stress_gradient, self.stress_tangent, self.stress_positions)
 
     def compute(self, positions: np.ndarray, velocities: np.ndarray | None, hourglass: bool = True,
                 geometric: bool = False, volume_jacobian: bool = False, exact: bool = False) -> np.ndarray:
@@ -250,13 +254,25 @@ def stress_arguments(model: Model, elements_of: Model | None = None) -> tuple:
     nodes (n, M) of ``elements_of`` (default ``model``; a stacked model's reference copy for the
     per-copy passes), then ``model``'s correction arrays, element-last
     (``stress_correction.stress_lanes``, kept in ``model.derived``; its per-element volume, mu and
-    lambda as they are) and its law."""
+    lambda as they are), its law, and the cells of a smoothed model (``Model.stress_cells``: the
+    compressed rows of ``elements_of``, the gradients of ``model``), empty for the others."""
     correction = model.stress_correction
     lanes = model.derived.get("stress_lanes", lambda: _stress.stress_lanes(correction))
     owner = model if elements_of is None else elements_of
-    elements = owner.derived.get("element_lanes", lambda: np.ascontiguousarray(owner.mesh.elements.T))
+    if model.smoothing is not None:
+        indptr, nodes, _ = owner.stress_cells
+        elements, gradient = _NO_ELEMENTS, model.smoothing.gradient
+    else:
+        elements = owner.derived.get("element_lanes", lambda: np.ascontiguousarray(owner.mesh.elements.T))
+        indptr, nodes, gradient = _NO_CELLS
     return (elements, lanes["mean_gradient"], correction.volume, correction.shear_modulus, correction.lame,
-            lanes["spring_vector"], lanes["spring_length"], lanes["spring_stiffness"], correction.linear)
+            lanes["spring_vector"], lanes["spring_length"], lanes["spring_stiffness"], correction.linear, indptr, nodes,
+            gradient)
+
+
+#: the compiled passes' placeholders: no element lanes (a smoothed model), no cells (the others)
+_NO_ELEMENTS = np.zeros((0, 0), dtype=np.int64)
+_NO_CELLS = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 3)))
 
 
 def internal_forces(model: Model, positions: np.ndarray, velocities: np.ndarray | None = None,
@@ -317,7 +333,9 @@ def internal_forces_reference(model: Model, positions: np.ndarray, velocities: n
     if model.has_volume_forces:
         volume_force = volume_terms(model, positions)[0]
         total += model.element_scatter @ volume_force.reshape(-1, 3)
-    if model.stress_correction is not None:
+    if model.smoothing is not None:
+        total += _smoothing.domain_forces(model.smoothing, positions)
+    elif model.stress_correction is not None:
         nodal = _stress.element_forces(model.stress_correction, model.mesh.elements, positions)
         total += model.element_scatter @ nodal.reshape(-1, 3)
     if model.hourglass is not None:
@@ -429,7 +447,10 @@ def stiffness_data(
         rank_one = -dphi[:, None, None] * direction.reshape(-1, 24, 1) * grad.reshape(-1, 1, 24)
         rank_one *= stiffness_scale
         element_matrices = rank_one if element_matrices is None else element_matrices + rank_one
-    if model.stress_correction is not None and corrections != "none" and stiffness_scale:
+    if model.smoothing is not None and corrections != "none" and stiffness_scale:
+        matrix = _smoothing.stiffness_matrix(model.smoothing, positions, clamp).tocoo()
+        data += model.pattern.assemble(model.pattern.positions(matrix.row, matrix.col), stiffness_scale * matrix.data)
+    elif model.stress_correction is not None and corrections != "none" and stiffness_scale:
         blocks = stiffness_scale * stress_tangent_blocks(model, positions, clamp)
         element_matrices = blocks if element_matrices is None else element_matrices + blocks
     if element_matrices is not None:

@@ -20,8 +20,9 @@ from .elements import element_block_positions
 from .laws import baudet_stiffness  # noqa: F401  (re-exported: the formulas' users import it from here)
 from .material import Material
 from ..geometry.mesh import EDGES, HexMesh
+from .smoothing import SMOOTHING, SmoothedStrain, cell_pairs, smoothed_strain
 from .sparse import BlockPattern
-from .stress_correction import SPRING_CHOICES, StressCorrection
+from .stress_correction import SPRING_CHOICES, StressCorrection, mean_gradients
 from .terms import (SPRING_SHEAR_MODELS, check_shear_error, correction_coefficients,  # noqa: F401  (re-exported)
                     correction_matrix, hourglass_matrix, hourglass_projectors)
 from ..geometry.tetmesh import TET_EDGES, TetMesh
@@ -63,7 +64,10 @@ class Model:
             it adds f = -K_hg (x - X), which vanishes for every affine displacement [6].
         stress_correction: the per-element arrays of the finite-strain stress correction
             (``stress_correction.StressCorrection``) of "baudet-hyperelastic" [11] and of both
-            tetrahedral models [12], or None.
+            tetrahedral models [12], or None; with ``smoothing``, one row per smoothing domain.
+        smoothing: the smoothing domains (``smoothing.SmoothedStrain``) of a tetrahedral model
+            built with smoothing="edge-node" [12], or None: the stress correction then acts on
+            the domains' deformation gradients instead of the elements'.
     """
 
     mesh: HexMesh | TetMesh
@@ -86,6 +90,7 @@ class Model:
     hourglass: sp.csr_matrix | None = None
     options: dict = field(default_factory=dict)
     stress_correction: StressCorrection | None = None
+    smoothing: SmoothedStrain | None = None
 
     def __post_init__(self):
         n_nodes = self.mesh.n_nodes
@@ -102,7 +107,8 @@ class Model:
             (np.ones(elements.size), (elements.ravel(), np.arange(elements.size))),
             shape=(n_nodes, elements.size),
         )
-        pattern = BlockPattern(n_nodes, elements)
+        # a smoothing domain couples every pair of its nodes (nodes two edges apart, outside the elements)
+        pattern = BlockPattern(n_nodes, elements, None if self.smoothing is None else self.smoothing.pairs())
         spring_positions = np.stack(
             [pattern.block_positions(a, a), pattern.block_positions(b, b),
              pattern.block_positions(a, b), pattern.block_positions(b, a)], axis=1
@@ -146,6 +152,41 @@ class Model:
     @property
     def rest_positions(self) -> np.ndarray:
         return self.mesh.nodes
+
+    @property
+    def pattern_density(self) -> float:
+        """The pattern's entries over those of the elements' node pairs alone: 1, or more where the
+        smoothing domains couple nodes two edges apart (the implicit step's LU fills that much more,
+        ``preconditioners.auto_switch_iterations``)."""
+        if self.smoothing is None:
+            return 1.0
+        return self.derived.get("pattern_density",
+                                lambda: self.pattern.nnz / BlockPattern(self.n_nodes, self.mesh.elements).nnz)
+
+    @property
+    def stress_cells(self) -> tuple:
+        """The cells the stress correction acts on, in compressed rows: (indptr (C + 1,), nodes
+        (nnz,), gradients (nnz, 3) 1/m) with cell c's deformation gradient the sum over its entries
+        of x_a (outer) b_a: the elements (n entries each, ``StressCorrection.mean_gradient``) or
+        the smoothing domains. The implicit operator's and the assembly's view (``kernels.OperatorData``)."""
+        def build():
+            if self.smoothing is not None:
+                return self.smoothing.indptr, self.smoothing.nodes, self.smoothing.gradient
+            gradient = self.stress_correction.mean_gradient
+            count, n = gradient.shape[:2]
+            return (np.arange(0, count * n + 1, n, dtype=np.int64),
+                    np.ascontiguousarray(self.mesh.elements.reshape(-1), dtype=np.int64), gradient.reshape(-1, 3))
+        return self.derived.get("stress_cells", build)
+
+    @property
+    def stress_pair_rows(self) -> np.ndarray:
+        """(P, 3) int64: for every cell's node pair (a, b) (cell by cell, a-major, ``stress_cells``'
+        entry order), the positions in the ``pattern``'s data of the entries (3 a + i, 3 b), i = 0..2
+        (the block's row i continues at + 1, + 2): where the assembly adds B^T T B."""
+        def build():
+            a, b = cell_pairs(*self.stress_cells[:2]).T
+            return np.ascontiguousarray(self.pattern.positions(3 * a[:, None] + np.arange(3), 3 * b[:, None]))
+        return self.derived.get("stress_pair_rows", build)
 
     @property
     def n_nodes(self) -> int:
@@ -292,6 +333,7 @@ def build_model(
     hourglass_control: float = 0.0,
     springs: str = "faces",
     max_shear_error: float | None = MAX_SHEAR_ERROR,
+    smoothing: str | None = None,
 ) -> Model:
     """Build a mass-spring ``Model`` once from geometry and material.
 
@@ -335,6 +377,12 @@ def build_model(
             box, and the tetrahedral path, ``TetMesh``). Default ``MAX_SHEAR_ERROR`` (5%: elements
             1:1:a with a in about [0.96, 1.04]); None accepts any box (ablations of the known shear
             error). The other models ignore it [2].
+        smoothing: ``TetMesh`` only: "edge-node" (the default on tetrahedra) evaluates the law on
+            deformation gradients smoothed over domains around the edges (its deviatoric part) and
+            the nodes (its volumetric part), so that the tetrahedra neither lock near nu = 0.5 nor
+            stiffen in bending; the edge springs then only damp (their stiffness, which sets the
+            damping of section 5, is not added to the elastic forces). "none": each tetrahedron's
+            own F, exactly linear-tetrahedron FEM (which locks) [12].
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
@@ -342,6 +390,14 @@ def build_model(
         raise ValueError(f"mesh must be a HexMesh or a TetMesh, got {type(mesh).__name__}")
     options = (_tet_options if isinstance(mesh, TetMesh) else _hex_options)(
         model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, hourglass_control, springs)
+    if isinstance(mesh, TetMesh):
+        smoothing = "edge-node" if smoothing is None else smoothing
+        if smoothing not in SMOOTHING:
+            raise ValueError(f"smoothing must be one of {SMOOTHING} on a TetMesh, got {smoothing!r}")
+        options["smoothing"] = smoothing
+    elif smoothing is not None:
+        raise ValueError(f"smoothing={smoothing!r} applies to a TetMesh only (a hexahedral model's stress correction "
+                         "does not lock); leave it unset")
     gravity = finite_array("gravity", gravity, shape=(3,))
     tetrahedra = isinstance(mesh, TetMesh)
     hyperelastic = model == "baudet-hyperelastic"
@@ -359,10 +415,17 @@ def build_model(
     if corrections and not tetrahedra:
         w, correction_mode = terms.baudet_corrections(model, axis_rest_length, young_modulus, poisson_ratio,
                                                       nu_factor)
-    correction = None
-    if corrections and (hyperelastic or tetrahedra):
-        correction = terms.stress_correction(mesh, local_pairs, values, young_modulus, poisson_ratio,
-                                             "neo-hookean" if hyperelastic else "linear")
+    correction = smoothed = None
+    law = "neo-hookean" if hyperelastic else "linear"
+    if corrections and tetrahedra and options["smoothing"] == "edge-node":
+        gradient, volume = mean_gradients(mesh.nodes, mesh.elements)
+        shear, lame = terms.lame_parameters(young_modulus, poisson_ratio)
+        smoothed = smoothed_strain(mesh.nodes, mesh.elements, edge_spring, len(spring_pairs), gradient, volume, shear,
+                                   lame, law)
+        correction = smoothed.law
+        stiffness = np.zeros_like(stiffness)  # the domains carry the whole elasticity; the springs damp [12]
+    elif corrections and (hyperelastic or tetrahedra):
+        correction = terms.stress_correction(mesh, local_pairs, values, young_modulus, poisson_ratio, law)
     kappa = (terms.volume_stiffness(young_modulus, poisson_ratio, rest_volume, options["volume_stiffness"])
              if options["volume_conservation"] else np.zeros(mesh.n_elements))
     hourglass = None
@@ -374,7 +437,7 @@ def build_model(
         axis_rest_length=axis_rest_length, correction_matrix=w, correction_mode=correction_mode,
         rest_volume=rest_volume, volume_stiffness=kappa, gravity=gravity,
         young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
-        options=dict(corrections=corrections, **options), stress_correction=correction,
+        options=dict(corrections=corrections, **options), stress_correction=correction, smoothing=smoothed,
     )
 
 

@@ -31,9 +31,10 @@ class BlockPattern:
         elements: (M, n) node indices (n = 8 hexahedra, 4 tetrahedra); every pair of nodes within an
             element is coupled, and every node with itself (a node of no element too: a stack's
             parked node rows, a node a cut left alone).
+        extra_pairs: (P, 2) further coupled node pairs (a tetrahedral model's smoothing domains).
     """
 
-    def __init__(self, n_nodes: int, elements: np.ndarray):
+    def __init__(self, n_nodes: int, elements: np.ndarray, extra_pairs: np.ndarray | None = None):
         self.n_nodes = n_nodes
         self.n_dofs = 3 * n_nodes
         n = elements.shape[1]
@@ -41,7 +42,8 @@ class BlockPattern:
             [np.repeat(elements, n, axis=1).ravel(), np.tile(elements, (1, n)).ravel()], axis=1
         )
         own = np.repeat(np.arange(n_nodes), 2).reshape(-1, 2)
-        pairs = np.unique(np.concatenate([pairs, own]), axis=0)
+        extra = np.zeros((0, 2), dtype=pairs.dtype) if extra_pairs is None else np.asarray(extra_pairs, pairs.dtype)
+        pairs = np.unique(np.concatenate([pairs, own, extra]), axis=0)
         rows = (3 * pairs[:, 0, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
         cols = (3 * pairs[:, 1, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
         matrix = sp.csr_matrix(

@@ -24,6 +24,7 @@ from .. import kernels
 from .forces import ForceWorkspace, hourglass_block_map, stress_arguments
 from .model import Control, Model, State
 from ..caches import digest
+from .smoothing import SmoothedStrain
 from .stress_correction import ARRAY_FIELDS, StressCorrection, write_lanes
 
 
@@ -86,6 +87,9 @@ def same_topology(model: Model, reference: Model) -> bool:
             and (model.stress_correction is None or (model.stress_correction.spring_vector.shape
                  == reference.stress_correction.spring_vector.shape
                  and model.stress_correction.law == reference.stress_correction.law))
+            and (model.smoothing is None) == (reference.smoothing is None)
+            and (model.smoothing is None or (np.array_equal(model.smoothing.indptr, reference.smoothing.indptr)
+                                             and np.array_equal(model.smoothing.nodes, reference.smoothing.nodes)))
             and np.array_equal(model.springs, reference.springs)
             and np.array_equal(model.edge_spring, reference.edge_spring)
             and np.array_equal(model.mesh.elements, reference.mesh.elements))
@@ -139,10 +143,21 @@ class ModelStack:
             stress = StressCorrection(**{name: np.ascontiguousarray(np.concatenate(
                 [getattr(model.stress_correction, name)] * count)) for name in STRESS_FIELDS},
                 law=model.stress_correction.law)
+        #: stress-correction rows per world (its elements, or its smoothing domains)
+        self.n_cells = 0 if stress is None else len(model.stress_correction.volume)
+        smoothing = None
+        if model.smoothing is not None:  # the worlds' domains side by side, as the elements
+            single = model.smoothing
+            nnz = len(single.nodes)
+            self.n_entries = nnz
+            smoothing = SmoothedStrain(
+                indptr=np.concatenate([[0], (single.indptr[1:][None] + nnz * np.arange(count)[:, None]).ravel()]),
+                nodes=(single.nodes[None] + self.n_nodes * np.arange(count)[:, None]).ravel(),
+                gradient=np.ascontiguousarray(np.tile(single.gradient, (count, 1))), law=stress)
         self.model = StackedModel(
             mesh=type(model.mesh)(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
-            options=dict(model.options), stress_correction=stress, **values,
+            options=dict(model.options), stress_correction=stress, smoothing=smoothing, **values,
         )
         # slots of each copy in the per-dof arrays the Model derived at construction
         self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
@@ -204,11 +219,14 @@ class ModelStack:
             getattr(stacked, name)[index * len(single):(index + 1) * len(single)] = single
         elements = slice(index * self.n_elements, (index + 1) * self.n_elements)
         if model.stress_correction is not None:
+            cells = slice(index * self.n_cells, (index + 1) * self.n_cells)
             for name in STRESS_FIELDS:
-                getattr(stacked.stress_correction, name)[elements] = getattr(model.stress_correction, name)
+                getattr(stacked.stress_correction, name)[cells] = getattr(model.stress_correction, name)
             lanes = stacked.derived.peek("stress_lanes")
             if lanes is not None:  # the compiled passes' element-last copy of the same arrays
-                write_lanes(lanes, model.stress_correction, elements)
+                write_lanes(lanes, model.stress_correction, cells)
+        if model.smoothing is not None:
+            stacked.smoothing.gradient[index * self.n_entries:(index + 1) * self.n_entries] = model.smoothing.gradient
         nodes = slice(index * self.n_nodes, (index + 1) * self.n_nodes)
         # the rest geometry (the reference's for a model of the same block; the force passes read it
         # in place: the hourglass term's rest positions, the fixed corrections' rest directions). The
@@ -279,7 +297,7 @@ class StackedForceWorkspace(ForceWorkspace):
     hold, so a copy's forces are bitwise those of the same world alone."""
 
     def __init__(self, stack: ModelStack, implicit: bool = True, threads: int = 1):
-        super().__init__(stack.model, implicit=implicit)
+        super().__init__(stack.model, implicit=implicit, pair_rows=False)
         self.stack = stack
         #: the hourglass pass runs on numba's threads when ``kernels.threaded(threads)``
         self.threads = int(threads)

@@ -360,16 +360,19 @@ def element_forces(correction: StressCorrection, elements: np.ndarray, positions
 
 def tangent_matrices(correction: StressCorrection, elements: np.ndarray, positions: np.ndarray,
                      clamp: bool = False) -> np.ndarray:
+    """``tangent_matrices_at`` the elements' mean deformation gradients at ``positions`` (N, 3) m."""
+    return tangent_matrices_at(correction, deformation_gradients(correction, elements, positions), clamp)
+
+
+def tangent_matrices_at(correction: StressCorrection, f: np.ndarray, clamp: bool = False) -> np.ndarray:
     """(M, 9, 9) T = V0 (A_NH(F) - A_S(F)) in N m (row 3 i + J, column 3 k + L: dP_iJ / dF_kL times
-    V0), the correction's stiffness on its element's F: K_e = B^T T B. ``clamp``: the implicit
+    V0), the correction's stiffness on its element's F (M, 3, 3): K_e = B^T T B. ``clamp``: the implicit
     step's SPD treatment (docs/physics.md section 11, ``kernels.stress_correction_tangent_add``):
     (1) its geometric term V0 d_ik dS_JL (dS = F^-1 (P_NH - P_S)) loses its negative part, as the
     springs' geometric term does where they are compressed; (2) where the result is still not
     positive semi-definite (beyond -1e-12 of its trace), its positive part as a 24 x 24 block: with
     S = I_3 (x) R (``StressCorrection.metric_root``), B = S Q with orthonormal rows Q, so
     (B^T T B)_+ = B^T S^-1 (S T S)_+ S^-1 B. The numpy reference of the compiled pass."""
-
-    f = deformation_gradients(correction, elements, positions)
     tangent = law_tangent(correction, f) - spring_tangent(correction, f)
     tangent = correction.volume[:, None, None] * tangent.reshape(-1, 9, 9)
     if clamp and not correction.linear:  # the small-strain law has no geometric term

@@ -652,12 +652,15 @@ class ImplicitEuler(WorldsSolver):
             values = stack.copies_last()
             hg_rows = np.ascontiguousarray(values["hourglass"].T)
             hg_indptr, hg_indices, _ = reference.hourglass_arrays
+            stressed = len(workspace.stress_tangent) > 0  # one copy's cells and pair rows, every copy's values
+            cells = reference.stress_cells if stressed else (workspace.stress_indptr, workspace.stress_nodes)
+            pair_rows = reference.stress_pair_rows if stressed else workspace.stress_positions
             stacked = kernels.OperatorData(
                 reference.springs, workspace.unit, model.stiffness, model.damping, workspace.geometric, model.mass,
                 reference.mesh.elements, reference.edge_spring, model.correction_matrix, model.axis_rest_length,
                 workspace.volume_coefficient, workspace.volume_direction, workspace.volume_gradient, hg_indptr,
-                hg_indices, hg_rows[0], workspace.elongation, workspace.delta, workspace.stress_gradient,
-                workspace.stress_tangent)
+                hg_indices, hg_rows[0], workspace.elongation, workspace.delta, *cells[:2], workspace.stress_gradient,
+                workspace.stress_tangent, pair_rows)
             self._first = (stack.version, (stacked, hg_rows, values["hourglass_group"]))
         return self._first[1]
 
@@ -710,7 +713,8 @@ class ImplicitEuler(WorldsSolver):
         limits = np.where(fresh, self.max_iterations, np.minimum(self._threshold, self.max_iterations))
         if self.preconditioner == "auto":  # Jacobi until auto_switch_iterations, up to AUTO_MAX_DOFS free dofs
             free = np.count_nonzero(free_rows, axis=1)
-            switch = np.where(free <= AUTO_MAX_DOFS, auto_switch_iterations(free), self.max_iterations)
+            switch = np.where(free <= AUTO_MAX_DOFS, auto_switch_iterations(free, self.stack.reference.pattern_density),
+                              self.max_iterations)
             limits = np.where(jacobi, np.minimum(switch, self.max_iterations), limits)
         else:
             limits = np.where(jacobi, self.max_iterations, limits)

@@ -14,13 +14,15 @@ from ..models.model import Model
 from ..models.sparse import NodeBlockLU
 
 
-def auto_switch_iterations(n_free):
+def auto_switch_iterations(n_free, density=1.0):
     """Jacobi iterations above which "auto" switches to the factorised preconditioner: where the
     two step times cross, which moves to more iterations as the mesh grows (an LU solve costs more,
     relative to an operator product, as the fill grows): 5 sqrt(n_free / 400), at least 6, fitted
-    to where they crossed in interleaved timings (docs/performance_notes.md). ``n_free``: an int or
-    an array (one per world)."""
-    return np.maximum(6, np.rint(5.0 * np.sqrt(np.asarray(n_free) / 400.0)).astype(np.int64))
+    to where they crossed in interleaved timings (docs/performance_notes.md), times ``density``,
+    the model's node-pair blocks per row over those of its elements alone (``Model.pattern_density``:
+    smoothed tetrahedra couple nodes two edges apart, and their LU fills and costs that much more).
+    ``n_free``: an int or an array (one per world)."""
+    return np.maximum(6, np.rint(5.0 * density * np.sqrt(np.asarray(n_free) / 400.0)).astype(np.int64))
 
 
 #: "auto" stays with Jacobi above this many free dofs (LU fill and memory grow like dofs^(4/3)).
