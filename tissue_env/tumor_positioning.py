@@ -242,7 +242,10 @@ class TumorPositioningEnv(TissueEnv):
     ``"goal"`` (goal-conditioned, for hindsight experience replay): a ``Dict`` of ``observation``
     (the 24 values above, float32), ``achieved_goal`` (the tumour position, indices 11-13) and
     ``desired_goal`` (the goal position, indices 14-16), both ``Box(-100, 100, (3,), float64)`` in
-    cm from the block centre. ``env.unwrapped.compute_reward(achieved_goal, desired_goal, info)``
+    cm from the block centre. ``env.compute_reward(achieved_goal, desired_goal, info)`` (on
+    ``gym.make``'s env too: its ``TimeLimit``, ``OrderEnforcing`` and ``PassiveEnvChecker`` forward
+    it, ``tissue_env.goal``, so SB3's ``check_env`` and ``HerReplayBuffer`` take that env as it is;
+    a wrapper of your own does not: use ``env.get_wrapper_attr("compute_reward")`` there)
     recomputes the reward of a step for any goals, vectorised over a batch of goals (..., 3) with
     one info or one per goal (a list or an object array, as SB3's ``HerReplayBuffer`` passes them
     with ``copy_info_dict=True``): the distance and success terms from the goals, the volume,
