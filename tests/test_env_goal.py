@@ -14,6 +14,9 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 import tissue_env  # noqa: F401  (registers the ids)
 
 POSITIONING = "tissue_env/TumorPositioning-v0"
+#: every registered task that takes observation_type="goal"
+GOAL_IDS = [env_id for env_id, (entry_point, _) in sorted(tissue_env.ENV_IDS.items())
+            if "goal" in gym.envs.registration.load_env_creator(entry_point).observation_types()]
 
 
 def goal_env(**kwargs):
@@ -35,13 +38,44 @@ def steps(env, seed, count, rng, scripted_every=0):
     return out
 
 
-def test_goal_env_passes_the_gymnasium_and_sb3_checkers_without_warnings():
+def test_the_goal_tasks_are_the_ones_with_goal_features():
+    assert GOAL_IDS == [POSITIONING]
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_goal_env_from_gym_make_passes_the_gymnasium_and_sb3_checkers_without_warnings(env_id):
+    """SB3's checker calls ``env.compute_reward`` on the env it is given: gym.make's env (inside
+    PassiveEnvChecker, OrderEnforcing and TimeLimit) passes it as the bare env does (it raised
+    "'TimeLimit' object has no attribute 'compute_reward'")."""
     sb3_env_checker = pytest.importorskip("stable_baselines3.common.env_checker")
-    env = goal_env().unwrapped  # SB3's checker calls compute_reward on the env it is given
+    wrapped = gym.make(env_id, observation_type="goal")
+    assert isinstance(wrapped, gym.wrappers.TimeLimit)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        gym_check_env(env, skip_render_check=True)
-        sb3_env_checker.check_env(env, warn=True)
+        gym_check_env(wrapped.unwrapped, skip_render_check=True)  # gymnasium's asks for the bare env
+        for env in (wrapped, wrapped.unwrapped):
+            sb3_env_checker.check_env(env, warn=True)
+
+
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_gym_make_wrappers_forward_compute_reward_and_only_a_goal_envs(env_id):
+    """Every wrapper gym.make puts around a goal env gives the env's own compute_reward; the same
+    wrappers around an env without one (the state observation, another package's env) have none,
+    so goal-env detection by hasattr stays right; gym.make_vec keeps the vector entry point."""
+    env = gym.make(env_id, observation_type="goal")
+    layer = env
+    while layer is not env.unwrapped:
+        assert layer.compute_reward == env.unwrapped.compute_reward
+        layer = layer.env
+    observation, _ = env.reset(seed=0)
+    observation, reward, _, _, info = env.step(env.action_space.sample())
+    assert env.compute_reward(observation["achieved_goal"], observation["desired_goal"], info) == reward
+    for other in (gym.make(env_id), gym.make("CartPole-v1")):
+        assert not hasattr(other, "compute_reward")
+    assert not gym.make(env_id).has_wrapper_attr("compute_reward")
+    vector = gym.make_vec(env_id, num_envs=2, observation_type="goal")  # default mode: vector_entry_point
+    assert isinstance(vector, tissue_env.TissueVectorEnv) and hasattr(vector, "compute_reward")
+    vector.close()
 
 
 def test_compute_reward_equals_the_step_reward_single_and_batched():
@@ -174,22 +208,24 @@ def test_compute_reward_exists_only_for_goal_observations_and_checks_its_input()
         compute(achieved[:2], desired[:2], info)
 
 
-def test_her_replay_buffer_trains_on_the_goal_env():
-    """SAC with stable-baselines3's HerReplayBuffer samples relabelled transitions, whose rewards it
-    asks of compute_reward with an array of infos (copy_info_dict=True)."""
+@pytest.mark.parametrize("env_id", GOAL_IDS)
+def test_her_replay_buffer_trains_on_the_gym_make_env(env_id):
+    """SAC with stable-baselines3's HerReplayBuffer, given gym.make's env itself (SB3 wraps it in
+    Monitor and DummyVecEnv), over 200 steps (4 episodes): it samples relabelled transitions, whose
+    rewards it asks of compute_reward with an array of infos (copy_info_dict=True)."""
     sb3 = pytest.importorskip("stable_baselines3")
-    from stable_baselines3.common.env_util import make_vec_env
 
-    env = make_vec_env(lambda: goal_env(), n_envs=1, seed=0)
-    model = sb3.SAC("MultiInputPolicy", env, learning_starts=60, batch_size=32, buffer_size=1000, seed=0,
+    env = gym.make(env_id, observation_type="goal")
+    model = sb3.SAC("MultiInputPolicy", env, learning_starts=150, batch_size=32, buffer_size=1000, seed=0,
                     replay_buffer_class=sb3.HerReplayBuffer, policy_kwargs=dict(net_arch=[16, 16]),
                     replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future", copy_info_dict=True))
-    model.learn(total_timesteps=80)
+    model.learn(total_timesteps=200)
+    assert model.num_timesteps == 200 and model.replay_buffer.size() == 200
     samples = model.replay_buffer.sample(64)
     assert np.all(np.isfinite(samples.rewards.numpy()))
     # relabelled goals reach the success bonus: some virtual transitions are successes
     assert samples.rewards.numpy().max() > 4.0
-    env.close()
+    model.get_env().close()
 
 
 def test_the_her_hyperparameter_file_builds_a_her_run(tmp_path):

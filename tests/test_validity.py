@@ -2,6 +2,8 @@
 flagged in every info, never silent; a reset that cannot start a meaningful episode raises; an
 observation entry beyond its bound is flagged, and none is at the defaults."""
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -98,3 +100,60 @@ def test_defaults_flag_exactly_the_steps_beyond_the_validated_strain_and_clip_no
     _, infos = vector.reset(seed=0)
     assert infos["out_of_range"].shape == (2,) and infos["observation_clipped"].dtype == bool
     vector.close()
+
+
+@pytest.mark.parametrize("kwargs, cause, advice", [
+    # measured on TumorPositioning's 5 cm block: Newton carries 79% of the weight at E = 300 Pa (a sag
+    # of 1.7 block sizes; with shape (10, 10, 10) it fails the same), 14% at density 1e5 kg/m^3
+    (dict(young_modulus=300.0), "too soft for its weight (young_modulus 300 Pa)", "young_modulus 7.6e+02 Pa or more"),
+    (dict(density=1e5), "too heavy for its stiffness (density 100000 kg/m^3", "density 7e+03 kg/m^3 or less"),
+])
+def test_a_tissue_that_cannot_carry_its_weight_is_told_the_cause_and_the_knob(kwargs, cause, advice):
+    """The start equilibrium fails: the message says too soft or too heavy (density above a tissue's),
+    how far it sags against the block, and the stiffness or density that would carry it; it does
+    not send the user to a finer mesh or a softer material."""
+    env = gym.make("tissue_env/TumorPositioning-v0", **kwargs)
+    with pytest.raises(ValueError, match="no start equilibrium under gravity") as error:
+        env.reset(seed=0)
+    message = str(error.value)
+    assert cause in message and "times the block's largest side" in message
+    assert advice in message, message
+    assert "a finer mesh does not help" in message and "softer" not in message
+
+
+def test_a_tumour_too_heavy_to_move_to_a_goal_is_told_the_cause_and_the_knobs():
+    """TumorPositioning at density 1e4 kg/m^3 (E = 5 kPa) carries its weight but sags 0.98 block
+    sizes, and no tool displacement has an equilibrium: the reset names the weight, the measured
+    sag up to which goals are reached, and the stiffness, density or goal_displacement to change."""
+    env = gym.make("tissue_env/TumorPositioning-v0", density=1e4)
+    with pytest.raises(ValueError, match="no reachable goal") as error:
+        env.reset(seed=0)
+    message = str(error.value)
+    assert "too heavy for its stiffness" in message and "0.98 times the block's largest side" in message
+    assert "young_modulus 1.2e+04 Pa or more" in message and "density 4.1e+03 kg/m^3 or less" in message
+    assert "smaller goal_displacement" in message
+    gym.make("tissue_env/TumorPositioning-v0", density=4000.0).reset(seed=0)  # the advised density reaches goals
+
+
+@pytest.mark.parametrize("kwargs", [dict(dt=0.01), dict(dt=0.001, density=1.0)])
+def test_an_explicit_step_too_long_for_the_tissue_says_so_and_how_long_it_may_be(kwargs):
+    """The explicit integrator at dt = 10 ms (default tissue), or 1 ms on a 1 kg/m^3 tissue,
+    diverges at the first steps: the unstable reason names the time step against the tissue's
+    stable-step bound and the step (or integrator) to use; that step does not diverge."""
+    env = gym.make("tissue_env/TumorPositioning-v0", integrator="explicit", shape=(3, 3, 3), **kwargs)
+    env.reset(seed=0)
+    for _ in range(5):
+        _, _, terminated, _, info = env.step(env.unwrapped.scripted_action())
+        if terminated:
+            break
+    assert info["unstable"]
+    reason = info["unstable_reason"]
+    match = re.search(r"is above the bound on this tissue's stable step .* use dt ([0-9.e+-]+) s or less, "
+                      r"or integrator='implicit'", reason)
+    assert match and "too stiff or too light for the time step" in reason, reason
+    advised = float(match.group(1))
+    assert advised < kwargs["dt"]
+    env = gym.make("tissue_env/TumorPositioning-v0", integrator="explicit", shape=(3, 3, 3), **dict(kwargs, dt=advised))
+    env.reset(seed=0)
+    for _ in range(5):
+        assert not env.step(env.unwrapped.scripted_action())[4]["unstable"]

@@ -21,6 +21,7 @@ stable-baselines3 (``pip install "tissue-gym[train]"``) and is not imported here
 import gymnasium
 
 from .base import TissueEnv
+from .goal import forward_compute_reward
 from .liver_needle import LiverNeedleAlignmentEnv, LiverNeedleAlignmentVectorEnv
 from .palpation import PalpationEnv, PalpationVectorEnv
 from .retraction import RetractionEnv, RetractionVectorEnv
@@ -41,6 +42,9 @@ VECTOR_ENTRY_POINTS = {
     "tissue_env/Retraction-v0": "tissue_env.retraction:RetractionVectorEnv",
     "tissue_env/LiverNeedleAlignment-v0": "tissue_env.liver_needle:LiverNeedleAlignmentVectorEnv",
 }
+
+# gym.make's wrappers forward a goal env's compute_reward (tissue_env.goal: SB3's check_env and HER)
+forward_compute_reward()
 
 for _env_id, (_entry_point, _max_steps) in ENV_IDS.items():
     if _env_id not in gymnasium.registry:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import itertools
+import re
 import threading
 import warnings
 from collections import OrderedDict
@@ -66,8 +67,23 @@ MODEL_CACHE_SIZE = 16
 #: rounding steps of the node positions failed for precision, not strength (E = 1e12 Pa on a 5 cm
 #: block: 2.4e6 steps, Newton's residual stalls at 2e-3; E = 1e10 Pa: 2.4e8, it converges)
 SAG_RESOLUTION = 1e8
+#: Soft tissue is about 1000-1100 kg/m^3: a start equilibrium that fails for a denser material is
+#: told it is too heavy for its stiffness, for a lighter one that it is too soft for its weight.
+TISSUE_DENSITY_MAX = 2000.0
+#: The suggested stiffness (density) when the start equilibrium fails: this factor above (below)
+#: the value over the fraction of its weight Newton carried (the sag scales as density / E;
+#: measured: TumorPositioning carried 26% at E = 100 Pa and 79% at 300 Pa, both pointing at about
+#: 380 Pa; Palpation's density = 29300 kg/m^3 carried 99% of its weight and still failed).
+WEIGHT_SAFETY = 2.0
 #: the model's derived-data entry holding an env's start positions (its equilibrium under gravity)
 _START = "env_start_positions"
+
+
+def load_level(message):
+    """The load level (the fraction of the load) at which ``solve_static``'s Newton stopped, read
+    from its ``message`` ("Newton did not converge at load level 0.2617 ..."); None if it says none."""
+    match = re.search(r"load level ([0-9.eE+-]+)", message or "")
+    return float(match.group(1)) if match else None
 
 
 # -- argument checks (ValueError naming the keyword) -------------------------------------------
@@ -717,9 +733,32 @@ class TissueEnv(gym.Env):
                 f"the tissue is too stiff for double precision, its sag (about {sag:.1e} m) is within "
                 f"{SAG_RESOLUTION:.0e} rounding steps ({rounding:.1e} m) of its node positions; use a softer "
                 "material (soft tissue is 1e2 to 1e6 Pa) or more gravity")
-        raise ValueError(
-            f"the block has no start equilibrium under gravity ({result.message}) with {material}: the tissue "
-            "cannot carry its own weight; use a stiffer or lighter material, a smaller block or less gravity")
+        raise ValueError(f"the block has no start equilibrium under gravity ({result.message}) with {material}: "
+                         + self._weight_advice(sag, load_level(result.message)))
+
+    def _weight_advice(self, sag, carried=None):
+        """The cause and the knobs of a tissue that cannot carry its own weight: too soft for it, or
+        (denser than TISSUE_DENSITY_MAX) too heavy for its stiffness, its sag ``sag`` (m, rho g
+        L^2 / E) against the block's size, and the stiffness or density that would carry it
+        (WEIGHT_SAFETY over the ``carried`` fraction of the weight, when known)."""
+        length = float(np.max(self.episode_size))
+        modulus, density = self.episode_young_modulus, self.episode_density
+        heavy = density > TISSUE_DENSITY_MAX
+        cause = (f"the tissue is too heavy for its stiffness (density {density:g} kg/m^3; soft tissue is about "
+                 f"1000-1100)" if heavy else f"the tissue is too soft for its weight (young_modulus {modulus:g} Pa)")
+        text = (f"{cause}: it cannot carry its own weight, its sag under gravity (rho g L^2 / E) is about "
+                f"{sag:.2g} m, {sag / length:.2g} times the block's largest side ({length:g} m)")
+        if carried is not None and 0.0 < carried < 1.0:
+            factor = WEIGHT_SAFETY / carried
+            text += (f", and the static solve carried {carried:.0%} of it. Use a stiffer material (young_modulus "
+                     f"{modulus * factor:.2g} Pa or more) or a lighter one (density {density / factor:.2g} kg/m^3 "
+                     f"or less)")
+        else:
+            text += ". Use a stiffer or lighter material"
+        ranges = [name for name in ("young_modulus_range", "density_range") if getattr(self, name, None) is not None]
+        if ranges:
+            text += f" (with {' and '.join(ranges)}: the range's soft or heavy end)"
+        return text + ", a smaller block or less gravity; a finer mesh does not help (the load is the same)"
 
     def scripted_action(self) -> np.ndarray:
         """A hand-written controller's action for the current state (a baseline)."""

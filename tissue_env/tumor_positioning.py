@@ -8,8 +8,8 @@ from sim_core import solve_static
 from sim_core.solvers.static import FactorCache
 from sim_core.geometry.mesh import LOCAL_CORNERS
 
-from .base import (TissueEnv, check_range, check_region, check_vector, difficulty_settings, nonnegative_scalar,
-                   positive_scalar)
+from .base import (TISSUE_DENSITY_MAX, TissueEnv, check_range, check_region, check_vector, difficulty_settings,
+                   nonnegative_scalar, positive_scalar)
 from .camera import VISUAL_TYPES
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
@@ -27,6 +27,11 @@ GOAL_SOLVER = dict(chord_contraction=0.95, acceleration=5, max_load_steps=8)
 GOAL_RETRY_SOLVER = dict(GOAL_SOLVER, max_load_steps=2, max_iterations=20)
 #: Random goal directions a reset tries before it says that no goal is reachable (``_start_hook``).
 GOAL_ATTEMPTS = 5
+#: The sag under gravity (rho g L^2 / E), in block sizes, up to which the default goals are reached
+#: (measured on the default block: 0.52 at E = 1000 Pa and 0.39 at density 4000 kg/m^3 reached them,
+#: 0.57 at E = 460 Pa and 0.98 at density 1e4 kg/m^3 did not): the stiffness and density a
+#: reset without a reachable goal advises.
+GOAL_SAG = 0.4
 
 
 def square_patch(nodes, candidates, centre, tool_size, tolerance):
@@ -242,7 +247,10 @@ class TumorPositioningEnv(TissueEnv):
     ``"goal"`` (goal-conditioned, for hindsight experience replay): a ``Dict`` of ``observation``
     (the 24 values above, float32), ``achieved_goal`` (the tumour position, indices 11-13) and
     ``desired_goal`` (the goal position, indices 14-16), both ``Box(-100, 100, (3,), float64)`` in
-    cm from the block centre. ``env.unwrapped.compute_reward(achieved_goal, desired_goal, info)``
+    cm from the block centre. ``env.compute_reward(achieved_goal, desired_goal, info)`` (on
+    ``gym.make``'s env too: its ``TimeLimit``, ``OrderEnforcing`` and ``PassiveEnvChecker`` forward
+    it, ``tissue_env.goal``, so SB3's ``check_env`` and ``HerReplayBuffer`` take that env as it is;
+    a wrapper of your own does not: use ``env.get_wrapper_attr("compute_reward")`` there)
     recomputes the reward of a step for any goals, vectorised over a batch of goals (..., 3) with
     one info or one per goal (a list or an object array, as SB3's ``HerReplayBuffer`` passes them
     with ``copy_info_dict=True``): the distance and success terms from the goals, the volume,
@@ -460,14 +468,34 @@ class TumorPositioningEnv(TissueEnv):
             if self._start_distance(goal) >= self.success_distance:
                 break
         else:
-            raise ValueError(
-                f"no reachable goal: {GOAL_ATTEMPTS} tool displacements found no static equilibrium that moves the "
-                f"tumour {self.success_distance:g} m (young_modulus={self.episode_young_modulus:g} Pa, "
-                f"poisson_ratio={self.episode_poisson_ratio:g}, density={self.episode_density:g} kg/m^3); the material "
-                "cannot be positioned in this block: use a stiffer material or a smaller goal_displacement")
+            raise ValueError(self._no_goal_message())
         self.goal = goal
         self.goal_tool_displacement = displacement
         self.measures = None
+
+    def _no_goal_message(self):
+        """The reset's ValueError when no goal draw converged: a tissue too soft for its weight (or
+        too heavy for its stiffness) to be moved by the tool, with the stiffness, density and goal
+        displacement that would (GOAL_SAG: the sag under gravity, rho g L^2 / E, up to which goals
+        are reached)."""
+        modulus, density = self.episode_young_modulus, self.episode_density
+        length = float(np.max(self.episode_size))
+        ratio = density * self.gravity * length / modulus  # sag / L
+        heavy = density > TISSUE_DENSITY_MAX
+        cause = (f"too heavy for its stiffness (density {density:g} kg/m^3; soft tissue is about 1000-1100)" if heavy
+                 else f"too soft for its weight (young_modulus {modulus:g} Pa)")
+        text = (f"no reachable goal: {GOAL_ATTEMPTS} tool displacements found no static equilibrium that moves the "
+                f"tumour {self.success_distance:g} m (young_modulus={modulus:g} Pa, poisson_ratio="
+                f"{self.episode_poisson_ratio:g}, density={density:g} kg/m^3, goal_displacement="
+                f"{np.round(self.goal_displacement, 6).tolist()} m): ")
+        if ratio <= GOAL_SAG:  # not the weight: the tool's displacement itself
+            return text + (f"the tool's displacement has no static equilibrium though the tissue carries its weight "
+                           f"(its sag is {ratio:.2g} of the block's side); use a smaller goal_displacement or workspace")
+        return text + (f"the tissue is {cause} to be moved by the tool, its sag under gravity (rho g L^2 / E) is "
+                       f"{ratio:.2g} times the block's largest side, and goals are reached up to about {GOAL_SAG:g}. "
+                       f"Use a stiffer material (young_modulus {density * self.gravity * length / GOAL_SAG:.2g} Pa "
+                       f"or more), a lighter one (density {GOAL_SAG * modulus / (self.gravity * length):.2g} kg/m^3 "
+                       "or less) or a smaller goal_displacement")
 
     def _start_distance(self, goal):
         """The task's error (m) at the episode's start for the drawn ``goal``: the tumour-goal

@@ -25,6 +25,7 @@ import numpy as np
 
 from sim_core import kernels
 from sim_core.solvers.implicit import ImplicitEuler
+from sim_core.solvers.integrators import stable_time_step
 from sim_core.models.model import Control, State
 from sim_core.models.stack import ModelStack, StackedForceWorkspace
 from sim_core.solvers.static import STATIC_CONTACT_PASSES, same_contacts
@@ -407,6 +408,22 @@ class TaskWorlds:
                     break
         return reasons, tool_mask, fixed, target
 
+    def _explicit_step_cause(self, index):
+        """For a world that diverged under the explicit integrator: the cause, when ``dt`` is above
+        its tissue's stable step (``stable_time_step``'s conservative row-sum bound on its model:
+        a stiffer, lighter or finer tissue needs a smaller step), and the knobs; else ""."""
+        model = self.envs[index].model
+        try:
+            limit = stable_time_step(model, method="gershgorin")
+        except (ArithmeticError, ValueError, RuntimeError):
+            return ""
+        if not self.dt > limit:
+            return ""
+        return (f"; the explicit step dt = {self.dt:g} s is above the bound on this tissue's stable step ({limit:.2g} s, "
+                f"the conservative row-sum estimate of sim_core.solvers.integrators.stable_time_step): the tissue is "
+                f"too stiff or too light for the time step on this mesh (a finer mesh needs a smaller one); use dt "
+                f"{0.8 * limit:.2g} s or less, or integrator='implicit' (stable at any dt)")
+
     def _substep(self, control, running, reasons):
         """One solver step of the worlds ``running`` into ``self.positions``/``velocities``; the
         ones that diverge keep their state and get their reason in ``reasons``. Returns (N,) bool,
@@ -423,6 +440,10 @@ class TaskWorlds:
             return running.copy()
         new_positions, new_velocities = new.positions, new.velocities
         reasons[running] = report.unstable_reason[running]
+        if self.task.integrator_name == "explicit":
+            for index in np.flatnonzero(running):
+                if reasons[index] is not None:
+                    reasons[index] += self._explicit_step_cause(index)
         healthy = running & np.array([reason is None for reason in reasons])
         self._after_substep(new_positions, new_velocities, healthy)
         with np.errstate(all="ignore"):
