@@ -4,6 +4,8 @@ of another model) the next steps are the original's bit for bit. A snapshot of a
 keywords is refused with a ValueError."""
 
 import pickle
+import re
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -111,3 +113,14 @@ def test_a_snapshot_of_an_env_with_other_keywords_is_refused():
     other_inclusion = gym.make("tissue_env/Palpation-v0", inclusion_size=(0.016, 0.01, 0.016)).unwrapped
     with pytest.raises(ValueError, match="model"):  # the same material key, another model
         other_inclusion.set_state(palpation.get_state())
+
+
+def test_the_tree_search_example_of_the_docs_runs_as_written(capsys):
+    """The beam search of docs/getting-started.md ("Episode snapshots"), executed as it is written."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "getting-started.md").read_text()
+    section = text[text.index("## Episode snapshots"):]
+    section = section[:section.index("\n## ", 1)]
+    blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    example = next(block for block in blocks if "beam" in block)
+    exec(compile(example, "getting-started.md", "exec"), {})
+    assert capsys.readouterr().out.startswith("best plan")

@@ -879,8 +879,7 @@ class TissueEnv(gym.Env):
         of the same class and keywords (also in another process, the snapshot pickled), to it, and
         its next steps are then those taken after the snapshot, bit for bit (planning, tree search,
         replays). It holds the episode, not the scene: models, caches and the solver's factors are
-        referred to, not copied (``tissue_env.snapshots``; tens to hundreds of kB pickled,
-        benchmarks/snapshots.py)."""
+        referred to, not copied (``tissue_env.snapshots``; sizes and rates: benchmarks/snapshots.py)."""
         return snapshots.capture(self)
 
     def set_state(self, state: EpisodeState):

@@ -7,9 +7,8 @@ only reads is referenced by name (``Ref``) and looked up on the restoring env: i
 mesh, renderer, the world's stacked model, workspaces and solver; the episode's model is named by
 its cache key (rebuilt on a miss, checked against the snapshot's digest of it); the solver's
 factors are shared in memory and, pickled, replaced by what they were computed from
-(``ImplicitEuler.rebuild_factor``: the same floats, computed again at the first restore). So a
-snapshot is tens to hundreds of kB pickled, where the episode's scene is tens of MB
-(benchmarks/snapshots.py).
+(``ImplicitEuler.rebuild_factor``: the same floats, computed again at the first restore). Sizes
+and rates per task: benchmarks/snapshots.py.
 """
 
 from __future__ import annotations
