@@ -38,6 +38,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.step_speed
 	$(PY) -m benchmarks.env_speed
 	$(PY) -m benchmarks.reset_speed
+	$(PY) -m benchmarks.snapshots
 	$(PY) -m benchmarks.env_speed --integrator static --steps 100 --output benchmarks/results/env_speed_static.json
 	$(PY) -m benchmarks.stability
 	$(PY) -m benchmarks.env_accuracy

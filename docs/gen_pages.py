@@ -9,7 +9,7 @@ Writes
                                  from env_accuracy.json, env_models*.json, dynamic_convergence*.json,
                                  env_speed.json, vector_env_speed.json, material_range.json and the
                                  task classes' defaults (the page's prose is here, its numbers are not)
-  docs/generated/performance.md  from step_speed.json, env_speed*.json, reset_speed.json,
+  docs/generated/performance.md  from step_speed.json, env_speed*.json, reset_speed.json, snapshots.json,
                                  vector_env_speed*.json, visual_speed.json, stability*.csv,
                                  speed_accuracy.json, peers.json
   docs/generated/training.md     from training.json, training_batched.json, training_pixels.json,
@@ -841,7 +841,7 @@ def speed_accuracy_peers_section():
 
 # -- performance page ----------------------------------------------------------------------------
 def performance_page():
-    out = [HEADER.format(source="benchmarks/results/step_speed.json, env_speed*.json, reset_speed.json, "
+    out = [HEADER.format(source="benchmarks/results/step_speed.json, env_speed*.json, reset_speed.json, snapshots.json, "
                                 "vector_env_speed*.json, visual_speed.json, stability*.csv, speed_accuracy.json "
                                 "and peers.json"),
            "# Performance\n\n",
@@ -874,6 +874,21 @@ def performance_page():
             "\n", table(["env", "seeds", "median ms", "mean ms", "p95 ms", "max ms", "factorisations per reset"],
                         [[short_id(r["env_id"]), r["seeds"], num(r["median_ms"]), num(r["mean_ms"]), num(r["p95_ms"]),
                           num(r["max_ms"]), num(r["factorisations_per_reset"])] for r in reset["results"]]), "\n"]
+
+    snaps = load("snapshots.json")
+    out += ["## Snapshots\n\n",
+            "`env.unwrapped.get_state()` and `set_state(snapshot)` ([getting started](../getting-started.md#episode-snapshots)): "
+            "a snapshot holds the episode (state, tool, the task's bookkeeping, random generator, the solver's "
+            "per-world state) and refers to the models, caches and factors. Medians over "
+            f"{snaps['results'][0]['snapshots']} snapshots per task taken along random episodes; a snapshot just "
+            "unpickled is restored on a fresh env, whose first restore computes the solver's factors again. "
+            f"Unit: {snaps['unit']}.\n\n",
+            caption(command_for("snapshots.py"), "snapshots.json"), "\n",
+            table(["env", "MB pickled (median)", "MB pickled (max)", "get_state per s", "set_state per s",
+                   "set_state of an unpickled snapshot (ms)"],
+                  [[short_id(r["env_id"]), num(r["pickled_mb_median"]), num(r["pickled_mb_max"]),
+                    num(r["get_state_per_s"]), num(r["set_state_per_s"]), num(r["unpickled_set_state_ms_median"])]
+                   for r in snaps["results"]]), "\n"]
 
     out += ["## Vector environments\n\n"]
     for name, output in (("vector_env_speed.json", None), ("vector_env_speed_async.json", "vector_env_speed_async.json")):

@@ -42,7 +42,9 @@ from sim_core.caches import BudgetCache
 from sim_core.models.model import Control, State
 
 from .camera import VISUAL_TYPES, Camera, CameraView
+from . import snapshots
 from .rendering import Renderer
+from .snapshots import MODEL_KEY, EpisodeState
 from .worlds import OBS_LIMIT, TaskWorlds, feature_limit, observation_limits
 
 OBSERVATION_TYPES = ("state", "deformation", "dict", "goal") + VISUAL_TYPES
@@ -259,34 +261,17 @@ def check_model(model, hourglass_control, volume_stiffness):
     return model, alpha, kappa
 
 
-@dataclass(frozen=True, eq=False)
-class EpisodeState:
-    """A snapshot of one environment's episode (``TissueEnv.get_state``): restored by
-    ``set_state`` on an environment of the same class and keywords, the next steps are those the
-    environment took after the snapshot, bit for bit."""
-
-    env_class: type
-    attributes: dict
-
-
-#: Attributes of a task environment that a snapshot shares instead of copying: caches of models and
-#: of their factorisations (a cached result is the one that would be computed), the renderer and
-#: the spaces. A task's own caches are added by its ``shared_attributes``.
+#: Attributes of a task environment that a snapshot refers to instead of holding: caches of models and
+#: of their factorisations (a cached result is the one that would be computed), the renderer, the
+#: camera, the block and the spaces. A task's own caches are added by its ``shared_attributes``.
 SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_renderer", "_camera_view", "mesh",
                      "action_space", "observation_space", "spec")
+#: The keywords a snapshot depends on beyond the model (``_snapshot_settings``): restored on an env
+#: whose values differ, it is refused (ValueError naming them).
+SNAPSHOT_SETTINGS = ("shape", "size", "model_name", "hourglass_control", "volume_stiffness", "gravity",
+                     "integrator_name", "preconditioner", "observation_type")
 #: The one world of a single env (``TaskWorlds.step``'s ``active``).
 _ONE = np.ones(1, dtype=bool)
-
-
-class _Self:
-    """Stands for the snapshotted env in an ``EpisodeState`` (its worlds refer to it): restored, it
-    is the env restoring it."""
-
-    def __deepcopy__(self, memo):
-        return memo.get(id(self), self)
-
-
-_SELF = _Self()
 
 
 def _row(values, index=0):
@@ -796,10 +781,19 @@ class TissueEnv(gym.Env):
         size = self.size if size is None else np.asarray(size, dtype=float)
         key = (float(young_modulus), float(poisson_ratio), density, task_key) + (
             () if np.array_equal(size, self.size) else (tuple(size.tolist()),))
+        return self._model_of_key(key)
+
+    def _model_of_key(self, key):
+        """The cached model of a ``_model`` cache key (E Pa, nu, density kg/m^3, task key[, size m]),
+        built on a miss; the model keeps its key (``snapshots.MODEL_KEY``: a snapshot names its
+        model by it)."""
         with self._cache_lock:
             model = self._model_cache.get(key)
             if model is None:
+                young_modulus, poisson_ratio, density, task_key = key[:4]
+                size = np.array(key[4]) if len(key) > 4 else self.size
                 model = self._build_model(size, young_modulus, poisson_ratio, task_key, density)
+                model.derived.put(MODEL_KEY, key)
                 self._model_cache.put(key, model)
             return model
 
@@ -906,39 +900,32 @@ class TissueEnv(gym.Env):
     #: a task's caches that snapshots share (see SHARED_ATTRIBUTES)
     shared_attributes: tuple = ()
 
-    def _shared_memo(self) -> dict:
-        """A ``copy.deepcopy`` memo that maps the objects a snapshot shares to themselves: the
-        caches (SHARED_ATTRIBUTES, ``shared_attributes``), every cached model and its arrays (a
-        model never changes), and the solver's factorisations kept by content."""
-        shared = [getattr(self, name) for name in SHARED_ATTRIBUTES + self.shared_attributes if hasattr(self, name)]
-        models = list(self._model_cache.values()) + [getattr(self, "model", None)]
-        if self._worlds is not None:
-            shared += self._worlds.shared_objects()
-        for model in models:
-            if model is not None:
-                shared.append(model)
-                shared.extend(vars(model).values())
-        return {id(item): item for item in shared if item is not None}
+    def shared_names(self) -> tuple:
+        """The attributes a snapshot refers to instead of holding (``SHARED_ATTRIBUTES`` and the
+        task's ``shared_attributes``)."""
+        return SHARED_ATTRIBUTES + self.shared_attributes
+
+    def _snapshot_settings(self) -> tuple:
+        """((keyword, value), ...) of ``SNAPSHOT_SETTINGS``: what a snapshot's env and the restoring
+        env must share (the rest of an env's keywords are attributes the snapshot restores)."""
+        values = ((name, getattr(self, name)) for name in SNAPSHOT_SETTINGS)
+        return tuple((name, tuple(value.tolist()) if isinstance(value, np.ndarray) else value)
+                     for name, value in values) + (("nodes", self.mesh.n_nodes),)
 
     def get_state(self) -> EpisodeState:
-        """A snapshot of the current episode (state, tool, goal, random generator, solver state):
-        ``set_state(snapshot)`` returns this environment, or another one of the same class and
-        keywords, to it, and its next steps are then those taken after the snapshot, bit for bit
-        (planning, tree search, replays). Caches and models are shared, not copied."""
-        shared = SHARED_ATTRIBUTES + self.shared_attributes
-        attributes = {name: value for name, value in self.__dict__.items() if name not in shared}
-        memo = self._shared_memo()
-        memo[id(self)] = _SELF
-        return EpisodeState(type(self), copy.deepcopy(attributes, memo))
+        """A snapshot of the current episode (state, tool, goal, random generator, counters, the
+        solver's per-world state): ``set_state(snapshot)`` returns this environment, or another one
+        of the same class and keywords (also in another process, the snapshot pickled), to it, and
+        its next steps are then those taken after the snapshot, bit for bit (planning, tree search,
+        replays). It holds the episode, not the scene: models, caches and the solver's factors are
+        referred to, not copied (``tissue_env.snapshots``; sizes and rates: benchmarks/snapshots.py)."""
+        return snapshots.capture(self)
 
     def set_state(self, state: EpisodeState):
-        """Restore a snapshot of ``get_state`` (it can be restored any number of times)."""
-        if not isinstance(state, EpisodeState) or state.env_class is not type(self):
-            raise ValueError(f"set_state takes a snapshot from get_state() of a {type(self).__name__}, got "
-                             f"{type(state).__name__ if not isinstance(state, EpisodeState) else state.env_class.__name__}")
-        memo = self._shared_memo()
-        memo[id(_SELF)] = self
-        self.__dict__.update(copy.deepcopy(state.attributes, memo))
+        """Restore a snapshot of ``get_state`` (any number of times). Its model is looked up in the
+        model cache by its material, or built again; ValueError for what is not a snapshot of this
+        task, or one of an env with other keywords (``SNAPSHOT_SETTINGS``, or a model that differs)."""
+        snapshots.restore(self, state)
 
     def share_caches(self, other):
         """Use ``other``'s models, start states, first-step factorisations and task caches (an env

@@ -135,6 +135,11 @@ class TaskWorlds:
     #: whose state leaves it has ``info["out_of_range"]`` True and the reason in
     #: ``info["out_of_range_reason"]``.
     validity = ValidityRange()
+    #: The attributes that are the block's, not the episode's: a snapshot (``tissue_env.snapshots``)
+    #: refers to the restoring env's own (the stacked model, its workspace, the solver, whose
+    #: per-world state it holds, and views of the stacked arrays). A task adds its own.
+    structure = ("stack", "_forces", "integrator", "rest_length", "_no_force", "_feature_sizes", "_limits",
+                 "reward_names")
 
     def __init__(self, envs, threads: int = 1):
         self.envs = list(envs)
@@ -615,14 +620,3 @@ class TaskWorlds:
             env.measures = {name: (value[index] if isinstance(value, np.ndarray) else value)
                             for name, value in measures.items()}
         self._write_back_task(index, env)
-
-    def shared_objects(self) -> list:
-        """Objects a snapshot of a task env shares instead of copying (the solver's caches of
-        factorisations by content: a cached one is the one that would be computed)."""
-        shared = [self.stack.reference]
-        for name in ("_kept_starts", "_kept_first"):
-            cache = getattr(self.integrator, name, None)
-            if cache is not None:
-                shared.append(cache)
-                shared.extend(cache.values())
-        return shared

@@ -122,6 +122,13 @@ def _system_factor(model, positions, dt, fixed):
     """The packed sparse LU (``_CopyFactor``) of the implicit system matrix M + dt D + dt^2 K (K at
     ``positions`` (n, 3) m, geometric terms clamped as the integrator does) on the dofs not in
     ``fixed`` (n, 3); the identity (no factor) when the matrix is singular (a diverging state)."""
+    factor = _system_factor_of(model, positions, dt, fixed)
+    # what it was computed from: a pickled snapshot of a world carries this, not the factor
+    factor.source = ("system", np.array(positions, dtype=float), float(dt), np.array(fixed, dtype=bool))
+    return factor
+
+
+def _system_factor_of(model, positions, dt, fixed):
     free = np.flatnonzero(~np.asarray(fixed, dtype=bool).ravel())
     data = stiffness_data(model, positions, volume=False, clamp=True, stiffness_scale=dt * dt,
                           damping_scale=dt, mass_scale=1.0)
@@ -151,6 +158,9 @@ class _CopyFactor:
     ``kernels.solve_copies_lu`` (``ints``, ``floats``). Shared by the copies and episodes that start
     alike (``ImplicitEuler._kept_first``): what decides its renewal (the iterations right after the factorisation)
     is each copy's own (``ImplicitEuler._set_baseline``)."""
+
+    #: what it was computed from (``ImplicitEuler.rebuild_factor``), None if unknown
+    source = None
 
     def __init__(self, matrix=None, free=None):
         self._inverse, self._corrections = None, {}
@@ -518,7 +528,28 @@ class ImplicitEuler(WorldsSolver):
                     factor = self._factorise(index, system, covers[t])
                 factors[t] = factor
         self._factor_dt[indices] = system[1]
+        # what each was computed from (``rebuild_factor``): the copy's linearised positions, the
+        # operator's scales and the dofs it covers
+        linearised = self._linearised[1].reshape(self.stack.count, -1, 3)
+        for t, factor in enumerate(factors):
+            factor.source = ("linearised", linearised[indices[t]].copy(), tuple(system), covers[t].copy())
         return factors
+
+    def rebuild_factor(self, index: int, source):
+        """The preconditioner factor a factor's ``source`` describes, computed again (the same
+        floats) on world ``index``'s model: a pickled snapshot of a world's solver state carries the
+        sources of its factors, not the factors (megabytes each). Solver "factorised" also makes it
+        copy ``index``'s factor, as ``_factorise_copies`` does (the caller then restores the copy's
+        state)."""
+        if source[0] == "system":
+            return _system_factor(self.stack.models[index], *source[1:])
+        _, positions, system, covers = source
+        flat = np.array(self.stack.model.rest_positions, dtype=float)
+        flat.reshape(self.stack.count, -1, 3)[index] = positions
+        self.linearise(flat)
+        factor = self._factorise_copies(np.array([index], dtype=np.int64), system, np.asarray(covers)[None])[0]
+        self._linearised = None  # the other copies were linearised at rest positions
+        return factor
 
     def _block_structure(self, key, nodes):
         """``kernels.factor_copies``' structure for the whole nodes ``nodes`` (n,) bool (``key`` their

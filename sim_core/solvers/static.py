@@ -11,6 +11,7 @@ constrained tangent) so that experiments can report them.
 
 from __future__ import annotations
 
+import copy
 import threading
 from dataclasses import dataclass
 
@@ -418,15 +419,32 @@ class _KeptTangent:
 
     def __init__(self):
         self._key, self._value = None, None
+        self._source = None  # (positions, free, damping, solver) the kept tangent was factorised at
 
     def factorise(self, model, positions, free, damping, solver="auto"):
         key = (model, free.tobytes(), float(damping), _use_direct(solver, len(free)))
+        if self._value is None and self._source is not None and self._key[1:] == key[1:]:
+            # an unpickled copy: the tangent it kept, factorised again where it was (the same floats)
+            self._key, self._value = key, _factorise(model, *self._source)
         if self._key is None or self._key[0] is not model or self._key[1:] != key[1:]:
             self._key, self._value = key, _factorise(model, positions, free, damping, solver)
+            self._source = (np.array(positions, dtype=float), np.array(free), float(damping), solver)
         return self._value
 
     def clear(self):
-        self._key, self._value = None, None
+        self._key, self._value, self._source = None, None, None
+
+    def __getstate__(self):  # LU objects do not pickle: what the kept one was factorised from does
+        return dict(key=None if self._key is None else (None,) + self._key[1:], source=self._source)
+
+    def __setstate__(self, state):
+        self._key, self._value, self._source = state["key"], None, state["source"]
+
+    def __deepcopy__(self, memo):  # the kept factor is never modified (only replaced): shared
+        kept = _KeptTangent()
+        kept._key, kept._source = copy.deepcopy((self._key, self._source), memo)
+        kept._value = self._value
+        return kept
 
 
 class QuasiStatic(OneWorldSolver):
