@@ -19,9 +19,7 @@ import hashlib
 
 import numpy as np
 
-from sim_core import kernels
 from sim_core.models.model import Model
-from sim_core.solvers.implicit import JACOBI_INTS, ImplicitEuler, _CopyFactor
 
 #: the model's derived-data entries: its model-cache key (``TissueEnv._model``) and its digest
 MODEL_KEY = "env_model_key"
@@ -29,7 +27,7 @@ _DIGEST = "env_snapshot_digest"
 
 #: The solver attributes a snapshot does not hold: the stacked model, workspaces, kernel
 #: structures and scratch, caches by content, and what is derived from the per-world state
-#: (the kernels' factor lists and corrections, rebuilt by ``restore_solver``).
+#: (the kernels' factor lists and corrections, rebuilt by the solver's ``world_restored``).
 SOLVER_STRUCTURE = frozenset((
     "stack", "monitors", "workspace", "_workspace", "_own", "_prepared", "factory", "_kept_starts", "_kept_first",
     "_first", "_mass", "_linearised", "_groups", "_packed", "_packed_groups", "_group_work", "_no_corrections",
@@ -217,28 +215,7 @@ def restore(env, state: EpisodeState):
     integrator.__dict__.update(solver)
     if monitors:
         integrator.monitors.__dict__.update(monitors)
-    _restore_derived(integrator, worlds.stack)
+    if hasattr(integrator, "world_restored"):  # its derived state (the packed preconditioner), as at the snapshot
+        integrator.world_restored(0)
 
-
-def _restore_derived(integrator, stack):
-    """Set the solver's state derived from its per-world state (what ``SOLVER_STRUCTURE`` leaves
-    out) for world 0, as it was when the snapshot was taken."""
-    if hasattr(integrator, "_prepared"):
-        integrator._prepared[0] = stack.models[0]  # the episode goes on: not a fresh start
-    if not isinstance(integrator, ImplicitEuler):
-        return
-    integrator._linearised = None
-    integrator._groups = integrator._packed = integrator._packed_groups = None
-    if integrator.preconditioner == "reference":
-        return
-    factor = integrator._factors[0]
-    if integrator._jacobi[0]:
-        kernels.set_list_items(integrator._lu_int, integrator._lu_float, 0, JACOBI_INTS, integrator._diagonal[0])
-    else:
-        factor = factor if factor is not None else _CopyFactor()
-        kernels.set_list_items(integrator._lu_int, integrator._lu_float, 0, factor.ints, factor.floats)
-    # the capacitance corrections follow from the factor and the imposed dofs: formed again at the
-    # next step (``_correct``)
-    integrator._correction_of[0] = integrator._no_correction
-    kernels.set_list_items(integrator._corrections, integrator._imposed, 0, *integrator._no_correction)
 

@@ -674,6 +674,24 @@ class ImplicitEuler(WorldsSolver):
             factor = _CopyFactor()  # singular (a diverging state): no preconditioner
         return factor
 
+    def world_restored(self, index: int):
+        """``WorldsSolver.world_restored``: world ``index``'s preconditioner (its factor or its Jacobi
+        diagonal, restored with its per-world state) is packed again for the solve kernels, its
+        capacitance correction formed again at its next step, and the caches of the last force pass
+        and of the lockstep groups dropped."""
+        super().world_restored(index)
+        self._linearised = None
+        self._groups = self._packed = self._packed_groups = None
+        if self.preconditioner == "reference":
+            return
+        if self._jacobi[index]:
+            kernels.set_list_items(self._lu_int, self._lu_float, index, JACOBI_INTS, self._diagonal[index])
+        else:
+            factor = self._factors[index] if self._factors[index] is not None else _CopyFactor()
+            kernels.set_list_items(self._lu_int, self._lu_float, index, factor.ints, factor.floats)
+        self._correction_of[index] = self._no_correction
+        kernels.set_list_items(self._corrections, self._imposed, index, *self._no_correction)
+
     def _copies_first(self):
         """``kernels.solve_copies_lu``'s view of the stacked model: (data, hourglass rows (G, nnz),
         hourglass group (N,))."""

@@ -378,6 +378,12 @@ class WorldsSolver(OneWorldSolver):
             return super().model_changed(index, model)
         self._prepared[int(index)] = None
 
+    def world_restored(self, index: int):
+        """World ``index``'s per-world state was put back as it was at an earlier step (an env's
+        ``set_state``): it goes on from there on its current model, not from a fresh start. Solvers
+        with state derived from the per-world state rebuild it here."""
+        self._prepared[int(index)] = self.stack.models[int(index)]
+
     def step(self, state_in: State, state_out: State, control: Control, dt: float, active=None) -> StepReport:
         """Advance the ``active`` worlds (None: all) by ``dt`` s from ``state_in`` into ``state_out``
         under ``control`` (``fixed``, ``target``, ``force`` (N, n, 3): imposed components, their
