@@ -194,33 +194,33 @@ def env_solver_tolerance(name):
     return env_class(name).default_solver_tolerance
 
 
-def env_speed(env_id, shape, steps=300, seed=0, clock=None):
+def env_speed(env_id, shape, steps=300, seed=0, clock=None, **keywords):
     """Env steps per second (resets included, random actions, this process) of ``env_id`` at
-    ``shape`` with its other defaults, by ``clock`` (default wall time; ``time.process_time``: per
-    CPU second of this process); None when the env rejects the shape."""
+    ``shape`` with ``keywords`` and its other defaults, by ``clock`` (default wall time;
+    ``time.process_time``: per CPU second of this process); None when the env rejects the shape."""
     import gymnasium as gym
 
     from benchmarks.env_speed import random_steps_per_s
 
     try:
-        env = gym.make(env_id, shape=tuple(int(s) for s in shape))
+        env = gym.make(env_id, shape=tuple(int(s) for s in shape), **keywords)
     except ValueError:
         return None
     return random_steps_per_s(env, steps, seed, clock=clock)
 
 
-def env_speeds(env_id, shapes, rounds=SPEED_ROUNDS, steps=300, seed=0):
-    """{shape string: median env steps per CPU second, or None} of ``env_id`` at each of ``shapes``,
-    measured in ``rounds`` interleaved rounds (every shape once per round, in turn), so that a
-    shared machine's changing speed falls on every shape alike; CPU time of this process, so that
-    other jobs count less. The budgeted choice compares these with SPEED_FLOOR."""
+def env_speeds(env_id, shapes, rounds=SPEED_ROUNDS, steps=300, seed=0, **keywords):
+    """{shape string: median env steps per CPU second, or None} of ``env_id`` at each of ``shapes``
+    (with ``keywords``), measured in ``rounds`` interleaved rounds (every shape once per round, in
+    turn), so that a shared machine's changing speed falls on every shape alike; CPU time of this
+    process, so that other jobs count less. The budgeted choice compares these with SPEED_FLOOR."""
     samples = {"x".join(map(str, shape)): [] for shape in shapes}
     for _ in range(rounds):
         for shape in shapes:
             key = "x".join(map(str, shape))
             if samples[key] is None:
                 continue
-            rate = env_speed(env_id, shape, steps, seed, clock=time.process_time)
+            rate = env_speed(env_id, shape, steps, seed, clock=time.process_time, **keywords)
             if rate is None:
                 samples[key] = None
             else:

@@ -15,6 +15,11 @@ point on every grid) and the relative volume change. Errors against the finest g
 a grid is listed in the results, not compared). The reference's own convergence is the next finest
 grid's error.
 
+Elements: every grid is run with the voxels as hexahedra (``element="hex"``, the default) and
+split into 6 tetrahedra each on the same nodes (``element="tet"``: smoothed-strain tetrahedra, no
+hourglass control or volume forces); each candidate is compared with the reference grid of both,
+so that the table shows whether the two converge to the same scene.
+
 Speed: env steps per CPU second at every candidate shape (``benchmarks.env_accuracy.env_speeds``:
 random actions, resets included, median of interleaved rounds), and the budgeted choice, as for the
 other tasks: the most accurate candidate that keeps 300 steps/s with the 1.25x margin (375).
@@ -53,15 +58,19 @@ FINER = ()
 REFERENCE = (20, 10, 16)
 
 
-def make_env(shape) -> LiverNeedleAlignmentEnv:
+#: the lobe's voxels as hexahedra or as 6 tetrahedra each (LiverNeedleAlignment's ``element``)
+ELEMENTS = ("hex", "tet")
+
+
+def make_env(shape, element="hex") -> LiverNeedleAlignmentEnv:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the reference grid is past the env's slow-reset warning
-        return LiverNeedleAlignmentEnv(shape=shape, max_nodes=None)
+        return LiverNeedleAlignmentEnv(shape=shape, max_nodes=None, element=element)
 
 
-def solve_shape(shape) -> SceneSolution:
+def solve_shape(shape, element="hex") -> SceneSolution:
     """The task's scene on the ``shape`` voxel grid solved at every case (module docstring)."""
-    env = make_env(shape)
+    env = make_env(shape, element)
     env.reset(seed=0)
     start = env.state.positions.copy()
     solve, _ = model_solver(env.model)
@@ -95,47 +104,59 @@ def main(argv=None):
     parser.add_argument("--no-speed", action="store_true", help="skip the speed measurement")
     parser.add_argument("--output", default=str(ROOT / "benchmarks" / "results" / "organ_accuracy.json"))
     args = parser.parse_args(argv)
-    reference = solve_shape(REFERENCE)
+    references = {element: solve_shape(REFERENCE, element) for element in ELEMENTS}
+    reference = references["hex"]
     rows = []
     for shape in CANDIDATES + FINER:
-        solution = solve_shape(shape)
-        env = make_env(shape)
-        # the errors over the cases solved on both grids (a case without a static equilibrium on one
-        # of them, the press on a fine grid's thin rims, is listed, not compared)
-        both = solution.converged & reference.converged
-        errors = scene_errors(subset(solution, both), subset(reference, both))
-        rows.append(dict(shape=list(shape), nodes=env.mesh.n_nodes, elements=env.mesh.n_elements,
-                         tumour_elements=int(np.count_nonzero(env.mesh.element_labels == 2)),
-                         tool_nodes=len(env.tool_nodes), converged=bool(solution.converged.all()),
-                         converged_cases=[name for name, ok in zip(CASES, solution.converged) if ok],
-                         compared_cases=[name for name, ok in zip(CASES, both) if ok], errors=errors,
-                         worst_error=max(errors.values()), solve_seconds=solution.solve_time,
-                         candidate=shape in CANDIDATES))
-        print(f"{'x'.join(map(str, shape)):>9s} {env.mesh.n_nodes:5d} nodes: "
-              + " ".join(f"{q} {100 * errors[q]:5.1f}%" for q in QUANTITIES), flush=True)
-    speeds = {} if args.no_speed else env_speeds(ENV_ID, CANDIDATES, rounds=args.rounds)
+        for element in ELEMENTS:
+            solution = solve_shape(shape, element)
+            env = make_env(shape, element)
+            row = dict(shape=list(shape), element=element, nodes=env.mesh.n_nodes, elements=env.mesh.n_elements,
+                       tumour_elements=int(np.count_nonzero(env.mesh.element_labels == 2)),
+                       tool_nodes=len(env.tool_nodes), converged=bool(solution.converged.all()),
+                       converged_cases=[name for name, ok in zip(CASES, solution.converged) if ok],
+                       solve_seconds=solution.solve_time, candidate=shape in CANDIDATES)
+            # the errors over the cases solved on both grids (a case without a static equilibrium on
+            # one of them, the press on a fine grid's thin rims, is listed, not compared)
+            for against, fine in references.items():
+                both = solution.converged & fine.converged
+                errors = scene_errors(subset(solution, both), subset(fine, both))
+                suffix = "" if against == element else f"_against_{against}"
+                row.update({f"errors{suffix}": errors, f"worst_error{suffix}": max(errors.values()),
+                            f"compared_cases{suffix}": [name for name, ok in zip(CASES, both) if ok]})
+            rows.append(row)
+            print(f"{'x'.join(map(str, shape)):>9s} {element} {env.mesh.n_nodes:5d} nodes: "
+                  + " ".join(f"{q} {100 * row['errors'][q]:5.1f}%" for q in QUANTITIES), flush=True)
+    # each reference against the other: how far the two element types' converged scenes are apart
+    both = references["hex"].converged & references["tet"].converged
+    reference_gap = scene_errors(subset(references["tet"], both), subset(references["hex"], both))
+    speeds = {} if args.no_speed else {element: env_speeds(ENV_ID, CANDIDATES, rounds=args.rounds, element=element)
+                                       for element in ELEMENTS}
     floor = SPEED_FLOOR * SPEED_MARGIN
     for row in rows:
-        row["steps_per_cpu_s"] = speeds.get("x".join(map(str, row["shape"])))
-    fast = [row for row in rows if row["candidate"] and row["converged"] and (row["steps_per_cpu_s"] or 0.0) >= floor]
+        row["steps_per_cpu_s"] = speeds.get(row["element"], {}).get("x".join(map(str, row["shape"])))
+    fast = [row for row in rows if row["candidate"] and row["element"] == "hex" and row["converged"]
+            and (row["steps_per_cpu_s"] or 0.0) >= floor]
     choice = min(fast, key=lambda row: row["worst_error"]) if fast else None
     default = list(LiverNeedleAlignmentEnv.default_shape)
     for row in rows:
         speed = row["steps_per_cpu_s"]
-        print(f"{'x'.join(map(str, row['shape'])):>9s} worst {100 * row['worst_error']:5.1f}%  "
-              f"{'' if speed is None else f'{speed:5.0f} steps/CPU s'}{'  <- default' if row['shape'] == default else ''}")
+        print(f"{'x'.join(map(str, row['shape'])):>9s} {row['element']} worst {100 * row['worst_error']:5.1f}%  "
+              f"{'' if speed is None else f'{speed:5.0f} steps/CPU s'}"
+              f"{'  <- default' if row['shape'] == default and row['element'] == 'hex' else ''}")
     if choice is not None:
         print(f"budgeted choice (most accurate >= {floor:.0f} steps/CPU s): {tuple(choice['shape'])}")
     reference_nodes = make_env(REFERENCE).mesh.n_nodes
     write_json(Path(args.output), dict(
         env_id=ENV_ID, cases={name: list(value) for name, value in CASES.items()}, reference_shape=list(REFERENCE),
         reference_nodes=reference_nodes, reference_converged=bool(reference.converged.all()),
+        reference_tet_converged=bool(references["tet"].converged.all()), reference_gap_tet_vs_hex=reference_gap,
         reference_converged_cases=[name for name, ok in zip(CASES, reference.converged) if ok],
         reference_values=dict(force=reference.force.tolist(), tumour_displacement=(reference.target - reference.target_rest).tolist(),
                               volume=reference.volume.tolist()),
         error_definition=("max over the cases of |q - q_ref| / max |q_ref|; q = tool force (3,) N, tumour displacement "
                           "from rest (3,) m, relative volume change; reference = the same mass-spring model and scene on "
-                          "the finest voxel grid"),
+                          "the finest voxel grid, of the same elements (errors_against_*: of the other elements)"),
         speed_floor=floor, issue_floor=SPEED_FLOOR, speed_rounds=0 if args.no_speed else args.rounds,
         budget_choice=None if choice is None else choice["shape"], env_default=default,
         command="python -m benchmarks.organ_accuracy" + (f" --rounds {args.rounds}" if args.rounds != 3 else "")

@@ -104,3 +104,67 @@ def test_a_grid_too_coarse_for_the_tumour_is_refused():
 def test_goal_observation_is_refused_with_the_reason():
     with pytest.raises(ValueError, match="goal"):
         gym.make(ENV_ID, observation_type="goal")
+
+
+# -- the lobe on tetrahedra (element="tet") ------------------------------------------------------------
+def test_tet_lobe_is_the_voxel_lobe_split_into_tetrahedra():
+    """element="tet": the same nodes, attached set, grasped patch and labels (each voxel's 6
+    tetrahedra keep its label) as the hexahedral lobe, on the default smoothed-strain tetrahedra;
+    the tumour's material point interpolates the same rest position."""
+    from sim_core import TetMesh
+
+    hexahedral, tetrahedral = gym.make(ENV_ID).unwrapped, gym.make(ENV_ID, element="tet").unwrapped
+    mesh = tetrahedral.mesh
+    assert isinstance(mesh, TetMesh) and mesh.n_elements == 6 * hexahedral.mesh.n_elements
+    np.testing.assert_array_equal(mesh.nodes, hexahedral.mesh.nodes)
+    np.testing.assert_array_equal(mesh.element_labels, np.repeat(hexahedral.mesh.element_labels, 6))
+    np.testing.assert_array_equal(tetrahedral.fixed_nodes, hexahedral.fixed_nodes)
+    np.testing.assert_array_equal(tetrahedral.tool_nodes, hexahedral.tool_nodes)
+    rest = [env.tumor_weights @ env.mesh.nodes[env.tumor_nodes] for env in (hexahedral, tetrahedral)]
+    np.testing.assert_allclose(rest[1], rest[0], atol=1e-12)
+    assert np.all(tetrahedral.tumor_weights >= -1e-12) and len(tetrahedral.tumor_nodes) == 4
+    tetrahedral.reset(seed=0)
+    assert tetrahedral.model.smoothing is not None and tetrahedral.model.hourglass is None
+
+
+def test_tet_lobe_passes_both_checkers_and_the_scripted_controller():
+    """Gymnasium's and SB3's env checkers on the gym.make env, the scripted controller on 5 seeds
+    (at least 4 succeed; benchmarks/success_rates.py runs more), and its depth camera and frames."""
+    from gymnasium.utils.env_checker import check_env as gym_check
+    from stable_baselines3.common.env_checker import check_env as sb3_check
+    from tissue_env.episodes import run_episode, scripted_policy
+
+    env = gym.make(ENV_ID, element="tet")
+    gym_check(env.unwrapped, skip_render_check=True)
+    sb3_check(env)
+    scripted = [run_episode(env, scripted_policy, seed) for seed in range(5)]
+    assert sum(bool(info["is_success"]) for _, _, info in scripted) >= 4
+    # the camera and the renderer draw its surface triangles
+    seen = gym.make(ENV_ID, element="tet", observation_type="rgbd", render_mode="rgb_array")
+    observation, _ = seen.reset(seed=0)
+    assert seen.observation_space.contains(observation) and observation[..., 3].min() < observation[..., 3].max()
+    frame = seen.render()
+    assert frame.ndim == 3 and frame.std() > 0
+
+
+def test_tet_lobe_vector_copy_equals_the_single_env():
+    env = gym.make(ENV_ID, element="tet")
+    envs = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", element="tet")
+    obs, _ = env.reset(seed=5)
+    vector_obs, _ = envs.reset(seed=[5, 6])
+    np.testing.assert_array_equal(vector_obs[0], obs)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        action = rng.uniform(-1, 1, 3).astype(np.float32)
+        obs, reward, *_ = env.step(action)
+        vector_obs, rewards, *_ = envs.step(np.stack([action, action]))
+        np.testing.assert_array_equal(vector_obs[0], obs)
+        assert rewards[0] == reward
+
+
+@pytest.mark.parametrize("keyword", ["hourglass_control", "volume_stiffness"])
+def test_tet_lobe_refuses_hexahedral_keywords(keyword):
+    with pytest.raises(ValueError, match=f"{keyword}.*element='tet'"):
+        gym.make(ENV_ID, element="tet", **{keyword: 1.0})
+    with pytest.raises(ValueError, match=r"element must be one of \('hex', 'tet'\)"):
+        gym.make(ENV_ID, element="quad")

@@ -90,7 +90,7 @@ SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_renderer", "_camera_view",
                      "action_space", "observation_space", "spec")
 #: The keywords a snapshot depends on beyond the model (``_snapshot_settings``): restored on an env
 #: whose values differ, it is refused (ValueError naming them).
-SNAPSHOT_SETTINGS = ("shape", "size", "model_name", "hourglass_control", "volume_stiffness", "gravity",
+SNAPSHOT_SETTINGS = ("shape", "size", "element", "model_name", "hourglass_control", "volume_stiffness", "gravity",
                      "integrator_name", "preconditioner", "observation_type")
 #: The one world of a single env (``TaskWorlds.step``'s ``active``).
 _ONE = np.ones(1, dtype=bool)
@@ -223,6 +223,8 @@ class TissueEnv(gym.Env):
     #: (``benchmarks/env_models.py``); a task meshed with boxes needs "baudet-hyperelastic" (Baudet's
     #: springs get the shear modulus right on cubes only).
     default_model = "baudet"
+    #: the tissue's elements: "hex" (hexahedra, every task), or "tet" where a task takes ``element``
+    element = "hex"
     #: Observation units: lengths in cm, forces in units of 0.1 N x E / 5 kPa (``worlds.REFERENCE_YOUNG_MODULUS``:
     #: the same strains read the same at any stiffness), strains and volume change in %.
     length_scale = 0.01
@@ -621,9 +623,10 @@ class TissueEnv(gym.Env):
 
     def _build_model(self, size, young_modulus, poisson_ratio, task_key, density):
         """The model of a material on the block of extent ``size`` (3,) m (``_block_mesh``)."""
-        options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
-                   if self.model_name == "baudet" else {})
         mesh = self._block_mesh(size)
+        # hourglass control and volume forces are hexahedral terms (a tetrahedral "baudet" has neither)
+        options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
+                   if self.model_name == "baudet" and isinstance(mesh, HexMesh) else {})
         material = self._material(young_modulus, poisson_ratio, task_key, density, mesh, size)
         return build_model(mesh, material, model=self.model_name,
                            gravity=(0.0, -self.gravity, 0.0), **options)

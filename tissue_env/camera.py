@@ -155,8 +155,10 @@ def surface_triangles(faces) -> np.ndarray:
     """(2 F, 3) triangles of the quads ``faces`` (F, 4) (outward oriented, as
     ``HexMesh.surface_faces`` gives them): quad (a, b, c, d) -> (a, b, c), (a, c, d), which keep
     its orientation (the right-hand normal of each triangle points out). Triangle 2 f and 2 f + 1
-    are quad f's."""
+    are quad f's. Triangles (F, 3) (``TetMesh.surface_faces``) are returned as they are."""
     faces = np.asarray(faces)
+    if faces.shape[1] == 3:
+        return faces.astype(np.int64)
     return np.stack([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]], axis=1).reshape(-1, 3).astype(np.int64)
 
 
@@ -289,7 +291,8 @@ class CameraView:
 
     Args:
         camera: the ``Camera``.
-        faces: (F, 4) the mesh's outward surface quads (``HexMesh.surface_faces``).
+        faces: (F, 4) the mesh's outward surface quads (``HexMesh.surface_faces``), or (F, 3)
+            triangles (``TetMesh.surface_faces``).
         rest_positions: (n, 3) m, the mesh's nodes (the point cloud's sampling).
         tool_nodes: nodes the tool holds: a face all of whose nodes it holds has the tool's albedo.
         point_count: K points of the "point_cloud" observation; point_normals: append normals.
@@ -303,7 +306,8 @@ class CameraView:
         self.triangles = surface_triangles(faces)
         held = np.zeros(len(rest_positions), dtype=bool)
         held[np.asarray(tool_nodes, dtype=int)] = True
-        tool_face = np.repeat(held[np.asarray(faces)].all(axis=1), 2)
+        faces = np.asarray(faces)  # each quad is two triangles (surface_triangles), a triangle one
+        tool_face = np.repeat(held[faces].all(axis=1), 2 if faces.shape[1] == 4 else 1)
         self.albedo = np.where(tool_face[:, None], ALBEDO["tool"], ALBEDO["tissue"])
         self.n_nodes = len(rest_positions)
         self.point_count, self.point_normals = int(point_count), bool(point_normals)

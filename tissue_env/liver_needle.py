@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim_core import HexMesh, Material
+from sim_core import HexMesh, Material, TetMesh
 from sim_core.models.phantoms import PARENCHYMA, TUMOUR, VESSEL, liver_lobe
 from sim_core.models.model import Control
 
@@ -23,6 +23,29 @@ NEEDLE_CANDIDATES = 32
 POINT_DISTANCE = 1.25
 #: The needle's entry point: where its line crosses the plane this far (m) above the lobe's top.
 ENTRY_CLEARANCE = 0.01
+
+
+#: ``element``: the lobe's voxels as hexahedra, or each split into 6 tetrahedra on the same nodes
+ELEMENTS = ("hex", "tet")
+
+
+def material_point(mesh, point):
+    """(nodes, weights): the nodes of the element of ``mesh`` holding ``point`` (3,) m and the
+    weights that interpolate it from them (trilinear in an axis-aligned hexahedron, barycentric in
+    a tetrahedron), so that sum(weights * positions[nodes]) follows the material point."""
+    nodes = mesh.nodes
+    corners = nodes[mesh.elements]
+    element_low, element_high = corners.min(axis=1), corners.max(axis=1)
+    holding = np.flatnonzero(np.all((point >= element_low - 1e-12) & (point <= element_high + 1e-12), axis=1))
+    if isinstance(mesh, HexMesh):
+        element = int(holding[0])
+        return mesh.elements[element], trilinear_weights((point - element_low[element])
+                                                         / (element_high[element] - element_low[element]))
+    edges = corners[holding, 1:] - corners[holding, :1]  # (k, 3, 3): x_a - x_0
+    local = np.linalg.solve(edges.transpose(0, 2, 1), (point - corners[holding, 0])[..., None])[..., 0]
+    weights = np.concatenate([1.0 - local.sum(axis=1, keepdims=True), local], axis=1)
+    inside = int(np.argmax(weights.min(axis=1)))  # the holding tetrahedron (the least negative weight)
+    return mesh.elements[holding[inside]], weights[inside]
 
 
 def needle_error(points, entry, direction):
@@ -235,7 +258,12 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     ``tumor_radius`` (m), ``attachment`` (fraction of the lobe's length along x over which its
     visceral surface is attached), ``max_press`` (m, the deepest downward tool displacement), ``tool_size`` (m, the side of the grasped square), ``workspace`` (m, per axis),
     ``goal_displacement`` (m), ``goal_scale_range``, ``needle_cone`` (degrees, in (0, 90]),
-    ``success_distance`` (m), ``goal_min_distance`` (m), ``success_bonus``, ``difficulty``; the
+    ``success_distance`` (m), ``goal_min_distance`` (m), ``success_bonus``, ``difficulty``,
+    ``element`` ("hex", the default: the voxels as hexahedra; "tet": each voxel split into 6
+    tetrahedra on the same nodes, ``TetMesh.from_hex``, with sim_core's smoothed-strain tetrahedra,
+    which neither lock nor need hourglass control or volume forces: ``hourglass_control`` and
+    ``volume_stiffness`` are refused; the same nodes, attached set, grasped patch and tumour point;
+    the organ accuracy page compares the two); the
     shared keywords are listed in ``tissue_env.base.TissueEnv`` (``young_modulus`` (the
     parenchyma's), ``poisson_ratio``, ``density`` (every label's), ``integrator``, ``dt``,
     ``young_modulus_range``, ...).
@@ -285,7 +313,16 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     def __init__(self, *, tool_size=0.025, workspace=0.02, goal_displacement=None, goal_scale_range=(0.5, 1.0),
                  success_distance=None, success_bonus=5.0, goal_min_distance=None, needle_cone=45.0,
                  tumor_stiffness_ratio=4.0, vessel_stiffness_ratio=20.0, tumor_stiffness_ratio_range=None,
-                 attachment=0.3, tumor_radius=0.01, max_press=0.005, difficulty="default", **kwargs):
+                 attachment=0.3, tumor_radius=0.01, max_press=0.005, difficulty="default", element="hex", **kwargs):
+        if element not in ELEMENTS:
+            raise ValueError(f"element must be one of {ELEMENTS}, got {element!r}")
+        self.element = element
+        if element == "tet":
+            refused = [name for name in ("hourglass_control", "volume_stiffness") if kwargs.get(name) is not None]
+            if refused:
+                raise ValueError(f"{', '.join(refused)} do(es) not apply to element='tet' (hourglass control and "
+                                 "volume forces are hexahedral terms; the tetrahedra's smoothed strain holds the "
+                                 "volume): leave them unset")
         if kwargs.get("tool_size_range") is not None:
             raise ValueError("tool_size_range does not apply to LiverNeedleAlignment: its grasped patch is fixed per "
                              "env (tool_size); it randomises "
@@ -314,34 +351,36 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     shared_attributes = TumorPositioningEnv.shared_attributes + ("phantom",)
 
     # -- scene ---------------------------------------------------------------------------------------
-    def _build_mesh(self) -> HexMesh:
+    def _check_stepping(self, integrator, dt, substeps, max_step, model, hourglass_control, volume_stiffness,
+                        gravity):
+        super()._check_stepping(integrator, dt, substeps, max_step, model, hourglass_control, volume_stiffness,
+                                gravity)
+        if self.element == "tet":  # neither term exists on tetrahedra (TissueEnv._build_model passes none)
+            self.hourglass_control, self.volume_stiffness = 0.0, 0.0
+
+    def _build_mesh(self) -> HexMesh | TetMesh:
         """The lobe's mesh: ``liver_lobe`` sampled on ``shape`` voxels of size / shape over its box
-        ``size``, meshed by ``Phantom.hex_mesh`` (``element_labels``: parenchyma, tumour, vessel)."""
+        ``size``, meshed by ``Phantom.hex_mesh`` (``element_labels``: parenchyma, tumour, vessel);
+        with ``element="tet"`` each voxel split into 6 tetrahedra on the same nodes (``TetMesh.from_hex``)."""
         self.phantom = liver_lobe(self.spacing, size=tuple(self.size), tumour_radius=self.tumor_radius)
         mesh = self.phantom.hex_mesh()
         check_work(self.shape, self.max_nodes, mesh.n_nodes)
         if not np.any(mesh.element_labels == TUMOUR):
             raise ValueError(f"shape {self.shape} is too coarse for the tumour: no voxel of the "
                              f"{self.spacing.round(4).tolist()} m grid has its centre in it; use a finer shape")
-        return mesh
+        return TetMesh.from_hex(mesh) if self.element == "tet" else mesh
 
     def _setup_scene(self):
         mesh, nodes = self.mesh, self.mesh.nodes
         faces = mesh.surface_faces()
-        quads = nodes[faces]
-        normal_y = np.cross(quads[:, 2] - quads[:, 0], quads[:, 3] - quads[:, 1])[:, 1]
+        corners = nodes[faces]  # quads, or triangles on tetrahedra: the normal from two diagonals or two edges
+        normal_y = np.cross(corners[:, 2] - corners[:, 0], corners[:, -1] - corners[:, 1])[:, 1]
         lower, upper = np.unique(faces[normal_y < 0]), np.unique(faces[normal_y > 0])
         low, high = nodes.min(axis=0), nodes.max(axis=0)
         self.fixed_nodes = lower[nodes[lower, 0] <= low[0] + self.attachment * (high[0] - low[0]) + 1e-9]
-        # the tumour: the material point at the phantom's tumour centre, in the voxel holding it
+        # the tumour: the material point at the phantom's tumour centre, in the element holding it
         centre = np.asarray(self.phantom.geometry.tumour_centre)
-        corners = nodes[mesh.elements]
-        element_low, element_high = corners.min(axis=1), corners.max(axis=1)
-        holding = np.flatnonzero(np.all((centre >= element_low) & (centre <= element_high), axis=1))
-        element = int(holding[0])
-        self.tumor_nodes = mesh.elements[element]
-        self.tumor_weights = trilinear_weights((centre - element_low[element])
-                                               / (element_high[element] - element_low[element]))
+        self.tumor_nodes, self.tumor_weights = material_point(mesh, centre)
         # the grasped patch: upper-surface nodes within tool_size / 2 of the point above the tumour
         self.tool_nodes = np.setdiff1d(square_patch(nodes, upper, centre, self.tool_size, 1e-9), self.fixed_nodes)
         if len(self.tool_nodes) < 1:

@@ -75,8 +75,9 @@ class TumorPositioningWorlds(TaskWorlds):
         self._patches, self._patch_of, self._groups = {}, [None] * count, None
         for index in range(count):
             self._set_patch(index, env.tool_nodes, env.base_control.target)
-        self.tumor_nodes = np.zeros((count, 8), dtype=int)
-        self.tumor_weights = np.zeros((count, 8))
+        corners = len(env.tumor_nodes)  # the nodes of the element holding the tumour: 8, or 4 (tetrahedra)
+        self.tumor_nodes = np.zeros((count, corners), dtype=int)
+        self.tumor_weights = np.zeros((count, corners))
         self.tumor_start = np.zeros((count, 3))
         self.tool_size_of = np.zeros(count)  # each world's grasped square's side this episode, m
         self.goal = np.zeros((count, 3))
@@ -123,7 +124,7 @@ class TumorPositioningWorlds(TaskWorlds):
 
     def _tumor(self, positions):
         """(N, 3) the tumour's positions, m: trilinear in its element's nodes of ``positions`` (N, n, 3)."""
-        corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8, 3)
+        corners = positions[np.arange(self.num_envs)[:, None], self.tumor_nodes]  # (N, 8 or 4, 3)
         return (self.tumor_weights[:, None, :] @ corners)[:, 0]
 
     def _task_measures(self, positions):

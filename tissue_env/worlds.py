@@ -504,7 +504,7 @@ class TaskWorlds:
             reaction = np.empty((count, 3))
             kernels.masked_reaction(forces, tool_mask, reaction)
             strain = self._strain(self._lengths)[0]
-            # exact trilinear volumes of the stacked model's elements (HexMesh.element_volumes)
+            # exact volumes of the stacked model's elements (HexMesh.element_volumes, TetMesh.element_volumes)
             elements = model.mesh.elements
             arguments = (flat, elements, np.empty(len(elements)))
             volumes = (kernels.element_volumes_copies(count, *arguments) if kernels.threaded(self.threads)

@@ -47,6 +47,9 @@ class MeshGeometry:
     elements: np.ndarray
     shape: tuple[int, int, int] | None = None
     spacing: np.ndarray | None = field(default=None, repr=False)
+    #: None, or (M,) integer label id per element (a segmented volume's tissue classes);
+    #: ``Material.from_labels`` turns them into materials
+    element_labels: np.ndarray | None = field(default=None, repr=False)
 
     #: nodes per element, the element's name in messages and its meshio cell type
     nodes_per_element: ClassVar[int]
@@ -87,6 +90,14 @@ class MeshGeometry:
         object.__setattr__(self, "nodes", nodes)
         object.__setattr__(self, "elements", elements)
         self.check_geometry(nodes, elements)
+        if self.element_labels is not None:
+            labels = np.asarray(self.element_labels)
+            if labels.shape != (len(elements),) or not np.issubdtype(labels.dtype, np.integer):
+                raise ValueError(f"element_labels must be an ({len(elements)},) integer array (one label id "
+                                 f"per element), got {labels.dtype} of shape {labels.shape}")
+            labels = labels.astype(np.int64)
+            labels.setflags(write=False)
+            object.__setattr__(self, "element_labels", labels)
 
     @property
     def n_nodes(self) -> int:
@@ -146,8 +157,6 @@ class HexMesh(MeshGeometry):
     degenerate or inverted elements (a corner Jacobian that is not positive).
     """
 
-    element_labels: np.ndarray | None = field(default=None, repr=False)
-
     nodes_per_element = 8
     element_name = "element"
     cell_type = "hexahedron"
@@ -156,18 +165,6 @@ class HexMesh(MeshGeometry):
     def check_geometry(positions, elements):
         """``check_elements``: every corner Jacobian positive."""
         check_elements(positions, elements)
-
-    def __post_init__(self):
-        super().__post_init__()
-        elements = self.elements
-        if self.element_labels is not None:
-            labels = np.asarray(self.element_labels)
-            if labels.shape != (len(elements),) or not np.issubdtype(labels.dtype, np.integer):
-                raise ValueError(f"element_labels must be an ({len(elements)},) integer array (one label id "
-                                 f"per element), got {labels.dtype} of shape {labels.shape}")
-            labels = labels.astype(np.int64)
-            labels.setflags(write=False)
-            object.__setattr__(self, "element_labels", labels)
 
     # -- construction ----------------------------------------------------------------------
     @classmethod

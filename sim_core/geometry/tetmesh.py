@@ -82,6 +82,8 @@ class TetMesh(MeshGeometry):
             (det[x1 - x0, x2 - x0, x3 - x0] > 0).
         shape: (nx, ny, nz) cubes when the mesh is a structured block split into tetrahedra, else None.
         spacing: (dx, dy, dz) in m when the mesh is a structured block, else None.
+        element_labels: None, or (M,) integer label id per tetrahedron (``from_hex`` of a mesh
+            from a voxel mask keeps its hexahedra's).
 
     Raises ``ValueError`` for wrong shapes, out-of-range indices, repeated nodes in an element, and
     degenerate or inverted tetrahedra.
@@ -106,12 +108,14 @@ class TetMesh(MeshGeometry):
     def from_hex(cls, mesh: HexMesh) -> "TetMesh":
         """The hexahedra of ``mesh`` each split into 6 tetrahedra on the same nodes (Kuhn split in
         each hexahedron's local axes). Conforming when neighbouring hexahedra share local axis
-        directions (a structured block); keeps ``shape`` and ``spacing``."""
+        directions (a structured block or a mesh from a voxel mask); keeps ``shape``, ``spacing``
+        and ``element_labels`` (each tetrahedron its hexahedron's)."""
         if not isinstance(mesh, HexMesh):
             raise ValueError(f"from_hex needs a HexMesh, got {type(mesh).__name__}")
         elements = mesh.elements[:, KUHN_TETRAHEDRA].reshape(-1, 4)
+        labels = None if mesh.element_labels is None else np.repeat(mesh.element_labels, len(KUHN_TETRAHEDRA))
         return cls(mesh.nodes.copy(), elements, shape=mesh.shape,
-                   spacing=None if mesh.spacing is None else np.array(mesh.spacing))
+                   spacing=None if mesh.spacing is None else np.array(mesh.spacing), element_labels=labels)
 
     @classmethod
     def from_surface(cls, vertices, faces, **options) -> "TetMesh":

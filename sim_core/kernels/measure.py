@@ -59,7 +59,16 @@ def hex_volume(corner):
 @njit(cache=True, nogil=True, error_model="numpy")
 def element_volumes(positions, elements, out):
     """``out[e]`` = exact volume (m^3) of every trilinear hexahedron (``hex_volume``), no temporaries
-    per element: much faster than the batched Gauss determinants of ``mesh.hex_volumes``."""
+    per element: much faster than the batched Gauss determinants of ``mesh.hex_volumes``; of every
+    tetrahedron, det[x1 - x0, x2 - x0, x3 - x0] / 6, when ``elements`` has 4 columns."""
+    if elements.shape[1] == 4:
+        for e in range(elements.shape[0]):
+            a, b, c, d = elements[e, 0], elements[e, 1], elements[e, 2], elements[e, 3]
+            u0, u1, u2 = positions[b, 0] - positions[a, 0], positions[b, 1] - positions[a, 1], positions[b, 2] - positions[a, 2]
+            v0, v1, v2 = positions[c, 0] - positions[a, 0], positions[c, 1] - positions[a, 1], positions[c, 2] - positions[a, 2]
+            w0, w1, w2 = positions[d, 0] - positions[a, 0], positions[d, 1] - positions[a, 1], positions[d, 2] - positions[a, 2]
+            out[e] = (u0 * (v1 * w2 - v2 * w1) - u1 * (v0 * w2 - v2 * w0) + u2 * (v0 * w1 - v1 * w0)) / 6.0
+        return out
     corner = np.empty((8, 3))
     for e in range(elements.shape[0]):
         for n in range(8):
