@@ -1,0 +1,166 @@
+"""Topology change: separating elements along the faces they share (a cut).
+
+``separate(model, faces)`` cuts the faces ``faces`` (pairs of elements that share a face) and gives
+a node one copy per group of its elements that stay connected through its uncut faces: the model of
+the mesh born with that cut. A mass-spring model changes only what the cut touches, and here it is
+rebuilt from the cut mesh by ``build_model`` with the model's own material and options, so that it is
+exactly the model of that mesh (masses, springs, corrections, volumes, smoothing domains).
+
+Numbering: the elements keep their order and indices, the original nodes keep theirs (each stays
+with the group of its elements that holds its lowest element corner), and the copies are appended in
+the order of their original node, then of their group's lowest element corner.
+``Separation.origin`` maps every node of the cut model to the node it was copied from, and
+``Separation.state`` carries a ``State`` across (a copy starts where its original is, at its
+velocity). SI units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from .geometry.mesh import HexMesh
+from .geometry.tetmesh import TET_FACES, TetMesh
+from .geometry.topology import FACES
+from .models.material import Material
+from .models.model import Model, State, build_model
+
+
+@dataclass(frozen=True)
+class Separation:
+    """The outcome of ``separate``.
+
+    Attributes:
+        model: the model of the cut mesh.
+        origin: (N', ) int64, the node of the uncut model each node of the cut one was copied from
+            (``origin[i] == i`` for the original nodes, i < N).
+        faces: (F, 2) int64 the cut element pairs, each sorted, in the order given.
+    """
+
+    model: Model
+    origin: np.ndarray
+    faces: np.ndarray
+
+    @property
+    def added(self) -> int:
+        """Nodes the cut added (copies)."""
+        return len(self.origin) - int(self.origin.max(initial=-1)) - 1 if len(self.origin) else 0
+
+    def state(self, state: State) -> State:
+        """The uncut model's ``state`` on the cut model's nodes: each copy at its original's
+        position and velocity (the cut itself moves nothing)."""
+        return State(np.array(state.positions)[self.origin], np.array(state.velocities)[self.origin], state.time)
+
+
+def element_faces(mesh: HexMesh | TetMesh) -> np.ndarray:
+    """(M, f, k) the node indices of every element's faces (hexahedra: 6 quads, tetrahedra: 4 triangles)."""
+    return mesh.elements[:, FACES if isinstance(mesh, HexMesh) else TET_FACES]
+
+
+def shared_faces(mesh: HexMesh | TetMesh) -> np.ndarray:
+    """(P, 2) int64 every pair of elements that share a face (each pair sorted, pairs sorted): the
+    faces ``separate`` can cut."""
+    faces = element_faces(mesh)
+    count, per = faces.shape[:2]
+    keys = np.sort(faces.reshape(count * per, -1), axis=1)
+    order = np.lexsort(keys.T[::-1])
+    keys, owner = keys[order], np.repeat(np.arange(count), per)[order]
+    same = np.all(keys[1:] == keys[:-1], axis=1)
+    return np.stack([owner[:-1][same], owner[1:][same]], axis=1).astype(np.int64)
+
+
+def separate(model: Model, faces) -> Separation:
+    """Cut ``model`` along ``faces`` (F, 2): pairs of element indices that share a face (either
+    order). Returns the ``Separation`` (the cut model, each node's origin). A pair that does not share
+    a face, or an index outside the mesh, is a ValueError naming it; cutting no face gives the
+    model itself (origin the identity)."""
+    mesh = model.mesh
+    pairs = np.asarray(faces)
+    if pairs.size == 0:
+        pairs = np.zeros((0, 2), dtype=np.int64)
+    if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.issubdtype(pairs.dtype, np.integer):
+        raise ValueError(f"faces must be an (F, 2) integer array of element pairs that share a face, got "
+                         f"{pairs.dtype} of shape {pairs.shape}")
+    pairs = np.sort(pairs.astype(np.int64), axis=1)
+    if len(pairs) and (pairs.min() < 0 or pairs.max() >= mesh.n_elements):
+        raise ValueError(f"faces' element indices must lie in [0, {mesh.n_elements - 1}], got "
+                         f"[{pairs.min()}, {pairs.max()}]")
+    shared = shared_faces(mesh)
+    keys = shared[:, 0] * mesh.n_elements + shared[:, 1]
+    wanted = pairs[:, 0] * mesh.n_elements + pairs[:, 1]
+    found = np.isin(wanted, keys)
+    if not np.all(found):
+        bad = pairs[int(np.argmin(found))]
+        raise ValueError(f"elements {bad[0]} and {bad[1]} share no face: a cut separates elements along a face "
+                         "they share (sim_core.cutting.shared_faces lists them)")
+    if not len(pairs):
+        return Separation(model, np.arange(mesh.n_nodes, dtype=np.int64), pairs)
+    elements, origin = _split_nodes(mesh, shared, shared[~np.isin(keys, wanted)])
+    nodes = mesh.nodes[origin]
+    cut_mesh = type(mesh)(nodes, elements, element_labels=mesh.element_labels)
+    return Separation(_rebuild(model, cut_mesh), origin, pairs)
+
+
+def _corner_edges(elements, pairs):
+    """(slots, slots): the element corners (element * n + local node) joined by ``pairs`` (J, 2) of
+    elements that share a face: the corners of the common face's nodes in the two elements."""
+    n = elements.shape[1]
+    a, b = pairs[:, 0], pairs[:, 1]
+    rows, i, j = np.nonzero(elements[a][:, :, None] == elements[b][:, None, :])  # corner i of a is corner j of b
+    return a[rows] * n + i, b[rows] * n + j
+
+
+def _components(size, edges):
+    graph = sp.coo_matrix((np.ones(len(edges[0])), edges), shape=(size, size))
+    return connected_components(graph, directed=False)[1]
+
+
+def _first_slots(component, size):
+    """(size,) each slot's component's lowest slot."""
+    first = np.full(component.max() + 1, size, dtype=np.int64)
+    np.minimum.at(first, component, np.arange(size))
+    return first[component]
+
+
+def _split_nodes(mesh, shared, joined):
+    """(elements (M, n) renumbered, origin (N',)): every element corner (element * n + local node) is
+    a vertex of a graph whose edges join a node's corners in two elements of a ``joined`` (uncut)
+    shared face; each connected set of a node's corners is one node. Corners that no shared face
+    joined before the cut either (elements touching at a node only) stay joined through the node:
+    the cut separates only what it separates."""
+    elements = mesh.elements
+    count, n = elements.shape
+    size = count * n
+    node_of_slot = elements.ravel()
+    before = _first_slots(_components(size, _corner_edges(elements, shared)), size)
+    # each node's groups before the cut, joined to its first group (a node-only contact stays one node)
+    groups = np.unique(np.stack([node_of_slot, before], axis=1), axis=0)  # (node, group's first slot), sorted
+    first_of_node = groups[np.searchsorted(groups[:, 0], groups[:, 0]), 1]
+    cut_a, cut_b = _corner_edges(elements, joined)
+    after = _first_slots(_components(size, (np.r_[cut_a, groups[:, 1]], np.r_[cut_b, first_of_node])), size)
+    # one node per (original node, group after the cut): the group with the node's lowest corner
+    # keeps the node's index, the others are copies appended in (node, first corner) order
+    kept = np.unique(np.stack([node_of_slot, after], axis=1), axis=0)
+    keeps = np.r_[True, kept[1:, 0] != kept[:-1, 0]]
+    new_index = np.empty(len(kept), dtype=np.int64)
+    new_index[keeps] = kept[keeps, 0]
+    copies = np.flatnonzero(~keeps)
+    new_index[copies] = mesh.n_nodes + np.arange(len(copies))
+    origin = np.concatenate([np.arange(mesh.n_nodes), kept[copies, 0]]).astype(np.int64)
+    lookup = np.searchsorted(kept[:, 0] * size + kept[:, 1], node_of_slot * size + after)
+    return new_index[lookup].reshape(count, n), origin
+
+
+def _rebuild(model: Model, mesh):
+    """``build_model`` of ``mesh`` (the same elements, nodes copied) with ``model``'s material and options."""
+    options = dict(model.options)
+    corrections = options.pop("corrections", True)
+    if isinstance(mesh, TetMesh):  # the hexahedral options a tetrahedral model records at their defaults
+        for name in ("volume_conservation", "volume_stiffness", "nu_factor", "hourglass_control"):
+            options.pop(name, None)
+    material = Material(model.young_modulus, model.poisson_ratio, model.density)
+    return build_model(mesh, material, model=model.name, corrections=corrections, gravity=model.gravity,
+                       max_shear_error=None, **options)

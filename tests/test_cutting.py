@@ -1,0 +1,146 @@
+"""sim_core.cutting.separate: cutting elements apart along shared faces gives the model of the mesh
+born with that cut (checked against blocks built apart), duplicates exactly the nodes the cut
+separates, and carries states across."""
+
+import numpy as np
+import pytest
+
+import sim_core
+from sim_core import HexMesh, Material, TetMesh, build_model, cutting
+from sim_core.models.forces import internal_forces, stiffness_data
+from sim_core.solvers.static import zero_energy_modes
+
+MATERIAL = Material(1e4, 0.45, 1000.0)
+CASES = [(HexMesh, "baudet"), (HexMesh, "baudet-hyperelastic"), (TetMesh, "baudet"), (TetMesh, "baudet-hyperelastic")]
+
+
+def faces_across(mesh, x, below=None):
+    """The shared faces between elements on either side of the plane at ``x`` (elements whose
+    centroid has y below ``below`` only, when given)."""
+    shared = cutting.shared_faces(mesh)
+    centre = mesh.nodes[mesh.elements].mean(axis=1)
+    side = centre[:, 0] < x
+    across = side[shared[:, 0]] != side[shared[:, 1]]
+    if below is not None:
+        across &= (centre[shared[:, 0], 1] > below)
+    return shared[across]
+
+
+def matched(a, b):
+    """(k,) the index in ``b`` (M, 3) of each point of ``a`` (k, 3) (to 0.1 um)."""
+    where = {tuple(key): i for i, key in enumerate(np.round(b * 1e7).astype(np.int64))}
+    return np.array([where[tuple(key)] for key in np.round(a * 1e7).astype(np.int64)])
+
+
+@pytest.mark.parametrize("kind, name", CASES)
+def test_a_cut_through_the_block_gives_the_two_blocks_built_apart(kind, name):
+    """A 4x2x2 block cut along the plane x = 0.2 m is, node for node, the two 2x2x2 blocks built
+    apart and moved 1 um along x (so that their nodes differ): the same forces at a random
+    deformation (to 1e-9) and the same stiffness at rest; the 9 plane nodes get one copy each and the
+    cut model has the zero-energy modes of two free bodies."""
+    mesh = kind.block((4, 2, 2), 0.1)
+    model = build_model(mesh, MATERIAL, model=name)
+    separation = cutting.separate(model, faces_across(mesh, 0.2))
+    cut = separation.model
+    assert cut.n_nodes == mesh.n_nodes + 9 and separation.added == 9
+    left = kind.block((2, 2, 2), 0.1)
+    right = kind(left.nodes + np.array([0.2, 0.0, 0.0]), left.elements)
+    apart = kind(np.concatenate([left.nodes, right.nodes + np.array([1e-6, 0, 0])]),
+                 np.concatenate([left.elements, right.elements + left.n_nodes]))
+    reference = build_model(apart, MATERIAL, model=name)
+    # two free bodies: their 12 rigid modes (hexahedral "baudet" without hourglass control adds its
+    # blocks' hourglass modes, as the blocks built apart have them)
+    assert zero_energy_modes(cut)[0] == zero_energy_modes(reference)[0]
+    assert zero_energy_modes(cut)[0] == 12 or (kind is HexMesh and name == "baudet")
+    # the cut model's nodes on the right of the plane (elements there) are the shifted ones
+    on_right = np.zeros(cut.n_nodes, bool)
+    centre = mesh.nodes[mesh.elements].mean(axis=1)[:, 0]
+    on_right[np.unique(cut.mesh.elements[centre > 0.2])] = True
+    shifted = cut.mesh.nodes + np.where(on_right[:, None], [1e-6, 0, 0], 0.0)
+    index = matched(shifted, apart.nodes)
+    np.testing.assert_allclose(apart.nodes[index], shifted, atol=1e-12)
+    rng = np.random.default_rng(0)
+    displacement = 0.005 * rng.standard_normal((cut.n_nodes, 3))
+    ours = internal_forces(cut, cut.mesh.nodes + displacement)
+    moved = np.empty_like(apart.nodes)
+    moved[index] = apart.nodes[index] + displacement
+    theirs = internal_forces(reference, moved)[index]
+    assert np.abs(ours - theirs).max() < 1e-9 * np.abs(theirs).max()
+    dofs = (3 * index[:, None] + np.arange(3)).ravel()
+    ours = cut.pattern.matrix(stiffness_data(cut, cut.mesh.nodes)).toarray()
+    theirs = reference.pattern.matrix(stiffness_data(reference, apart.nodes)).toarray()[np.ix_(dofs, dofs)]
+    assert np.abs(ours - theirs).max() < 1e-9 * np.abs(theirs).max()
+
+
+@pytest.mark.parametrize("kind", [HexMesh, TetMesh])
+def test_a_crack_duplicates_its_faces_nodes_but_not_its_front(kind):
+    """A crack from the top of a 4x2x2 block down to y = 0.1 m at x = 0.2 m: the nodes strictly above
+    the front (y = 0.2: 3 of them) get a copy, the front's (y = 0.1) do not, and the block stays one
+    body (6 zero-energy modes). States carry across: each copy where its original is."""
+    mesh = kind.block((4, 2, 2), 0.1)
+    model = build_model(mesh, MATERIAL, model="baudet-hyperelastic")
+    separation = cutting.separate(model, faces_across(mesh, 0.2, below=0.1))
+    assert separation.added == 3
+    copied = separation.origin[mesh.n_nodes:]
+    np.testing.assert_allclose(mesh.nodes[copied][:, [0, 1]], [[0.2, 0.2]] * 3)
+    assert zero_energy_modes(separation.model)[0] == 6
+    np.testing.assert_array_equal(separation.origin[:mesh.n_nodes], np.arange(mesh.n_nodes))
+    state = model.new_state()
+    state.positions = state.positions + np.random.default_rng(1).standard_normal(state.positions.shape)
+    carried = separation.state(state)
+    np.testing.assert_array_equal(carried.positions, state.positions[separation.origin])
+
+
+def test_elements_touching_at_a_node_only_stay_joined_there():
+    """Three hexahedra: A and B share a face, C touches B at one corner only. Cutting A from B copies
+    the 4 nodes of their face and not the corner C shares with B."""
+    block = HexMesh.block((2, 1, 1), 0.1)
+    corner = int(np.flatnonzero(np.all(np.isclose(block.nodes, [0.2, 0.1, 0.1]), axis=1))[0])
+    extra = HexMesh.block((1, 1, 1), 0.1)
+    nodes = np.concatenate([block.nodes, extra.nodes[1:] + 0.1 + np.array([0.1, 0.0, 0.0])])
+    mapping = np.r_[corner, block.n_nodes + np.arange(extra.n_nodes - 1)]
+    mesh = HexMesh(nodes, np.concatenate([block.elements, mapping[extra.elements]]))
+    model = build_model(mesh, MATERIAL, model="baudet-hyperelastic")
+    separation = cutting.separate(model, [[0, 1]])
+    assert separation.added == 4 and corner not in separation.origin[mesh.n_nodes:]
+
+
+def test_bad_faces_name_what_is_wrong():
+    model = build_model(TetMesh.block((2, 1, 1), 0.1), MATERIAL)
+    with pytest.raises(ValueError, match="share no face"):
+        cutting.separate(model, [[0, model.mesh.n_elements - 1]])
+    with pytest.raises(ValueError, match=r"must lie in \[0, 11\]"):
+        cutting.separate(model, [[0, 12]])
+    with pytest.raises(ValueError, match=r"\(F, 2\) integer array"):
+        cutting.separate(model, [0.5, 1.5])
+    nothing = cutting.separate(model, np.zeros((0, 2), int))
+    assert nothing.model is model and nothing.added == 0
+
+
+def test_a_cut_world_steps_in_a_stack_as_alone():
+    """The cut model in one world of a ModelStack (spare node rows for its copies) steps, implicit,
+    as the cut model alone, bit for bit, while the uncut worlds step as the uncut model."""
+    mesh = TetMesh.block((4, 2, 2), 0.05)
+    model = build_model(mesh, MATERIAL, gravity=(0, -9.81, 0))
+    separation = cutting.separate(model, faces_across(mesh, 0.1, below=0.05))
+    stack = sim_core.ModelStack(model, 2, spare_nodes=separation.added)
+    stack.assign(1, separation.model)
+    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
+    control = stack.new_control()
+    control.fixed[:, clamp] = True
+    control.target[:, clamp] = mesh.nodes[clamp]
+    solver = sim_core.make_solver("implicit", stack)
+    state, scratch = stack.new_state(), stack.new_state()
+    for _ in range(5):
+        solver.step(state, scratch, control, 0.01)
+        state, scratch = scratch, state
+    cut = separation.model
+    alone = sim_core.make_solver("implicit", cut)
+    one, other = cut.new_state(), cut.new_state()
+    single = cut.new_control()
+    single.fixed[clamp], single.target[clamp] = True, mesh.nodes[clamp]
+    for _ in range(5):
+        alone.step(one, other, single, 0.01)
+        one, other = other, one
+    np.testing.assert_array_equal(state.positions[1, :cut.n_nodes], one.positions)
+    assert np.abs(one.positions - cut.mesh.nodes).max() > 1e-4
