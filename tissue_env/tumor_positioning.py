@@ -75,7 +75,7 @@ class TumorPositioningWorlds(TaskWorlds):
         self._patches, self._patch_of, self._groups = {}, [None] * count, None
         for index in range(count):
             self._set_patch(index, env.tool_nodes, env.base_control.target)
-        corners = len(env.tumor_nodes)  # the nodes of the element holding the tumour: 8, or 4 (tetrahedra)
+        corners = env.mesh.elements.shape[1]  # the nodes of the element holding the tumour: 8, or 4 (tetrahedra)
         self.tumor_nodes = np.zeros((count, corners), dtype=int)
         self.tumor_weights = np.zeros((count, corners))
         self.tumor_start = np.zeros((count, 3))
