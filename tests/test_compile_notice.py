@@ -41,7 +41,7 @@ def test_a_compile_says_so_once_and_a_cached_load_says_nothing(tmp_path):
     first = _run(tmp_path / "cache", "default")
     assert first.stdout == ""
     assert first.stderr.count("compiling numba kernels") == 1, first.stderr
-    assert "tissue-gym-warmup" in first.stderr and "minutes" in first.stderr
+    assert "tissue-gym-warmup" in first.stderr and "min of CPU" in first.stderr
     assert "still compiling" not in first.stderr  # progress every 30 s: two small kernels take less
     again = _run(tmp_path / "cache", "default")  # the same cache: loaded, not compiled
     assert again.stdout == "" and again.stderr == ""
