@@ -16,7 +16,8 @@ $(STAMP): pyproject.toml Makefile
 	# pinned CPU torch first: an unpinned one (pulled by stable-baselines3) is a multi-GB CUDA build
 	$(PY) -m pip install --quiet "torch==2.13.0"
 	$(PY) -m pip install --quiet -e ".[train,dev,docs]"
-	# compile every numba kernel once (about 100 s on 2 cores), so a first env step takes 0.1 s, not 12 s
+	# compile every numba kernel once (260 s of CPU with an empty cache, about 4.5 min; 10 min on 2 busy
+	# cores), so that a first env step takes 0.1 s instead of compiling its task's kernels (1.5 min of CPU)
 	$(VENV)/bin/tissue-gym-warmup
 	touch $(STAMP)
 

@@ -17,6 +17,10 @@ All quantities are SI: m, kg, s, Pa, N. Formulas follow docs/physics.md.
 
 from importlib import metadata as _metadata
 
+from . import compiling as _compiling
+
+_compiling.install()  # one message (logger "sim_core.kernels", stderr) when kernels compile, not load from the cache
+
 from .models.material import Material
 from .geometry.mesh import HexMesh
 from .geometry.tetmesh import TetMesh

@@ -46,7 +46,7 @@ from .checks import (  # noqa: F401  (re-exported: the tasks import them from he
 )
 from .camera import VISUAL_TYPES, Camera, CameraView
 from . import snapshots
-from .rendering import Renderer
+from .rendering import FrameRendering
 from .snapshots import MODEL_KEY, EpisodeState
 from .worlds import OBS_LIMIT, TaskWorlds, feature_limit, observation_limits
 
@@ -107,7 +107,7 @@ def _row(values, index=0):
     return value.copy() if isinstance(value, np.ndarray) else value
 
 
-class TissueEnv(gym.Env):
+class TissueEnv(FrameRendering, gym.Env):
     """Base class: a sim_core tissue block, a tool moved by displacement increments, observations,
     rewards and divergence handling. Not registered itself; see the task classes.
 
@@ -183,6 +183,9 @@ class TissueEnv(gym.Env):
         render_mode: None, "rgb_array" (the debug frames of ``tissue_env.rendering``, with the hidden
             tumour or inclusion marked), "human", or "depth_array" (the camera's depth image, (H, W)
             float32 m, as ``observation_type="depth"`` sees it).
+        render_key: the ``"rgb_array"`` and ``"human"`` frames with a legend of their markers and a
+            colour bar of the displacement (mm) on the right: 256 x 384 pixels instead of 256 x 256.
+            Either way the colours span ``render_scale`` (the largest tool offset of the workspace).
         max_nodes: the largest mesh (nodes) accepted, MAX_NODES by default (``check_work``: a larger
             ``shape`` raises ValueError); None accepts any size, with a warning past SLOW_NODES.
 
@@ -265,7 +268,8 @@ class TissueEnv(gym.Env):
                  poisson_ratio_range=None, density_range=None, volume_weight=1.0, strain_threshold=0.3, strain_weight=1.0,
                  instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
                  max_nodes=MAX_NODES, image_size=None, camera=None, point_count=512, point_normals=False,
-                 difficulty="default", terminate_on_success=None, size_range=None, observe_parameters=False):
+                 difficulty="default", terminate_on_success=None, size_range=None, observe_parameters=False,
+                 render_key=False):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(terminate_on_success=terminate_on_success))
         self.difficulty = difficulty
         self.terminate_on_success = check_flag("terminate_on_success", settings["terminate_on_success"])
@@ -276,6 +280,7 @@ class TissueEnv(gym.Env):
                                   observe_parameters)
         self._check_reward_and_solver(volume_weight, strain_threshold, strain_weight, instability_penalty,
                                       solver_tolerance, preconditioner, render_mode)
+        self.render_key = check_flag("render_key", render_key)
         self._build_block()
         self._camera_view = self._camera_setup(image_size, camera, point_count, point_normals)
         self._build_spaces()
@@ -817,32 +822,3 @@ class TissueEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return _row(observations), float(rewards[0]), bool(terminated[0]), False, _row(infos)
-
-    # -- rendering -----------------------------------------------------------------------------------
-    def _markers(self) -> dict:
-        """Named points (m) to draw: tool, target, goal ..."""
-        return {}
-
-    def render(self):
-        if self.render_mode is None:
-            gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
-            return None
-        self._require_reset("render()")
-        if self.render_mode == "depth_array":
-            return self._worlds.camera_images()[1][0].astype(np.float32)
-        if self._renderer is None:
-            self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
-                                      human=self.render_mode == "human", fps=self.metadata["render_fps"])
-        positions = self.state.positions
-        displacement = np.linalg.norm(positions - self.episode_mesh.nodes, axis=1)
-        frame = self._renderer.draw(positions, displacement, self._markers(), self._extra_drawing())
-        return frame if self.render_mode == "rgb_array" else None
-
-    def _extra_drawing(self):
-        """Optional (kind, data) items the renderer draws (floor, target region ...)."""
-        return []
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None

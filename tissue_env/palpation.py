@@ -773,6 +773,12 @@ class PalpationEnv(TissueEnv):
             goal = np.array([best[0], surface - self.success_depth - 0.001, best[1]])
         return np.clip((goal - tip) / self.max_step, -1.0, 1.0).astype(np.float32)
 
+    @property
+    def render_scale(self) -> float:
+        """The probe pushes the tissue down by at most ``max_depth`` (it slides over the rest of its
+        workspace): the displacement of full colour in the frames (m)."""
+        return float(self.max_depth)
+
     def _markers(self):
         return dict(tool=self._tip(), inclusion=np.array([self.inclusion_centre[0], self.top_y, self.inclusion_centre[2]]))
 

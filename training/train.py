@@ -184,6 +184,24 @@ def _normalise(train_env, eval_env, run_dir, normalize, resume_stats=None):
     return train_env, eval_env
 
 
+def round_size(model) -> int:
+    """The env steps of one round of ``model.learn``'s loop, which checks its budget only between
+    rounds: an on-policy algorithm's rollout (``n_steps`` per env), an off-policy one's
+    ``train_freq`` steps per env (its env count when ``train_freq`` counts episodes)."""
+    if hasattr(model, "n_steps"):  # OnPolicyAlgorithm
+        return int(model.n_steps) * model.n_envs
+    frequency = getattr(model, "train_freq", None)
+    unit = getattr(getattr(frequency, "unit", None), "value", "step")
+    return (int(frequency.frequency) if frequency is not None and unit == "step" else 1) * model.n_envs
+
+
+def whole_rounds(model, steps: int) -> int:
+    """``steps`` rounded up to whole rounds (``round_size``): the steps ``model.learn(steps)``
+    takes, so that its progress bar ends at its total (15,360/15,360, not 15,360/15,000)."""
+    size = round_size(model)
+    return -(-int(steps) // size) * size
+
+
 def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = True) -> Path:
     """Train (or, with ``resume``, continue from the newest checkpoint that loads) to
     ``config["timesteps"]`` env steps. Every file is written atomically (``training.checkpoints``)."""
@@ -256,7 +274,11 @@ def train(config: dict, run_dir: Path, resume: bool = False, progress: bool = Tr
                                evaluations, record, start_step=done)
     remaining = total - done
     if remaining > 0:
-        model.learn(total_timesteps=remaining, callback=callbacks, reset_num_timesteps=step is None,
+        steps = whole_rounds(model, remaining)
+        if steps != remaining:
+            print(f"training {steps} env steps, not {remaining}: SB3 trains whole rounds of "
+                  f"{round_size(model)} steps", flush=True)
+        model.learn(total_timesteps=steps, callback=callbacks, reset_num_timesteps=step is None,
                     progress_bar=progress, tb_log_name="run")
     ckpt.save_model(model, run_dir / "model.zip")
     if normalize:
