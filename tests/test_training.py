@@ -34,7 +34,7 @@ class Background:
     own: each is a few processes that import torch and train for 5-15 s, self-contained, so they
     start when the test session starts (``tests/conftest.py``, when a test that needs one is
     selected) and overlap the other tests instead of holding up the suite. They run at a lower
-    priority (nice 10): they take the cores the other tests leave idle. A test asks for its job's
+    priority (nice 10 more than the session's): they take the cores the other tests leave idle. A test asks for its job's
     result (``result``), waiting for it if needed."""
 
     def __init__(self):
@@ -59,8 +59,8 @@ class Background:
             if self.closed:
                 process.kill()
             self.processes.append(process)
-        try:
-            os.setpriority(os.PRIO_PROCESS, process.pid, 10)  # before it starts its vec env's workers
+        try:  # 10 below this process's priority, before the run starts its vec env's workers
+            os.setpriority(os.PRIO_PROCESS, process.pid, min(os.getpriority(os.PRIO_PROCESS, 0) + 10, 19))
         except OSError:
             pass
 
