@@ -233,62 +233,49 @@ def _plot(run_dir: Path, out: Path):
     return process.returncode, process.stderr
 
 
-def test_a_run_killed_in_its_first_seconds_resumes_from_the_start(tmp_path):
-    """SIGKILL 3 s after the start (the imports, the env and model builds): config.json is there, so
-    the run folder plots (no episode yet: skipped, exit 0) and --resume trains it from step 0 to its
-    budget."""
-    runs = tmp_path / "runs"
-    session = Session(["--env", ENV, "--algo", "ppo", "--timesteps", "128", "--seed", "0", "--n-envs", "1",
-                       "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "64",
-                       "--checkpoint-freq", "64", "--config", str(_config(tmp_path)),
-                       "--env-kwargs", '{"max_episode_steps": 8}'], tmp_path, 0)
-    time.sleep(max(0.0, 3.0 - (time.perf_counter() - session.start)))
-    assert session.running(), session.err.read_text()[-2000:]
-    assert session.kill() == -signal.SIGKILL
-    folders = list(runs.glob("*/ppo/*"))
-    assert len(folders) == 1 and (folders[0] / "config.json").is_file(), folders
-    run_dir = folders[0]
-    from training import plot
-
-    assert plot.main([str(run_dir), "--out", str(tmp_path / "early.png")]) == 0  # as python -m training.plot
-    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
-    assert final.wait(timeout=180) == 0, final.err.read_text()
-    result = json.loads((run_dir / "result.json").read_text())
-    assert result["finished"] and result["timesteps"] == 128 and len(result["resumes"]) == 1
-    assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [64, 128]
-    code, err = _plot(run_dir, tmp_path / "curve.png")
-    assert code == 0 and (tmp_path / "curve.png").stat().st_size > 1000, err
-
-
-def test_resumed_learning_curve_has_the_episodes_of_the_run_once(tmp_path):
-    """Killed (SIGKILL) with episodes logged past its newest checkpoint, a run of two envs resumes
-    from the checkpoint: the monitor logs drop the episodes of the steps trained again, so that at
-    the end their episodes cover at most the run's steps (plus one episode), and the run plots."""
+def test_a_run_killed_early_and_late_resumes_with_the_episodes_of_the_run_once(tmp_path):
+    """A run of two envs, SIGKILLed twice. First 3 s after its start (the imports, the env and model
+    builds): config.json is there, so the run folder plots (no episode yet: skipped, exit 0) and
+    --resume trains it on. Then with episodes logged past its newest checkpoint: it
+    resumes from the checkpoint, and the monitor logs drop the episodes of the steps trained again,
+    so that at the end their episodes cover at most the run's steps (plus one episode); the run
+    reaches its budget with every scheduled evaluation, and plots. (Two tests once, each starting
+    and resuming a run of its own.)"""
     budget, episode = 384, 8
     runs = tmp_path / "runs"
     session = Session(["--env", ENV, "--algo", "ppo", "--timesteps", str(budget), "--seed", "0", "--n-envs", "2",
                        "--vec-env", "dummy", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
                        "--eval-freq", "128", "--checkpoint-freq", "128", "--config", str(_config(tmp_path)),
                        "--env-kwargs", f'{{"max_episode_steps": {episode}}}'], tmp_path, 0)
-    assert _wait_for(lambda: list(runs.glob("*/ppo/*/config.json")), session), session.err.read_text()
-    run_dir = next(runs.glob("*/ppo/*/config.json")).parent
+    time.sleep(max(0.0, 3.0 - (time.perf_counter() - session.start)))
+    assert session.running(), session.err.read_text()[-2000:]
+    assert session.kill() == -signal.SIGKILL
+    folders = list(runs.glob("*/ppo/*"))
+    assert len(folders) == 1 and (folders[0] / "config.json").is_file(), folders
+    run_dir = folders[0]
     folder = run_dir / "checkpoints"
+    from training import plot
+
+    assert plot.main([str(run_dir), "--out", str(tmp_path / "early.png")]) == 0  # as python -m training.plot
+
+    session = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
 
     def ahead():  # episodes logged well past the newest checkpoint
         newest = _newest_step(folder)
         return newest >= 128 and sum(_monitor_steps(run_dir).values()) > newest + 4 * episode
     assert _wait_for(ahead, session, pause=0.01), session.err.read_text()
     assert session.kill() == -signal.SIGKILL
-    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 2)
     assert final.wait(timeout=180) == 0, final.err.read_text()
     result = json.loads((run_dir / "result.json").read_text())
-    assert result["finished"] and result["timesteps"] == budget
-    assert result["resumes"][0]["dropped_episodes"] > 0
+    assert result["finished"] and result["timesteps"] == budget and len(result["resumes"]) == 2
+    assert result["resumes"][1]["dropped_episodes"] > 0
+    assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [128, 256, 384]
     steps = _monitor_steps(run_dir)
     assert len(steps) == 2 and sum(steps.values()) <= budget + episode, steps
     assert all(total <= budget // 2 + episode for total in steps.values()), steps
     code, err = _plot(run_dir, tmp_path / "curve.png")
-    assert code == 0, err
+    assert code == 0 and (tmp_path / "curve.png").stat().st_size > 1000, err
 
 
 def test_monitor_logs_are_cut_to_the_episodes_of_the_checkpoint(tmp_path):
