@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from background_jobs import Jobs
+
 ENV = "tissue_env/Retraction-v0"  # the cheapest task (about 4 ms a step)
 BUDGET = 2048
 N_STEPS = 64  # PPO rollout: a checkpoint every rollout
@@ -49,13 +51,17 @@ def _temporaries(folder: Path):
 class Session:
     """One ``python -m training.train`` process, its output in files, its time measured."""
 
-    def __init__(self, args, folder: Path, index: int):
+    def __init__(self, args, folder: Path, index: int, background=None):
+        """``background``: the ``background_jobs.Jobs`` whose job starts it (a session of its own)."""
         self.out = folder / f"session{index}.out"
         self.err = folder / f"session{index}.err"
         with open(self.out, "w") as out, open(self.err, "w") as err:
             self.start = time.perf_counter()
             self.process = subprocess.Popen([sys.executable, "-m", "training.train", *args], stdout=out,
-                                            stderr=err, cwd=Path(__file__).resolve().parents[1])
+                                            stderr=err, cwd=Path(__file__).resolve().parents[1],
+                                            start_new_session=background is not None)
+        if background is not None:
+            background.adopt(self.process)
         self.seconds = None
 
     def running(self):
@@ -176,10 +182,10 @@ def test_training_survives_repeated_sigkills(tmp_path):
     assert not _temporaries(folder), "a resume removes the temporaries the killed sessions left"
 
 
-def test_sac_killed_resumes_with_every_transition(tmp_path):
-    """Off-policy: killed three times (twice in a checkpoint write, once at a random moment), SAC ends
-    at its budget and each checkpoint's replay buffer holds as many transitions as its step (none
-    lost, none twice)."""
+def _sac_killed_run(background, tmp_path):
+    """The SAC run of the test below, killed three times (twice in a checkpoint write, once at a random
+    moment) and resumed: (run folder, the transitions in each checkpoint's replay buffer after each
+    kill: [(file name, step, transitions)])."""
     import pickle
 
     rng = random.Random(31)
@@ -190,9 +196,10 @@ def test_sac_killed_resumes_with_every_transition(tmp_path):
     first = ["--env", ENV, "--algo", "sac", "--timesteps", "400", "--seed", "0", "--n-envs", "1", "--runs-dir",
              str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "100", "--checkpoint-freq", "25",
              "--config", str(config), "--env-kwargs", '{"max_episode_steps": 8}']
-    run_dir = None
+    run_dir, buffers = None, []
     for index, mode in enumerate(["write", "progress", "write"]):
-        session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path, index)
+        session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path, index,
+                          background)
         if run_dir is None:
             assert _wait_for(lambda: list(runs.glob("*/sac/*/config.json")), session), session.err.read_text()
             run_dir = next(runs.glob("*/sac/*/config.json")).parent
@@ -208,9 +215,63 @@ def test_sac_killed_resumes_with_every_transition(tmp_path):
         session.kill()
         for buffer in folder.glob("model_replay_buffer_*_steps.pkl"):
             with open(buffer, "rb") as stream:
-                assert pickle.load(stream).size() == int(buffer.name.split("_")[3]), buffer.name
-    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 3)
+                buffers.append((buffer.name, int(buffer.name.split("_")[3]), pickle.load(stream).size()))
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 3, background)
     assert final.wait(timeout=180) == 0, final.err.read_text()
+    return run_dir, buffers
+
+
+#: the self-contained runs of the tests below that have no timing to keep (``background_jobs``):
+#: they start when the session starts (``start_in_background``) and overlap the other tests
+JOBS = {"sac": _sac_killed_run}
+TESTS_OF_JOBS = {"test_sac_killed_resumes_with_every_transition": "sac"}
+
+#: the jobs started by ``start_in_background`` (tests/conftest.py), or None
+background = None
+
+
+def start_in_background(name):
+    """tests/conftest.py, after collection, for each selected test of this module: start the job the
+    test ``name`` reads, if it reads one; whether it did."""
+    global background
+    if name not in TESTS_OF_JOBS:
+        return False
+    if background is None:
+        background = Jobs(JOBS, "resume_test")
+    background.submit(TESTS_OF_JOBS[name])
+    return True
+
+
+def stop_background():
+    """The session ended: end the jobs still running and remove their folder."""
+    global background
+    if background is not None:
+        background.close()
+        background = None
+
+
+@pytest.fixture(scope="module")
+def jobs():
+    """The jobs tests/conftest.py started; or (a pytest-xdist worker) jobs of this module's own, run
+    when a test asks for them."""
+    if background is not None:
+        yield background
+        return
+    own = Jobs(JOBS, "resume_test")
+    yield own
+    own.close()
+
+
+def test_sac_killed_resumes_with_every_transition(jobs):
+    """Off-policy: killed three times (twice in a checkpoint write, once at a random moment), SAC ends
+    at its budget and each checkpoint's replay buffer holds as many transitions as its step (none
+    lost, none twice)."""
+    import pickle
+
+    run_dir, buffers = jobs.result("sac")
+    assert buffers  # checked after each kill
+    for name, step, transitions in buffers:
+        assert transitions == step, name
     with open(run_dir / "checkpoints" / "model_replay_buffer_400_steps.pkl", "rb") as stream:
         assert pickle.load(stream).size() == 400
     assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [100, 200, 300, 400]

@@ -2,78 +2,28 @@
 cleanly with exit code 2."""
 
 import json
-import os
 import shutil
-import signal
 import subprocess
 import sys
-import tempfile
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from background_jobs import Jobs
+
 ENV = "tissue_env/TumorPositioning-v0"
 
 
 def run(*args, cwd=None, background=None):
-    """(exit code, stdout, stderr) of ``python -m *args``. With ``background`` (a ``Background``) the
-    process runs niced, in a session of its own that ``Background.close`` can end."""
+    """(exit code, stdout, stderr) of ``python -m *args``; with ``background`` (``background_jobs.Jobs``),
+    a process of that job's, in a session of its own."""
     process = subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, cwd=cwd, start_new_session=background is not None)
     if background is not None:
         background.adopt(process)
     out, err = process.communicate()
     return process.returncode, out, err
-
-
-class Background:
-    """The training runs of the tests below (``JOBS``), run one after the other on a thread of their
-    own: each is a few processes that import torch and train for 5-15 s, self-contained, so they
-    start when the test session starts (``tests/conftest.py``, when a test that needs one is
-    selected) and overlap the other tests instead of holding up the suite. They run at a lower
-    priority (nice 10 more than the session's): they take the cores the other tests leave idle. A test asks for its job's
-    result (``result``), waiting for it if needed."""
-
-    def __init__(self):
-        self.folder = tempfile.TemporaryDirectory(prefix="training_test")
-        self.path = Path(self.folder.name)
-        self.executor = ThreadPoolExecutor(1, thread_name_prefix="training-test")
-        self.jobs = {}
-        self.processes = []
-        self.lock = threading.Lock()
-        self.closed = False
-
-    def submit(self, name):
-        if name not in self.jobs:
-            self.jobs[name] = self.executor.submit(JOBS[name], self, self.path / name)
-        return self.jobs[name]
-
-    def result(self, name):
-        return self.submit(name).result()
-
-    def adopt(self, process):
-        with self.lock:
-            if self.closed:
-                process.kill()
-            self.processes.append(process)
-        try:  # 10 below this process's priority, before the run starts its vec env's workers
-            os.setpriority(os.PRIO_PROCESS, process.pid, min(os.getpriority(os.PRIO_PROCESS, 0) + 10, 19))
-        except OSError:
-            pass
-
-    def close(self):
-        with self.lock:
-            self.closed = True
-            for process in self.processes:
-                if process.poll() is None:
-                    os.killpg(process.pid, signal.SIGKILL)  # its session: the run and its env workers
-        for job in self.jobs.values():
-            job.cancel()
-        self.executor.shutdown(wait=True)
-        self.folder.cleanup()
 
 
 def _snapshot(runs: Path, run_dir: Path, snapshots: Path) -> Path:
@@ -86,7 +36,6 @@ def _snapshot(runs: Path, run_dir: Path, snapshots: Path) -> Path:
 def _train_ppo(background, folder):
     """The PPO smoke run (``trained``): trained, copied as it is (``snapshot``), then resumed from its
     newest checkpoint as if interrupted after it, evaluated and plotted (the tests' order)."""
-    folder.mkdir(parents=True)
     runs = folder / "runs"
     code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "3",
                          "--n-envs", "2", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
@@ -109,7 +58,6 @@ def _train_ppo(background, folder):
 def _train_sac(background, folder):
     """SAC with a checkpoint every 50 steps, copied as it is (``snapshot``), then resumed (model.zip
     removed) to 300 steps."""
-    folder.mkdir(parents=True)
     config = folder / "sac_small.yml"
     config.write_text("default:\n  policy: MlpPolicy\n  normalize: false\n  buffer_size: 1000\n  learning_starts: 50\n"
                       "  batch_size: 16\n  policy_kwargs: {net_arch: [16, 16]}\n")
@@ -131,7 +79,6 @@ def _train_sac(background, folder):
 
 def _train_batched(background, folder):
     """PPO on the batched vector env, copied as it is (``snapshot``), then resumed to 384 steps."""
-    folder.mkdir(parents=True)
     common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "128", "--checkpoint-freq", "128")
     runs = folder / "runs"
     code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "2",
@@ -148,7 +95,10 @@ def _train_batched(background, folder):
     return job
 
 
-#: the background jobs, by name, and the tests that read them
+#: the training runs of the tests below, by name, and the tests that read them: each is a few
+#: processes that import torch and train for 5-15 s, self-contained, so they start when the session
+#: starts (``start_in_background``) and overlap the other tests instead of holding up the suite (about
+#: a minute). They run 10 below the session's priority: on the cores the other tests leave idle.
 JOBS = {"ppo": _train_ppo, "sac": _train_sac, "batched": _train_batched}
 TESTS_OF_JOBS = {"test_run_folder_contents": "ppo", "test_resume_continues_from_the_latest_checkpoint": "ppo",
                  "test_evaluate_json_and_plot": "ppo",
@@ -166,7 +116,7 @@ def start_in_background(name):
     if name not in TESTS_OF_JOBS:
         return False
     if background is None:
-        background = Background()
+        background = Jobs(JOBS, "training_test", niceness=10)
     background.submit(TESTS_OF_JOBS[name])
     return True
 
@@ -186,7 +136,7 @@ def jobs():
     if background is not None:
         yield background
         return
-    own = Background()
+    own = Jobs(JOBS, "training_test", niceness=10)
     yield own
     own.close()
 
