@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from background_jobs import Jobs
+
 ENV = "tissue_env/Retraction-v0"  # the cheapest task (about 4 ms a step)
 BUDGET = 2048
 N_STEPS = 64  # PPO rollout: a checkpoint every rollout
@@ -49,13 +51,17 @@ def _temporaries(folder: Path):
 class Session:
     """One ``python -m training.train`` process, its output in files, its time measured."""
 
-    def __init__(self, args, folder: Path, index: int):
+    def __init__(self, args, folder: Path, index: int, background=None):
+        """``background``: the ``background_jobs.Jobs`` whose job starts it (a session of its own)."""
         self.out = folder / f"session{index}.out"
         self.err = folder / f"session{index}.err"
         with open(self.out, "w") as out, open(self.err, "w") as err:
             self.start = time.perf_counter()
             self.process = subprocess.Popen([sys.executable, "-m", "training.train", *args], stdout=out,
-                                            stderr=err, cwd=Path(__file__).resolve().parents[1])
+                                            stderr=err, cwd=Path(__file__).resolve().parents[1],
+                                            start_new_session=background is not None)
+        if background is not None:
+            background.adopt(self.process)
         self.seconds = None
 
     def running(self):
@@ -176,10 +182,10 @@ def test_training_survives_repeated_sigkills(tmp_path):
     assert not _temporaries(folder), "a resume removes the temporaries the killed sessions left"
 
 
-def test_sac_killed_resumes_with_every_transition(tmp_path):
-    """Off-policy: killed three times (twice in a checkpoint write, once at a random moment), SAC ends
-    at its budget and each checkpoint's replay buffer holds as many transitions as its step (none
-    lost, none twice)."""
+def _sac_killed_run(background, tmp_path):
+    """The SAC run of the test below, killed three times (twice in a checkpoint write, once at a random
+    moment) and resumed: (run folder, the transitions in each checkpoint's replay buffer after each
+    kill: [(file name, step, transitions)])."""
     import pickle
 
     rng = random.Random(31)
@@ -190,9 +196,10 @@ def test_sac_killed_resumes_with_every_transition(tmp_path):
     first = ["--env", ENV, "--algo", "sac", "--timesteps", "400", "--seed", "0", "--n-envs", "1", "--runs-dir",
              str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "100", "--checkpoint-freq", "25",
              "--config", str(config), "--env-kwargs", '{"max_episode_steps": 8}']
-    run_dir = None
+    run_dir, buffers = None, []
     for index, mode in enumerate(["write", "progress", "write"]):
-        session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path, index)
+        session = Session(first if run_dir is None else ["--resume", str(run_dir), "--no-progress"], tmp_path, index,
+                          background)
         if run_dir is None:
             assert _wait_for(lambda: list(runs.glob("*/sac/*/config.json")), session), session.err.read_text()
             run_dir = next(runs.glob("*/sac/*/config.json")).parent
@@ -208,9 +215,63 @@ def test_sac_killed_resumes_with_every_transition(tmp_path):
         session.kill()
         for buffer in folder.glob("model_replay_buffer_*_steps.pkl"):
             with open(buffer, "rb") as stream:
-                assert pickle.load(stream).size() == int(buffer.name.split("_")[3]), buffer.name
-    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 3)
+                buffers.append((buffer.name, int(buffer.name.split("_")[3]), pickle.load(stream).size()))
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 3, background)
     assert final.wait(timeout=180) == 0, final.err.read_text()
+    return run_dir, buffers
+
+
+#: the self-contained runs of the tests below that have no timing to keep (``background_jobs``):
+#: they start when the session starts (``start_in_background``) and overlap the other tests
+JOBS = {"sac": _sac_killed_run}
+TESTS_OF_JOBS = {"test_sac_killed_resumes_with_every_transition": "sac"}
+
+#: the jobs started by ``start_in_background`` (tests/conftest.py), or None
+background = None
+
+
+def start_in_background(name):
+    """tests/conftest.py, after collection, for each selected test of this module: start the job the
+    test ``name`` reads, if it reads one; whether it did."""
+    global background
+    if name not in TESTS_OF_JOBS:
+        return False
+    if background is None:
+        background = Jobs(JOBS, "resume_test")
+    background.submit(TESTS_OF_JOBS[name])
+    return True
+
+
+def stop_background():
+    """The session ended: end the jobs still running and remove their folder."""
+    global background
+    if background is not None:
+        background.close()
+        background = None
+
+
+@pytest.fixture(scope="module")
+def jobs():
+    """The jobs tests/conftest.py started; or (a pytest-xdist worker) jobs of this module's own, run
+    when a test asks for them."""
+    if background is not None:
+        yield background
+        return
+    own = Jobs(JOBS, "resume_test")
+    yield own
+    own.close()
+
+
+def test_sac_killed_resumes_with_every_transition(jobs):
+    """Off-policy: killed three times (twice in a checkpoint write, once at a random moment), SAC ends
+    at its budget and each checkpoint's replay buffer holds as many transitions as its step (none
+    lost, none twice)."""
+    import pickle
+
+    run_dir, buffers = jobs.result("sac")
+    assert buffers  # checked after each kill
+    for name, step, transitions in buffers:
+        assert transitions == step, name
     with open(run_dir / "checkpoints" / "model_replay_buffer_400_steps.pkl", "rb") as stream:
         assert pickle.load(stream).size() == 400
     assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [100, 200, 300, 400]
@@ -233,62 +294,49 @@ def _plot(run_dir: Path, out: Path):
     return process.returncode, process.stderr
 
 
-def test_a_run_killed_in_its_first_seconds_resumes_from_the_start(tmp_path):
-    """SIGKILL 3 s after the start (the imports, the env and model builds): config.json is there, so
-    the run folder plots (no episode yet: skipped, exit 0) and --resume trains it from step 0 to its
-    budget."""
-    runs = tmp_path / "runs"
-    session = Session(["--env", ENV, "--algo", "ppo", "--timesteps", "128", "--seed", "0", "--n-envs", "1",
-                       "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1", "--eval-freq", "64",
-                       "--checkpoint-freq", "64", "--config", str(_config(tmp_path)),
-                       "--env-kwargs", '{"max_episode_steps": 8}'], tmp_path, 0)
-    time.sleep(max(0.0, 3.0 - (time.perf_counter() - session.start)))
-    assert session.running(), session.err.read_text()[-2000:]
-    assert session.kill() == -signal.SIGKILL
-    folders = list(runs.glob("*/ppo/*"))
-    assert len(folders) == 1 and (folders[0] / "config.json").is_file(), folders
-    run_dir = folders[0]
-    from training import plot
-
-    assert plot.main([str(run_dir), "--out", str(tmp_path / "early.png")]) == 0  # as python -m training.plot
-    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
-    assert final.wait(timeout=180) == 0, final.err.read_text()
-    result = json.loads((run_dir / "result.json").read_text())
-    assert result["finished"] and result["timesteps"] == 128 and len(result["resumes"]) == 1
-    assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [64, 128]
-    code, err = _plot(run_dir, tmp_path / "curve.png")
-    assert code == 0 and (tmp_path / "curve.png").stat().st_size > 1000, err
-
-
-def test_resumed_learning_curve_has_the_episodes_of_the_run_once(tmp_path):
-    """Killed (SIGKILL) with episodes logged past its newest checkpoint, a run of two envs resumes
-    from the checkpoint: the monitor logs drop the episodes of the steps trained again, so that at
-    the end their episodes cover at most the run's steps (plus one episode), and the run plots."""
+def test_a_run_killed_early_and_late_resumes_with_the_episodes_of_the_run_once(tmp_path):
+    """A run of two envs, SIGKILLed twice. First 3 s after its start (the imports, the env and model
+    builds): config.json is there, so the run folder plots (no episode yet: skipped, exit 0) and
+    --resume trains it on. Then with episodes logged past its newest checkpoint: it
+    resumes from the checkpoint, and the monitor logs drop the episodes of the steps trained again,
+    so that at the end their episodes cover at most the run's steps (plus one episode); the run
+    reaches its budget with every scheduled evaluation, and plots. (Two tests once, each starting
+    and resuming a run of its own.)"""
     budget, episode = 384, 8
     runs = tmp_path / "runs"
     session = Session(["--env", ENV, "--algo", "ppo", "--timesteps", str(budget), "--seed", "0", "--n-envs", "2",
                        "--vec-env", "dummy", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
                        "--eval-freq", "128", "--checkpoint-freq", "128", "--config", str(_config(tmp_path)),
                        "--env-kwargs", f'{{"max_episode_steps": {episode}}}'], tmp_path, 0)
-    assert _wait_for(lambda: list(runs.glob("*/ppo/*/config.json")), session), session.err.read_text()
-    run_dir = next(runs.glob("*/ppo/*/config.json")).parent
+    time.sleep(max(0.0, 3.0 - (time.perf_counter() - session.start)))
+    assert session.running(), session.err.read_text()[-2000:]
+    assert session.kill() == -signal.SIGKILL
+    folders = list(runs.glob("*/ppo/*"))
+    assert len(folders) == 1 and (folders[0] / "config.json").is_file(), folders
+    run_dir = folders[0]
     folder = run_dir / "checkpoints"
+    from training import plot
+
+    assert plot.main([str(run_dir), "--out", str(tmp_path / "early.png")]) == 0  # as python -m training.plot
+
+    session = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
 
     def ahead():  # episodes logged well past the newest checkpoint
         newest = _newest_step(folder)
         return newest >= 128 and sum(_monitor_steps(run_dir).values()) > newest + 4 * episode
     assert _wait_for(ahead, session, pause=0.01), session.err.read_text()
     assert session.kill() == -signal.SIGKILL
-    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 1)
+    final = Session(["--resume", str(run_dir), "--no-progress"], tmp_path, 2)
     assert final.wait(timeout=180) == 0, final.err.read_text()
     result = json.loads((run_dir / "result.json").read_text())
-    assert result["finished"] and result["timesteps"] == budget
-    assert result["resumes"][0]["dropped_episodes"] > 0
+    assert result["finished"] and result["timesteps"] == budget and len(result["resumes"]) == 2
+    assert result["resumes"][1]["dropped_episodes"] > 0
+    assert np.load(run_dir / "evaluations.npz")["timesteps"].tolist() == [128, 256, 384]
     steps = _monitor_steps(run_dir)
     assert len(steps) == 2 and sum(steps.values()) <= budget + episode, steps
     assert all(total <= budget // 2 + episode for total in steps.values()), steps
     code, err = _plot(run_dir, tmp_path / "curve.png")
-    assert code == 0, err
+    assert code == 0 and (tmp_path / "curve.png").stat().st_size > 1000, err
 
 
 def test_monitor_logs_are_cut_to_the_episodes_of_the_checkpoint(tmp_path):

@@ -2,6 +2,7 @@
 cleanly with exit code 2."""
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -9,12 +10,142 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from background_jobs import Jobs
+
 ENV = "tissue_env/TumorPositioning-v0"
 
 
-def run(*args, cwd=None):
-    process = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=cwd)
-    return process.returncode, process.stdout, process.stderr
+def run(*args, cwd=None, background=None):
+    """(exit code, stdout, stderr) of ``python -m *args``; with ``background`` (``background_jobs.Jobs``),
+    a process of that job's, in a session of its own."""
+    process = subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, cwd=cwd, start_new_session=background is not None)
+    if background is not None:
+        background.adopt(process)
+    out, err = process.communicate()
+    return process.returncode, out, err
+
+
+def _snapshot(runs: Path, run_dir: Path, snapshots: Path) -> Path:
+    """A copy of the runs folder ``runs`` (the run folder ``run_dir``'s path under it kept): the run as
+    it was, for the checks of a test before the job changes it (a resume)."""
+    shutil.copytree(runs, snapshots)
+    return snapshots / run_dir.relative_to(runs)
+
+
+def _train_ppo(background, folder):
+    """The PPO smoke run (``trained``): trained, copied as it is (``snapshot``), then resumed from its
+    newest checkpoint as if interrupted after it, evaluated and plotted (the tests' order)."""
+    runs = folder / "runs"
+    code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "3",
+                         "--n-envs", "2", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
+                         "--checkpoint-freq", "128", "--eval-freq", "128", "--config", str(_small_config(folder)),
+                         background=background)
+    job = dict(train=(code, out, err))
+    if code != 0:
+        return job
+    job["run_dir"] = run_dir = Path(out.strip().splitlines()[-1])
+    job["snapshot"] = _snapshot(runs, run_dir, folder / "snapshot")
+    (run_dir / "model.zip").unlink()  # as if the run had been interrupted after its last checkpoint
+    job["resume"] = run("training.train", "--resume", str(run_dir), "--timesteps", "384", "--no-progress",
+                        background=background)
+    job["evaluate"] = run("training.evaluate", str(run_dir), "--episodes", "2", "--seed", "7", background=background)
+    job["figure"] = folder / "curve.png"
+    job["plot"] = run("training.plot", str(run_dir), "--out", str(job["figure"]), background=background)
+    return job
+
+
+def _train_sac(background, folder):
+    """SAC with a checkpoint every 50 steps, copied as it is (``snapshot``), then resumed (model.zip
+    removed) to 300 steps."""
+    config = folder / "sac_small.yml"
+    config.write_text("default:\n  policy: MlpPolicy\n  normalize: false\n  buffer_size: 1000\n  learning_starts: 50\n"
+                      "  batch_size: 16\n  policy_kwargs: {net_arch: [16, 16]}\n")
+    runs = folder / "runs"
+    code, out, err = run("training.train", "--env", ENV, "--algo", "sac", "--timesteps", "200", "--seed", "1",
+                         "--n-envs", "1", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
+                         "--checkpoint-freq", "50", "--eval-freq", "1000", "--config", str(config),
+                         background=background)
+    job = dict(train=(code, out, err))
+    if code != 0:
+        return job
+    job["run_dir"] = run_dir = Path(out.strip().splitlines()[-1])
+    job["snapshot"] = _snapshot(runs, run_dir, folder / "snapshot")
+    (run_dir / "model.zip").unlink()
+    job["resume"] = run("training.train", "--resume", str(run_dir), "--timesteps", "300", "--no-progress",
+                        background=background)
+    return job
+
+
+def _train_batched(background, folder):
+    """PPO on the batched vector env, copied as it is (``snapshot``), then resumed to 384 steps."""
+    common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "128", "--checkpoint-freq", "128")
+    runs = folder / "runs"
+    code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "2",
+                         "--n-envs", "2", "--vec-env", "batched", "--runs-dir", str(runs), "--config",
+                         str(_small_config(folder)), "--env-kwargs", '{"max_episode_steps": 16}',
+                         "--env-threads", "1", *common, background=background)
+    job = dict(train=(code, out, err))
+    if code != 0:
+        return job
+    job["run_dir"] = run_dir = Path(out.strip().splitlines()[-1])
+    job["snapshot"] = _snapshot(runs, run_dir, folder / "snapshot")
+    job["resume"] = run("training.train", "--resume", str(run_dir), "--timesteps", "384", *common,
+                        background=background)
+    return job
+
+
+#: the training runs of the tests below, by name, and the tests that read them: each is a few
+#: processes that import torch and train for 5-15 s, self-contained, so they start when the session
+#: starts (``start_in_background``) and overlap the other tests instead of holding up the suite (about
+#: a minute). They run 10 below the session's priority: on the cores the other tests leave idle.
+JOBS = {"ppo": _train_ppo, "sac": _train_sac, "batched": _train_batched}
+TESTS_OF_JOBS = {"test_run_folder_contents": "ppo", "test_resume_continues_from_the_latest_checkpoint": "ppo",
+                 "test_evaluate_json_and_plot": "ppo",
+                 "test_sac_checkpoints_keep_the_latest_replay_buffers_and_resume_with_them": "sac",
+                 "test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume": "batched"}
+
+#: the jobs started by ``start_in_background`` (tests/conftest.py), or None
+background = None
+
+
+def start_in_background(name):
+    """tests/conftest.py, after collection, for each selected test of this module: start the job the
+    test ``name`` reads, if it reads one; whether it did."""
+    global background
+    if name not in TESTS_OF_JOBS:
+        return False
+    if background is None:
+        background = Jobs(JOBS, "training_test", niceness=10)
+    background.submit(TESTS_OF_JOBS[name])
+    return True
+
+
+def stop_background():
+    """The session ended: end the jobs still running and remove their folder."""
+    global background
+    if background is not None:
+        background.close()
+        background = None
+
+
+@pytest.fixture(scope="module")
+def jobs():
+    """The jobs tests/conftest.py started; or (a pytest-xdist worker) jobs of this module's own, run
+    when a test asks for them."""
+    if background is not None:
+        yield background
+        return
+    own = Jobs(JOBS, "training_test", niceness=10)
+    yield own
+    own.close()
+
+
+def _job(jobs, name):
+    job = jobs.result(name)
+    code, out, err = job["train"]
+    assert code == 0, err
+    return job
 
 
 def run_main(capsys, module, *argv):
@@ -28,14 +159,8 @@ def run_main(capsys, module, *argv):
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    runs = tmp_path_factory.mktemp("runs")
-    code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "3",
-                         "--n-envs", "2", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
-                         "--checkpoint-freq", "128", "--eval-freq", "128", "--config", str(_small_config(runs)))
-    assert code == 0, err
-    run_dir = Path(out.strip().splitlines()[-1])
-    return run_dir
+def trained(jobs):
+    return _job(jobs, "ppo")
 
 
 def _small_config(folder):
@@ -46,37 +171,39 @@ def _small_config(folder):
 
 
 def test_run_folder_contents(trained):
-    assert trained.parent.name == "ppo" and trained.name.startswith("seed3-")
-    assert trained.parent.parent.name == "tissue_env_TumorPositioning-v0"
+    snapshot = trained["snapshot"]  # the run folder as training left it
+    assert snapshot.parent.name == "ppo" and snapshot.name.startswith("seed3-")
+    assert snapshot.parent.parent.name == "tissue_env_TumorPositioning-v0"
     for name in ("config.json", "model.zip", "vecnormalize.pkl", "result.json", "evaluations.npz"):
-        assert (trained / name).is_file(), name
-    assert list((trained / "monitor").glob("*.monitor.csv"))
-    assert list((trained / "checkpoints").glob("model_*_steps.zip"))
-    assert list((trained / "checkpoints").glob("model_vecnormalize_*_steps.pkl"))
-    assert json.loads((trained / "result.json").read_text())["timesteps"] == 256
+        assert (snapshot / name).is_file(), name
+    assert list((snapshot / "monitor").glob("*.monitor.csv"))
+    assert list((snapshot / "checkpoints").glob("model_*_steps.zip"))
+    assert list((snapshot / "checkpoints").glob("model_vecnormalize_*_steps.pkl"))
+    assert json.loads((snapshot / "result.json").read_text())["timesteps"] == 256
 
 
 def test_resume_continues_from_the_latest_checkpoint(trained):
-    (trained / "model.zip").unlink()  # as if the run had been interrupted after its last checkpoint
-    code, out, err = run("training.train", "--resume", str(trained), "--timesteps", "384", "--no-progress")
+    """model.zip removed (as if the run had been interrupted after its last checkpoint), --resume
+    continues from the newest checkpoint to the new budget."""
+    run_dir = trained["run_dir"]
+    code, out, err = trained["resume"]
     assert code == 0, err
-    assert Path(out.strip().splitlines()[-1]) == trained
-    result = json.loads((trained / "result.json").read_text())
+    assert Path(out.strip().splitlines()[-1]) == run_dir
+    result = json.loads((run_dir / "result.json").read_text())
     assert result["timesteps"] == 384 and result["resumed_from"] == 256
-    assert (trained / "model.zip").is_file()
+    assert (run_dir / "model.zip").is_file()
 
 
-def test_evaluate_json_and_plot(trained, tmp_path):
-    code, out, err = run("training.evaluate", str(trained), "--episodes", "2", "--seed", "7")
+def test_evaluate_json_and_plot(trained):
+    code, out, err = trained["evaluate"]
     assert code == 0, err
     result = json.loads(out)
     for who in ("agent", "random", "scripted"):
         assert set(result[who]) >= {"mean_return", "std_return", "success_rate", "mean_episode_length"}
         assert result[who]["episodes"] == 2
-    figure = tmp_path / "curve.png"
-    code, out, err = run("training.plot", str(trained), "--out", str(figure))
+    code, out, err = trained["plot"]
     assert code == 0, err
-    assert figure.stat().st_size > 1000
+    assert trained["figure"].stat().st_size > 1000
 
 
 @pytest.mark.parametrize("args, word", [
@@ -109,24 +236,16 @@ def test_bad_env_kwargs_exit_2_before_a_run_folder_is_made(env_kwargs, word, tmp
     assert not list(tmp_path.iterdir())
 
 
-def test_sac_checkpoints_keep_the_latest_replay_buffers_and_resume_with_them(tmp_path):
+def test_sac_checkpoints_keep_the_latest_replay_buffers_and_resume_with_them(jobs):
     import pickle
 
-    config = tmp_path / "sac_small.yml"
-    config.write_text("default:\n  policy: MlpPolicy\n  normalize: false\n  buffer_size: 1000\n  learning_starts: 50\n"
-                      "  batch_size: 16\n  policy_kwargs: {net_arch: [16, 16]}\n")
-    code, out, err = run("training.train", "--env", ENV, "--algo", "sac", "--timesteps", "200", "--seed", "1",
-                         "--n-envs", "1", "--runs-dir", str(tmp_path), "--no-progress", "--eval-episodes", "1",
-                         "--checkpoint-freq", "50", "--eval-freq", "1000", "--config", str(config))
-    assert code == 0, err
-    run_dir = Path(out.strip().splitlines()[-1])
-    buffers = sorted((run_dir / "checkpoints").glob("model_replay_buffer_*_steps.pkl"))
+    job = _job(jobs, "sac")
+    buffers = sorted((job["snapshot"] / "checkpoints").glob("model_replay_buffer_*_steps.pkl"))
     # older ones removed; two kept, so that a damaged newest checkpoint leaves one to resume from
     assert [b.name for b in buffers] == ["model_replay_buffer_150_steps.pkl", "model_replay_buffer_200_steps.pkl"]
-    (run_dir / "model.zip").unlink()
-    code, out, err = run("training.train", "--resume", str(run_dir), "--timesteps", "300", "--no-progress")
+    code, out, err = job["resume"]  # model.zip removed first
     assert code == 0, err
-    with open(run_dir / "checkpoints" / "model_replay_buffer_300_steps.pkl", "rb") as handle:
+    with open(job["run_dir"] / "checkpoints" / "model_replay_buffer_300_steps.pkl", "rb") as handle:
         buffer = pickle.load(handle)
     # the checkpoint step is the number of transitions in its buffer: the transitions before the
     # interruption were kept (without the saved buffer the resumed run would hold 100)
@@ -187,26 +306,20 @@ def test_batched_vec_env_steps_the_episodes_of_make_vec_env(env_id):
     reference.close()
 
 
-def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(tmp_path):
+def test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume(jobs):
     """--vec-env batched trains PPO on the batched vector env with periodic evaluations (the eval env's
     normaliser synchronised with the training env's); its VecMonitor CSV gets the episodes, and a
     resumed run appends to it."""
-    common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "128", "--checkpoint-freq", "128")
-    code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "2",
-                         "--n-envs", "2", "--vec-env", "batched", "--runs-dir", str(tmp_path), "--config",
-                         str(_small_config(tmp_path)), "--env-kwargs", '{"max_episode_steps": 16}',
-                         "--env-threads", "1", *common)
-    assert code == 0, err
-    run_dir = Path(out.strip().splitlines()[-1])
-    monitor = run_dir / "monitor" / "batched.monitor.csv"
-    first = monitor.read_text().splitlines()
+    job = _job(jobs, "batched")
+    snapshot, run_dir = job["snapshot"], job["run_dir"]  # the run after its first session; the resumed run
+    first = (snapshot / "monitor" / "batched.monitor.csv").read_text().splitlines()
     assert len(first) - 2 >= 256 // 16 - 2  # header lines, then about one episode per 16 steps
-    config = json.loads((run_dir / "config.json").read_text())
+    config = json.loads((snapshot / "config.json").read_text())
     assert config["vec_env"] == "batched" and config["env_threads"] == 1
-    assert len(np.load(run_dir / "evaluations.npz")["timesteps"]) >= 2
-    code, out, err = run("training.train", "--resume", str(run_dir), "--timesteps", "384", *common)
+    assert len(np.load(snapshot / "evaluations.npz")["timesteps"]) >= 2
+    code, out, err = job["resume"]
     assert code == 0, err
-    again = monitor.read_text().splitlines()
+    again = (run_dir / "monitor" / "batched.monitor.csv").read_text().splitlines()
     assert again[:len(first)] == first and len(again) > len(first)
 
 
