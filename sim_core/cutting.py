@@ -164,3 +164,67 @@ def _rebuild(model: Model, mesh):
     material = Material(model.young_modulus, model.poisson_ratio, model.density)
     return build_model(mesh, material, model=model.name, corrections=corrections, gravity=model.gravity,
                        max_shear_error=None, **options)
+
+
+def blade_faces(model: Model, positions, edge_from, edge_to) -> np.ndarray:
+    """(F, 2) the shared faces of ``model``'s mesh that a blade crosses: the blade's edge, the
+    segment ``edge_from`` (2, 3) m, moves to ``edge_to`` (2, 3) m (its two ends each along a
+    straight line) and sweeps the surface between them (split into the triangles (a, b, b') and
+    (a, b', a')); a face is crossed when the segment between its two elements' centroids at
+    ``positions`` (N, 3) m passes through that surface. Cutting along faces makes no slivers, and the
+    cut faces lie within about half an element of the swept surface (each such segment is one
+    element across)."""
+    edge_from, edge_to = (np.asarray(value, dtype=float) for value in (edge_from, edge_to))
+    for name, value in (("edge_from", edge_from), ("edge_to", edge_to)):
+        if value.shape != (2, 3) or not np.all(np.isfinite(value)):
+            raise ValueError(f"{name} must be the blade edge's two ends, a finite (2, 3) array in m, got shape "
+                             f"{value.shape}")
+    positions = np.asarray(positions, dtype=float)
+    if positions.shape != (model.n_nodes, 3):
+        raise ValueError(f"positions must be a ({model.n_nodes}, 3) array in m, got shape {positions.shape}")
+    pairs = shared_faces(model.mesh)
+    centres = positions[model.mesh.elements].mean(axis=1)
+    start, end = centres[pairs[:, 0]], centres[pairs[:, 1]]
+    (a, b), (a_to, b_to) = edge_from, edge_to
+    crossed = np.zeros(len(pairs), dtype=bool)
+    for triangle in ((a, b, b_to), (a, b_to, a_to)):
+        crossed |= _segments_cross_triangle(start, end, *triangle)
+    return pairs[crossed]
+
+
+def _segments_cross_triangle(start, end, p0, p1, p2, tolerance=1e-12):
+    """(S,) whether each segment start -> end (S, 3) crosses the triangle (p0, p1, p2) (Moller-Trumbore,
+    the segment's parameter in [0, 1]; a degenerate triangle is crossed by none)."""
+    direction = end - start
+    e1, e2 = p1 - p0, p2 - p0
+    h = np.cross(direction, e2)
+    det = h @ e1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = np.where(np.abs(det) > tolerance * np.linalg.norm(e1) * np.linalg.norm(e2) * np.linalg.norm(
+            direction, axis=1), 1.0 / det, 0.0)
+        s = start - p0
+        u = inverse * np.einsum("ij,ij->i", s, h)
+        q = np.cross(s, e1)
+        v = inverse * np.einsum("ij,ij->i", direction, q)
+        t = inverse * (q @ e2)
+    return (inverse != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)
+
+
+def cut_world(stack, state: State, index: int, faces, solver=None) -> Separation:
+    """Cut world ``index`` of a ``ModelStack`` along ``faces`` (``separate`` of the model it holds)
+    in the middle of its episode: the cut model goes into the world (``ModelStack.assign``; a world
+    holds at most ``stack.n_nodes`` node rows, so the stack needs ``spare_nodes`` for the copies),
+    the world's rows of ``state`` (N, n, 3) are carried across in place (``Separation.state``: the
+    cut moves nothing and adds no kinetic energy) and ``solver.model_changed(index)`` is called when
+    a solver is given. The other worlds are untouched. Returns the ``Separation``."""
+    index = int(index)
+    separation = separate(stack.given[index], faces)
+    if separation.model is stack.given[index]:
+        return separation
+    count = separation.model.n_nodes
+    stack.assign(index, separation.model)
+    for array in (state.positions, state.velocities):
+        array[index, :count] = array[index, separation.origin]
+    if solver is not None:
+        solver.model_changed(index)
+    return separation

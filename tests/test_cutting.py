@@ -144,3 +144,85 @@ def test_a_cut_world_steps_in_a_stack_as_alone():
         one, other = other, one
     np.testing.assert_array_equal(state.positions[1, :cut.n_nodes], one.positions)
     assert np.abs(one.positions - cut.mesh.nodes).max() > 1e-4
+
+
+@pytest.mark.parametrize("kind", [HexMesh, TetMesh])
+def test_a_blade_swept_through_the_block_cuts_the_faces_on_its_path(kind):
+    """A blade edge along z at x = 0.2 m moved from above the block to below it crosses exactly the
+    faces between the elements on either side of the plane; stopped at y = 0.1 m it cuts the top
+    layer only (a crack: the 3 nodes above its front get copies)."""
+    mesh = kind.block((4, 2, 2), 0.1)
+    model = build_model(mesh, MATERIAL, model="baudet-hyperelastic")
+    edge = lambda y: [[0.2001, y, -0.1], [0.2001, y, 0.3]]  # noqa: E731
+    through = cutting.blade_faces(model, mesh.nodes, edge(0.3), edge(-0.1))
+    assert {tuple(pair) for pair in through} == {tuple(pair) for pair in faces_across(mesh, 0.2)}
+    crack = cutting.blade_faces(model, mesh.nodes, edge(0.3), edge(0.1))
+    assert {tuple(pair) for pair in crack} == {tuple(pair) for pair in faces_across(mesh, 0.2, below=0.1)}
+    assert cutting.separate(model, crack).added == 3
+    with pytest.raises(ValueError, match=r"edge_from must be the blade edge's two ends"):
+        cutting.blade_faces(model, mesh.nodes, [0.0, 0.0, 0.0], edge(0.0))
+
+
+def test_a_slanted_blade_cuts_along_faces_within_half_an_element_of_its_path():
+    """A blade swept along a plane that no face lies in (normal (1, 0.3, 0.2)) through an 8x4x4 block
+    of tetrahedra: every cut face's centroid lies within half an element (0.05 m) of the swept plane,
+    the cut separates the block in two (12 zero-energy modes), and no element is lost."""
+    mesh = TetMesh.block((8, 4, 4), 0.05)
+    model = build_model(mesh, MATERIAL)
+    normal = np.array([1.0, 0.3, 0.2]) / np.linalg.norm([1.0, 0.3, 0.2])
+    point = np.array([0.2, 0.1, 0.1])
+    along = np.cross(normal, [0.0, 1.0, 0.0])
+    along /= np.linalg.norm(along)
+    down = np.cross(normal, along)  # in the plane, across the block
+    edge = lambda s: point + s * down + np.array([-1.0, 1.0])[:, None] * along  # noqa: E731
+    faces = cutting.blade_faces(model, mesh.nodes, edge(-1.0), edge(1.0))
+    shared_nodes = [np.intersect1d(mesh.elements[a], mesh.elements[b]) for a, b in faces]
+    distance = np.array([abs((mesh.nodes[nodes].mean(axis=0) - point) @ normal) for nodes in shared_nodes])
+    assert len(faces) > 0 and distance.max() <= 0.05
+    separation = cutting.separate(model, faces)
+    assert separation.model.mesh.n_elements == mesh.n_elements
+    assert zero_energy_modes(separation.model)[0] == 12
+
+
+def test_cut_world_cuts_one_world_mid_episode_without_adding_energy():
+    """Three worlds sagging under gravity; world 1 is cut through at x = 0.1 m after 5 steps
+    (cut_world): its nodes keep their positions and velocities (the kinetic energy is the same
+    to the last bit), the other worlds step on as before, and the cut world then steps as its cut
+    model alone from the carried state (the free part falls away from the clamped one)."""
+    mesh = TetMesh.block((4, 2, 2), 0.05)
+    model = build_model(mesh, MATERIAL, gravity=(0, -9.81, 0))
+    stack = sim_core.ModelStack(model, 3, spare_nodes=9)
+    clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
+    control = stack.new_control()
+    control.fixed[:, clamp], control.target[:, clamp] = True, mesh.nodes[clamp]
+    solver = sim_core.make_solver("implicit", stack)
+    state, scratch = stack.new_state(), stack.new_state()
+    for _ in range(5):
+        solver.step(state, scratch, control, 0.01)
+        state, scratch = scratch, state
+    before = state.positions.copy(), state.velocities.copy()
+    kinetic = 0.5 * np.sum(model.mass[:, None] * before[1][1, :mesh.n_nodes] ** 2)
+    edge = lambda y: [[0.1001, y, -0.1], [0.1001, y, 0.2]]  # noqa: E731
+    faces = cutting.blade_faces(model, state.positions[1, :mesh.n_nodes], edge(0.3), edge(-0.2))
+    separation = cutting.cut_world(stack, state, 1, faces, solver)
+    assert separation.added == 9 and not stack.shared[1]
+    cut = separation.model
+    after = 0.5 * np.sum(cut.mass[:, None] * state.velocities[1, :cut.n_nodes] ** 2)
+    assert after == pytest.approx(kinetic, rel=1e-12)
+    np.testing.assert_array_equal(state.positions[[0, 2]], before[0][[0, 2]])
+    alone = sim_core.make_solver("implicit", cut)
+    one = sim_core.State(state.positions[1, :cut.n_nodes].copy(), state.velocities[1, :cut.n_nodes].copy())
+    other = cut.new_state()
+    single = cut.new_control()
+    single.fixed[clamp], single.target[clamp] = True, mesh.nodes[clamp]
+    for _ in range(5):
+        solver.step(state, scratch, control, 0.01)
+        state, scratch = scratch, state
+        alone.step(one, other, single, 0.01)
+        one, other = other, one
+    np.testing.assert_array_equal(state.positions[1, :cut.n_nodes], one.positions)
+    free = cut.mesh.nodes[:, 0] > 0.1
+    assert one.positions[free, 1].mean() < state.positions[0, :mesh.n_nodes][mesh.nodes[:, 0] > 0.1, 1].mean()
+    with pytest.raises(ValueError, match="spare_nodes"):
+        cutting.cut_world(sim_core.ModelStack(model, 1), sim_core.State(
+            state.positions[:1, :mesh.n_nodes].copy(), state.velocities[:1, :mesh.n_nodes].copy()), 0, faces)
