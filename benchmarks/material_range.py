@@ -1,10 +1,11 @@
 """Every task across the stiffness range of real tissue: observations inside their bounds, rewards
 of the same size, the scripted controller still succeeding.
 
-Usage: python -m benchmarks.material_range [--moduli 1e3 1e4 1e5 1e6] [--steps 100] [--seeds 3]
-       [--output benchmarks/results/material_range.json]
+Usage: python -m benchmarks.material_range [--moduli 1e3 1e4 1e5 1e6] [--poisson-ratios 0.3 0.45 0.49]
+       [--steps 100] [--seeds 3] [--output benchmarks/results/material_range.json]
 
-For each task and Young's modulus E (Pa): ``--steps`` random actions (action space seeded 0, episodes
+For each task, Young's modulus E (Pa) and Poisson's ratio nu (a material the env refuses at reset
+is recorded with its message): ``--steps`` random actions (action space seeded 0, episodes
 reset as they end) give the share of observation entries at their bound (|x| >= 0.999 of the
 observation space's bound: OBS_LIMIT, or FEATURE_LIMITS for the maximum spring strain in %, which a
 soft tissue stretched to more than twice its length passes 100% of), the largest maximum spring
@@ -34,10 +35,17 @@ TASKS = tuple(tissue_env.ENV_IDS)
 MAX_STRAIN_ENTRY = 10
 
 
-def measure(env_id, young_modulus, steps, seeds):
-    env = gym.make(env_id, young_modulus=young_modulus)
+def measure(env_id, young_modulus, steps, seeds, poisson_ratio=None):
+    """One row of the table (module docstring); ``poisson_ratio`` None: the task's default."""
+    env = gym.make(env_id, young_modulus=young_modulus,
+                   **({} if poisson_ratio is None else dict(poisson_ratio=poisson_ratio)))
+    row = dict(env_id=env_id, young_modulus=young_modulus, poisson_ratio=float(env.unwrapped.poisson_ratio),
+               seeds=seeds)
     env.action_space.seed(0)
-    env.reset(seed=0)
+    try:
+        env.reset(seed=0)
+    except ValueError as error:  # a material the task refuses (e.g. too soft for its weight): say so
+        return dict(row, refused=str(error).splitlines()[0])
     at_bound = entries = unreported = 0
     largest = largest_strain = 0.0
     limits = env.observation_space.high
@@ -59,14 +67,14 @@ def measure(env_id, young_modulus, steps, seeds):
             _, _, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
         successes += bool(info["is_success"])
     env.close()
-    return dict(env_id=env_id, young_modulus=young_modulus, share_at_bound=at_bound / entries,
-                max_strain_percent=largest_strain, unreported_clipped_steps=unreported, max_abs_reward=largest,
-                scripted_successes=successes, seeds=seeds)
+    return dict(row, share_at_bound=at_bound / entries, max_strain_percent=largest_strain,
+                unreported_clipped_steps=unreported, max_abs_reward=largest, scripted_successes=successes)
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--moduli", type=float, nargs="*", default=[1e3, 1e4, 1e5, 1e6])
+    parser.add_argument("--poisson-ratios", type=float, nargs="*", default=[0.3, 0.45, 0.49])
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--env", nargs="*", default=list(TASKS))
@@ -77,13 +85,16 @@ def main(argv=None):
         warnings.simplefilter("ignore")
         for env_id in args.env:
             for modulus in args.moduli:
-                rows.append(measure(env_id, modulus, args.steps, args.seeds))
-                r = rows[-1]
-                print(f"{env_id} E={modulus:g} Pa: {100 * r['share_at_bound']:.2f}% of entries at bound "
-                      f"(max spring strain {r['max_strain_percent']:.0f}%), "
-                      f"max |reward| {r['max_abs_reward']:.2f}, scripted {r['scripted_successes']}/{args.seeds}",
-                      flush=True)
-    write_json(args.output, dict(steps=args.steps, obs_limit=OBS_LIMIT, feature_limits=FEATURE_LIMITS, results=rows,
+                for ratio in args.poisson_ratios:
+                    rows.append(measure(env_id, modulus, args.steps, args.seeds, poisson_ratio=ratio))
+                    r = rows[-1]
+                    if "refused" in r:
+                        print(f"{env_id} E={modulus:g} Pa nu={ratio:g}: refused: {r['refused']}", flush=True)
+                        continue
+                    print(f"{env_id} E={modulus:g} Pa nu={ratio:g}: {100 * r['share_at_bound']:.2f}% of entries at "
+                          f"bound (max spring strain {r['max_strain_percent']:.0f}%), max |reward| "
+                          f"{r['max_abs_reward']:.2f}, scripted {r['scripted_successes']}/{args.seeds}", flush=True)
+    write_json(args.output, dict(command="python -m benchmarks.material_range", steps=args.steps, obs_limit=OBS_LIMIT, feature_limits=FEATURE_LIMITS, results=rows,
                                  machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
                                               python=platform.python_version())))
     return 0

@@ -774,11 +774,12 @@ def env_contact_section():
             "maximum-strain entry (%) is bounded at 1000% (`tissue_env.worlds.FEATURE_LIMITS`), every other "
             "entry at 100, and `info[\"observation_clipped\"]` reports any entry at its bound:\n\n",
             caption(command_for("material_range.py"), "material_range.json"), "\n",
-            table(["env", "E (Pa)", "entries at their bound (%)", "largest max spring strain (%)",
+            table(["env", "E (Pa)", "nu", "entries at their bound (%)", "largest max spring strain (%)",
                    "unreported clipped steps", "largest abs(reward)", "scripted successes"],
-                  [[short_id(r["env_id"]), num(r["young_modulus"]), pct(r["share_at_bound"]),
-                    f"{r['max_strain_percent']:.0f}", r["unreported_clipped_steps"],
-                    num(r["max_abs_reward"]), f"{r['scripted_successes']} / {r['seeds']}"]
+                  [[short_id(r["env_id"]), num(r["young_modulus"]), num(r.get("poisson_ratio", 0.45))]
+                   + (["refused at reset: " + r["refused"], "", "", "", ""] if "refused" in r else
+                      [pct(r["share_at_bound"]), f"{r['max_strain_percent']:.0f}", r["unreported_clipped_steps"],
+                       num(r["max_abs_reward"]), f"{r['scripted_successes']} / {r['seeds']}"])
                    for r in load("material_range.json")["results"]]), "\n"]
 
 
