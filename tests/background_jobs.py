@@ -63,3 +63,41 @@ class Jobs:
             future.cancel()
         self.executor.shutdown(wait=True)
         self.folder.cleanup()
+
+
+class ModuleJobs:
+    """A test module's background jobs, as tests/conftest.py drives them: the module binds
+    ``start_in_background = module_jobs.start`` and ``stop_background = module_jobs.stop``, and its
+    ``jobs`` fixture yields from ``module_jobs.fixture()``. ``tests_of_jobs``: test name -> the job it
+    reads; the other arguments are ``Jobs``'."""
+
+    def __init__(self, jobs: dict, prefix: str, tests_of_jobs: dict, niceness: int = 0):
+        self.jobs, self.prefix, self.tests_of_jobs, self.niceness = jobs, prefix, tests_of_jobs, niceness
+        #: the jobs started by ``start`` (tests/conftest.py), or None
+        self.background = None
+
+    def start(self, name):
+        """tests/conftest.py, after collection, for each selected test of the module: start the job the
+        test ``name`` reads, if it reads one; whether it did."""
+        if name not in self.tests_of_jobs:
+            return False
+        if self.background is None:
+            self.background = Jobs(self.jobs, self.prefix, niceness=self.niceness)
+        self.background.submit(self.tests_of_jobs[name])
+        return True
+
+    def stop(self):
+        """The session ended: end the jobs still running and remove their folder."""
+        if self.background is not None:
+            self.background.close()
+            self.background = None
+
+    def fixture(self):
+        """The jobs ``start`` started; or (a pytest-xdist worker) jobs of the module's own, run when a
+        test asks for them."""
+        if self.background is not None:
+            yield self.background
+            return
+        own = Jobs(self.jobs, self.prefix, niceness=self.niceness)
+        yield own
+        own.close()

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import tissue_env
+from same_steps import assert_same_steps
 
 ENV_IDS = sorted(tissue_env.ENV_IDS)
 #: The floor of issue 43: a pickled snapshot of any task is smaller than this.
@@ -26,20 +27,6 @@ def _steps(env, actions):
         if terminated or truncated:
             out.append(env.reset())
     return out
-
-
-def _assert_same(expected, actual):
-    assert len(expected) == len(actual)
-    for a, b in zip(expected, actual):
-        for x, y in zip(a, b):
-            if isinstance(x, dict):
-                assert x.keys() == y.keys()
-                for key in x:
-                    np.testing.assert_array_equal(np.asarray(x[key], dtype=object if x[key] is None else None),
-                                                  np.asarray(y[key], dtype=object if y[key] is None else None),
-                                                  err_msg=key)
-            else:
-                np.testing.assert_array_equal(x, y)
 
 
 def _env(env_id, seed=3, steps=5, **kwargs):
@@ -59,12 +46,12 @@ def test_a_pickled_snapshot_is_small_and_restores_bit_for_bit(env_id):
     assert len(data) < MAX_SNAPSHOT_BYTES
     expected = _steps(env, actions)
     env.set_state(snapshot)
-    _assert_same(expected, _steps(env, actions))
+    assert_same_steps(expected, _steps(env, actions))
     fresh = gym.make(env_id).unwrapped  # never reset: the snapshot brings the episode
     unpickled = pickle.loads(data)
     for _ in range(2):  # the second restore shares the factors the first computed again
         fresh.set_state(unpickled)
-        _assert_same(expected, _steps(fresh, actions))
+        assert_same_steps(expected, _steps(fresh, actions))
 
 
 @pytest.mark.parametrize("env_id, kwargs", [
@@ -83,11 +70,11 @@ def test_a_snapshot_restores_its_model_after_an_episode_of_another(env_id, kwarg
     assert info["young_modulus"] != expected[0][3]["young_modulus"]
     env.step(actions[0])
     env.set_state(snapshot)
-    _assert_same(expected, _steps(env, actions))
+    assert_same_steps(expected, _steps(env, actions))
     fresh = gym.make(env_id, **kwargs).unwrapped
     fresh.reset(seed=99)
     fresh.set_state(pickle.loads(data))
-    _assert_same(expected, _steps(fresh, actions))
+    assert_same_steps(expected, _steps(fresh, actions))
 
 
 @pytest.mark.parametrize("integrator", ["static", "explicit"])
@@ -97,10 +84,10 @@ def test_snapshots_with_the_other_integrators(integrator):
     snapshot = env.get_state()
     expected = _steps(env, actions[:4])
     env.set_state(snapshot)
-    _assert_same(expected, _steps(env, actions[:4]))
+    assert_same_steps(expected, _steps(env, actions[:4]))
     fresh = gym.make("tissue_env/Retraction-v0", **kwargs).unwrapped
     fresh.set_state(pickle.loads(pickle.dumps(snapshot)))
-    _assert_same(expected, _steps(fresh, actions[:4]))
+    assert_same_steps(expected, _steps(fresh, actions[:4]))
 
 
 def test_a_snapshot_of_an_env_with_other_keywords_is_refused():

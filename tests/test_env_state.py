@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import tissue_env
+from same_steps import assert_same_steps
 
 ENV_IDS = sorted(tissue_env.ENV_IDS)
 
@@ -25,21 +26,6 @@ def _steps(env, actions):
             obs, info = env.reset()
             out.append((obs, info))
     return out
-
-
-def _assert_same(expected, actual):
-    assert len(expected) == len(actual)
-    for a, b in zip(expected, actual):
-        assert len(a) == len(b)
-        for x, y in zip(a, b):
-            if isinstance(x, dict):
-                assert x.keys() == y.keys()
-                for key in x:
-                    np.testing.assert_array_equal(np.asarray(x[key], dtype=object if x[key] is None else None),
-                                                  np.asarray(y[key], dtype=object if y[key] is None else None),
-                                                  err_msg=key)
-            else:
-                np.testing.assert_array_equal(x, y)
 
 
 def _mid_episode(env_id, integrator="implicit", seed=4):
@@ -58,8 +44,8 @@ def test_deepcopy_and_pickle_reproduce_the_next_steps(env_id, integrator):
     duplicate = copy.deepcopy(env)
     unpickled = pickle.loads(pickle.dumps(env))
     expected = _steps(env, actions)
-    _assert_same(expected, _steps(duplicate, actions))
-    _assert_same(expected, _steps(unpickled, actions))
+    assert_same_steps(expected, _steps(duplicate, actions))
+    assert_same_steps(expected, _steps(unpickled, actions))
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
@@ -77,7 +63,7 @@ def test_get_state_set_state_restores_the_episode(env_id, target):
         targets = [other]
     for restored in targets:
         restored.set_state(snapshot)
-        _assert_same(expected, _steps(restored, actions))
+        assert_same_steps(expected, _steps(restored, actions))
 
 
 def test_set_state_rejects_what_is_not_a_snapshot_of_the_same_task():

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from background_jobs import Jobs
+from background_jobs import ModuleJobs
 
 ENV = "tissue_env/Retraction-v0"  # the cheapest task (about 4 ms a step)
 BUDGET = 2048
@@ -226,40 +226,13 @@ def _sac_killed_run(background, tmp_path):
 JOBS = {"sac": _sac_killed_run}
 TESTS_OF_JOBS = {"test_sac_killed_resumes_with_every_transition": "sac"}
 
-#: the jobs started by ``start_in_background`` (tests/conftest.py), or None
-background = None
-
-
-def start_in_background(name):
-    """tests/conftest.py, after collection, for each selected test of this module: start the job the
-    test ``name`` reads, if it reads one; whether it did."""
-    global background
-    if name not in TESTS_OF_JOBS:
-        return False
-    if background is None:
-        background = Jobs(JOBS, "resume_test")
-    background.submit(TESTS_OF_JOBS[name])
-    return True
-
-
-def stop_background():
-    """The session ended: end the jobs still running and remove their folder."""
-    global background
-    if background is not None:
-        background.close()
-        background = None
+MODULE_JOBS = ModuleJobs(JOBS, "resume_test", TESTS_OF_JOBS)
+start_in_background, stop_background = MODULE_JOBS.start, MODULE_JOBS.stop  # tests/conftest.py's hooks
 
 
 @pytest.fixture(scope="module")
 def jobs():
-    """The jobs tests/conftest.py started; or (a pytest-xdist worker) jobs of this module's own, run
-    when a test asks for them."""
-    if background is not None:
-        yield background
-        return
-    own = Jobs(JOBS, "resume_test")
-    yield own
-    own.close()
+    yield from MODULE_JOBS.fixture()
 
 
 def test_sac_killed_resumes_with_every_transition(jobs):

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from background_jobs import Jobs
+from background_jobs import ModuleJobs
 
 ENV = "tissue_env/TumorPositioning-v0"
 
@@ -105,40 +105,13 @@ TESTS_OF_JOBS = {"test_run_folder_contents": "ppo", "test_resume_continues_from_
                  "test_sac_checkpoints_keep_the_latest_replay_buffers_and_resume_with_them": "sac",
                  "test_training_on_the_batched_vec_env_keeps_its_monitor_through_a_resume": "batched"}
 
-#: the jobs started by ``start_in_background`` (tests/conftest.py), or None
-background = None
-
-
-def start_in_background(name):
-    """tests/conftest.py, after collection, for each selected test of this module: start the job the
-    test ``name`` reads, if it reads one; whether it did."""
-    global background
-    if name not in TESTS_OF_JOBS:
-        return False
-    if background is None:
-        background = Jobs(JOBS, "training_test", niceness=10)
-    background.submit(TESTS_OF_JOBS[name])
-    return True
-
-
-def stop_background():
-    """The session ended: end the jobs still running and remove their folder."""
-    global background
-    if background is not None:
-        background.close()
-        background = None
+MODULE_JOBS = ModuleJobs(JOBS, "training_test", TESTS_OF_JOBS, niceness=10)
+start_in_background, stop_background = MODULE_JOBS.start, MODULE_JOBS.stop  # tests/conftest.py's hooks
 
 
 @pytest.fixture(scope="module")
 def jobs():
-    """The jobs tests/conftest.py started; or (a pytest-xdist worker) jobs of this module's own, run
-    when a test asks for them."""
-    if background is not None:
-        yield background
-        return
-    own = Jobs(JOBS, "training_test", niceness=10)
-    yield own
-    own.close()
+    yield from MODULE_JOBS.fixture()
 
 
 def _job(jobs, name):

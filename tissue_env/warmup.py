@@ -28,6 +28,18 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _step(make, steps, label):
+    """Build an env with ``make()``, reset it, step it ``steps`` times with random actions, close it,
+    and print ``label`` and the time all that took."""
+    start = time.perf_counter()
+    env = make()
+    env.reset(seed=0)
+    for _ in range(steps):
+        env.step(env.action_space.sample())
+    env.close()
+    print(f"{label}: built, reset and stepped {steps} times in {time.perf_counter() - start:.1f} s", flush=True)
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     if args.steps < 1 or args.num_envs < 1:
@@ -39,32 +51,12 @@ def main(argv=None) -> int:
 
     total = time.perf_counter()
     for env_id in tissue_env.ENV_IDS:
-        start = time.perf_counter()
-        env = gym.make(env_id)
-        env.reset(seed=0)
-        for _ in range(args.steps):
-            env.step(env.action_space.sample())
-        env.close()
-        print(f"{env_id}: built, reset and stepped {args.steps} times in {time.perf_counter() - start:.1f} s",
-              flush=True)
+        _step(lambda: gym.make(env_id), args.steps, env_id)
         if env_id in tissue_env.VECTOR_ENTRY_POINTS:
-            start = time.perf_counter()
-            envs = gym.make_vec(env_id, num_envs=args.num_envs, vectorization_mode="vector_entry_point")
-            envs.reset(seed=0)
-            for _ in range(args.steps):
-                envs.step(envs.action_space.sample())
-            envs.close()
-            print(f"{env_id} vector env (N = {args.num_envs}): built, reset and stepped {args.steps} times in "
-                  f"{time.perf_counter() - start:.1f} s", flush=True)
+            _step(lambda: gym.make_vec(env_id, num_envs=args.num_envs, vectorization_mode="vector_entry_point"),
+                  args.steps, f"{env_id} vector env (N = {args.num_envs})")
     for env_id, keywords in VARIANTS:
-        start = time.perf_counter()
-        env = gym.make(env_id, **keywords)
-        env.reset(seed=0)
-        for _ in range(args.steps):
-            env.step(env.action_space.sample())
-        env.close()
-        print(f"{env_id} {keywords}: built, reset and stepped {args.steps} times in {time.perf_counter() - start:.1f} s",
-              flush=True)
+        _step(lambda: gym.make(env_id, **keywords), args.steps, f"{env_id} {keywords}")
     print(f"warmup done in {time.perf_counter() - total:.1f} s: the kernels are compiled and cached", flush=True)
     return 0
 
