@@ -1,6 +1,6 @@
 """Topology change: separating elements along the faces they share (a cut).
 
-``separate(model, faces)`` cuts the faces ``faces`` (pairs of elements that share a face) and gives
+``separate(model, faces) -> Model`` cuts the faces ``faces`` (pairs of elements that share a face) and gives
 a node one copy per group of its elements that stay connected through its uncut faces: the model of
 the mesh born with that cut. A mass-spring model changes only what the cut touches, and here it is
 rebuilt from the cut mesh by ``build_model`` with the model's own material and options, so that it is
@@ -9,8 +9,8 @@ exactly the model of that mesh (masses, springs, corrections, volumes, smoothing
 Numbering: the elements keep their order and indices, the original nodes keep theirs (each stays
 with the group of its elements that holds its lowest element corner), and the copies are appended in
 the order of their original node, then of their group's lowest element corner.
-``Separation.origin`` maps every node of the cut model to the node it was copied from, and
-``Separation.state`` carries a ``State`` across (a copy starts where its original is, at its
+``separation(model, faces)`` also gives ``Separation.origin``, which maps every node of the cut
+model to the node it was copied from, and ``Separation.state``, which carries a ``State`` across (a copy starts where its original is, at its
 velocity). SI units.
 """
 
@@ -31,7 +31,7 @@ from .models.model import Model, State, build_model
 
 @dataclass(frozen=True)
 class Separation:
-    """The outcome of ``separate``.
+    """The outcome of ``separation``: the cut model and how its nodes come from the uncut one's.
 
     Attributes:
         model: the model of the cut mesh.
@@ -72,11 +72,17 @@ def shared_faces(mesh: HexMesh | TetMesh) -> np.ndarray:
     return np.stack([owner[:-1][same], owner[1:][same]], axis=1).astype(np.int64)
 
 
-def separate(model: Model, faces) -> Separation:
-    """Cut ``model`` along ``faces`` (F, 2): pairs of element indices that share a face (either
-    order). Returns the ``Separation`` (the cut model, each node's origin). A pair that does not share
-    a face, or an index outside the mesh, is a ValueError naming it; cutting no face gives the
-    model itself (origin the identity)."""
+def separate(model: Model, faces) -> Model:
+    """The model of ``model``'s mesh cut along ``faces`` (F, 2): pairs of element indices that share a
+    face (either order); ``separation`` gives it with each node's origin and the state mapping. A
+    pair that does not share a face, or an index outside the mesh, is a ValueError naming it; cutting
+    no face gives ``model`` itself."""
+    return separation(model, faces).model
+
+
+def separation(model: Model, faces) -> Separation:
+    """``separate`` with what a simulation needs to go on through the cut: the ``Separation`` (the
+    cut model, each node's origin, ``Separation.state`` carrying a state across)."""
     mesh = model.mesh
     pairs = np.asarray(faces)
     if pairs.size == 0:
@@ -211,20 +217,20 @@ def _segments_cross_triangle(start, end, p0, p1, p2, tolerance=1e-12):
 
 
 def cut_world(stack, state: State, index: int, faces, solver=None) -> Separation:
-    """Cut world ``index`` of a ``ModelStack`` along ``faces`` (``separate`` of the model it holds)
+    """Cut world ``index`` of a ``ModelStack`` along ``faces`` (``separation`` of the model it holds)
     in the middle of its episode: the cut model goes into the world (``ModelStack.assign``; a world
     holds at most ``stack.n_nodes`` node rows, so the stack needs ``spare_nodes`` for the copies),
     the world's rows of ``state`` (N, n, 3) are carried across in place (``Separation.state``: the
     cut moves nothing and adds no kinetic energy) and ``solver.model_changed(index)`` is called when
     a solver is given. The other worlds are untouched. Returns the ``Separation``."""
     index = int(index)
-    separation = separate(stack.given[index], faces)
-    if separation.model is stack.given[index]:
-        return separation
-    count = separation.model.n_nodes
-    stack.assign(index, separation.model)
+    cut = separation(stack.given[index], faces)
+    if cut.model is stack.given[index]:
+        return cut
+    count = cut.model.n_nodes
+    stack.assign(index, cut.model)
     for array in (state.positions, state.velocities):
-        array[index, :count] = array[index, separation.origin]
+        array[index, :count] = array[index, cut.origin]
     if solver is not None:
         solver.model_changed(index)
-    return separation
+    return cut

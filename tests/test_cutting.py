@@ -1,4 +1,4 @@
-"""sim_core.cutting.separate: cutting elements apart along shared faces gives the model of the mesh
+"""sim_core.cutting.separate (-> Model) and separation (with the nodes' origin): cutting elements apart along shared faces gives the model of the mesh
 born with that cut (checked against blocks built apart), duplicates exactly the nodes the cut
 separates, and carries states across."""
 
@@ -40,8 +40,10 @@ def test_a_cut_through_the_block_gives_the_two_blocks_built_apart(kind, name):
     cut model has the zero-energy modes of two free bodies."""
     mesh = kind.block((4, 2, 2), 0.1)
     model = build_model(mesh, MATERIAL, model=name)
-    separation = cutting.separate(model, faces_across(mesh, 0.2))
+    separation = cutting.separation(model, faces_across(mesh, 0.2))
     cut = separation.model
+    direct = cutting.separate(model, faces_across(mesh, 0.2))  # the contract's form: the Model alone
+    assert isinstance(direct, sim_core.Model) and np.array_equal(direct.mesh.elements, cut.mesh.elements)
     assert cut.n_nodes == mesh.n_nodes + 9 and separation.added == 9
     left = kind.block((2, 2, 2), 0.1)
     right = kind(left.nodes + np.array([0.2, 0.0, 0.0]), left.elements)
@@ -79,7 +81,7 @@ def test_a_crack_duplicates_its_faces_nodes_but_not_its_front(kind):
     body (6 zero-energy modes). States carry across: each copy where its original is."""
     mesh = kind.block((4, 2, 2), 0.1)
     model = build_model(mesh, MATERIAL, model="baudet-hyperelastic")
-    separation = cutting.separate(model, faces_across(mesh, 0.2, below=0.1))
+    separation = cutting.separation(model, faces_across(mesh, 0.2, below=0.1))
     assert separation.added == 3
     copied = separation.origin[mesh.n_nodes:]
     np.testing.assert_allclose(mesh.nodes[copied][:, [0, 1]], [[0.2, 0.2]] * 3)
@@ -101,7 +103,7 @@ def test_elements_touching_at_a_node_only_stay_joined_there():
     mapping = np.r_[corner, block.n_nodes + np.arange(extra.n_nodes - 1)]
     mesh = HexMesh(nodes, np.concatenate([block.elements, mapping[extra.elements]]))
     model = build_model(mesh, MATERIAL, model="baudet-hyperelastic")
-    separation = cutting.separate(model, [[0, 1]])
+    separation = cutting.separation(model, [[0, 1]])
     assert separation.added == 4 and corner not in separation.origin[mesh.n_nodes:]
 
 
@@ -113,8 +115,9 @@ def test_bad_faces_name_what_is_wrong():
         cutting.separate(model, [[0, 12]])
     with pytest.raises(ValueError, match=r"\(F, 2\) integer array"):
         cutting.separate(model, [0.5, 1.5])
-    nothing = cutting.separate(model, np.zeros((0, 2), int))
+    nothing = cutting.separation(model, np.zeros((0, 2), int))
     assert nothing.model is model and nothing.added == 0
+    assert cutting.separate(model, np.zeros((0, 2), int)) is model
 
 
 def test_a_cut_world_steps_in_a_stack_as_alone():
@@ -122,7 +125,7 @@ def test_a_cut_world_steps_in_a_stack_as_alone():
     as the cut model alone, bit for bit, while the uncut worlds step as the uncut model."""
     mesh = TetMesh.block((4, 2, 2), 0.05)
     model = build_model(mesh, MATERIAL, gravity=(0, -9.81, 0))
-    separation = cutting.separate(model, faces_across(mesh, 0.1, below=0.05))
+    separation = cutting.separation(model, faces_across(mesh, 0.1, below=0.05))
     stack = sim_core.ModelStack(model, 2, spare_nodes=separation.added)
     stack.assign(1, separation.model)
     clamp = np.flatnonzero(np.isclose(mesh.nodes[:, 0], 0.0))
@@ -158,7 +161,7 @@ def test_a_blade_swept_through_the_block_cuts_the_faces_on_its_path(kind):
     assert {tuple(pair) for pair in through} == {tuple(pair) for pair in faces_across(mesh, 0.2)}
     crack = cutting.blade_faces(model, mesh.nodes, edge(0.3), edge(0.1))
     assert {tuple(pair) for pair in crack} == {tuple(pair) for pair in faces_across(mesh, 0.2, below=0.1)}
-    assert cutting.separate(model, crack).added == 3
+    assert cutting.separation(model, crack).added == 3
     with pytest.raises(ValueError, match=r"edge_from must be the blade edge's two ends"):
         cutting.blade_faces(model, mesh.nodes, [0.0, 0.0, 0.0], edge(0.0))
 
@@ -179,7 +182,7 @@ def test_a_slanted_blade_cuts_along_faces_within_half_an_element_of_its_path():
     shared_nodes = [np.intersect1d(mesh.elements[a], mesh.elements[b]) for a, b in faces]
     distance = np.array([abs((mesh.nodes[nodes].mean(axis=0) - point) @ normal) for nodes in shared_nodes])
     assert len(faces) > 0 and distance.max() <= 0.05
-    separation = cutting.separate(model, faces)
+    separation = cutting.separation(model, faces)
     assert separation.model.mesh.n_elements == mesh.n_elements
     assert zero_energy_modes(separation.model)[0] == 12
 
