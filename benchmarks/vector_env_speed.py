@@ -69,7 +69,9 @@ class Burner:
 
     def __enter__(self):
         self.core = max(os.sched_getaffinity(0))
-        self.process = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        # the loop ends with this process, however it ends (its parent changes)
+        loop = "import os\nparent = os.getppid()\nwhile os.getppid() == parent:\n    pass\n"
+        self.process = subprocess.Popen([sys.executable, "-c", loop])
         os.sched_setaffinity(self.process.pid, {self.core})
         time.sleep(0.3)  # the loop has started and holds its core
         return self
