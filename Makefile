@@ -52,6 +52,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.material_range
 	$(PY) -m benchmarks.vector_env_speed
 	$(PY) -m benchmarks.vector_env_speed --async --rounds 2 --output benchmarks/results/vector_env_speed_async.json
+	$(PY) -m benchmarks.vector_env_speed --busy-core --rounds 4 --env tissue_env/TumorPositioning-v0 --output benchmarks/results/vector_env_speed_busy.json
 	$(PY) -m benchmarks.training_speed
 	$(PY) -m benchmarks.vector_figure
 	$(PY) -m benchmarks.palpation_map

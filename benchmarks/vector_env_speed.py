@@ -1,7 +1,7 @@
 """Env steps per second of the batched vector envs against gymnasium's SyncVectorEnv.
 
 Usage: python -m benchmarks.vector_env_speed [--num-envs 16 ...] [--steps 100] [--rounds 3] [--env ID ...]
-       [--no-reset] [--async] [--output benchmarks/results/vector_env_speed.json]
+       [--no-reset] [--async] [--busy-core] [--output benchmarks/results/vector_env_speed.json]
 
 For each task with a ``vector_entry_point`` and each N: ``gym.make_vec(id, num_envs=N,
 vectorization_mode="sync")`` (N single envs stepped one after the other, one core) against
@@ -20,12 +20,24 @@ jobs on a shared machine disturb less. The modes alternate within every round (s
 and the table gives the medians over ``--rounds`` rounds and the medians of the per-round ratios:
 wall ratios against sync for the threaded vector env, CPU ratios for ``threads=1``. Results are
 written to ``--output`` (JSON, replaced atomically).
+
+``--busy-core`` measures every mode twice per round, side by side in one run: on the machine as it
+is ("idle") and with a CPU burner started by this benchmark (a Python busy loop in its own process,
+pinned with ``os.sched_setaffinity`` to the last core this process may use: "busy"), as when a policy
+trains in another process on the same machine. The modes are then sync, the vector env on one
+thread, on every core (``threads`` = numba's thread count, fixed) and with its default threads
+(``threads=None``); the table gives each mode's wall rate against sync under each load (medians of
+the per-round ratios; the two loads alternate their order from round to round). Its results go to
+``benchmarks/results/vector_env_speed_busy.json`` unless ``--output`` is given.
 """
 
 import argparse
+import contextlib
 import functools
 import os
 import platform
+import subprocess
+import sys
 import threading
 import time
 
@@ -43,6 +55,30 @@ _RESET_LOCK = threading.Lock()  # the threaded vector envs reset their copies on
 MODES = (("sync", "sync", {}), ("vector 1 thread", "vector_entry_point", dict(threads=1)),
          ("vector", "vector_entry_point", {}))
 ASYNC = ("async", "async", {})
+#: --busy-core: (label, vectorization_mode, extra make_vec keywords); "vector default" is threads=None
+BUSY_MODES = (("sync", "sync", {}), ("vector 1 thread", "vector_entry_point", dict(threads=1)),
+              (f"vector {numba.config.NUMBA_NUM_THREADS} threads", "vector_entry_point",
+               dict(threads=numba.config.NUMBA_NUM_THREADS)),
+              ("vector default", "vector_entry_point", {}))
+LOADS = ("idle", "busy")
+
+
+class Burner:
+    """A busy loop in its own process pinned to one core (the last this process may use), for the
+    block's duration: what a policy update in another process does to the env's cores."""
+
+    def __enter__(self):
+        self.core = max(os.sched_getaffinity(0))
+        # the loop ends with this process, however it ends (its parent changes)
+        loop = "import os\nparent = os.getppid()\nwhile os.getppid() == parent:\n    pass\n"
+        self.process = subprocess.Popen([sys.executable, "-c", loop])
+        os.sched_setaffinity(self.process.pid, {self.core})
+        time.sleep(0.3)  # the loop has started and holds its core
+        return self
+
+    def __exit__(self, *exc):
+        self.process.kill()
+        self.process.wait()
 
 
 def _timed_reset(reset):
@@ -105,8 +141,16 @@ def main():
     parser.add_argument("--no-reset", action="store_true", help="also measure episodes that never end")
     parser.add_argument("--async", dest="with_async", action="store_true",
                         help="also measure vectorization_mode='async' (one process per copy; slow to start)")
-    parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results", "vector_env_speed.json"))
+    parser.add_argument("--busy-core", action="store_true",
+                        help="measure with and without a CPU burner on one core, side by side (see the docstring)")
+    parser.add_argument("--output", default=None,
+                        help="default benchmarks/results/vector_env_speed.json (--busy-core: vector_env_speed_busy.json)")
     args = parser.parse_args()
+    if args.output is None:
+        args.output = os.path.join(os.path.dirname(__file__), "results",
+                                   "vector_env_speed_busy.json" if args.busy_core else "vector_env_speed.json")
+    if args.busy_core:
+        return busy_core(args)
     regimes = [("registered", {})] + ([("no reset", dict(max_episode_steps=10**6))] if args.no_reset else [])
     modes = MODES + ((ASYNC,) if args.with_async else ())
     print(f"{args.steps} vector steps, random actions, median of {args.rounds} interleaved rounds, "
@@ -139,6 +183,45 @@ def main():
                     unit="env steps per wall second and per CPU second of the process (medians of interleaved rounds)",
                     machine=dict(cpus=os.cpu_count(), platform=platform.platform()),
                     load_average=os.getloadavg(), results=rows))
+
+
+def busy_core(args):
+    """``--busy-core``: every mode on the machine as it is and beside a pinned CPU burner, interleaved."""
+    threads = numba.config.NUMBA_NUM_THREADS
+    start_load = os.getloadavg()
+    labels = [label for label, _, _ in BUSY_MODES]
+    print(f"{args.steps} vector steps, random actions, median of {args.rounds} interleaved rounds, {threads} threads, "
+          f"load average {start_load[0]:.2f} {start_load[1]:.2f} {start_load[2]:.2f}; env steps per wall second "
+          f"(per CPU second); busy: a busy loop pinned to core {max(os.sched_getaffinity(0))}")
+    print(f"{'env id':32s} {'N':>3s} {'load':>5s} | " + " | ".join(f"{label:>16s}" for label in labels)
+          + " | wall / sync: " + ", ".join(labels[1:]))
+    rows = []
+    for env_id in args.env:
+        for num_envs in args.num_envs:
+            results = {(load, label): [] for load in LOADS for label in labels}
+            for index in range(args.rounds):
+                for load in (LOADS if index % 2 == 0 else LOADS[::-1]):
+                    with (Burner() if load == "busy" else contextlib.nullcontext()):
+                        for label, mode, kwargs in BUSY_MODES:
+                            results[load, label].append(rate(env_id, mode, num_envs, args.steps, **kwargs))
+            for load in LOADS:
+                runs = {label: np.array(results[load, label]) for label in labels}
+                sync = runs["sync"]
+                ratios = {label: float(np.median(runs[label][:, 0] / sync[:, 0])) for label in labels[1:]}
+                row = dict(env_id=env_id, num_envs=num_envs, load=load, steps=args.steps, rounds=args.rounds,
+                           threads=threads, modes={label: _summary(run, True) for label, run in runs.items()},
+                           wall_ratio=ratios)
+                rows.append(row)
+                cells = " | ".join(f"{_cell(row['modes'][label]):>16s}" for label in labels)
+                print(f"{env_id:32s} {num_envs:3d} {load:>5s} | {cells} | "
+                      + ", ".join(f"{ratios[label]:4.2f}x" for label in labels[1:]), flush=True)
+            write_json(args.output, dict(
+                benchmark="vector_env_speed --busy-core",
+                unit="env steps per wall second and per CPU second of the process (medians of interleaved rounds); "
+                     "wall_ratio: each vector mode's wall rate over sync's, median of the per-round ratios",
+                busy="a Python busy loop in its own process pinned to one core (os.sched_setaffinity)",
+                machine=dict(cpus=os.cpu_count(), platform=platform.platform()),
+                load_average_start=start_load, load_average=os.getloadavg(), results=rows))
 
 
 if __name__ == "__main__":

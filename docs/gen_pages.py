@@ -815,6 +815,30 @@ def env_vector_section():
     return out
 
 
+def vector_busy_section():
+    """The vector env beside a process that holds a core (vector_env_speed_busy.json, --busy-core)."""
+    if not (RESULTS / "vector_env_speed_busy.json").exists():
+        return []
+    data = load("vector_env_speed_busy.json")
+    modes = list(data["results"][0]["modes"])
+    start, end = data["load_average_start"][0], data["load_average"][0]
+    out = ["### With another process on a core\n\n",
+           "The same modes side by side in one run, on the machine as it was (\"idle\") and beside a busy loop "
+           "pinned to one core (\"busy\", as when a policy trains in another process). On a busy core every "
+           "parallel region waits for the thread that lost its core, so a vector env fixed on every core can fall "
+           "below sync; the default threads (`threads=None`) time the steps on every core and on one and keep the "
+           "faster (`TissueVectorEnv`). "
+           f"Load average (1 min) {start:.2f} at the start, {end:.2f} at the end ({data['machine']['cpus']} cores). "
+           f"Unit: {data['unit']}.\n\n",
+           caption(command_for("vector_env_speed.py", "vector_env_speed_busy.json"), "vector_env_speed_busy.json"), "\n"]
+    out += [table(["env", "copies", "load"] + [f"{mode} (wall)" for mode in modes]
+                  + [f"{mode} / sync (wall)" for mode in modes[1:]],
+                  [[short_id(r["env_id"]), r["num_envs"], r["load"]]
+                   + [num(r["modes"][mode]["wall_steps_per_s"]) for mode in modes]
+                   + [num(r["wall_ratio"][mode]) for mode in modes[1:]] for r in data["results"]]), "\n"]
+    return out
+
+
 def env_rejected_section():
     return ["## Rejected alternatives\n\n",
             "Tried, measured and not kept (the measurements are in CHANGELOG.md):\n\n",
@@ -917,6 +941,7 @@ def performance_page():
                        + [num(r["modes"][mode]["wall_steps_per_s"]) for mode in modes] + [num(r["wall_ratio"])]
                        for r in data["results"]]), "\n"]
     out += [figure("vector_env_speed.png", "vector env speed"), "\n"]
+    out += vector_busy_section()
     out += visual_speed_section()
 
     out += ["## Explicit stability limit\n\n",

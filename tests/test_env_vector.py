@@ -460,3 +460,66 @@ def test_a_copy_does_not_depend_on_the_other_copies(env_id):
     cold = _copy_zero(env_id, 1, steps)
     other = _copy_zero(env_id, 2, steps)
     np.testing.assert_array_equal(cold, other)
+
+
+def test_the_default_threads_keep_the_faster_count():
+    """With the default threads the vector env chooses at run time between every core and one
+    (``vector._ThreadChooser``): the count whose timed steps were faster, compared again when the steps
+    slow down and at the periodic check (step times given here: no timing in the test)."""
+    from tissue_env.vector import CHECK_INTERVAL, TRIAL_STEPS, _ThreadChooser
+
+    chooser = _ThreadChooser(2)
+    speed = {2: 1.0, 1: 3.0}  # idle cores: the threads are faster
+
+    def run(steps):
+        for _ in range(steps):
+            chooser.record(speed[chooser.active])
+
+    run(2 * TRIAL_STEPS + 3)  # every core timed, then one on trial (the first step after a change untimed)
+    assert chooser.active == 2 and chooser.trial is None
+    speed = {2: 3.0, 1: 1.3}  # another process took a core: the slowdown starts a comparison at once
+    run(2 * (TRIAL_STEPS + 1))
+    assert chooser.active == 1 and chooser.trial is None
+    speed = {2: 0.9, 1: 1.2}  # the core is free again: found at the periodic check
+    run(CHECK_INTERVAL - 1)
+    assert chooser.active == 1
+    run(TRIAL_STEPS + 2)
+    assert chooser.active == 2 and chooser.trial is None
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs two cores for numba's threads")
+@pytest.mark.parametrize("env_id", VECTOR_IDS)
+def test_the_default_threads_changing_between_steps_give_the_one_thread_floats(env_id):
+    """The default threads' count may change from one step to the next (``active_threads``): a vector
+    env whose count changes at every step takes the steps of a one-thread vector env bit for bit,
+    resets and autoresets included; a fixed count never changes."""
+    default = gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", max_episode_steps=8)
+    single = gym.make_vec(env_id, num_envs=4, vectorization_mode="vector_entry_point", max_episode_steps=8, threads=1)
+    chooser = default.unwrapped._chooser
+    assert chooser is not None and default.unwrapped.threads >= 2 and default.unwrapped.active_threads >= 2
+    assert single.unwrapped._chooser is None and single.unwrapped.active_threads == 1
+    counts = []
+
+    def flip(seconds):
+        counts.append(chooser.active)
+        chooser.active = 1 if chooser.active != 1 else chooser.most
+
+    chooser.record = flip
+    rng = np.random.default_rng(3)
+    for envs in (default, single):
+        envs.reset(seed=11)
+    for step in range(20):
+        actions = rng.uniform(-1.0, 1.0, (4, 3)).astype(np.float32)
+        if step == 10:  # a masked reset on one thread
+            mask = np.array([True, False, True, False])
+            outs = [envs.reset(seed=[1, 2, 3, 4], options={"reset_mask": mask}) for envs in (default, single)]
+            np.testing.assert_array_equal(outs[0][0], outs[1][0])
+        (obs, reward, terminated, truncated, info), expected = (envs.step(actions) for envs in (default, single))
+        for actual, wanted in zip((obs, reward, terminated, truncated), expected[:4]):
+            np.testing.assert_array_equal(actual, wanted)
+        assert_infos_match(info, expected[4], atol=0.0, rtol=0.0)
+    assert set(counts) == {1, default.unwrapped.threads}
+    fixed = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", threads=2)
+    assert fixed.unwrapped._chooser is None and fixed.unwrapped.active_threads == 2
+    for envs in (default, single, fixed):
+        envs.close()

@@ -43,7 +43,8 @@ class BatchedVecEnv(VecEnv):
         n_envs: number of copies N.
         env_kwargs: the task's constructor keywords, the same for every copy.
         threads: the vector env's threads (numba's, for the per-copy solves, factorisations and
-            force passes, and the reset pool's): None every core, 1 serial (the same floats).
+            force passes, and the reset pool's): None every core or one, whichever its timed steps
+            find faster (``TissueVectorEnv``), 1 serial (the same floats).
     """
 
     def __init__(self, env_id: str, n_envs: int, env_kwargs: dict | None = None, threads: int | None = None):

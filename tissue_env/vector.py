@@ -21,8 +21,10 @@ same episodes (tests/test_env_vector.py).
 
 The vector env does several times the env steps per second of ``vectorization_mode="sync"``, on
 one thread (``threads=1``) as on several (benchmarks/vector_env_speed.py measures it; the
-performance page). numba's idle threads spin briefly between parallel regions before they sleep
-(``kernels.start_threads``). How each task's worlds solve their linear systems (``linear_solver``
+performance page). With its default threads it times its own steps and runs each on every core or on
+one, whichever is faster at the moment (``TissueVectorEnv``: the threads help on idle cores and slow
+every step down when another process holds a core). numba's idle threads spin briefly between
+parallel regions before they sleep (``kernels.start_threads``). How each task's worlds solve their linear systems (``linear_solver``
 of its ``TaskWorlds``) is documented in ``sim_core.solvers.implicit``. The copies' resets (their task
 envs' episode draws) run on a pool of as many Python threads (``_reset_rows``; a static solve
 releases the GIL for most of its time).
@@ -30,10 +32,13 @@ releases the GIL for most of its time).
 
 from __future__ import annotations
 
+import contextlib
 import os
+import time
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -71,6 +76,69 @@ def _thread_count(threads) -> int:
     return int(threads)
 
 
+#: Default threads (``threads=None``): steps timed per thread count before the two are compared (the
+#: median of each; the first step after a change is not timed: threads that slept wake in it)
+TRIAL_STEPS = 4
+#: Default threads: steps between two comparisons, first and at most (the interval doubles each time
+#: the comparison keeps the count, and returns to the first after a change)
+CHECK_INTERVAL = 50
+MAX_CHECK_INTERVAL = 400
+#: Default threads: a comparison also starts early when the median of the last ``TRIAL_STEPS`` steps
+#: is this many times that of the steps which chose the count (another process took a core)
+SLOWDOWN = 1.5
+
+
+class _ThreadChooser:
+    """The default thread count's run-time choice (see ``TissueVectorEnv``): every core (``most``)
+    or one, whichever ran the last comparison's steps faster (wall time of the physics step, the
+    resets excluded), compared again every ``interval`` steps or when the steps slow down."""
+
+    def __init__(self, most: int):
+        self.most = most
+        self.active = most  # the count the steps run on
+        self.trial = None  # during a comparison: the count on trial
+        self.skip = 1  # untimed steps left (the first after a change)
+        self.times = []  # this count's timed steps since its last change
+        self.reference = None  # the median step time of the count in use when it was chosen
+        self.incumbent = None  # during a comparison: the median of the count the comparison started on
+        self.interval = CHECK_INTERVAL
+        self.until_check = TRIAL_STEPS + 1  # the first comparison: once every count has been timed
+
+    def record(self, seconds: float):
+        """Take one physics step's wall time on ``active`` threads; maybe change ``active``."""
+        if self.skip:
+            self.skip -= 1
+            return
+        self.times.append(seconds)
+        del self.times[:-TRIAL_STEPS]
+        if self.trial is None:
+            self.until_check -= 1
+            slowed = (self.reference is not None and len(self.times) == TRIAL_STEPS
+                      and float(np.median(self.times)) > SLOWDOWN * self.reference)
+            if (self.until_check <= 0 or slowed) and len(self.times) == TRIAL_STEPS:
+                self.incumbent = float(np.median(self.times))
+                self.trial = 1 if self.active != 1 else self.most
+                self._switch(self.trial)
+        elif len(self.times) == TRIAL_STEPS:
+            candidate = float(np.median(self.times))
+            incumbent_count = self.most if self.trial == 1 else 1
+            if candidate < self.incumbent:  # the trial's count wins: keep it
+                self.reference = candidate
+                self.interval = CHECK_INTERVAL
+                self.trial = None
+                self.until_check = self.interval
+                self.times = []
+            else:
+                self.reference = self.incumbent
+                self.interval = min(2 * self.interval, MAX_CHECK_INTERVAL)
+                self.trial = None
+                self._switch(incumbent_count)
+                self.until_check = self.interval
+
+    def _switch(self, count: int):
+        self.active = count
+        self.skip = 1
+        self.times = []
 
 
 class TissueVectorEnv(VectorEnv):
@@ -82,9 +150,19 @@ class TissueVectorEnv(VectorEnv):
             None for none.
         threads: threads of the batched step's per-copy force passes, products, factorisations and
             solves (numba's pool) and of the copies' resets (a Python thread pool); the copies are
-            independent, so the results are the same for any count: None for
-            numba's default (every core, or ``NUMBA_NUM_THREADS``), 1 to keep to one core (several
-            env processes on one machine, e.g. RLlib env runners). In a process forked from one
+            independent, so the results are the same for any count (bit for bit; also when the
+            count changes between steps). An integer fixes the count: 1 keeps to one core (several
+            env processes on one machine, e.g. RLlib env runners), ``NUMBA_NUM_THREADS`` (numba's
+            default: every core) uses them all. None, the default, builds the env for every core
+            and chooses at run time between every core and one (``active_threads``): it times the
+            physics part of its steps (wall clock, resets excluded) on each, keeps the faster, and
+            compares again every ``CHECK_INTERVAL`` steps (the interval doubles, up to
+            ``MAX_CHECK_INTERVAL``, while the choice holds) or as soon as its steps run
+            ``SLOWDOWN`` times slower than when it chose. On idle cores that keeps the threads' gain
+            but for the few steps on trial; when another process holds a core (a policy training in
+            another process), every parallel region would wait for the thread that lost its core,
+            and the env runs on one (the one-thread speed, several times sync, instead of slower
+            than sync; benchmarks/vector_env_speed.py ``--busy-core``). In a process forked from one
             that may have started the pool, the env uses one thread: GNU OpenMP's pool is not
             fork-safe (``kernels.FORKED``).
         **kwargs: the task's constructor keywords, the same for every copy.
@@ -100,6 +178,8 @@ class TissueVectorEnv(VectorEnv):
         if isinstance(num_envs, bool) or not float(num_envs).is_integer() or int(num_envs) < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         self.threads = _thread_count(threads)
+        #: the run-time choice of the default threads (None: a fixed count)
+        self._chooser = _ThreadChooser(self.threads) if threads is None and kernels.threaded(self.threads) else None
         if max_episode_steps is not None and int(max_episode_steps) < 1:
             raise ValueError(f"max_episode_steps must be None or an integer >= 1, got {max_episode_steps!r}")
         if kwargs.get("render_mode") == "human":
@@ -127,6 +207,26 @@ class TissueVectorEnv(VectorEnv):
         self._observations = None
 
     @property
+    def active_threads(self) -> int:
+        """The threads the next step runs on: ``threads``, or with the default threads the count the
+        run-time choice holds (``threads`` or 1)."""
+        return self.threads if self._chooser is None else self._chooser.active
+
+    @contextlib.contextmanager
+    def _on_active_threads(self):
+        """numba's thread count set to ``active_threads`` inside the block when the env is built for
+        several (its parallel kernels; their floats do not depend on the count), restored after."""
+        if not kernels.threaded(self.threads):
+            yield
+            return
+        previous = numba.get_num_threads()
+        numba.set_num_threads(self.active_threads)
+        try:
+            yield
+        finally:
+            numba.set_num_threads(previous)
+
+    @property
     def reset_pool_running(self) -> bool:
         """Whether the thread pool that resets the copies (``threads`` > 1) is running: started at
         the first threaded reset, stopped by ``close`` and before a fork."""
@@ -151,7 +251,7 @@ class TissueVectorEnv(VectorEnv):
         def reset(index):
             envs[index]._reset_episode(seed=seeds[index], options=options)
 
-        if len(rows) > 1 and kernels.threaded(self.threads):
+        if len(rows) > 1 and kernels.threaded(self.active_threads):
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="tissue-reset")
                 _POOLED.add(self)
@@ -188,7 +288,7 @@ class TissueVectorEnv(VectorEnv):
             if not self._started and not mask.all():
                 raise ValueError("the first reset must reset every copy")
         rows = np.flatnonzero(mask)
-        with kernels.using_threads(self.threads):
+        with self._on_active_threads():
             observations, infos = self._reset_rows(rows, seeds, options)
         self._autoreset[rows] = False
         self._started = True
@@ -201,7 +301,7 @@ class TissueVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        with kernels.using_threads(self.threads):  # serial kernels for one thread: the pool is not touched
+        with self._on_active_threads():  # serial kernels when built for one thread: the pool is not touched
             return self._step(actions)
 
     def _step(self, actions):
@@ -216,7 +316,10 @@ class TissueVectorEnv(VectorEnv):
         reset_rows = np.flatnonzero(resetting)
         if len(reset_rows):
             reset_observations, reset_infos = self._reset_rows(reset_rows, [None] * count, None)
+        start = time.perf_counter()
         observations, total, terminated, infos = self.worlds.step(actions, active)
+        if self._chooser is not None:  # the default threads: time the physics, maybe change the count
+            self._chooser.record(time.perf_counter() - start)
         truncated = np.zeros(count, dtype=bool)
         if self.max_episode_steps is not None:
             truncated = self.worlds.elapsed >= self.max_episode_steps

@@ -60,7 +60,8 @@ def parse_args(argv=None):
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: PPO ran 20x slower with 2)")
     parser.add_argument("--env-threads", type=int, default=None,
                         help="--vec-env batched: the vector env's threads (its per-copy solves, factorisations, "
-                             "force passes and resets; default every core; 1 when several runs share a machine)")
+                             "force passes and resets; default every core or one, whichever its timed steps find faster; "
+                             "1 when several runs share a machine)")
     parser.add_argument("--eval-freq", type=int, default=None, help="env steps between evaluations")
     parser.add_argument("--eval-episodes", type=int, default=5)
     parser.add_argument("--checkpoint-freq", type=int, default=None, help="env steps between checkpoints")
