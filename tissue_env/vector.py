@@ -38,7 +38,6 @@ import time
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -219,12 +218,8 @@ class TissueVectorEnv(VectorEnv):
         if not kernels.threaded(self.threads):
             yield
             return
-        previous = numba.get_num_threads()
-        numba.set_num_threads(self.active_threads)
-        try:
+        with kernels.thread_count(self.active_threads):
             yield
-        finally:
-            numba.set_num_threads(previous)
 
     @property
     def reset_pool_running(self) -> bool:

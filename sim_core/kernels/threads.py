@@ -88,6 +88,20 @@ def using_threads(threads: int):
         numba.set_num_threads(previous)
 
 
+@contextlib.contextmanager
+def thread_count(count: int):
+    """numba's thread count set to ``count`` (>= 1) inside the block, restored after: the parallel
+    kernels run on that many threads (their floats do not depend on the count). Unlike
+    ``using_threads``, one thread keeps the parallel kernels (a caller that chose them for several
+    threads and runs a step on one)."""
+    previous = numba.get_num_threads()
+    numba.set_num_threads(int(count))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(previous)
+
+
 #: GNU OpenMP's spin count for numba's idle threads (``start_threads``): a tenth of libgomp's
 #: default of 300000, so that they spin long enough to bridge the Python between a step's parallel
 #: kernels and short enough that a pause (a policy update) finds them asleep instead of holding a
