@@ -33,19 +33,28 @@ def _snapshot(runs: Path, run_dir: Path, snapshots: Path) -> Path:
     return snapshots / run_dir.relative_to(runs)
 
 
+def _trained(background, folder, *arguments):
+    """A job's first training run: ``training.train`` on ENV with ``arguments`` into ``folder``/runs;
+    {"train": (code, stdout, stderr)}, with the run folder ("run_dir") and a copy of the runs as they
+    are ("snapshot", ``_snapshot``) when it succeeded."""
+    runs = folder / "runs"
+    code, out, err = run("training.train", "--env", ENV, "--runs-dir", str(runs), *arguments, background=background)
+    job = dict(train=(code, out, err))
+    if code == 0:
+        job["run_dir"] = run_dir = Path(out.strip().splitlines()[-1])
+        job["snapshot"] = _snapshot(runs, run_dir, folder / "snapshot")
+    return job
+
+
 def _train_ppo(background, folder):
     """The PPO smoke run (``trained``): trained, copied as it is (``snapshot``), then resumed from its
     newest checkpoint as if interrupted after it, evaluated and plotted (the tests' order)."""
-    runs = folder / "runs"
-    code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "3",
-                         "--n-envs", "2", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
-                         "--checkpoint-freq", "128", "--eval-freq", "128", "--config", str(_small_config(folder)),
-                         background=background)
-    job = dict(train=(code, out, err))
-    if code != 0:
+    job = _trained(background, folder, "--algo", "ppo", "--timesteps", "256", "--seed", "3", "--n-envs", "2",
+                   "--no-progress", "--eval-episodes", "1", "--checkpoint-freq", "128", "--eval-freq", "128",
+                   "--config", str(_small_config(folder)))
+    if "run_dir" not in job:
         return job
-    job["run_dir"] = run_dir = Path(out.strip().splitlines()[-1])
-    job["snapshot"] = _snapshot(runs, run_dir, folder / "snapshot")
+    run_dir = job["run_dir"]
     (run_dir / "model.zip").unlink()  # as if the run had been interrupted after its last checkpoint
     job["resume"] = run("training.train", "--resume", str(run_dir), "--timesteps", "384", "--no-progress",
                         background=background)
@@ -61,16 +70,12 @@ def _train_sac(background, folder):
     config = folder / "sac_small.yml"
     config.write_text("default:\n  policy: MlpPolicy\n  normalize: false\n  buffer_size: 1000\n  learning_starts: 50\n"
                       "  batch_size: 16\n  policy_kwargs: {net_arch: [16, 16]}\n")
-    runs = folder / "runs"
-    code, out, err = run("training.train", "--env", ENV, "--algo", "sac", "--timesteps", "200", "--seed", "1",
-                         "--n-envs", "1", "--runs-dir", str(runs), "--no-progress", "--eval-episodes", "1",
-                         "--checkpoint-freq", "50", "--eval-freq", "1000", "--config", str(config),
-                         background=background)
-    job = dict(train=(code, out, err))
-    if code != 0:
+    job = _trained(background, folder, "--algo", "sac", "--timesteps", "200", "--seed", "1", "--n-envs", "1",
+                   "--no-progress", "--eval-episodes", "1", "--checkpoint-freq", "50", "--eval-freq", "1000",
+                   "--config", str(config))
+    if "run_dir" not in job:
         return job
-    job["run_dir"] = run_dir = Path(out.strip().splitlines()[-1])
-    job["snapshot"] = _snapshot(runs, run_dir, folder / "snapshot")
+    run_dir = job["run_dir"]
     (run_dir / "model.zip").unlink()
     job["resume"] = run("training.train", "--resume", str(run_dir), "--timesteps", "300", "--no-progress",
                         background=background)
@@ -80,16 +85,12 @@ def _train_sac(background, folder):
 def _train_batched(background, folder):
     """PPO on the batched vector env, copied as it is (``snapshot``), then resumed to 384 steps."""
     common = ("--no-progress", "--eval-episodes", "1", "--eval-freq", "128", "--checkpoint-freq", "128")
-    runs = folder / "runs"
-    code, out, err = run("training.train", "--env", ENV, "--algo", "ppo", "--timesteps", "256", "--seed", "2",
-                         "--n-envs", "2", "--vec-env", "batched", "--runs-dir", str(runs), "--config",
-                         str(_small_config(folder)), "--env-kwargs", '{"max_episode_steps": 16}',
-                         "--env-threads", "1", *common, background=background)
-    job = dict(train=(code, out, err))
-    if code != 0:
+    job = _trained(background, folder, "--algo", "ppo", "--timesteps", "256", "--seed", "2", "--n-envs", "2",
+                   "--vec-env", "batched", "--config", str(_small_config(folder)), "--env-kwargs",
+                   '{"max_episode_steps": 16}', "--env-threads", "1", *common)
+    if "run_dir" not in job:
         return job
-    job["run_dir"] = run_dir = Path(out.strip().splitlines()[-1])
-    job["snapshot"] = _snapshot(runs, run_dir, folder / "snapshot")
+    run_dir = job["run_dir"]
     job["resume"] = run("training.train", "--resume", str(run_dir), "--timesteps", "384", *common,
                         background=background)
     return job
