@@ -167,7 +167,7 @@ def _rebuild(model: Model, mesh):
     if isinstance(mesh, TetMesh):  # the hexahedral options a tetrahedral model records at their defaults
         for name in ("volume_conservation", "volume_stiffness", "nu_factor", "hourglass_control"):
             options.pop(name, None)
-    material = Material(model.young_modulus, model.poisson_ratio, model.density)
+    material = Material(model.young_modulus, model.poisson_ratio, model.density, *(model.damping_law or ()))
     return build_model(mesh, material, model=model.name, corrections=corrections, gravity=model.gravity,
                        max_shear_error=None, **options)
 

@@ -18,7 +18,7 @@ from . import terms
 from .._validate import finite_array
 from .elements import element_block_positions
 from .laws import baudet_stiffness  # noqa: F401  (re-exported: the formulas' users import it from here)
-from .material import Material
+from .material import Material, rayleigh_coefficients
 from ..geometry.mesh import EDGES, HexMesh
 from .smoothing import SMOOTHING, SmoothedStrain, cell_pairs, smoothed_strain
 from .sparse import BlockPattern
@@ -68,6 +68,8 @@ class Model:
         smoothing: the smoothing domains (``smoothing.SmoothedStrain``) of a tetrahedral model
             built with smoothing="edge-node" [12], or None: the stress correction then acts on
             the domains' deformation gradients instead of the elements'.
+        damping_law: the material's damping law, (damping_ratio, damping_frequency) of its
+            ``Material`` (Rayleigh damping, ``rayleigh``) [14], or None (the springs' dashpots only).
     """
 
     mesh: HexMesh | TetMesh
@@ -91,6 +93,7 @@ class Model:
     options: dict = field(default_factory=dict)
     stress_correction: StressCorrection | None = None
     smoothing: SmoothedStrain | None = None
+    damping_law: tuple | None = None
 
     def __post_init__(self):
         n_nodes = self.mesh.n_nodes
@@ -148,6 +151,14 @@ class Model:
         )
         for key, value in derived.items():
             object.__setattr__(self, key, value)
+
+    @property
+    def rayleigh(self) -> tuple[float, float]:
+        """(alpha in 1/s, beta in s) of the material's Rayleigh damping, forces -(alpha M + beta K) v
+        with K the implicit step's stiffness [14]; (0, 0) without a damping law."""
+        if self.damping_law is None:
+            return (0.0, 0.0)
+        return rayleigh_coefficients(*self.damping_law)
 
     @property
     def rest_positions(self) -> np.ndarray:
@@ -328,7 +339,7 @@ def build_model(
     volume_conservation: bool | None = None,
     volume_stiffness: float = 1.0,
     nu_factor: bool = False,
-    damping_ratio: float = 1.0,
+    damping_ratio: float | None = None,
     gravity=(0.0, 0.0, 0.0),
     hourglass_control: float = 0.0,
     springs: str = "faces",
@@ -358,7 +369,9 @@ def build_model(
         volume_conservation: volume forces on/off; default on for "baudet" only.
         volume_stiffness: multiplier of kappa = K V0^(2/3), K = E / (3 (1 - 2 nu)) [4].
         nu_factor: "baudet-original" only: multiply the corrections by nu (report section 5.1).
-        damping_ratio: multiplier of the critical spring damping 2 sqrt(mu k); >= 0.
+        damping_ratio: multiplier of the critical spring damping 2 sqrt(mu k) [5]; >= 0. None
+            (default): 1 for a material without a damping law, 0 for one with (``Material``'s
+            ``damping_ratio``: the law then sets the damping alone [14]).
         gravity: (3,) acceleration in m/s^2; y is up, so Earth is (0, -9.81, 0).
         hourglass_control: alpha >= 0. Adds alpha times the linear FEM element stiffness projected
             on the element's hourglass space (the displacements orthogonal to every affine field),
@@ -388,6 +401,9 @@ def build_model(
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
     if not isinstance(mesh, (HexMesh, TetMesh)):
         raise ValueError(f"mesh must be a HexMesh or a TetMesh, got {type(mesh).__name__}")
+    damping_law = None if material.damping_ratio is None else (material.damping_ratio, material.damping_frequency)
+    if damping_ratio is None:  # a damping law sets the damping alone; else the springs' dashpots [5]
+        damping_ratio = 1.0 if damping_law is None else 0.0
     options = (_tet_options if isinstance(mesh, TetMesh) else _hex_options)(
         model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, hourglass_control, springs)
     if isinstance(mesh, TetMesh):
@@ -438,6 +454,7 @@ def build_model(
         rest_volume=rest_volume, volume_stiffness=kappa, gravity=gravity,
         young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
         options=dict(corrections=corrections, **options), stress_correction=correction, smoothing=smoothed,
+        damping_law=damping_law,
     )
 
 

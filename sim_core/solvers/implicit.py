@@ -70,6 +70,7 @@ from .. import kernels
 from ..caches import BudgetCache
 from ..models.forces import stiffness_data
 from ..models.model import Model
+from .schemes import check_scheme, scheme_advance, stage_dt
 from .solver import WorldsSolver
 from .preconditioners import (AUTO_MAX_DOFS, CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns,
                               auto_switch_iterations, free_structure, node_block_factor)
@@ -130,8 +131,9 @@ def _system_factor(model, positions, dt, fixed):
 
 def _system_factor_of(model, positions, dt, fixed):
     free = np.flatnonzero(~np.asarray(fixed, dtype=bool).ravel())
-    data = stiffness_data(model, positions, volume=False, clamp=True, stiffness_scale=dt * dt,
-                          damping_scale=dt, mass_scale=1.0)
+    alpha, beta = model.rayleigh  # the material's damping enters as the step's mass and stiffness do
+    data = stiffness_data(model, positions, volume=False, clamp=True, stiffness_scale=dt * dt + dt * beta,
+                          damping_scale=dt, mass_scale=1.0 + dt * alpha)
     matrix = model.pattern.matrix(data).tocsr()[free][:, free].tocsc()
     if NodeBlockLU.applies(free):
         try:
@@ -266,13 +268,18 @@ class ImplicitEuler(WorldsSolver):
         threads: more than one runs the per-world kernels on numba's threads
             (``kernels.threaded``; the count they use is ``numba.get_num_threads()``), one their
             ``_serial`` versions; None: numba's ``NUMBA_NUM_THREADS``. One world runs on one.
+        scheme: the time scheme (``schemes.SCHEMES``): "euler" (default: this linearised implicit
+            Euler, numerical damping ratio about omega dt / 2), "trapezoidal" (no numerical damping,
+            one solve) or "tr-bdf2" (numerical damping below 1e-3 up to omega dt = 0.4, stiff modes
+            damped out; two solves) (docs/physics.md section 14).
     """
 
     name = "implicit"
 
     def __init__(self, stack: ModelStack | Model | None = None, tolerance: float = 1e-6, max_iterations: int = 200,
                  preconditioner: str = "auto", refresh_iterations: int = 8, amortise: int | None = None,
-                 threads: int | None = None):
+                 threads: int | None = None, scheme: str = "euler"):
+        self.scheme = check_scheme(scheme)
         if preconditioner not in PRECONDITIONERS:
             raise ValueError(f"preconditioner must be one of {PRECONDITIONERS}, got {preconditioner!r}")
         if not float(tolerance) > 0:
@@ -380,7 +387,8 @@ class ImplicitEuler(WorldsSolver):
     # -- preconditioner ------------------------------------------------------------------------------
     def _options(self):
         return dict(tolerance=self.tolerance, max_iterations=self.max_iterations, preconditioner=self.preconditioner,
-                    refresh_iterations=self.refresh_iterations, amortise=self.amortise, threads=self.threads)
+                    refresh_iterations=self.refresh_iterations, amortise=self.amortise, threads=self.threads,
+                    scheme=self.scheme)
 
     def _prepare_shared(self, index: int, model: Model, positions: np.ndarray, dt: float, fixed: np.ndarray):
         """Start an episode of copy ``index``: clear its warm start and (solver "reference") set its
@@ -389,6 +397,7 @@ class ImplicitEuler(WorldsSolver):
         not in ``fixed`` (n, 3) (``_system_factor``). Shared (cached) between copies and episodes that
         start alike: the copies holding the same factor form one group, solved together."""
         super()._prepare_shared(index, model, positions, dt, fixed)
+        dt = stage_dt(self.scheme, dt)  # the scheme's solves are implicit Euler solves of this step
         self.warm[index] = 0.0
         if self.preconditioner in ("jacobi", "auto"):  # Jacobi from the episode's start
             self._use_jacobi(index)
@@ -396,7 +405,7 @@ class ImplicitEuler(WorldsSolver):
         digest = hashlib.blake2b(digest_size=16)
         for array in (model.stiffness, model.damping, model.mass, model.correction_matrix, model.volume_stiffness,
                       model.young_modulus, model.poisson_ratio, np.ascontiguousarray(positions), fixed,
-                      np.array([dt, model.n_nodes, len(model.springs)])):
+                      np.array([dt, model.n_nodes, len(model.springs), *model.rayleigh])):
             digest.update(np.ascontiguousarray(array).tobytes())
         key = digest.digest()
         if self.preconditioner == "factorised":
@@ -875,7 +884,8 @@ class ImplicitEuler(WorldsSolver):
         return forces
 
     def advance(self, positions, velocities, fixed, target, dt, active, force=None):
-        """One step of every copy in ``active`` (N,) bool; the others keep their state.
+        """One step of the scheme (``self.scheme``) of every copy in ``active`` (N,) bool; the others
+        keep their state (``schemes.scheme_advance``: one or two ``stage`` solves).
 
         Args:
             positions, velocities: (N, n, 3) m, m/s.  fixed: (N, n, 3) bool imposed components.
@@ -883,6 +893,13 @@ class ImplicitEuler(WorldsSolver):
             force: None or (N, n, 3) external nodal forces, N.
         Returns: (positions, velocities) (N, n, 3), new arrays.
         """
+        return scheme_advance(self, positions, velocities, fixed, target, dt, active, force)
+
+    def stage(self, positions, velocities, fixed, target, dt, active, force=None, rayleigh=(0.0, 0.0)):
+        """One linearised implicit Euler step of ``dt`` s of every copy in ``active`` (``advance``'s
+        arguments), with Rayleigh damping ``rayleigh`` = (alpha 1/s, beta s), forces -(alpha M +
+        beta K) v at the step's end velocity: the system M + dt D + dt^2 K gains dt (alpha M + beta
+        K) (docs/physics.md section 14)."""
         stack = self.stack
         model = stack.model
         count, n_nodes = positions.shape[:2]
@@ -894,9 +911,11 @@ class ImplicitEuler(WorldsSolver):
         forces = self.linearise(x0) + model.gravity_force
         if force is not None and np.any(force):  # (zero forces add nothing: the floats stay the same)
             forces += np.asarray(force, dtype=float).reshape(-1, 3)
-        stiffness = dt * dt
-        # A = M + dt D + dt^2 K: (mass, damping, stiffness, coupling, volume, hourglass) scales
-        system = (1.0, float(dt), stiffness, stiffness if model.correction_mode is not None else 0.0,
+        alpha, beta = rayleigh
+        stiffness = dt * dt + dt * beta
+        # A = (1 + dt alpha) M + dt D + (dt^2 + dt beta) K: (mass, damping, stiffness, coupling, volume,
+        # hourglass) scales; the right-hand side's M v0 - A v0 then holds the damping forces at v0
+        system = (1.0 + dt * alpha, float(dt), stiffness, stiffness if model.correction_mode is not None else 0.0,
                   stiffness if model.has_volume_forces else 0.0, stiffness if model.hourglass is not None else 0.0)
         # every vector a row per copy (N, 3 n), as the per-copy kernels take them; the lockstep
         # solver ("reference") takes the copy index last (transposed for it)
