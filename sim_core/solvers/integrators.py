@@ -51,6 +51,14 @@ class SymplecticEuler(WorldsSolver):
     def _options(self):
         return dict(threads=self.threads)
 
+    def _prepare_shared(self, index, model, positions, dt, fixed):
+        if model.damping_law is not None:
+            # -beta K v needs the stiffness operator, which this force pass does not form, and its stiff
+            # modes would cut the stable step to about 2 / (beta omega_max^2)
+            raise ValueError("the explicit integrator does not take a material damping law (Material's "
+                             "damping_ratio); use make_solver('implicit', ..., scheme='tr-bdf2')")
+        super()._prepare_shared(index, model, positions, dt, fixed)
+
     def advance(self, positions, velocities, fixed, target, dt, active, force=None):
         model = self.stack.model
         count, n_nodes = positions.shape[:2]

@@ -1,0 +1,162 @@
+"""Damping as a material property (docs/physics.md section 14): a released cantilever decays at the
+damping ratio its ``Material`` sets, against the damped-oscillator solution of its first mode (the
+frequency from the generalised eigenproblem K phi = omega^2 M phi of the same model, scipy), at
+dt = 5 ms and 20 ms, with the implicit integrator's second-order schemes; N worlds step as each
+world alone; bad values are ValueErrors."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from scipy.optimize import curve_fit
+
+from sim_core import HexMesh, Material, ModelStack, State, build_model, make_solver
+from sim_core.cutting import separate
+from sim_core.models.forces import stiffness_data
+
+E, NU, RHO = 1e6, 0.3, 1000.0  # a 1 x 0.2 x 0.2 m beam whose first bending mode is near 1.2 Hz
+MESH = HexMesh.block((10, 2, 2), 0.1)
+CLAMPED = np.flatnonzero(np.isclose(MESH.nodes[:, 0], 0.0))
+AMPLITUDE = 0.01  # m, the tip's initial deflection (1% of the length: a linear response)
+
+
+def first_mode(model):
+    """(omega rad/s, mode shape (n, 3)) of the clamped beam's lowest mode: K phi = omega^2 M phi with
+    K the model's stiffness at rest and M its lumped masses."""
+    free = np.setdiff1d(np.arange(3 * MESH.n_nodes), (3 * CLAMPED[:, None] + np.arange(3)).ravel())
+    stiffness = model.pattern.matrix(stiffness_data(model, MESH.nodes)).tocsc()[free][:, free]
+    mass = sp.diags(np.repeat(model.mass, 3)[free]).tocsc()
+    values, vectors = spla.eigsh(0.5 * (stiffness + stiffness.T), k=1, M=mass, sigma=0.0, which="LM")
+    shape = np.zeros(3 * MESH.n_nodes)
+    shape[free] = vectors[:, 0]
+    shape = shape.reshape(-1, 3)
+    return float(np.sqrt(values[0])), shape / np.abs(shape[:, 1]).max()
+
+
+OMEGA, SHAPE = first_mode(build_model(MESH, Material(E, NU, RHO, damping_ratio=0.0)))
+FREQUENCY = OMEGA / (2 * np.pi)
+
+
+def released(model, dt, scheme, periods=3.0):
+    """The modal amplitude q(t) (1 at release) of the beam released from rest in its first mode
+    shape: times (T,) s and q (T,)."""
+    solver = make_solver("implicit", model, scheme=scheme, tolerance=1e-10)
+    control = model.new_control().impose(CLAMPED, MESH.nodes[CLAMPED])
+    state = State(MESH.nodes + AMPLITUDE * SHAPE, np.zeros_like(MESH.nodes))
+    weights = np.repeat(model.mass, 3) * SHAPE.ravel()  # q = phi^T M u / phi^T M phi
+    amplitudes = [1.0]
+    for _ in range(int(round(periods / FREQUENCY / dt))):
+        out = State(None, None)
+        report = solver.step(state, out, control, dt)
+        assert not report.unstable
+        state = out
+        amplitudes.append(weights @ (state.positions - MESH.nodes).ravel() / (weights @ SHAPE.ravel()) / AMPLITUDE)
+    return dt * np.arange(len(amplitudes)), np.array(amplitudes)
+
+
+def oscillator(t, zeta, omega):
+    """The damped oscillator's q(t) from q = 1, q' = 0."""
+    sigma, damped = zeta * omega, omega * np.sqrt(1 - zeta**2)
+    return np.exp(-sigma * t) * (np.cos(damped * t) + sigma / damped * np.sin(damped * t))
+
+
+def measured(t, q):
+    """(damping ratio, natural frequency rad/s) of a least-squares fit of e^(-s t) (a cos wd t +
+    b sin wd t) to q(t)."""
+    model = lambda t, s, wd, a, b: np.exp(-s * t) * (a * np.cos(wd * t) + b * np.sin(wd * t))  # noqa: E731
+    (s, wd, _, _), _ = curve_fit(model, t, q, p0=[0.05 * OMEGA, OMEGA, 1.0, 0.0])
+    natural = np.hypot(s, wd)
+    return s / natural, natural
+
+
+@pytest.mark.parametrize("scheme", ["trapezoidal", "tr-bdf2"])
+@pytest.mark.parametrize("dt", [0.005, 0.02])
+def test_released_cantilever_decays_at_the_set_damping_ratio(scheme, dt):
+    """First-mode damping ratio within 5% of the set 0.05 (the floor asks 10%; measured +0.8 to +1.0%),
+    natural frequency within 0.5% of the eigenproblem's, and the whole decay within 2% of the
+    amplitude of the damped oscillator with the set ratio."""
+    model = build_model(MESH, Material(E, NU, RHO, damping_ratio=0.05, damping_frequency=FREQUENCY))
+    t, q = released(model, dt, scheme)
+    zeta, natural = measured(t, q)
+    assert abs(zeta / 0.05 - 1) < 0.05
+    assert abs(natural / OMEGA - 1) < 0.005
+    assert np.max(np.abs(q - oscillator(t, 0.05, OMEGA))) < 0.02
+
+
+def test_implicit_euler_adds_omega_dt_over_two():
+    """The default scheme's numerical damping, the reason for the others: at 20 ms the measured
+    ratio is the set one plus about omega dt / 2 (0.074 here), outside the 10% floor."""
+    model = build_model(MESH, Material(E, NU, RHO, damping_ratio=0.05, damping_frequency=FREQUENCY))
+    zeta, _ = measured(*released(model, 0.02, "euler"))
+    assert abs((zeta - 0.05) / (OMEGA * 0.02 / 2) - 1) < 0.15
+    assert zeta > 2 * 0.05
+
+
+def test_two_frequency_rayleigh_law():
+    """(f1, f2) around the mode: its ratio is the law's alpha / (2 omega) + beta omega / 2 (below the
+    set 0.05 between f1 and f2), within 5%: the mass-proportional part acts too."""
+    material = Material(E, NU, RHO, damping_ratio=0.05, damping_frequency=(FREQUENCY / 3, 3 * FREQUENCY))
+    expected = float(material.modal_damping_ratio(FREQUENCY))
+    assert material.rayleigh[0] > 0 and 0.02 < expected < 0.04
+    assert material.modal_damping_ratio([FREQUENCY / 3, 3 * FREQUENCY]) == pytest.approx([0.05, 0.05])
+    zeta, _ = measured(*released(build_model(MESH, material), 0.02, "tr-bdf2"))
+    assert abs(zeta / expected - 1) < 0.05
+
+
+def test_n_worlds_step_as_each_world_alone():
+    """A stack of three worlds with three damping laws (two ratios, and none: the springs' dashpots)
+    steps as each world's model alone, for each scheme."""
+    models = [build_model(MESH, Material(E, NU, RHO, damping_ratio=ratio, damping_frequency=FREQUENCY))
+              for ratio in (0.05, 0.2, None)]
+    assert np.all(models[0].damping == 0) and np.all(models[2].damping > 0)
+    start = MESH.nodes + AMPLITUDE * SHAPE
+    for scheme in ("euler", "trapezoidal", "tr-bdf2"):
+        stack = ModelStack(models[0], 3)
+        for index, model in enumerate(models):
+            stack.assign(index, model)
+        solver = make_solver("implicit", stack, scheme=scheme, tolerance=1e-12, preconditioner="factorised")
+        control = stack.new_control()
+        control.fixed[:, CLAMPED] = True
+        control.target[:] = MESH.nodes
+        state = State(np.stack([start] * 3), np.zeros((3, MESH.n_nodes, 3)))
+        singles = [State(start.copy(), np.zeros_like(start)) for _ in models]
+        alone = [make_solver("implicit", model, scheme=scheme, tolerance=1e-12, preconditioner="factorised")
+                 for model in models]
+        one_control = models[0].new_control().impose(CLAMPED, MESH.nodes[CLAMPED])
+        for _ in range(10):
+            out = State(None, None)
+            solver.step(state, out, control, 0.02)
+            state = out
+            for index in range(3):
+                single = State(None, None)
+                alone[index].step(singles[index], single, one_control, 0.02)
+                singles[index] = single
+        for index in range(3):
+            assert np.max(np.abs(state.positions[index] - singles[index].positions)) < 1e-9
+        tips = np.abs(state.positions[:, -1, 1] - MESH.nodes[-1, 1])
+        assert len(set(np.round(tips, 9))) == 3  # three different laws, three different motions
+
+
+def test_the_law_is_the_materials_and_is_checked():
+    """A law turns the springs' dashpots off unless asked for, survives a cut, and bad values are
+    ValueErrors, as are the explicit integrator with a law and an unknown scheme."""
+    plain = build_model(MESH, Material(E, NU, RHO))
+    assert plain.damping_law is None and plain.rayleigh == (0.0, 0.0)
+    np.testing.assert_array_equal(plain.damping, build_model(MESH, Material(E, NU, RHO), damping_ratio=1.0).damping)
+    material = Material(E, NU, RHO, damping_ratio=0.1, damping_frequency=2.0)
+    assert material.rayleigh == pytest.approx((0.0, 0.1 / (np.pi * 2.0)))
+    damped = build_model(MESH, material)
+    assert damped.rayleigh == material.rayleigh and np.all(damped.damping == 0)
+    assert np.all(build_model(MESH, material, damping_ratio=1.0).damping == plain.damping)
+    cut = separate(damped, np.array([[0, 1]]))
+    assert cut.damping_law == damped.damping_law
+    for bad in (dict(damping_ratio=-0.1), dict(damping_ratio=float("nan")), dict(damping_ratio=[0.1, 0.2]),
+                dict(damping_ratio=0.1, damping_frequency=0.0), dict(damping_ratio=0.1, damping_frequency=(2.0, 1.0)),
+                dict(damping_ratio=0.1, damping_frequency=(1.0, 2.0, 3.0)), dict(damping_frequency=-1.0)):
+        with pytest.raises(ValueError, match="damping_"):
+            Material(E, NU, RHO, **bad)
+    with pytest.raises(ValueError, match="scheme"):
+        make_solver("implicit", damped, scheme="bdf3")
+    explicit = make_solver("explicit", damped)
+    with pytest.raises(ValueError, match="damping"):
+        explicit.step(damped.new_state(), State(None, None), damped.new_control(), 1e-4)
