@@ -6,67 +6,28 @@ world alone; bad values are ValueErrors."""
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
-from scipy.optimize import curve_fit
 
 from sim_core import HexMesh, Material, ModelStack, State, build_model, make_solver
 from sim_core.cutting import separate
-from sim_core.models.forces import stiffness_data
+from sim_core.studies.damping import clamped_nodes, decay_fit, first_mode, released
 
 E, NU, RHO = 1e6, 0.3, 1000.0  # a 1 x 0.2 x 0.2 m beam whose first bending mode is near 1.2 Hz
 MESH = HexMesh.block((10, 2, 2), 0.1)
-CLAMPED = np.flatnonzero(np.isclose(MESH.nodes[:, 0], 0.0))
+CLAMPED = clamped_nodes(build_model(MESH, Material(E, NU, RHO)))
 AMPLITUDE = 0.01  # m, the tip's initial deflection (1% of the length: a linear response)
-
-
-def first_mode(model):
-    """(omega rad/s, mode shape (n, 3)) of the clamped beam's lowest mode: K phi = omega^2 M phi with
-    K the model's stiffness at rest and M its lumped masses."""
-    free = np.setdiff1d(np.arange(3 * MESH.n_nodes), (3 * CLAMPED[:, None] + np.arange(3)).ravel())
-    stiffness = model.pattern.matrix(stiffness_data(model, MESH.nodes)).tocsc()[free][:, free]
-    mass = sp.diags(np.repeat(model.mass, 3)[free]).tocsc()
-    values, vectors = spla.eigsh(0.5 * (stiffness + stiffness.T), k=1, M=mass, sigma=0.0, which="LM")
-    shape = np.zeros(3 * MESH.n_nodes)
-    shape[free] = vectors[:, 0]
-    shape = shape.reshape(-1, 3)
-    return float(np.sqrt(values[0])), shape / np.abs(shape[:, 1]).max()
-
-
 OMEGA, SHAPE = first_mode(build_model(MESH, Material(E, NU, RHO, damping_ratio=0.0)))
 FREQUENCY = OMEGA / (2 * np.pi)
 
 
-def released(model, dt, scheme, periods=3.0):
-    """The modal amplitude q(t) (1 at release) of the beam released from rest in its first mode
-    shape: times (T,) s and q (T,)."""
-    solver = make_solver("implicit", model, scheme=scheme, tolerance=1e-10)
-    control = model.new_control().impose(CLAMPED, MESH.nodes[CLAMPED])
-    state = State(MESH.nodes + AMPLITUDE * SHAPE, np.zeros_like(MESH.nodes))
-    weights = np.repeat(model.mass, 3) * SHAPE.ravel()  # q = phi^T M u / phi^T M phi
-    amplitudes = [1.0]
-    for _ in range(int(round(periods / FREQUENCY / dt))):
-        out = State(None, None)
-        report = solver.step(state, out, control, dt)
-        assert not report.unstable
-        state = out
-        amplitudes.append(weights @ (state.positions - MESH.nodes).ravel() / (weights @ SHAPE.ravel()) / AMPLITUDE)
-    return dt * np.arange(len(amplitudes)), np.array(amplitudes)
+def decay(model, dt, scheme, periods=3.0):
+    """(times s, modal amplitude q) of the beam released in its first mode shape."""
+    return released(model, SHAPE, dt, periods / FREQUENCY, scheme, amplitude=AMPLITUDE)
 
 
 def oscillator(t, zeta, omega):
-    """The damped oscillator's q(t) from q = 1, q' = 0."""
+    """The damped oscillator's q(t) from q = 1, q' = 0 (the reference, written out here)."""
     sigma, damped = zeta * omega, omega * np.sqrt(1 - zeta**2)
     return np.exp(-sigma * t) * (np.cos(damped * t) + sigma / damped * np.sin(damped * t))
-
-
-def measured(t, q):
-    """(damping ratio, natural frequency rad/s) of a least-squares fit of e^(-s t) (a cos wd t +
-    b sin wd t) to q(t)."""
-    model = lambda t, s, wd, a, b: np.exp(-s * t) * (a * np.cos(wd * t) + b * np.sin(wd * t))  # noqa: E731
-    (s, wd, _, _), _ = curve_fit(model, t, q, p0=[0.05 * OMEGA, OMEGA, 1.0, 0.0])
-    natural = np.hypot(s, wd)
-    return s / natural, natural
 
 
 @pytest.mark.parametrize("scheme", ["trapezoidal", "tr-bdf2"])
@@ -76,8 +37,8 @@ def test_released_cantilever_decays_at_the_set_damping_ratio(scheme, dt):
     natural frequency within 0.5% of the eigenproblem's, and the whole decay within 2% of the
     amplitude of the damped oscillator with the set ratio."""
     model = build_model(MESH, Material(E, NU, RHO, damping_ratio=0.05, damping_frequency=FREQUENCY))
-    t, q = released(model, dt, scheme)
-    zeta, natural = measured(t, q)
+    t, q = decay(model, dt, scheme)
+    zeta, natural = decay_fit(t, q, OMEGA)
     assert abs(zeta / 0.05 - 1) < 0.05
     assert abs(natural / OMEGA - 1) < 0.005
     assert np.max(np.abs(q - oscillator(t, 0.05, OMEGA))) < 0.02
@@ -87,7 +48,7 @@ def test_implicit_euler_adds_omega_dt_over_two():
     """The default scheme's numerical damping, the reason for the others: at 20 ms the measured
     ratio is the set one plus about omega dt / 2 (0.074 here), outside the 10% floor."""
     model = build_model(MESH, Material(E, NU, RHO, damping_ratio=0.05, damping_frequency=FREQUENCY))
-    zeta, _ = measured(*released(model, 0.02, "euler"))
+    zeta, _ = decay_fit(*decay(model, 0.02, "euler"), OMEGA)
     assert abs((zeta - 0.05) / (OMEGA * 0.02 / 2) - 1) < 0.15
     assert zeta > 2 * 0.05
 
@@ -99,7 +60,7 @@ def test_two_frequency_rayleigh_law():
     expected = float(material.modal_damping_ratio(FREQUENCY))
     assert material.rayleigh[0] > 0 and 0.02 < expected < 0.04
     assert material.modal_damping_ratio([FREQUENCY / 3, 3 * FREQUENCY]) == pytest.approx([0.05, 0.05])
-    zeta, _ = measured(*released(build_model(MESH, material), 0.02, "tr-bdf2"))
+    zeta, _ = decay_fit(*decay(build_model(MESH, material), 0.02, "tr-bdf2"), OMEGA)
     assert abs(zeta / expected - 1) < 0.05
 
 
@@ -160,3 +121,29 @@ def test_the_law_is_the_materials_and_is_checked():
     explicit = make_solver("explicit", damped)
     with pytest.raises(ValueError, match="damping"):
         explicit.step(damped.new_state(), State(None, None), damped.new_control(), 1e-4)
+
+
+def test_the_tasks_take_the_damping_law_and_the_scheme():
+    """The env keywords reach the model and the integrator: a damped tr-bdf2 episode runs healthy and
+    differs from the default one; bad values are ValueErrors naming the keyword."""
+    import gymnasium as gym
+
+    import tissue_env  # noqa: F401  (registers the tasks)
+
+    observations = {}
+    for keywords in (dict(), dict(damping_ratio=0.05, damping_frequency=2.0, integrator_scheme="tr-bdf2")):
+        env = gym.make("tissue_env/Retraction-v0", **keywords)
+        env.reset(seed=0)
+        assert env.unwrapped.model.damping_law == ((0.05, 2.0) if keywords else None)
+        for _ in range(3):
+            observation, _, _, _, info = env.step(np.ones(env.action_space.shape, np.float32))
+            assert not info["unstable"]
+        observations[bool(keywords)] = observation
+        env.close()
+    assert np.all(np.isfinite(observations[True])) and not np.allclose(observations[True], observations[False])
+    for bad, name in ((dict(damping_ratio=-1.0), "damping_ratio"), (dict(damping_frequency=(2.0, 1.0)), "damping_frequency"),
+                      (dict(integrator_scheme="bdf3"), "integrator_scheme"),
+                      (dict(integrator="static", integrator_scheme="tr-bdf2"), "integrator_scheme"),
+                      (dict(integrator="explicit", damping_ratio=0.05), "damping_ratio")):
+        with pytest.raises(ValueError, match=name):
+            gym.make("tissue_env/Retraction-v0", **bad)

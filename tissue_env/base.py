@@ -38,11 +38,12 @@ from gymnasium import spaces
 
 from sim_core import HexMesh, Material, build_model, solve_static
 from sim_core.solvers.implicit import PRECONDITIONERS
+from sim_core.solvers.schemes import SCHEMES
 from sim_core.caches import BudgetCache
 from sim_core.models.model import Control, State
 
 from .checks import (  # noqa: F401  (re-exported: the tasks import them from here)
-    DIFFICULTIES, MAX_NODES, MODELS, MODEL_DEFAULTS, SLOW_NODES, check_flag, check_model, check_poisson_ratio, check_range, check_region, check_shape, check_vector, check_vector_range, check_work, difficulty_settings, nonnegative_scalar, positive_scalar,
+    DIFFICULTIES, MAX_NODES, MODELS, MODEL_DEFAULTS, SLOW_NODES, check_damping, check_flag, check_model, check_poisson_ratio, check_range, check_region, check_shape, check_vector, check_vector_range, check_work, difficulty_settings, nonnegative_scalar, positive_scalar,
 )
 from .camera import VISUAL_TYPES, Camera, CameraView
 from . import snapshots
@@ -124,6 +125,13 @@ class TissueEnv(FrameRendering, gym.Env):
             "explicit" (symplectic Euler, needs dt below about 1 ms; for experiments on stability).
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
             substeps: physics steps per env step (default 1).
+        integrator_scheme: the implicit integrator's time scheme, "euler" (default: numerical damping
+            ratio about omega dt / 2), "trapezoidal" or "tr-bdf2" (second order, little numerical
+            damping: sim_core's ``ImplicitEuler``, docs/physics.md section 14).
+        damping_ratio, damping_frequency: the tissue's damping law (sim_core's ``Material``): None
+            (default: the springs' dashpots) or the ratio of critical damping of a mode at
+            ``damping_frequency`` Hz (default 1; a pair (f1, f2): Rayleigh damping with that ratio
+            at both), docs/physics.md section 14. Not with ``integrator="explicit"``.
         max_step: tool displacement in m per env step for an action component of 1.
         model: the tissue model, "baudet" or "baudet-hyperelastic" (``MODELS``; sim_core's
             ``build_model``: docs/physics.md section 11, compressible neo-Hookean at every strain,
@@ -269,12 +277,14 @@ class TissueEnv(FrameRendering, gym.Env):
                  instability_penalty=10.0, solver_tolerance=None, preconditioner="auto", render_mode=None,
                  max_nodes=MAX_NODES, image_size=None, camera=None, point_count=512, point_normals=False,
                  difficulty="default", terminate_on_success=None, size_range=None, observe_parameters=False,
-                 render_key=False):
+                 render_key=False, integrator_scheme="euler", damping_ratio=None, damping_frequency=1.0):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(terminate_on_success=terminate_on_success))
         self.difficulty = difficulty
         self.terminate_on_success = check_flag("terminate_on_success", settings["terminate_on_success"])
         self._check_material_and_block(young_modulus, poisson_ratio, density, shape, size, max_nodes)
         self._check_stepping(integrator, dt, substeps, max_step, model, hourglass_control, volume_stiffness, gravity)
+        self.damping_ratio, self.damping_frequency, self.integrator_scheme = check_damping(
+            damping_ratio, damping_frequency, integrator, integrator_scheme, SCHEMES)
         self._check_observation_type(observation_type)
         self._check_randomisation(young_modulus_range, poisson_ratio_range, density_range, size_range,
                                   observe_parameters)
@@ -633,6 +643,9 @@ class TissueEnv(FrameRendering, gym.Env):
         options = (dict(hourglass_control=self.hourglass_control, volume_stiffness=self.volume_stiffness)
                    if self.model_name == "baudet" and isinstance(mesh, HexMesh) else {})
         material = self._material(young_modulus, poisson_ratio, task_key, density, mesh, size)
+        if self.damping_ratio is not None:  # the task's material with the tissue's damping law
+            material = dataclasses.replace(material, damping_ratio=self.damping_ratio,
+                                           damping_frequency=self.damping_frequency)
         return build_model(mesh, material, model=self.model_name,
                            gravity=(0.0, -self.gravity, 0.0), **options)
 

@@ -38,6 +38,30 @@ def nonnegative_scalar(name, value):
     return value
 
 
+def check_damping(damping_ratio, damping_frequency, integrator, integrator_scheme, schemes):
+    """The tissue's damping law (``damping_ratio`` None or >= 0, ``damping_frequency`` Hz > 0 or a pair
+    f1 < f2: sim_core's ``Material``) and the implicit integrator's time scheme (one of ``schemes``),
+    checked with the integrator they need: (damping_ratio, damping_frequency, integrator_scheme)."""
+    if damping_ratio is not None:
+        damping_ratio = nonnegative_scalar("damping_ratio", damping_ratio)
+    if np.ndim(damping_frequency) == 0:
+        damping_frequency = positive_scalar("damping_frequency", damping_frequency, "Hz")
+    else:
+        pair = check_range("damping_frequency", damping_frequency, lambda n, v: positive_scalar(n, v, "Hz"))
+        if pair[0] == pair[1]:
+            raise ValueError(f"damping_frequency (f1, f2) must have f1 < f2, got {damping_frequency!r}")
+        damping_frequency = pair
+    if damping_ratio is not None and integrator == "explicit":
+        raise ValueError("damping_ratio (a damping law) needs integrator='implicit' or 'static'; the explicit "
+                         "integrator takes none")
+    if integrator_scheme not in schemes:
+        raise ValueError(f"integrator_scheme must be one of {schemes}, got {integrator_scheme!r}")
+    if integrator_scheme != "euler" and integrator != "implicit":
+        raise ValueError(f"integrator_scheme={integrator_scheme!r} is a scheme of integrator='implicit', got "
+                         f"integrator={integrator!r}")
+    return damping_ratio, damping_frequency, integrator_scheme
+
+
 def check_poisson_ratio(name, value):
     value = _number(name, value)
     if not (-0.25 < value < 0.5):

@@ -151,7 +151,7 @@ class TaskWorlds:
         self._forces = StackedForceWorkspace(self.stack, implicit=False, threads=self.threads)  # measurements
         solver = self.linear_solver if env.preconditioner == "auto" else env.preconditioner
         self.integrator = make_worlds_solver(env.integrator_name, self.stack, env.solver_tolerance, solver,
-                                             self.refactor_amortise, self.threads)
+                                             self.refactor_amortise, self.threads, env.integrator_scheme)
         self.static = env.integrator_name == "static"
         self.n_nodes = env.mesh.n_nodes
         self.rest_length = self.stack.model.rest_length.reshape(count, -1)

@@ -97,7 +97,7 @@ def make_solver(method: str, target: Model | ModelStack, **options):
             (N, n, 3), ``active`` an (N,) world mask; reports per world).
         options: the method's keywords, the same for one world and N. "implicit": those of
             ``ImplicitEuler`` (``tolerance``, ``max_iterations``, ``preconditioner``,
-            ``refresh_iterations``, ``amortise``, ``threads``); "explicit": ``threads``; "static":
+            ``refresh_iterations``, ``amortise``, ``threads``, ``scheme``); "explicit": ``threads``; "static":
             those of ``QuasiStatic`` (``tolerance``, ``max_iterations``, ``max_load_steps``).
     """
     if method not in METHODS:
@@ -114,13 +114,13 @@ def make_solver(method: str, target: Model | ModelStack, **options):
 
 
 def make_worlds_solver(method: str, stack: ModelStack, tolerance: float, solver: str = "factorised",
-                       amortise: int | None = None, threads: int | None = None):
+                       amortise: int | None = None, threads: int | None = None, scheme: str = "euler"):
     """The N-world solver of ``method`` for ``stack`` as the vector environments build it
-    (``make_solver`` with their keywords): "implicit" with linear solver ``solver`` and relative
-    residual ``tolerance``, "explicit" or "static"."""
+    (``make_solver`` with their keywords): "implicit" with linear solver ``solver``, relative
+    residual ``tolerance`` and time scheme ``scheme``, "explicit" or "static"."""
     if method == "implicit":
         return make_solver(method, stack, tolerance=tolerance, preconditioner=solver, amortise=amortise,
-                           threads=threads)
+                           threads=threads, scheme=scheme)
     if method == "explicit":
         return make_solver(method, stack, threads=1 if threads is None else threads)
     if method == "static":
