@@ -499,6 +499,8 @@ class TaskWorlds:
                 self.integrator.workspace.add_damping(flat_velocities, forces)
             else:
                 forces = self._forces.compute(flat, flat_velocities)
+            if self.task.damping_ratio is not None and isinstance(self.integrator, ImplicitEuler):
+                forces += self.integrator.damping_forces(flat, flat_velocities)  # the tissue's damping law
             forces = forces + model.gravity_force
             forces = forces.reshape(count, -1, 3)
             reaction = np.empty((count, 3))

@@ -221,3 +221,32 @@ def symmetric_structure(structure):
     k = -int(ints[0])
     packed = np.concatenate([[-k, nb, 0, len(u_indices)], u_indptr, u_indices, ints[len(ints) - k:]]).astype(np.int64)
     return a_transpose, l_to_u, packed
+
+
+def edge_incidence(model):
+    """(node_edge, node_sign) (M, 8, 3) for ``kernels.operator_matrix_data_blocks``: the spring of each
+    element's axis group g (edges 4 g .. 4 g + 3 of ``edge_spring``) through its local node k, and
+    +1 where k is the spring's first node, -1 where it is its second; empty (0, 8, 3) arrays where
+    a node is not on exactly one edge of each group (then ``operator_matrix_data`` assembles), and for
+    tetrahedra (no axis groups, no corrections' coupling)."""
+    elements, springs, edge_spring = model.mesh.elements, model.springs, model.edge_spring
+    count = len(elements)
+    if elements.shape[1] != 8:
+        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+    node_edge = np.full((count, 8, 3), -1, dtype=np.int64)
+    node_sign = np.zeros((count, 8, 3))
+    rows = np.arange(count)
+    for e in range(12):
+        spring = edge_spring[:, e]
+        for end, sign in ((0, 1.0), (1, -1.0)):
+            local = elements == springs[spring, end][:, None]  # (M, 8)
+            if not np.all(local.sum(axis=1) == 1):
+                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+            k = np.argmax(local, axis=1)
+            if np.any(node_edge[rows, k, e // 4] >= 0):
+                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+            node_edge[rows, k, e // 4] = spring
+            node_sign[rows, k, e // 4] = sign
+    if np.any(node_edge < 0):
+        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+    return node_edge, node_sign

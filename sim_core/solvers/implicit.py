@@ -70,11 +70,11 @@ from .. import kernels
 from ..caches import BudgetCache
 from ..models.forces import stiffness_data
 from ..models.model import Model
-from .schemes import check_scheme, scheme_advance, stage_dt
+from .schemes import check_scheme, damping_groups, scheme_advance, stage_dt
 from .solver import WorldsSolver
 from .preconditioners import (AUTO_MAX_DOFS, CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns,
                               auto_switch_iterations, free_structure, node_block_factor)
-from ..models.sparse import NodeBlockLU, block_structure, symmetric_structure
+from ..models.sparse import NodeBlockLU, block_structure, edge_incidence, symmetric_structure
 from ..models.stack import ModelStack, StackedForceWorkspace
 
 #: Start-of-episode preconditioners an integrator keeps, keyed by the content of (model, reference
@@ -221,35 +221,6 @@ class _CopyFactor:
         self._corrections[imposed.tobytes()] = None if correction is None else (correction, imposed)
 
 
-def _edge_incidence(model: Model):
-    """(node_edge, node_sign) (M, 8, 3) for ``kernels.operator_matrix_data_blocks``: the spring of each
-    element's axis group g (edges 4 g .. 4 g + 3 of ``edge_spring``) through its local node k, and
-    +1 where k is the spring's first node, -1 where it is its second; empty (0, 8, 3) arrays where
-    a node is not on exactly one edge of each group (then ``operator_matrix_data`` assembles), and for
-    tetrahedra (no axis groups, no corrections' coupling)."""
-    elements, springs, edge_spring = model.mesh.elements, model.springs, model.edge_spring
-    count = len(elements)
-    if elements.shape[1] != 8:
-        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
-    node_edge = np.full((count, 8, 3), -1, dtype=np.int64)
-    node_sign = np.zeros((count, 8, 3))
-    rows = np.arange(count)
-    for e in range(12):
-        spring = edge_spring[:, e]
-        for end, sign in ((0, 1.0), (1, -1.0)):
-            local = elements == springs[spring, end][:, None]  # (M, 8)
-            if not np.all(local.sum(axis=1) == 1):
-                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
-            k = np.argmax(local, axis=1)
-            if np.any(node_edge[rows, k, e // 4] >= 0):
-                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
-            node_edge[rows, k, e // 4] = spring
-            node_sign[rows, k, e // 4] = sign
-    if np.any(node_edge < 0):
-        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
-    return node_edge, node_sign
-
-
 class ImplicitEuler(WorldsSolver):
     """Linearised implicit Euler on one world (a ``Model``, or None and ``bind`` later) or on the
     N worlds of a ``ModelStack``: one preconditioned BiCGSTAB per world and step; see the module
@@ -354,7 +325,7 @@ class ImplicitEuler(WorldsSolver):
         self._imposed = TypedList([self._no_correction[1]] * count)
         self._patterns = {}
         self._structures = {}  # kernels.factor_copies' structure per node set (``sparse.block_structure``)
-        self._incidence = _edge_incidence(stack.reference)
+        self._incidence = edge_incidence(stack.reference)
         #: factorise the LDL^T of the system matrix's symmetric part (``kernels.block_ldl_factor``)
         #: instead of its LU: half the values for every preconditioner application
         self.symmetric = SYMMETRIC_FACTOR
@@ -915,8 +886,7 @@ class ImplicitEuler(WorldsSolver):
         stiffness = dt * dt + dt * beta
         # A = (1 + dt alpha) M + dt D + (dt^2 + dt beta) K: (mass, damping, stiffness, coupling, volume,
         # hourglass) scales; the right-hand side's M v0 - A v0 then holds the damping forces at v0
-        system = (1.0 + dt * alpha, float(dt), stiffness, stiffness if model.correction_mode is not None else 0.0,
-                  stiffness if model.has_volume_forces else 0.0, stiffness if model.hourglass is not None else 0.0)
+        system = self.scales(1.0 + dt * alpha, float(dt), stiffness)
         # every vector a row per copy (N, 3 n), as the per-copy kernels take them; the lockstep
         # solver ("reference") takes the copy index last (transposed for it)
         x_rows, v_rows = x0.reshape(count, dofs), v0.reshape(count, dofs)
@@ -980,6 +950,31 @@ class ImplicitEuler(WorldsSolver):
             solution = np.where(stalled[None, :], again, solution)
             iterations += more
         return solution.T, stalled
+
+    def scales(self, mass, damping, stiffness):
+        """The operator's (mass, damping, stiffness, coupling, volume, hourglass) scales of mass M +
+        damping D + stiffness K, K with every term the stacked model has."""
+        model = self.stack.model
+        return (mass, damping, stiffness, stiffness if model.correction_mode is not None else 0.0,
+                stiffness if model.has_volume_forces else 0.0, stiffness if model.hourglass is not None else 0.0)
+
+    def damping_forces(self, positions, velocities):
+        """The material laws' damping forces -(alpha M + beta K) v (N n, 3) N at ``positions`` and
+        ``velocities`` (N n, 3) m, m/s of the stacked worlds (K the implicit step's, linearised
+        there: the next step's force pass), 0 for the worlds without a law [14]."""
+        count = self.stack.count
+        forces = np.zeros((count, 3 * self.stack.n_nodes))
+        laws = [(law, group) for law, group in damping_groups(self.stack, self.stack.shared) if any(law)]
+        if laws:
+            self.linearise(positions)
+            stacked, hg_rows, hg_group = self._copies_first()
+            rows = np.ascontiguousarray(velocities, dtype=float).reshape(count, -1)
+            product = np.empty_like(rows)
+            for (alpha, beta), group in laws:
+                kernels.variant(kernels.apply_copies, self.threads)(stacked, self.scales(alpha, 0.0, beta), hg_rows,
+                                                                    hg_group, rows, product, *self._hourglass_blocks())
+                forces[group] = -product[group]
+        return forces.reshape(-1, 3)
 
     def _dof_mass(self):
         """(N, 3 n) each copy's mass per dof, kg, kept per stack version (rebuilt after ``assign``)."""
