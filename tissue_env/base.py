@@ -126,8 +126,10 @@ class TissueEnv(FrameRendering, gym.Env):
         dt: physics time step in s (the task's ``default_dt``: 0.02, TumorPositioning and Palpation 0.04);
             substeps: physics steps per env step (default 1).
         integrator_scheme: the implicit integrator's time scheme, "euler" (default: numerical damping
-            ratio about omega dt / 2), "trapezoidal" or "tr-bdf2" (second order, little numerical
-            damping: sim_core's ``ImplicitEuler``, docs/physics.md section 14).
+            ratio about omega dt / 2), "tr-bdf2" (second order, little numerical damping, two solves
+            per step) or "trapezoidal" (one solve, but its stiff modes ring: a random Retraction
+            episode with a damping law diverged) (sim_core's ``ImplicitEuler``, docs/physics.md
+            section 14).
         damping_ratio, damping_frequency: the tissue's damping law (sim_core's ``Material``): None
             (default: the springs' dashpots) or the ratio of critical damping of a mode at
             ``damping_frequency`` Hz (default 1; a pair (f1, f2): Rayleigh damping with that ratio
