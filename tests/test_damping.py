@@ -130,6 +130,11 @@ def test_the_law_is_the_materials_and_is_checked():
     assert np.all(build_model(MESH, material, damping_ratio=1.0).damping == plain.damping)
     cut = separate(damped, np.array([[0, 1]]))
     assert cut.damping_law == damped.damping_law
+    labelled = Material.from_labels(np.array([0, 1, 1]), {0: material, 1: Material(2 * E, NU, RHO, damping_ratio=0.1,
+                                                                                     damping_frequency=2.0)})
+    assert labelled.rayleigh == material.rayleigh
+    with pytest.raises(ValueError, match="damping"):
+        Material.from_labels(np.array([0, 1]), {0: material, 1: Material(E, NU, RHO)})
     for bad in (dict(damping_ratio=-0.1), dict(damping_ratio=float("nan")), dict(damping_ratio=[0.1, 0.2]),
                 dict(damping_ratio=0.1, damping_frequency=0.0), dict(damping_ratio=0.1, damping_frequency=(2.0, 1.0)),
                 dict(damping_ratio=0.1, damping_frequency=(1.0, 2.0, 3.0)), dict(damping_frequency=-1.0)):

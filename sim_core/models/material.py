@@ -101,8 +101,9 @@ class Material:
             labels: (M,) integer label id per element (``HexMesh.element_labels``).
             materials: {label id: ``Material``} with scalar parameters, one entry per label used.
         Raises:
-            ValueError: labels not a 1D integer array, a label without a material, or an entry that
-                is not a ``Material`` with scalar parameters.
+            ValueError: labels not a 1D integer array, a label without a material, an entry that
+                is not a ``Material`` with scalar parameters, or entries with different damping laws
+                (the law is the whole tissue's).
         """
         labels = np.asarray(labels)
         if labels.ndim != 1 or len(labels) == 0 or not np.issubdtype(labels.dtype, np.integer):
@@ -118,9 +119,13 @@ class Material:
             if not isinstance(material, cls) or any(np.ndim(getattr(material, n)) for n in names):
                 raise ValueError(f"materials[{label}] must be a Material with scalar parameters, got {material!r}")
             table[label] = [getattr(material, n) for n in names]
+        laws = {(materials[label].damping_ratio, materials[label].damping_frequency) for label in used.tolist()}
+        if len(laws) > 1:
+            raise ValueError(f"the materials' damping laws (damping_ratio, damping_frequency) differ: {sorted(laws, key=str)}; "
+                             "the damping law is one for the whole tissue")
         index = np.searchsorted(used, labels)
         values = np.array([table[label] for label in used.tolist()])[index]  # (M, 3)
-        return cls(*values.T)
+        return cls(*values.T, *laws.pop())
 
     def per_element(self, n_elements: int) -> dict[str, np.ndarray]:
         """Arrays of length ``n_elements`` for E (Pa), nu and rho (kg/m^3).
