@@ -171,3 +171,24 @@ def test_the_tasks_take_the_damping_law_and_the_scheme():
                       (dict(integrator="explicit", damping_ratio=0.05), "damping_ratio")):
         with pytest.raises(ValueError, match=name):
             gym.make("tissue_env/Retraction-v0", **bad)
+
+
+def test_a_snapshot_needs_the_same_damping():
+    """A snapshot of a damped tr-bdf2 episode restores on an env of the same keywords and is refused
+    (ValueError naming the keyword) on one with another damping law."""
+    import gymnasium as gym
+
+    import tissue_env  # noqa: F401  (registers the tasks)
+
+    keywords = dict(damping_ratio=0.05, integrator_scheme="tr-bdf2")
+    env = gym.make("tissue_env/Retraction-v0", **keywords).unwrapped
+    env.reset(seed=0)
+    env.step(np.ones(env.action_space.shape, np.float32))
+    snapshot = env.get_state()
+    after = env.step(np.ones(env.action_space.shape, np.float32))[0]
+    same = gym.make("tissue_env/Retraction-v0", **keywords).unwrapped
+    same.set_state(snapshot)
+    np.testing.assert_allclose(same.step(np.ones(env.action_space.shape, np.float32))[0], after, atol=1e-6)
+    other = gym.make("tissue_env/Retraction-v0", damping_ratio=0.2, integrator_scheme="tr-bdf2").unwrapped
+    with pytest.raises(ValueError, match="damping_ratio"):
+        other.set_state(snapshot)

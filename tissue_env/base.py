@@ -92,7 +92,8 @@ SHARED_ATTRIBUTES = ("_cache_lock", "_model_cache", "_renderer", "_camera_view",
 #: The keywords a snapshot depends on beyond the model (``_snapshot_settings``): restored on an env
 #: whose values differ, it is refused (ValueError naming them).
 SNAPSHOT_SETTINGS = ("shape", "size", "element", "model_name", "hourglass_control", "volume_stiffness", "gravity",
-                     "integrator_name", "preconditioner", "observation_type")
+                     "integrator_name", "preconditioner", "observation_type", "integrator_scheme", "damping_ratio",
+                     "damping_frequency")
 #: The one world of a single env (``TaskWorlds.step``'s ``active``).
 _ONE = np.ones(1, dtype=bool)
 
