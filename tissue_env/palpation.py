@@ -220,6 +220,10 @@ class PalpationWorlds(TaskWorlds):
                     inclusion_ratio=self.inclusion_ratio_of.copy(), inclusion_size=self.inclusion_size_of.copy(),
                     probe_radius=self.probe_radius.copy())
 
+    def _grasped(self, measures):
+        # a probe presses, it holds nothing: its force is the contact's (``tool_forces``)
+        return np.zeros((self.num_envs, 1), dtype=bool)
+
     def _is_success(self, measures):
         return measures["press_steps"] >= self.hold_steps
 

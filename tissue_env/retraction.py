@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import kernels
+from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
 from .camera import ALBEDO, Camera, floor_tiles
@@ -13,6 +14,23 @@ from .worlds import TaskWorlds
 
 #: Local corners of the bottom (y = 0) and top (y = 1) faces of a VTK hexahedron, in cyclic order.
 _BOTTOM, _TOP = [0, 1, 5, 4], [3, 2, 6, 7]
+#: The default grasp force limit, N: the pull a laparoscopic grasper holds bowel against before it slips.
+#: Heijnsdijk et al. measured slip of pig bowel pulled at 5 N between laparoscopic grasper jaws (the pinch
+#: force that prevents slip at a 5 N pull: 3 N with a profiled jaw, up to 22 N with a smooth one; Surg
+#: Endosc 18:974-979, 2004, doi:10.1007/s00464-003-9153-2), and subjects holding pig bowel at a 5 N pull
+#: pinched 6.8 N against the 3.0 N that prevented slip (Heijnsdijk et al., Surg Endosc 18:980-985, 2004):
+#: 5 N is the pull a grasper is made and used to hold without slipping.
+GRASP_SLIP_FORCE = 5.0
+
+
+def grasp_limit(value) -> float:
+    """``grasp_force_limit`` as a float: a number > 0 in N, ``np.inf`` for a grasp that never slips."""
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    limit = float(value) if number else np.nan
+    if np.isnan(limit) or limit <= 0:
+        raise ValueError(f"grasp_force_limit must be a number > 0 in N (np.inf: a grasp that never slips; default "
+                         f"{GRASP_SLIP_FORCE} N), got {value!r}")
+    return limit
 
 
 class RetractionWorlds(TaskWorlds):
@@ -33,27 +51,48 @@ class RetractionWorlds(TaskWorlds):
         env, count = self.task, self.num_envs
         self.tool_nodes = env.tool_nodes
         self._footprint = np.ascontiguousarray(env._footprint, dtype=np.int64)
-        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
-        tool_mask[self.tool_nodes] = True
-        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
-        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
+        self._base_fixed = env.base_control.fixed
         self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each world's (size_range)
+        #: the grasper on the free edge: its jaws span the edge (``RetractionEnv.grasp_radius``)
+        self.grasper = Grasper(env.grasp_radius, env.grasp_force_limit)
+        self._edge = np.zeros(env.mesh.n_nodes, bool)
+        self._edge[self.tool_nodes] = True
+        #: (N, n) bool the nodes each world's grasper holds, (N, n, 3) m their offsets from its jaw,
+        #: (N, 3) m the jaw's rest position, (N,) the nodes held after the last measurement
+        self.held = np.zeros((count, env.mesh.n_nodes), dtype=bool)
+        self.grasp_offsets = np.zeros((count, env.mesh.n_nodes, 3))
+        self.jaw_rest = np.zeros((count, 3))
+        self.held_count = np.zeros(count, dtype=int)
         self.target_x = np.zeros((count, 2))
         self.target_points = np.zeros((count, 12, 2))  # the 4 x 3 grid of each copy's target
         self._floor_candidates = env._floor_candidates
         self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's floor holds
         self._node_forces = None  # (N, n, 3) net forces of the last measurement
-        for name in ("force_limit", "tension_weight", "success_exposure", "success_bonus"):
+        for name in ("force_limit", "tension_weight", "success_exposure", "success_bonus", "grasp_weight"):
             setattr(self, name, getattr(env, name))
 
     def _load_task(self, index, env):
         self._base_target[index] = env.base_control.target
+        # the jaws close on the free edge at rest (the grasp of the episode's start, ``env.held``)
+        rest = env.episode_mesh.nodes
+        self.jaw_rest[index] = rest[self.tool_nodes].mean(axis=0)
+        self.held[index], self.grasp_offsets[index] = self.grasper.close(rest, self.jaw_rest[index], env.held)
         self.target_x[index] = env.target_x
         self.target_points[index] = env.target_points
         self.contact[index] = env.contact
 
     def _write_back_task(self, index, env):
         env.contact = self.contact[index].copy()
+        env.held = self.held[index].copy()
+
+    def _tool_position(self, positions):
+        # the jaw, which moves on whether it holds the edge or not
+        return self.jaw_rest + self.tool_offset
+
+    def _floor_nodes(self):
+        """(N, n) bool the nodes each world's floor may hold: neither attached nor grasped (an edge
+        node that slipped out of the grasp falls back under the floor's contact)."""
+        return self._floor_candidates[None] & ~self.held
 
     #: the floor a camera sees, m beyond the flap on every side
     floor_margin = 0.02
@@ -81,24 +120,40 @@ class RetractionWorlds(TaskWorlds):
         if self._node_forces is not None:
             held = self.contact & (self._node_forces[..., 1] <= 0.0)
             self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
-        target = self._base_target.copy()
-        target[:, self.tool_nodes] = self.rest_positions[:, self.tool_nodes] + self.tool_offset[:, None, :]
+        # the grasped nodes follow the jaw, each at its offset (``sim_core.solvers.grasp``)
+        fixed, target = self.grasper.control(self._base_fixed, self._base_target, self.held, self.grasp_offsets,
+                                             self.jaw_rest + self.tool_offset)
         target[..., 1] = np.where(self.contact, 0.0, target[..., 1])
-        fixed = np.array(self._fixed)
         fixed[..., 1] |= self.contact
-        return fixed, target, self._tool_mask
+        return fixed, target, np.repeat(self.held[..., None], 3, axis=2)
 
     def _after_substep(self, positions, velocities, rows):
         # a free node that went below the floor is put back on it and joins the contact set
-        below = (positions[..., 1] < 0.0) & rows[:, None] & self._floor_candidates[None]
+        below = (positions[..., 1] < 0.0) & rows[:, None] & self._floor_nodes()
         positions[..., 1][below] = 0.0
         velocities[..., 1][below] = np.maximum(velocities[..., 1][below], 0.0)
         self.contact |= below
 
     def _measure(self, tool_mask):
+        """The measurements, and the grasp judged at them: held nodes slip out where the grasp force
+        passes ``grasp_force_limit`` (``Grasper.slip``), and the tool's force is the grasp's on the
+        nodes still held (within the limit)."""
         measures = super()._measure(tool_mask)
-        self._node_forces = measures["forces"]
+        forces = self._node_forces = measures["forces"]
+        self.held = self.grasper.slip(forces, self.held)
+        measures["reaction_force"] = self.grasper.force(forces, self.held)
         return measures
+
+    def _record(self, measures, rows, fresh):
+        # the share of the edge's nodes that slipped out of the grasp in this step
+        count = self.held.sum(axis=1)
+        before = np.where(fresh, count, self.held_count)
+        measures["grasp_slipped"] = np.where(rows, (before - count) / len(self.tool_nodes), 0.0)
+        measures["grasped_nodes"] = count
+        self.held_count = np.where(rows, count, self.held_count)
+
+    def _grasped(self, measures):
+        return measures["grasped_nodes"][:, None] > 0
 
     @property
     def footprint_quads(self) -> np.ndarray:
@@ -126,7 +181,9 @@ class RetractionWorlds(TaskWorlds):
 
     def _task_info(self, measures):
         return dict(exposed_fraction=measures["exposed_fraction"].copy(),
-                    tension=np.linalg.norm(measures["reaction_force"], axis=1))
+                    tension=np.linalg.norm(measures["reaction_force"], axis=1),
+                    grasped_nodes=measures["grasped_nodes"].copy(), grasp_lost=measures["grasped_nodes"] == 0,
+                    grasp_slipped=measures["grasp_slipped"].copy())
 
     def _force_limits(self):
         """(N,) each world's force limit, N (``scaled_force`` of ``force_limit``)."""
@@ -142,6 +199,7 @@ class RetractionWorlds(TaskWorlds):
             exposure=measures["exposed_fraction"] - 1.0,
             tension=-self.tension_weight * np.maximum(0.0, tension - self._force_limits()) / self._force_limits(),
             success=np.where(self._is_success(measures), self.success_bonus, 0.0),
+            grasp=-self.grasp_weight * measures["grasp_slipped"],
         )
         terms.update(self._damage_terms(measures))
         return terms
@@ -284,7 +342,7 @@ class RetractionEnv(TissueEnv):
     default_size = (0.06, 0.008, 0.03)
     default_max_step = 0.005
     min_shape = (2, 1, 1)
-    reward_names = ("exposure", "tension", "success", "volume", "strain")
+    reward_names = ("exposure", "tension", "success", "grasp", "volume", "strain")
     episode_keywords = ("target_start_range",)
     summary = "lift the free edge of a flap lying on a rigid floor to expose a target strip, under a tension limit"
     success_summary = "at least {success_exposure:%} exposed with tool force at most {force_limit:N}"
@@ -299,7 +357,8 @@ class RetractionEnv(TissueEnv):
     )
 
     def __init__(self, *, target_start_range=(0.03, 0.04), target_length=0.015, force_limit=None,
-                 tension_weight=1.0, success_exposure=None, success_bonus=5.0, difficulty="default", **kwargs):
+                 tension_weight=1.0, success_exposure=None, success_bonus=5.0, grasp_force_limit=GRASP_SLIP_FORCE,
+                 grasp_weight=5.0, difficulty="default", **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(force_limit=force_limit,
                                                                          success_exposure=success_exposure))
         force_limit, success_exposure = settings["force_limit"], settings["success_exposure"]
@@ -314,7 +373,16 @@ class RetractionEnv(TissueEnv):
         if self.success_exposure > 1:
             raise ValueError(f"success_exposure must lie in (0, 1], got {success_exposure!r}")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
+        self.grasp_force_limit = grasp_limit(grasp_force_limit)
+        self.grasp_weight = nonnegative_scalar("grasp_weight", grasp_weight)
         super().__init__(difficulty=difficulty, **kwargs)
+
+    @property
+    def grasp_radius(self) -> float:
+        """The reach of the grasper's jaws from the middle of the free edge, m: the edge face's
+        half-diagonal on the largest block the env may draw (``size_range``), with a margin."""
+        largest = np.max(np.vstack([self.size] + ([] if self.size_range is None else list(self.size_range))), axis=0)
+        return 0.51 * float(np.hypot(largest[1], largest[2]))
 
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):
@@ -359,6 +427,8 @@ class RetractionEnv(TissueEnv):
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
+        self.held = np.zeros(self.mesh.n_nodes, dtype=bool)  # the grasper closes on the whole free edge
+        self.held[self.tool_nodes] = True
         self.contact = self._floor_candidates & np.isclose(self.mesh.nodes[:, 1], 0.0)  # flat on the floor
         start = float(self.np_random.uniform(*self.target_start_range))
         self.target_x = np.array([start, min(start + self.target_length, self.episode_size[0])])
@@ -397,7 +467,7 @@ class RetractionEnv(TissueEnv):
         return np.clip((goal - tool) / self.max_step, -1.0, 1.0).astype(np.float32)
 
     def _markers(self):
-        return dict(tool=self.state.positions[self.tool_nodes].mean(axis=0),
+        return dict(tool=self.tool_rest.mean(axis=0) + self.tool_offset,
                     target=np.array([self.target_x.mean(), 0.0, 0.5 * self.episode_size[2]]))
 
     def _extra_drawing(self):
