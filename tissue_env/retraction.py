@@ -219,9 +219,16 @@ class RetractionEnv(TissueEnv):
     frictionless static equilibrium (``benchmarks/env_accuracy.py``; a post-step clamp alone
     settled up to 121% away in volume change). A
     target region on the floor, under the flap near its free end, must be exposed: the tool grasps
-    the free edge (every node of the face x = 6 cm, all components imposed), lifts it and pulls it
-    back, as a surgeon retracts a liver lobe or a peritoneal flap to expose what lies under it,
-    while keeping the tension (the force on the tool) under ``force_limit``.
+    the free edge (every node of the face x = 6 cm, all components imposed, ``sim_core.solvers.grasp``),
+    lifts it and pulls it back, as a surgeon retracts a liver lobe or a peritoneal flap to expose
+    what lies under it, while keeping the tension (the force on the tool) under ``force_limit``.
+
+    The grasp holds up to ``grasp_force_limit`` (default 5 N, what a laparoscopic grasper holds
+    bowel against without slipping: ``GRASP_SLIP_FORCE``). Where the force on the grasped nodes
+    passes it, they slip out of the jaws one after the other, the most loaded first, until the force
+    on those left is within the limit (``Grasper.slip``): the tool never reports more than the
+    limit while it holds, and the edge falls back where the grasp is lost. A lost grasp does not end
+    the episode (the tool moves on, holding nothing); it costs ``reward_grasp``.
 
     Physics: one implicit Euler step of ``dt`` = 20 ms per env step with the floor contact in it,
     then the projection of new contacts. Measured: no divergence in 100 random-action episodes (1
@@ -247,7 +254,7 @@ class RetractionEnv(TissueEnv):
 
     | Index | Observation                                         | Unit (normalised)     |
     |-------|-----------------------------------------------------|-----------------------|
-    | 0-2   | tool position (mean of the grasped nodes)           | cm from block centre  |
+    | 0-2   | tool position (the grasper's jaw)                   | cm from block centre  |
     | 3-5   | tool displacement from its start                    | cm                    |
     | 6-8   | force the tool exerts on the tissue                 | 0.1 N x E / 5 kPa      |
     | 9     | relative volume change (V - V0) / V0                | %                     |
@@ -266,7 +273,7 @@ class RetractionEnv(TissueEnv):
 
     ## Rewards
 
-    ``r = reward_exposure + reward_tension + reward_success + reward_volume + reward_strain
+    ``r = reward_exposure + reward_tension + reward_success + reward_grasp + reward_volume + reward_strain
     (+ reward_instability)``:
 
     - ``reward_exposure = exposed fraction - 1`` of the target (points of a 4 x 3 grid on the target
@@ -277,6 +284,8 @@ class RetractionEnv(TissueEnv):
       0.5 N at E = 5 kPa; the limit scales with the episode's E, so the same strains are allowed at
       any stiffness)
     - ``reward_success = success_bonus`` (default 5) on success
+    - ``reward_grasp = -grasp_weight * (share of the edge's nodes that slipped out of the grasp in
+      the step)`` (default 5: losing the whole grasp costs what a success gains; 0 while it holds)
     - ``reward_volume``, ``reward_strain`` as in every task, ``reward_instability`` on divergence.
 
     ## Starting State
@@ -289,7 +298,19 @@ class RetractionEnv(TissueEnv):
 
     Terminated on success (exposed fraction >= ``success_exposure`` = 0.95 with |F| <=
     ``force_limit``; unless ``terminate_on_success=False``, the hard level's) or on divergence
-    (``info["unstable"]``). Truncated after 60 steps.
+    (``info["unstable"]``). Truncated after 60 steps. A lost grasp does not end it.
+
+    ## Info
+
+    Every step's and reset's ``info`` has the entries every task has (``relative_volume_change``,
+    ``unstable``, ``unstable_reason``, ``is_success``, ``out_of_range``, ``max_strain``, one
+    ``reward_<term>`` per reward term, the episode's material and ``size``), the tool's forces:
+    ``reaction_force`` ((3,) N, the force the grasper exerts on the tissue, the sum over the nodes it
+    holds) and ``tool_forces`` ((1, 3) float, N: the force the tissue exerts on the grasper, its
+    opposite; 0 once the grasp is lost), ``grasped`` ((1,) bool: the grasper holds at least one
+    node), and the task's own: ``exposed_fraction``, ``tension`` (N, the magnitude of the tool's
+    force), ``grasped_nodes`` (the edge's nodes still held), ``grasp_slipped`` (the share of the
+    edge's nodes that slipped out in this step) and ``grasp_lost`` (bool: none is held).
 
     ## Difficulty
 
@@ -315,7 +336,12 @@ class RetractionEnv(TissueEnv):
     step (``RetractionVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
 
     Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
-    ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``; shared keywords in
+    ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``, ``grasp_force_limit``
+    (N, not scaled by E: the pull the grasp holds before the edge slips out node by node; default
+    5 N, from Heijnsdijk et al., "Slip and damage properties of jaws of laparoscopic graspers", Surg
+    Endosc 18:974-979, 2004, whose graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
+    al., Surg Endosc 18:980-985, 2004: 3.0 N of pinch prevented slip at that pull; ``np.inf``: a grasp
+    that never slips) and ``grasp_weight`` (the penalty of losing the whole grasp); shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
     ``young_modulus_range``, ``poisson_ratio_range``, ``density_range`` (the material, in ``info``),
     ``size_range`` (the flap's extent, each axis in m: the flap scaled about its attached edge's
