@@ -32,7 +32,9 @@ from training.common import write_json
 SPACING = 0.005
 
 
-def _block():
+def grasped_block():
+    """A 2 x 1 x 2 cm block of 5 kPa tissue under gravity on a fixed bottom face, at rest: (model, base
+    control, start positions (n, 3) m, top-face mask (n,), the top face's centre (3,) m)."""
     mesh = HexMesh.block((4, 2, 4), SPACING)
     model = build_model(mesh, Material(5e3, 0.45, 1060), gravity=(0, -9.81, 0))
     nodes = mesh.nodes
@@ -43,12 +45,13 @@ def _block():
     return model, base, start, top, nodes[top].mean(axis=0)
 
 
-def _forces(model, positions, velocities):
+def net_forces(model, positions, velocities):
+    """The net nodal forces (tissue and gravity, N) of one world."""
     return internal_forces(model, positions, velocities) + model.gravity_force
 
 
 def quasi_static(lifts=(0.0005, 0.001, 0.002, 0.003), ramp=10, hold=40):
-    model, base, start, top, centre = _block()
+    model, base, start, top, centre = grasped_block()
     count = len(lifts)
     grasper = Grasper(1.01 * SPACING)
     positions = np.repeat(start[None], count, axis=0)
@@ -64,7 +67,7 @@ def quasi_static(lifts=(0.0005, 0.001, 0.002, 0.003), ramp=10, hold=40):
         state, out = out, state
     rows = []
     for world, lift in enumerate(lifts):
-        force = grasper.force(_forces(model, state.positions[world], state.velocities[world]), held[world])
+        force = grasper.force(net_forces(model, state.positions[world], state.velocities[world]), held[world])
         reference = solve_static(model, Control(fixed[world], target[world], np.zeros_like(start)), initial=start)
         expected = reference.reaction[held[world]].sum(axis=0)
         rows.append(dict(lift_m=lift, held_nodes=int(held[world].sum()), grasp_force_N=force.tolist(),
@@ -74,7 +77,7 @@ def quasi_static(lifts=(0.0005, 0.001, 0.002, 0.003), ramp=10, hold=40):
 
 
 def slip(limits=(0.1, 0.25, 0.5, 1.0), lift=0.01, steps=12):
-    model, base, start, top, centre = _block()
+    model, base, start, top, centre = grasped_block()
     rows = []
     for limit in limits:
         grasper = Grasper(1.01 * SPACING, limit)
@@ -87,7 +90,7 @@ def slip(limits=(0.1, 0.25, 0.5, 1.0), lift=0.01, steps=12):
             fixed, target = grasper.control(base.fixed, base.target, held, offsets, jaw)
             solver.step(state, out, Control(fixed, target, np.zeros_like(start)), 0.02)
             state, out = out, state
-            nodal = _forces(model, state.positions, state.velocities)
+            nodal = net_forces(model, state.positions, state.velocities)
             held = grasper.slip(nodal, held)
             counts.append(int(held.sum()))
             forces.append(float(np.linalg.norm(grasper.force(nodal, held))))

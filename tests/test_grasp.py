@@ -4,30 +4,15 @@ one world and N, and its slip at the force limit."""
 import numpy as np
 import pytest
 
-from sim_core import Control, HexMesh, Material, ModelStack, State, build_model, make_solver, solve_static
-from sim_core.models.forces import internal_forces
+from benchmarks.grasp import SPACING, grasped_block, net_forces
+from sim_core import Control, ModelStack, State, make_solver, solve_static
 from sim_core.solvers.grasp import Grasper
-
-SPACING = 0.005
 
 
 @pytest.fixture(scope="module")
 def block():
-    """A 2 x 1 x 2 cm block of 5 kPa tissue under gravity on a fixed bottom face, at rest: (model,
-    base control, start positions, top-face mask, the jaw at the top face's centre)."""
-    mesh = HexMesh.block((4, 2, 4), SPACING)
-    model = build_model(mesh, Material(5e3, 0.45, 1060), gravity=(0, -9.81, 0))
-    nodes = mesh.nodes
-    bottom = np.flatnonzero(np.isclose(nodes[:, 1], 0.0))
-    base = model.new_control().impose(bottom, nodes[bottom])
-    start = solve_static(model, base).positions
-    top = np.isclose(nodes[:, 1], nodes[:, 1].max())
-    return model, base, start, top, nodes[top].mean(axis=0)
-
-
-def net_forces(model, positions, velocities):
-    """The net nodal forces (tissue and gravity, N) of one world."""
-    return internal_forces(model, positions, velocities) + model.gravity_force
+    """(model, base control, start positions, top-face mask, the top face's centre): ``grasped_block``."""
+    return grasped_block()
 
 
 def pull(solver, grasper, base, state, held, offsets, jaw_start, lifts, settle, slip=None):
