@@ -196,3 +196,62 @@ def test_a_snapshot_mid_slip_restores_the_grasp():
 def test_bad_grasp_force_limit_raises_value_error(value):
     with pytest.raises(ValueError, match="grasp_force_limit"):
         gym.make(ENV_ID, grasp_force_limit=value)
+
+
+def test_a_chosen_grasp_closes_where_the_first_action_points_and_the_scripted_controller_succeeds():
+    """grasp_point="chosen": nothing is held at reset (no force on the tool); the first action picks the
+    point (a0 = +1: the free edge, a2 = 0: the middle of the width) and the jaws close, without moving,
+    on the top-face nodes within jaw_radius of it; the scripted controller (grasp the edge's middle,
+    lift and pull) succeeds with it on 3 of 3 seeds; a vector copy takes the single env's steps."""
+    env = gym.make(ENV_ID, grasp_point="chosen")
+    _, info = env.reset(seed=0)
+    assert not info["grasped"][0] and np.all(info["tool_forces"] == 0.0) and info["grasped_nodes"] == 0
+    observation, _, _, _, info = env.step(np.array([1.0, 1.0, 0.0], np.float32))
+    task = env.unwrapped
+    length, height, width = task.size
+    np.testing.assert_allclose(info["grasp_point"], [length, height, 0.5 * width])
+    nodes = task.mesh.nodes
+    on_top = np.isclose(nodes[:, 1], height) & ~np.isclose(nodes[:, 0], 0.0)
+    near = np.linalg.norm(nodes - info["grasp_point"], axis=1) <= task.jaw_radius
+    assert info["grasped"][0] and info["grasped_nodes"] == np.sum(on_top & near) >= 3
+    np.testing.assert_array_equal(observation[3:6], 0.0)  # the step that grasps does not move the jaw
+    assert observation[-1] == 1.0  # the grasp_chosen entry
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        done = False
+        while not done:
+            _, _, terminated, truncated, info = env.step(task.scripted_action())
+            done = terminated or truncated
+        assert info["is_success"] and info["grasped"][0]
+    # a grasp near the middle of the flap (a0 = -1) and a random episode: the vector copy as the single env
+    rng = np.random.default_rng(3)
+    actions = [np.array([-1.0, 0.0, -0.5])] + list(rng.uniform(-1, 1, (7, 3)))
+    vector = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", grasp_point="chosen")
+    single_obs, _ = env.reset(seed=0)
+    vector_obs, _ = vector.reset(seed=0)
+    for action in actions:
+        np.testing.assert_allclose(vector_obs[0], single_obs, atol=1e-6)
+        single_obs, _, _, _, info = env.step(action.astype(np.float32))
+        vector_obs, _, _, _, vector_info = vector.step(np.tile(action, (2, 1)).astype(np.float32))
+        np.testing.assert_allclose(vector_info["tool_forces"][0], info["tool_forces"], atol=1e-6)
+    np.testing.assert_allclose(info["grasp_point"][0], 0.5 * length)
+    vector.close()
+
+
+def test_bad_grasp_point_raises_value_error():
+    with pytest.raises(ValueError, match="grasp_point"):
+        gym.make(ENV_ID, grasp_point="anywhere")
+    with pytest.raises(ValueError, match="jaw_radius"):
+        gym.make(ENV_ID, grasp_point="chosen", jaw_radius=0.0)
+
+
+def test_a_chosen_grasp_passes_the_env_checkers():
+    import warnings
+
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(gym.make(ENV_ID, grasp_point="chosen").unwrapped, skip_render_check=True)
+        sb3_checker = pytest.importorskip("stable_baselines3.common.env_checker")
+        sb3_checker.check_env(gym.make(ENV_ID, grasp_point="chosen"), warn=True)

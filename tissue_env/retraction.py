@@ -21,6 +21,9 @@ _BOTTOM, _TOP = [0, 1, 5, 4], [3, 2, 6, 7]
 #: pinched 6.8 N against the 3.0 N that prevented slip (Heijnsdijk et al., Surg Endosc 18:980-985, 2004):
 #: 5 N is the pull a grasper is made and used to hold without slipping.
 GRASP_SLIP_FORCE = 5.0
+#: Where the grasper takes the flap (``grasp_point``): "edge", the whole free edge from the start, or
+#: "chosen", the nodes of the top face around the point the first action picks.
+GRASP_POINTS = ("edge", "chosen")
 
 
 def grasp_limit(value) -> float:
@@ -55,14 +58,19 @@ class RetractionWorlds(TaskWorlds):
         self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each world's (size_range)
         #: the grasper on the free edge: its jaws span the edge (``RetractionEnv.grasp_radius``)
         self.grasper = Grasper(env.grasp_radius, env.grasp_force_limit)
-        self._edge = np.zeros(env.mesh.n_nodes, bool)
-        self._edge[self.tool_nodes] = True
         #: (N, n) bool the nodes each world's grasper holds, (N, n, 3) m their offsets from its jaw,
         #: (N, 3) m the jaw's rest position, (N,) the nodes held after the last measurement
         self.held = np.zeros((count, env.mesh.n_nodes), dtype=bool)
         self.grasp_offsets = np.zeros((count, env.mesh.n_nodes, 3))
         self.jaw_rest = np.zeros((count, 3))
         self.held_count = np.zeros(count, dtype=int)
+        #: (N,) bool whether each world's grasp point is chosen (always with grasp_point="edge"), (N,) the
+        #: nodes its grasper closed on, (N,) m the jaw's distance from the attached edge (``constrain_tool``)
+        self.grasp_chosen = np.zeros(count, dtype=bool)
+        self.grasp_size = np.zeros(count, dtype=int)
+        self.grasp_reach = np.zeros(count)
+        self._top_candidates = env.top_candidates
+        self._chosen_mode = env.grasp_point == "chosen"
         self.target_x = np.zeros((count, 2))
         self.target_points = np.zeros((count, 12, 2))  # the 4 x 3 grid of each copy's target
         self._floor_candidates = env._floor_candidates
@@ -75,8 +83,11 @@ class RetractionWorlds(TaskWorlds):
         self._base_target[index] = env.base_control.target
         # the jaws close on the free edge at rest (the grasp of the episode's start, ``env.held``)
         rest = env.episode_mesh.nodes
-        self.jaw_rest[index] = rest[self.tool_nodes].mean(axis=0)
+        self.jaw_rest[index] = env.jaw_rest
         self.held[index], self.grasp_offsets[index] = self.grasper.close(rest, self.jaw_rest[index], env.held)
+        self.grasp_chosen[index] = env.grasp_chosen
+        self.grasp_size[index] = self.held[index].sum()
+        self.grasp_reach[index] = env.episode_size[0]
         self.target_x[index] = env.target_x
         self.target_points[index] = env.target_points
         self.contact[index] = env.contact
@@ -84,6 +95,34 @@ class RetractionWorlds(TaskWorlds):
     def _write_back_task(self, index, env):
         env.contact = self.contact[index].copy()
         env.held = self.held[index].copy()
+        env.grasp_chosen = bool(self.grasp_chosen[index])
+        env.jaw_rest = self.jaw_rest[index].copy()
+
+    def step(self, actions, active):
+        """With grasp_point="chosen", a world's first action picks the grasp point (``choose_grasp``)
+        and its jaws close there, without moving, in that step; then the steps of every task."""
+        choosing = np.asarray(active, dtype=bool) & ~self.grasp_chosen
+        if choosing.any():
+            actions = np.array(actions, dtype=float)
+            self.choose_grasp(choosing, np.clip(actions, -1.0, 1.0))
+            actions[choosing] = 0.0
+        return super().step(actions, active)
+
+    def choose_grasp(self, rows, actions):
+        """Close the graspers of the worlds ``rows`` (N,) bool on the top-face nodes within the jaw's
+        radius of the points their ``actions`` (N, 3) in [-1, 1] pick: x from the middle of the flap
+        (-1) to its free edge (+1), z across its width (-1 to +1); action 1 is not read. The jaw's
+        workspace then reaches back to the attached edge from the point."""
+        size = self.block_size[rows]
+        jaw = np.column_stack([size[:, 0] * (0.75 + 0.25 * actions[rows, 0]), size[:, 1],
+                               size[:, 2] * 0.5 * (1.0 + actions[rows, 2])])
+        held, offsets = self.grasper.close(self.positions[rows], jaw, self._top_candidates)
+        self.held[rows], self.grasp_offsets[rows], self.jaw_rest[rows] = held, offsets, jaw
+        self.grasp_chosen[rows] = True
+        self.held_count[rows] = self.grasp_size[rows] = held.sum(axis=1)
+        self.grasp_reach[rows] = jaw[:, 0]
+        self.workspace_low[rows, 0] = -jaw[:, 0]
+        self.tool_offset[rows] = 0.0
 
     def _tool_position(self, positions):
         # the jaw, which moves on whether it holds the edge or not
@@ -110,7 +149,10 @@ class RetractionWorlds(TaskWorlds):
         return vertices, triangles, albedo
 
     def _constrain_tool(self, offset):
-        return self.task.constrain_tool(offset, self.block_size)  # each world's flap length
+        # each world's flap length from its attached edge to the jaw
+        size = self.block_size.copy()
+        size[:, 0] = self.grasp_reach
+        return self.task.constrain_tool(offset, size)
 
     def _control(self, rows=None):
         """The tool, and the floor contact: the height of every node on the floor is imposed (y = 0,
@@ -148,7 +190,7 @@ class RetractionWorlds(TaskWorlds):
         # the share of the edge's nodes that slipped out of the grasp in this step
         count = self.held.sum(axis=1)
         before = np.where(fresh, count, self.held_count)
-        measures["grasp_slipped"] = np.where(rows, (before - count) / len(self.tool_nodes), 0.0)
+        measures["grasp_slipped"] = np.where(rows, (before - count) / np.maximum(self.grasp_size, 1), 0.0)
         measures["grasped_nodes"] = count
         self.held_count = np.where(rows, count, self.held_count)
 
@@ -177,13 +219,14 @@ class RetractionWorlds(TaskWorlds):
             target_range=(self.target_x - centre_x) / scale, exposed_fraction=measures["exposed_fraction"][:, None],
             tension=np.linalg.norm(measures["reaction_force"], axis=1)[:, None] / self._force_limits()[:, None],
             footprint_range=(measures["footprint"] - centre_x) / scale,
+            **(dict(grasp_chosen=self.grasp_chosen[:, None].astype(float)) if self._chosen_mode else {}),
         )
 
     def _task_info(self, measures):
         return dict(exposed_fraction=measures["exposed_fraction"].copy(),
                     tension=np.linalg.norm(measures["reaction_force"], axis=1),
                     grasped_nodes=measures["grasped_nodes"].copy(), grasp_lost=measures["grasped_nodes"] == 0,
-                    grasp_slipped=measures["grasp_slipped"].copy())
+                    grasp_slipped=measures["grasp_slipped"].copy(), grasp_point=self.jaw_rest.copy())
 
     def _force_limits(self):
         """(N,) each world's force limit, N (``scaled_force`` of ``force_limit``)."""
@@ -246,6 +289,13 @@ class RetractionEnv(TissueEnv):
     | 1   | tool increment along y     | -1  | 1   | max_step (m) |
     | 2   | tool increment along z     | -1  | 1   | max_step (m) |
 
+    With ``grasp_point="chosen"`` the grasper holds nothing at the start, and the first action picks
+    where it grasps (its jaws close there in that step, without moving): the top-face nodes within
+    ``jaw_radius`` (default 6 mm: a 5 mm jaw's bite on these 5 mm elements, the point's 1 to 4 nearest
+    nodes and their neighbours) of the point x = L (0.75 + 0.25 a0), z = W (1 + a2) / 2 on the top
+    face (a0 = -1: the middle of the flap, +1: its free edge; a2 across its width W; a1 is not read).
+    The following actions move the jaw as above, its workspace reaching back to the attached edge.
+
     ## Observation Space
 
     ``observation_type="state"``: ``Box(-100, 100, (17,), float32)``, the maximum spring
@@ -263,6 +313,7 @@ class RetractionEnv(TissueEnv):
     | 13    | exposed fraction of the target                      | 0-1                   |
     | 14    | tension: magnitude of the tool force / force_limit  | 1                     |
     | 15-16 | flap footprint x range (min, max over its nodes)    | cm from block centre  |
+    | 17    | grasp chosen (``grasp_point="chosen"`` only)        | 0 or 1                |
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. There is no ``"goal"`` observation: the reward is the covering of
@@ -309,8 +360,9 @@ class RetractionEnv(TissueEnv):
     holds) and ``tool_forces`` ((1, 3) float, N: the force the tissue exerts on the grasper, its
     opposite; 0 once the grasp is lost), ``grasped`` ((1,) bool: the grasper holds at least one
     node), and the task's own: ``exposed_fraction``, ``tension`` (N, the magnitude of the tool's
-    force), ``grasped_nodes`` (the edge's nodes still held), ``grasp_slipped`` (the share of the
-    edge's nodes that slipped out in this step) and ``grasp_lost`` (bool: none is held).
+    force), ``grasped_nodes`` (the nodes still held), ``grasp_slipped`` (the share of the nodes the
+    grasper closed on that slipped out in this step), ``grasp_lost`` (bool: none is held) and
+    ``grasp_point`` ((3,) m, the jaw's rest position: the free edge's middle, or the chosen point).
 
     ## Difficulty
 
@@ -341,7 +393,9 @@ class RetractionEnv(TissueEnv):
     5 N, from Heijnsdijk et al., "Slip and damage properties of jaws of laparoscopic graspers", Surg
     Endosc 18:974-979, 2004, whose graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
     al., Surg Endosc 18:980-985, 2004: 3.0 N of pinch prevented slip at that pull; ``np.inf``: a grasp
-    that never slips) and ``grasp_weight`` (the penalty of losing the whole grasp); shared keywords in
+    that never slips), ``grasp_weight`` (the penalty of losing the whole grasp), ``grasp_point``
+    ("edge", the default: the whole free edge held from the start; "chosen": the first action picks
+    the grasp point, see the Action Space) and ``jaw_radius`` (m, the chosen grasp's reach); shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
     ``young_modulus_range``, ``poisson_ratio_range``, ``density_range`` (the material, in ``info``),
     ``size_range`` (the flap's extent, each axis in m: the flap scaled about its attached edge's
@@ -384,7 +438,7 @@ class RetractionEnv(TissueEnv):
 
     def __init__(self, *, target_start_range=(0.03, 0.04), target_length=0.015, force_limit=None,
                  tension_weight=1.0, success_exposure=None, success_bonus=5.0, grasp_force_limit=GRASP_SLIP_FORCE,
-                 grasp_weight=5.0, difficulty="default", **kwargs):
+                 grasp_weight=5.0, grasp_point="edge", jaw_radius=0.006, difficulty="default", **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(force_limit=force_limit,
                                                                          success_exposure=success_exposure))
         force_limit, success_exposure = settings["force_limit"], settings["success_exposure"]
@@ -401,12 +455,19 @@ class RetractionEnv(TissueEnv):
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
         self.grasp_force_limit = grasp_limit(grasp_force_limit)
         self.grasp_weight = nonnegative_scalar("grasp_weight", grasp_weight)
+        if not isinstance(grasp_point, str) or grasp_point not in GRASP_POINTS:
+            raise ValueError(f"grasp_point must be one of {GRASP_POINTS}, got {grasp_point!r}")
+        self.grasp_point = grasp_point
+        self.jaw_radius = positive_scalar("jaw_radius", jaw_radius, "m")
         super().__init__(difficulty=difficulty, **kwargs)
 
     @property
     def grasp_radius(self) -> float:
         """The reach of the grasper's jaws from the middle of the free edge, m: the edge face's
-        half-diagonal on the largest block the env may draw (``size_range``), with a margin."""
+        half-diagonal on the largest block the env may draw (``size_range``), with a margin; with
+        grasp_point="chosen", ``jaw_radius`` around the chosen point."""
+        if self.grasp_point == "chosen":
+            return self.jaw_radius
         largest = np.max(np.vstack([self.size] + ([] if self.size_range is None else list(self.size_range))), axis=0)
         return 0.51 * float(np.hypot(largest[1], largest[2]))
 
@@ -417,7 +478,11 @@ class RetractionEnv(TissueEnv):
         self.tool_nodes = np.flatnonzero(np.isclose(nodes[:, 0], self.size[0]))
         #: nodes the floor may hold (neither attached nor grasped), and those it holds now
         self._floor_candidates = np.ones(self.mesh.n_nodes, bool)
-        self._floor_candidates[np.union1d(self.fixed_nodes, self.tool_nodes)] = False
+        # a chosen grasp holds nothing at the start: the free edge lies on the floor like the rest
+        self._floor_candidates[self.fixed_nodes if self.grasp_point == "chosen"
+                               else np.union1d(self.fixed_nodes, self.tool_nodes)] = False
+        #: the nodes a chosen grasp may close on: the top face's, but the attached ones
+        self.top_candidates = np.isclose(nodes[:, 1], self.size[1]) & self._floor_candidates
         self.contact = self._floor_candidates & np.isclose(nodes[:, 1], 0.0)
         self._place_scene(nodes)
         elements = self.mesh.elements
@@ -443,18 +508,26 @@ class RetractionEnv(TissueEnv):
         """The tool at rest and the floor contact: the height of every node on the floor is imposed
         (y = 0, frictionless: x and z stay free)."""
         control = super()._start_control()
+        if self.grasp_point == "chosen":  # nothing held before the first action picks the point
+            control.fixed[self.tool_nodes] = False
+            self.start_tool_mask[:] = False
         nodes = np.flatnonzero(self.contact)
         if len(nodes):
             control.impose(nodes, np.zeros((len(nodes), 3)), components=(1,))
         return control
 
     def _task_feature_sizes(self):
-        return dict(target_range=2, exposed_fraction=1, tension=1, footprint_range=2)
+        sizes = dict(target_range=2, exposed_fraction=1, tension=1, footprint_range=2)
+        if self.grasp_point == "chosen":
+            sizes["grasp_chosen"] = 1
+        return sizes
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
         self.held = np.zeros(self.mesh.n_nodes, dtype=bool)  # the grasper closes on the whole free edge
-        self.held[self.tool_nodes] = True
+        self.grasp_chosen = self.grasp_point == "edge"
+        self.held[self.tool_nodes] = self.grasp_chosen  # a chosen grasp holds nothing until its first action
+        self.jaw_rest = self.tool_rest.mean(axis=0)
         self.contact = self._floor_candidates & np.isclose(self.mesh.nodes[:, 1], 0.0)  # flat on the floor
         start = float(self.np_random.uniform(*self.target_start_range))
         self.target_x = np.array([start, min(start + self.target_length, self.episode_size[0])])
@@ -485,15 +558,17 @@ class RetractionEnv(TissueEnv):
         """Lift and pull: raise the free edge to ``lift_height`` m, then bring it over the attached
         edge to (x, y) = ``hold`` m, keeping z."""
         self._require_reset("scripted_action()")
-        tool = self.tool_rest.mean(axis=0) + self.tool_offset
+        if not self.grasp_chosen:  # grasp the middle of the free edge
+            return np.array([1.0, 0.0, 0.0], np.float32)
+        tool = self.jaw_rest + self.tool_offset
         if tool[1] < lift_height - 1e-6 and tool[0] > hold[0] + 0.02:
             goal = np.array([tool[0], lift_height, tool[2]])
         else:
-            goal = np.array([hold[0], hold[1], self.tool_rest[:, 2].mean()])
+            goal = np.array([hold[0], hold[1], self.jaw_rest[2]])
         return np.clip((goal - tool) / self.max_step, -1.0, 1.0).astype(np.float32)
 
     def _markers(self):
-        return dict(tool=self.tool_rest.mean(axis=0) + self.tool_offset,
+        return dict(tool=self.jaw_rest + self.tool_offset,
                     target=np.array([self.target_x.mean(), 0.0, 0.5 * self.episode_size[2]]))
 
     def _extra_drawing(self):

@@ -597,8 +597,9 @@ class TaskWorlds:
             out_of_range=np.array([reason is not None for reason in outside]),
             out_of_range_reason=outside,
             observation_clipped=self.clipped.copy(),
-            # (N, T, 3) N the force the tissue exerts on each tool: the opposite of the tool's on the tissue
-            tool_forces=-np.array(measures["reaction_force"], dtype=float)[:, None, :],
+            # (N, T, 3) N the force the tissue exerts on each tool: the opposite of the tool's on the
+            # tissue (0.0 - r, not -r: a tool that holds nothing reads 0.0, not -0.0)
+            tool_forces=0.0 - np.array(measures["reaction_force"], dtype=float)[:, None, :],
             grasped=np.array(self._grasped(measures), dtype=bool),
         )
         for name in self.reward_names:
