@@ -58,10 +58,11 @@ class RetractionWorlds(TaskWorlds):
         self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each world's (size_range)
         #: the grasper on the free edge: its jaws span the edge (``RetractionEnv.grasp_radius``)
         self.grasper = Grasper(env.grasp_radius, env.grasp_force_limit)
-        #: (N, n) bool the nodes each world's grasper holds, (N, n, 3) m their offsets from its jaw,
-        #: (N, 3) m the jaw's rest position, (N,) the nodes held after the last measurement
+        #: (N, n) bool the nodes each world's grasper holds; (N, n, 3) m the positions of the nodes it
+        #: closed on, when it closed (they follow the jaw's displacement, ``tool_offset``, from there);
+        #: (N, 3) m the jaw's rest position; (N,) the nodes held after the last measurement
         self.held = np.zeros((count, env.mesh.n_nodes), dtype=bool)
-        self.grasp_offsets = np.zeros((count, env.mesh.n_nodes, 3))
+        self.grasp_anchors = np.zeros((count, env.mesh.n_nodes, 3))
         self.jaw_rest = np.zeros((count, 3))
         self.held_count = np.zeros(count, dtype=int)
         #: (N,) bool whether each world's grasp point is chosen (always with grasp_point="edge"), (N,) the
@@ -84,7 +85,8 @@ class RetractionWorlds(TaskWorlds):
         # the jaws close on the free edge at rest (the grasp of the episode's start, ``env.held``)
         rest = env.episode_mesh.nodes
         self.jaw_rest[index] = env.jaw_rest
-        self.held[index], self.grasp_offsets[index] = self.grasper.close(rest, self.jaw_rest[index], env.held)
+        self.held[index] = self.grasper.close(rest, self.jaw_rest[index], env.held)[0]
+        self.grasp_anchors[index] = np.where(self.held[index, :, None], rest, 0.0)
         self.grasp_chosen[index] = env.grasp_chosen
         self.grasp_size[index] = self.held[index].sum()
         self.grasp_reach[index] = env.episode_size[0]
@@ -116,8 +118,9 @@ class RetractionWorlds(TaskWorlds):
         size = self.block_size[rows]
         jaw = np.column_stack([size[:, 0] * (0.75 + 0.25 * actions[rows, 0]), size[:, 1],
                                size[:, 2] * 0.5 * (1.0 + actions[rows, 2])])
-        held, offsets = self.grasper.close(self.positions[rows], jaw, self._top_candidates)
-        self.held[rows], self.grasp_offsets[rows], self.jaw_rest[rows] = held, offsets, jaw
+        held = self.grasper.close(self.positions[rows], jaw, self._top_candidates)[0]
+        self.held[rows], self.jaw_rest[rows] = held, jaw
+        self.grasp_anchors[rows] = np.where(held[..., None], self.positions[rows], 0.0)
         self.grasp_chosen[rows] = True
         self.held_count[rows] = self.grasp_size[rows] = held.sum(axis=1)
         self.grasp_reach[rows] = jaw[:, 0]
@@ -125,8 +128,11 @@ class RetractionWorlds(TaskWorlds):
         self.tool_offset[rows] = 0.0
 
     def _tool_position(self, positions):
-        # the jaw, which moves on whether it holds the edge or not
-        return self.jaw_rest + self.tool_offset
+        # the jaw, which moves on whether it holds tissue or not; holding the whole edge, the mean of
+        # the places it imposes on the edge's nodes
+        if self._chosen_mode:
+            return self.jaw_rest + self.tool_offset
+        return (self.tool_offset[:, None, :] + self.grasp_anchors[:, self.tool_nodes]).mean(axis=1)
 
     def _floor_nodes(self):
         """(N, n) bool the nodes each world's floor may hold: neither attached nor grasped (an edge
@@ -162,9 +168,9 @@ class RetractionWorlds(TaskWorlds):
         if self._node_forces is not None:
             held = self.contact & (self._node_forces[..., 1] <= 0.0)
             self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
-        # the grasped nodes follow the jaw, each at its offset (``sim_core.solvers.grasp``)
-        fixed, target = self.grasper.control(self._base_fixed, self._base_target, self.held, self.grasp_offsets,
-                                             self.jaw_rest + self.tool_offset)
+        # the grasped nodes follow the jaw's displacement from where it closed on them (``sim_core.solvers.grasp``)
+        fixed, target = self.grasper.control(self._base_fixed, self._base_target, self.held, self.grasp_anchors,
+                                             self.tool_offset)
         target[..., 1] = np.where(self.contact, 0.0, target[..., 1])
         fixed[..., 1] |= self.contact
         return fixed, target, np.repeat(self.held[..., None], 3, axis=2)

@@ -77,7 +77,8 @@ class Grasper:
     def control(fixed, target, held, offsets, jaw):
         """(fixed, target): copies of the control's ``fixed`` (..., n, 3) bool and ``target``
         (..., n, 3) m with every held node imposed at the jaw's position (``jaw`` (3,) or (N, 3) m)
-        plus its offset."""
+        plus its offset. Equivalently, with the held nodes' positions at closing as ``offsets`` and
+        the jaw's displacement since as ``jaw``: the same translation of the grasp."""
         held = np.asarray(held, dtype=bool)[..., None]
         jaw = np.asarray(jaw, dtype=float)
         return (np.asarray(fixed, dtype=bool) | held,
