@@ -395,7 +395,8 @@ class RetractionEnv(TissueEnv):
 
     Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
     ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``, ``grasp_force_limit``
-    (N, not scaled by E: the pull the grasp holds before the edge slips out node by node; default
+    (N, not scaled by E, a property of the grasper: the pull it holds before the edge slips out node
+    by node, so a stiff flap pulled far loses it: at 1 MPa the scripted lift does, at 4.3-4.8 N; default
     5 N, from Heijnsdijk et al., "Slip and damage properties of jaws of laparoscopic graspers", Surg
     Endosc 18:974-979, 2004, whose graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
     al., Surg Endosc 18:980-985, 2004: 3.0 N of pinch prevented slip at that pull; ``np.inf``: a grasp
