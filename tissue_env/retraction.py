@@ -193,7 +193,7 @@ class RetractionWorlds(TaskWorlds):
         return measures
 
     def _record(self, measures, rows, fresh):
-        # the share of the edge's nodes that slipped out of the grasp in this step
+        # the share of the nodes the grasper closed on that slipped out of it in this step
         count = self.held.sum(axis=1)
         before = np.where(fresh, count, self.held_count)
         measures["grasp_slipped"] = np.where(rows, (before - count) / np.maximum(self.grasp_size, 1), 0.0)
@@ -297,8 +297,8 @@ class RetractionEnv(TissueEnv):
 
     With ``grasp_point="chosen"`` the grasper holds nothing at the start, and the first action picks
     where it grasps (its jaws close there in that step, without moving): the top-face nodes within
-    ``jaw_radius`` (default 6 mm: a 5 mm jaw's bite on these 5 mm elements, the point's 1 to 4 nearest
-    nodes and their neighbours) of the point x = L (0.75 + 0.25 a0), z = W (1 + a2) / 2 on the top
+    ``jaw_radius`` (default 6 mm: on these 5 mm elements the 4 or 5 top nodes nearest the point, fewer
+    at the flap's border) of the point x = L (0.75 + 0.25 a0), z = W (1 + a2) / 2 on the top
     face (a0 = -1: the middle of the flap, +1: its free edge; a2 across its width W; a1 is not read).
     The following actions move the jaw as above, its workspace reaching back to the attached edge.
 
