@@ -248,7 +248,7 @@ class RetractionWorlds(TaskWorlds):
             exposure=measures["exposed_fraction"] - 1.0,
             tension=-self.tension_weight * np.maximum(0.0, tension - self._force_limits()) / self._force_limits(),
             success=np.where(self._is_success(measures), self.success_bonus, 0.0),
-            grasp=-self.grasp_weight * measures["grasp_slipped"],
+            grasp=0.0 - self.grasp_weight * measures["grasp_slipped"],  # 0.0, not -0.0, while the grasp holds
         )
         terms.update(self._damage_terms(measures))
         return terms
