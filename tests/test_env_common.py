@@ -89,6 +89,10 @@ def test_info_keys_fresh_arrays_and_observation_types(env_id):
         for key in INFO_KEYS + tuple(reward_keys):
             assert key in info2
         assert np.isclose(reward, sum(info2[key] for key in reward_keys))
+        for values in (info, info2):  # one tool: its force on the tool (N) and whether it holds tissue
+            assert values["tool_forces"].shape == (1, 3) and values["tool_forces"].dtype == np.float64
+            assert values["grasped"].shape == (1,) and values["grasped"].dtype == bool
+            np.testing.assert_array_equal(values["tool_forces"][0], -np.asarray(values["reaction_force"]))
         if observation_type != "dict":
             assert obs2 is not obs and not np.shares_memory(obs, obs2)
         env.close()
@@ -236,3 +240,27 @@ def test_an_episode_does_not_depend_on_the_episodes_before_it(env_id):
         after = run(env_id, 5, actions, env=env)
         np.testing.assert_array_equal(fresh[0], after[0])
         np.testing.assert_array_equal(fresh[1], after[1])
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_tool_forces_are_the_tissue_force_on_the_tool(env_id):
+    """At reset (at rest, no velocity) ``tool_forces`` is the net force of the tissue and gravity on
+    the nodes the tool holds (sim_core's ``internal_forces``; the supports' reactions excluded); where
+    the start is a static equilibrium (TumorPositioning, LiverNeedleAlignment) it is minus
+    ``solve_static``'s reaction on them. A probe (Palpation) grasps nothing, the other tools hold
+    their patch."""
+    from sim_core import solve_static
+    from sim_core.models.forces import internal_forces
+
+    env = gym.make(env_id)
+    _, info = env.reset(seed=0)
+    task = env.unwrapped
+    tool = task.start_tool_mask[:, 0]
+    net = internal_forces(task.model, task.state.positions) + task.model.gravity_force
+    np.testing.assert_allclose(info["tool_forces"][0], net[tool].sum(axis=0), rtol=1e-6, atol=1e-12)
+    if env_id in ("tissue_env/TumorPositioning-v0", "tissue_env/LiverNeedleAlignment-v0"):
+        static = solve_static(task.model, task.start_control, initial=task.state.positions)
+        np.testing.assert_allclose(info["tool_forces"][0], -static.reaction[tool].sum(axis=0), rtol=1e-6, atol=1e-9)
+        assert np.linalg.norm(info["tool_forces"][0]) > 1e-4  # the patch holds part of the block's weight
+    assert info["grasped"][0] == (env_id != "tissue_env/Palpation-v0")
+    env.close()

@@ -237,6 +237,16 @@ class LiverNeedleAlignmentEnv(TumorPositioningEnv):
     (``info["unstable"] = True`` with ``info["unstable_reason"]``). Truncated after 50 steps
     (registered ``max_episode_steps``).
 
+    ## Info
+
+    Every step's and reset's ``info`` has the entries every task has (``relative_volume_change``, ``unstable``,
+    ``unstable_reason``, ``is_success``, ``out_of_range``, ``max_strain``, one ``reward_<term>`` per reward
+    term, the episode's material and ``size``), the tool's forces: ``reaction_force`` ((3,) N, the force the
+    tool exerts on the tissue) and ``tool_forces`` ((1, 3) float, N: the force the tissue exerts on the one
+    tool, its opposite), and ``grasped`` ((1,) bool: always True, the patch is held by imposed displacements
+    without a force limit), and the task's own: ``distance`` (m, tumour to path), ``tumor_position`` (m),
+    ``needle_entry`` (m), ``needle_direction``, ``tumor_stiffness_ratio``.
+
     ## Arguments
 
     ```python

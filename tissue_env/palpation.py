@@ -220,6 +220,10 @@ class PalpationWorlds(TaskWorlds):
                     inclusion_ratio=self.inclusion_ratio_of.copy(), inclusion_size=self.inclusion_size_of.copy(),
                     probe_radius=self.probe_radius.copy())
 
+    def _grasped(self, measures):
+        # a probe presses, it holds nothing: its force is the contact's (``tool_forces``)
+        return np.zeros((self.num_envs, 1), dtype=bool)
+
     def _is_success(self, measures):
         return measures["press_steps"] >= self.hold_steps
 
@@ -419,6 +423,17 @@ class PalpationEnv(TissueEnv):
     together, or use ``model="baudet-hyperelastic"``. ``observe_parameters=True`` appends the drawn
     parameters (``randomised_parameters``), each normalised to [-1, 1] over its range, to the
     observation.
+
+    ## Info
+
+    Every step's and reset's ``info`` has the entries every task has (``relative_volume_change``, ``unstable``,
+    ``unstable_reason``, ``is_success``, ``out_of_range``, ``max_strain``, one ``reward_<term>`` per reward
+    term, the episode's material and ``size``), the tool's forces: ``reaction_force`` ((3,) N, the force the
+    tool exerts on the tissue) and ``tool_forces`` ((1, 3) float, N: the force the tissue exerts on the one
+    tool, its opposite), and ``grasped`` ((1,) bool: always False: a probe presses and holds nothing; its force
+    is the contact's, the tissue pushing it up), and the task's own: ``depth`` and ``horizontal_distance`` (m),
+    ``press_steps``, ``inclusion_centre`` and ``inclusion_size`` (m), ``indentation_stiffness`` (N/m),
+    ``apparent_modulus`` (Pa), ``inclusion_ratio``, ``probe_radius`` (m).
 
     ## Arguments
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import kernels
+from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
 from .camera import ALBEDO, Camera, floor_tiles
@@ -13,6 +14,26 @@ from .worlds import TaskWorlds
 
 #: Local corners of the bottom (y = 0) and top (y = 1) faces of a VTK hexahedron, in cyclic order.
 _BOTTOM, _TOP = [0, 1, 5, 4], [3, 2, 6, 7]
+#: The default grasp force limit, N: the pull a laparoscopic grasper holds bowel against before it slips.
+#: Heijnsdijk et al. measured slip of pig bowel pulled at 5 N between laparoscopic grasper jaws (the pinch
+#: force that prevents slip at a 5 N pull: 3 N with a profiled jaw, up to 22 N with a smooth one; Surg
+#: Endosc 18:974-979, 2004, doi:10.1007/s00464-003-9153-2), and subjects holding pig bowel at a 5 N pull
+#: pinched 6.8 N against the 3.0 N that prevented slip (Heijnsdijk et al., Surg Endosc 18:980-985, 2004):
+#: 5 N is the pull a grasper is made and used to hold without slipping.
+GRASP_SLIP_FORCE = 5.0
+#: Where the grasper takes the flap (``grasp_point``): "edge", the whole free edge from the start, or
+#: "chosen", the nodes of the top face around the point the first action picks.
+GRASP_POINTS = ("edge", "chosen")
+
+
+def grasp_limit(value) -> float:
+    """``grasp_force_limit`` as a float: a number > 0 in N, ``np.inf`` for a grasp that never slips."""
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    limit = float(value) if number else np.nan
+    if np.isnan(limit) or limit <= 0:
+        raise ValueError(f"grasp_force_limit must be a number > 0 in N (np.inf: a grasp that never slips; default "
+                         f"{GRASP_SLIP_FORCE} N), got {value!r}")
+    return limit
 
 
 class RetractionWorlds(TaskWorlds):
@@ -33,27 +54,90 @@ class RetractionWorlds(TaskWorlds):
         env, count = self.task, self.num_envs
         self.tool_nodes = env.tool_nodes
         self._footprint = np.ascontiguousarray(env._footprint, dtype=np.int64)
-        tool_mask = np.zeros((env.mesh.n_nodes, 3), bool)
-        tool_mask[self.tool_nodes] = True
-        self._fixed = np.broadcast_to(env.base_control.fixed | tool_mask, (count,) + tool_mask.shape)
-        self._tool_mask = np.broadcast_to(tool_mask, (count,) + tool_mask.shape)
+        self._base_fixed = env.base_control.fixed
         self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each world's (size_range)
+        #: the grasper on the free edge: its jaws span the edge (``RetractionEnv.grasp_radius``)
+        self.grasper = Grasper(env.grasp_radius, env.grasp_force_limit)
+        #: (N, n) bool the nodes each world's grasper holds; (N, n, 3) m the positions of the nodes it
+        #: closed on, when it closed (they follow the jaw's displacement, ``tool_offset``, from there);
+        #: (N, 3) m the jaw's rest position; (N,) the nodes held after the last measurement
+        self.held = np.zeros((count, env.mesh.n_nodes), dtype=bool)
+        self.grasp_anchors = np.zeros((count, env.mesh.n_nodes, 3))
+        self.jaw_rest = np.zeros((count, 3))
+        self.held_count = np.zeros(count, dtype=int)
+        #: (N,) bool whether each world's grasp point is chosen (always with grasp_point="edge"), (N,) the
+        #: nodes its grasper closed on, (N,) m the jaw's distance from the attached edge (``constrain_tool``)
+        self.grasp_chosen = np.zeros(count, dtype=bool)
+        self.grasp_size = np.zeros(count, dtype=int)
+        self.grasp_reach = np.zeros(count)
+        self._top_candidates = env.top_candidates
+        self._chosen_mode = env.grasp_point == "chosen"
         self.target_x = np.zeros((count, 2))
         self.target_points = np.zeros((count, 12, 2))  # the 4 x 3 grid of each copy's target
         self._floor_candidates = env._floor_candidates
         self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's floor holds
         self._node_forces = None  # (N, n, 3) net forces of the last measurement
-        for name in ("force_limit", "tension_weight", "success_exposure", "success_bonus"):
+        for name in ("force_limit", "tension_weight", "success_exposure", "success_bonus", "grasp_weight"):
             setattr(self, name, getattr(env, name))
 
     def _load_task(self, index, env):
         self._base_target[index] = env.base_control.target
+        # the jaws close on the free edge at rest (the grasp of the episode's start, ``env.held``)
+        rest = env.episode_mesh.nodes
+        self.jaw_rest[index] = env.jaw_rest
+        self.held[index] = self.grasper.close(rest, self.jaw_rest[index], env.held)[0]
+        self.grasp_anchors[index] = np.where(self.held[index, :, None], rest, 0.0)
+        self.grasp_chosen[index] = env.grasp_chosen
+        self.grasp_size[index] = self.held[index].sum()
+        self.grasp_reach[index] = env.episode_size[0]
         self.target_x[index] = env.target_x
         self.target_points[index] = env.target_points
         self.contact[index] = env.contact
 
     def _write_back_task(self, index, env):
         env.contact = self.contact[index].copy()
+        env.held = self.held[index].copy()
+        env.grasp_chosen = bool(self.grasp_chosen[index])
+        env.jaw_rest = self.jaw_rest[index].copy()
+
+    def step(self, actions, active):
+        """With grasp_point="chosen", a world's first action picks the grasp point (``choose_grasp``)
+        and its jaws close there, without moving, in that step; then the steps of every task."""
+        choosing = np.asarray(active, dtype=bool) & ~self.grasp_chosen
+        if choosing.any():
+            actions = np.array(actions, dtype=float)
+            self.choose_grasp(choosing, np.clip(actions, -1.0, 1.0))
+            actions[choosing] = 0.0
+        return super().step(actions, active)
+
+    def choose_grasp(self, rows, actions):
+        """Close the graspers of the worlds ``rows`` (N,) bool on the top-face nodes within the jaw's
+        radius of the points their ``actions`` (N, 3) in [-1, 1] pick: x from the middle of the flap
+        (-1) to its free edge (+1), z across its width (-1 to +1); action 1 is not read. The jaw's
+        workspace then reaches back to the attached edge from the point."""
+        size = self.block_size[rows]
+        jaw = np.column_stack([size[:, 0] * (0.75 + 0.25 * actions[rows, 0]), size[:, 1],
+                               size[:, 2] * 0.5 * (1.0 + actions[rows, 2])])
+        held = self.grasper.close(self.positions[rows], jaw, self._top_candidates)[0]
+        self.held[rows], self.jaw_rest[rows] = held, jaw
+        self.grasp_anchors[rows] = np.where(held[..., None], self.positions[rows], 0.0)
+        self.grasp_chosen[rows] = True
+        self.held_count[rows] = self.grasp_size[rows] = held.sum(axis=1)
+        self.grasp_reach[rows] = jaw[:, 0]
+        self.workspace_low[rows, 0] = -jaw[:, 0]
+        self.tool_offset[rows] = 0.0
+
+    def _tool_position(self, positions):
+        # the jaw, which moves on whether it holds tissue or not; holding the whole edge, the mean of
+        # the places it imposes on the edge's nodes
+        if self._chosen_mode:
+            return self.jaw_rest + self.tool_offset
+        return (self.tool_offset[:, None, :] + self.grasp_anchors[:, self.tool_nodes]).mean(axis=1)
+
+    def _floor_nodes(self):
+        """(N, n) bool the nodes each world's floor may hold: neither attached nor grasped (an edge
+        node that slipped out of the grasp falls back under the floor's contact)."""
+        return self._floor_candidates[None] & ~self.held
 
     #: the floor a camera sees, m beyond the flap on every side
     floor_margin = 0.02
@@ -71,7 +155,10 @@ class RetractionWorlds(TaskWorlds):
         return vertices, triangles, albedo
 
     def _constrain_tool(self, offset):
-        return self.task.constrain_tool(offset, self.block_size)  # each world's flap length
+        # each world's flap length from its attached edge to the jaw
+        size = self.block_size.copy()
+        size[:, 0] = self.grasp_reach
+        return self.task.constrain_tool(offset, size)
 
     def _control(self, rows=None):
         """The tool, and the floor contact: the height of every node on the floor is imposed (y = 0,
@@ -81,24 +168,40 @@ class RetractionWorlds(TaskWorlds):
         if self._node_forces is not None:
             held = self.contact & (self._node_forces[..., 1] <= 0.0)
             self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
-        target = self._base_target.copy()
-        target[:, self.tool_nodes] = self.rest_positions[:, self.tool_nodes] + self.tool_offset[:, None, :]
+        # the grasped nodes follow the jaw's displacement from where it closed on them (``sim_core.solvers.grasp``)
+        fixed, target = self.grasper.control(self._base_fixed, self._base_target, self.held, self.grasp_anchors,
+                                             self.tool_offset)
         target[..., 1] = np.where(self.contact, 0.0, target[..., 1])
-        fixed = np.array(self._fixed)
         fixed[..., 1] |= self.contact
-        return fixed, target, self._tool_mask
+        return fixed, target, np.repeat(self.held[..., None], 3, axis=2)
 
     def _after_substep(self, positions, velocities, rows):
         # a free node that went below the floor is put back on it and joins the contact set
-        below = (positions[..., 1] < 0.0) & rows[:, None] & self._floor_candidates[None]
+        below = (positions[..., 1] < 0.0) & rows[:, None] & self._floor_nodes()
         positions[..., 1][below] = 0.0
         velocities[..., 1][below] = np.maximum(velocities[..., 1][below], 0.0)
         self.contact |= below
 
     def _measure(self, tool_mask):
+        """The measurements, and the grasp judged at them: held nodes slip out where the grasp force
+        passes ``grasp_force_limit`` (``Grasper.slip``), and the tool's force is the grasp's on the
+        nodes still held (within the limit)."""
         measures = super()._measure(tool_mask)
-        self._node_forces = measures["forces"]
+        forces = self._node_forces = measures["forces"]
+        self.held = self.grasper.slip(forces, self.held)
+        measures["reaction_force"] = self.grasper.force(forces, self.held)
         return measures
+
+    def _record(self, measures, rows, fresh):
+        # the share of the nodes the grasper closed on that slipped out of it in this step
+        count = self.held.sum(axis=1)
+        before = np.where(fresh, count, self.held_count)
+        measures["grasp_slipped"] = np.where(rows, (before - count) / np.maximum(self.grasp_size, 1), 0.0)
+        measures["grasped_nodes"] = count
+        self.held_count = np.where(rows, count, self.held_count)
+
+    def _grasped(self, measures):
+        return measures["grasped_nodes"][:, None] > 0
 
     @property
     def footprint_quads(self) -> np.ndarray:
@@ -122,11 +225,14 @@ class RetractionWorlds(TaskWorlds):
             target_range=(self.target_x - centre_x) / scale, exposed_fraction=measures["exposed_fraction"][:, None],
             tension=np.linalg.norm(measures["reaction_force"], axis=1)[:, None] / self._force_limits()[:, None],
             footprint_range=(measures["footprint"] - centre_x) / scale,
+            **(dict(grasp_chosen=self.grasp_chosen[:, None].astype(float)) if self._chosen_mode else {}),
         )
 
     def _task_info(self, measures):
         return dict(exposed_fraction=measures["exposed_fraction"].copy(),
-                    tension=np.linalg.norm(measures["reaction_force"], axis=1))
+                    tension=np.linalg.norm(measures["reaction_force"], axis=1),
+                    grasped_nodes=measures["grasped_nodes"].copy(), grasp_lost=measures["grasped_nodes"] == 0,
+                    grasp_slipped=measures["grasp_slipped"].copy(), grasp_point=self.jaw_rest.copy())
 
     def _force_limits(self):
         """(N,) each world's force limit, N (``scaled_force`` of ``force_limit``)."""
@@ -142,6 +248,7 @@ class RetractionWorlds(TaskWorlds):
             exposure=measures["exposed_fraction"] - 1.0,
             tension=-self.tension_weight * np.maximum(0.0, tension - self._force_limits()) / self._force_limits(),
             success=np.where(self._is_success(measures), self.success_bonus, 0.0),
+            grasp=0.0 - self.grasp_weight * measures["grasp_slipped"],  # 0.0, not -0.0, while the grasp holds
         )
         terms.update(self._damage_terms(measures))
         return terms
@@ -161,9 +268,16 @@ class RetractionEnv(TissueEnv):
     frictionless static equilibrium (``benchmarks/env_accuracy.py``; a post-step clamp alone
     settled up to 121% away in volume change). A
     target region on the floor, under the flap near its free end, must be exposed: the tool grasps
-    the free edge (every node of the face x = 6 cm, all components imposed), lifts it and pulls it
-    back, as a surgeon retracts a liver lobe or a peritoneal flap to expose what lies under it,
-    while keeping the tension (the force on the tool) under ``force_limit``.
+    the free edge (every node of the face x = 6 cm, all components imposed, ``sim_core.solvers.grasp``),
+    lifts it and pulls it back, as a surgeon retracts a liver lobe or a peritoneal flap to expose
+    what lies under it, while keeping the tension (the force on the tool) under ``force_limit``.
+
+    The grasp holds up to ``grasp_force_limit`` (default 5 N, what a laparoscopic grasper holds
+    bowel against without slipping: ``GRASP_SLIP_FORCE``). Where the force on the grasped nodes
+    passes it, they slip out of the jaws one after the other, the most loaded first, until the force
+    on those left is within the limit (``Grasper.slip``): the tool never reports more than the
+    limit while it holds, and the edge falls back where the grasp is lost. A lost grasp does not end
+    the episode (the tool moves on, holding nothing); it costs ``reward_grasp``.
 
     Physics: one implicit Euler step of ``dt`` = 20 ms per env step with the floor contact in it,
     then the projection of new contacts. Measured: no divergence in 100 random-action episodes (1
@@ -181,6 +295,13 @@ class RetractionEnv(TissueEnv):
     | 1   | tool increment along y     | -1  | 1   | max_step (m) |
     | 2   | tool increment along z     | -1  | 1   | max_step (m) |
 
+    With ``grasp_point="chosen"`` the grasper holds nothing at the start, and the first action picks
+    where it grasps (its jaws close there in that step, without moving): the top-face nodes within
+    ``jaw_radius`` (default 6 mm: on these 5 mm elements the 4 or 5 top nodes nearest the point, fewer
+    at the flap's border) of the point x = L (0.75 + 0.25 a0), z = W (1 + a2) / 2 on the top
+    face (a0 = -1: the middle of the flap, +1: its free edge; a2 across its width W; a1 is not read).
+    The following actions move the jaw as above, its workspace reaching back to the attached edge.
+
     ## Observation Space
 
     ``observation_type="state"``: ``Box(-100, 100, (17,), float32)``, the maximum spring
@@ -189,7 +310,7 @@ class RetractionEnv(TissueEnv):
 
     | Index | Observation                                         | Unit (normalised)     |
     |-------|-----------------------------------------------------|-----------------------|
-    | 0-2   | tool position (mean of the grasped nodes)           | cm from block centre  |
+    | 0-2   | tool position (the grasper's jaw)                   | cm from block centre  |
     | 3-5   | tool displacement from its start                    | cm                    |
     | 6-8   | force the tool exerts on the tissue                 | 0.1 N x E / 5 kPa      |
     | 9     | relative volume change (V - V0) / V0                | %                     |
@@ -198,6 +319,7 @@ class RetractionEnv(TissueEnv):
     | 13    | exposed fraction of the target                      | 0-1                   |
     | 14    | tension: magnitude of the tool force / force_limit  | 1                     |
     | 15-16 | flap footprint x range (min, max over its nodes)    | cm from block centre  |
+    | 17    | grasp chosen (``grasp_point="chosen"`` only)        | 0 or 1                |
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. There is no ``"goal"`` observation: the reward is the covering of
@@ -208,7 +330,7 @@ class RetractionEnv(TissueEnv):
 
     ## Rewards
 
-    ``r = reward_exposure + reward_tension + reward_success + reward_volume + reward_strain
+    ``r = reward_exposure + reward_tension + reward_success + reward_grasp + reward_volume + reward_strain
     (+ reward_instability)``:
 
     - ``reward_exposure = exposed fraction - 1`` of the target (points of a 4 x 3 grid on the target
@@ -219,6 +341,8 @@ class RetractionEnv(TissueEnv):
       0.5 N at E = 5 kPa; the limit scales with the episode's E, so the same strains are allowed at
       any stiffness)
     - ``reward_success = success_bonus`` (default 5) on success
+    - ``reward_grasp = -grasp_weight * (share of the edge's nodes that slipped out of the grasp in
+      the step)`` (default 5: losing the whole grasp costs what a success gains; 0 while it holds)
     - ``reward_volume``, ``reward_strain`` as in every task, ``reward_instability`` on divergence.
 
     ## Starting State
@@ -231,7 +355,20 @@ class RetractionEnv(TissueEnv):
 
     Terminated on success (exposed fraction >= ``success_exposure`` = 0.95 with |F| <=
     ``force_limit``; unless ``terminate_on_success=False``, the hard level's) or on divergence
-    (``info["unstable"]``). Truncated after 60 steps.
+    (``info["unstable"]``). Truncated after 60 steps. A lost grasp does not end it.
+
+    ## Info
+
+    Every step's and reset's ``info`` has the entries every task has (``relative_volume_change``,
+    ``unstable``, ``unstable_reason``, ``is_success``, ``out_of_range``, ``max_strain``, one
+    ``reward_<term>`` per reward term, the episode's material and ``size``), the tool's forces:
+    ``reaction_force`` ((3,) N, the force the grasper exerts on the tissue, the sum over the nodes it
+    holds) and ``tool_forces`` ((1, 3) float, N: the force the tissue exerts on the grasper, its
+    opposite; 0 once the grasp is lost), ``grasped`` ((1,) bool: the grasper holds at least one
+    node), and the task's own: ``exposed_fraction``, ``tension`` (N, the magnitude of the tool's
+    force), ``grasped_nodes`` (the nodes still held), ``grasp_slipped`` (the share of the nodes the
+    grasper closed on that slipped out in this step), ``grasp_lost`` (bool: none is held) and
+    ``grasp_point`` ((3,) m, the jaw's rest position: the free edge's middle, or the chosen point).
 
     ## Difficulty
 
@@ -257,7 +394,15 @@ class RetractionEnv(TissueEnv):
     step (``RetractionVectorEnv``, same keywords, spaces, rewards and infos; ``tissue_env.vector``).
 
     Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
-    ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``; shared keywords in
+    ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``, ``grasp_force_limit``
+    (N, not scaled by E, a property of the grasper: the pull it holds before the edge slips out node
+    by node, so a stiff flap pulled far loses it: at 1 MPa the scripted lift does, at 4.3-4.8 N; default
+    5 N, from Heijnsdijk et al., "Slip and damage properties of jaws of laparoscopic graspers", Surg
+    Endosc 18:974-979, 2004, whose graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
+    al., Surg Endosc 18:980-985, 2004: 3.0 N of pinch prevented slip at that pull; ``np.inf``: a grasp
+    that never slips), ``grasp_weight`` (the penalty of losing the whole grasp), ``grasp_point``
+    ("edge", the default: the whole free edge held from the start; "chosen": the first action picks
+    the grasp point, see the Action Space) and ``jaw_radius`` (m, the chosen grasp's reach); shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
     ``young_modulus_range``, ``poisson_ratio_range``, ``density_range`` (the material, in ``info``),
     ``size_range`` (the flap's extent, each axis in m: the flap scaled about its attached edge's
@@ -284,7 +429,7 @@ class RetractionEnv(TissueEnv):
     default_size = (0.06, 0.008, 0.03)
     default_max_step = 0.005
     min_shape = (2, 1, 1)
-    reward_names = ("exposure", "tension", "success", "volume", "strain")
+    reward_names = ("exposure", "tension", "success", "grasp", "volume", "strain")
     episode_keywords = ("target_start_range",)
     summary = "lift the free edge of a flap lying on a rigid floor to expose a target strip, under a tension limit"
     success_summary = "at least {success_exposure:%} exposed with tool force at most {force_limit:N}"
@@ -299,7 +444,8 @@ class RetractionEnv(TissueEnv):
     )
 
     def __init__(self, *, target_start_range=(0.03, 0.04), target_length=0.015, force_limit=None,
-                 tension_weight=1.0, success_exposure=None, success_bonus=5.0, difficulty="default", **kwargs):
+                 tension_weight=1.0, success_exposure=None, success_bonus=5.0, grasp_force_limit=GRASP_SLIP_FORCE,
+                 grasp_weight=5.0, grasp_point="edge", jaw_radius=0.006, difficulty="default", **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(force_limit=force_limit,
                                                                          success_exposure=success_exposure))
         force_limit, success_exposure = settings["force_limit"], settings["success_exposure"]
@@ -314,7 +460,23 @@ class RetractionEnv(TissueEnv):
         if self.success_exposure > 1:
             raise ValueError(f"success_exposure must lie in (0, 1], got {success_exposure!r}")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
+        self.grasp_force_limit = grasp_limit(grasp_force_limit)
+        self.grasp_weight = nonnegative_scalar("grasp_weight", grasp_weight)
+        if not isinstance(grasp_point, str) or grasp_point not in GRASP_POINTS:
+            raise ValueError(f"grasp_point must be one of {GRASP_POINTS}, got {grasp_point!r}")
+        self.grasp_point = grasp_point
+        self.jaw_radius = positive_scalar("jaw_radius", jaw_radius, "m")
         super().__init__(difficulty=difficulty, **kwargs)
+
+    @property
+    def grasp_radius(self) -> float:
+        """The reach of the grasper's jaws from the middle of the free edge, m: the edge face's
+        half-diagonal on the largest block the env may draw (``size_range``), with a margin; with
+        grasp_point="chosen", ``jaw_radius`` around the chosen point."""
+        if self.grasp_point == "chosen":
+            return self.jaw_radius
+        largest = np.max(np.vstack([self.size] + ([] if self.size_range is None else list(self.size_range))), axis=0)
+        return 0.51 * float(np.hypot(largest[1], largest[2]))
 
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):
@@ -323,7 +485,11 @@ class RetractionEnv(TissueEnv):
         self.tool_nodes = np.flatnonzero(np.isclose(nodes[:, 0], self.size[0]))
         #: nodes the floor may hold (neither attached nor grasped), and those it holds now
         self._floor_candidates = np.ones(self.mesh.n_nodes, bool)
-        self._floor_candidates[np.union1d(self.fixed_nodes, self.tool_nodes)] = False
+        # a chosen grasp holds nothing at the start: the free edge lies on the floor like the rest
+        self._floor_candidates[self.fixed_nodes if self.grasp_point == "chosen"
+                               else np.union1d(self.fixed_nodes, self.tool_nodes)] = False
+        #: the nodes a chosen grasp may close on: the top face's, but the attached ones
+        self.top_candidates = np.isclose(nodes[:, 1], self.size[1]) & self._floor_candidates
         self.contact = self._floor_candidates & np.isclose(nodes[:, 1], 0.0)
         self._place_scene(nodes)
         elements = self.mesh.elements
@@ -349,16 +515,26 @@ class RetractionEnv(TissueEnv):
         """The tool at rest and the floor contact: the height of every node on the floor is imposed
         (y = 0, frictionless: x and z stay free)."""
         control = super()._start_control()
+        if self.grasp_point == "chosen":  # nothing held before the first action picks the point
+            control.fixed[self.tool_nodes] = False
+            self.start_tool_mask[:] = False
         nodes = np.flatnonzero(self.contact)
         if len(nodes):
             control.impose(nodes, np.zeros((len(nodes), 3)), components=(1,))
         return control
 
     def _task_feature_sizes(self):
-        return dict(target_range=2, exposed_fraction=1, tension=1, footprint_range=2)
+        sizes = dict(target_range=2, exposed_fraction=1, tension=1, footprint_range=2)
+        if self.grasp_point == "chosen":
+            sizes["grasp_chosen"] = 1
+        return sizes
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
+        self.held = np.zeros(self.mesh.n_nodes, dtype=bool)  # the grasper closes on the whole free edge
+        self.grasp_chosen = self.grasp_point == "edge"
+        self.held[self.tool_nodes] = self.grasp_chosen  # a chosen grasp holds nothing until its first action
+        self.jaw_rest = self.tool_rest.mean(axis=0)
         self.contact = self._floor_candidates & np.isclose(self.mesh.nodes[:, 1], 0.0)  # flat on the floor
         start = float(self.np_random.uniform(*self.target_start_range))
         self.target_x = np.array([start, min(start + self.target_length, self.episode_size[0])])
@@ -389,15 +565,17 @@ class RetractionEnv(TissueEnv):
         """Lift and pull: raise the free edge to ``lift_height`` m, then bring it over the attached
         edge to (x, y) = ``hold`` m, keeping z."""
         self._require_reset("scripted_action()")
-        tool = self.tool_rest.mean(axis=0) + self.tool_offset
+        if not self.grasp_chosen:  # grasp the middle of the free edge
+            return np.array([1.0, 0.0, 0.0], np.float32)
+        tool = self.jaw_rest + self.tool_offset
         if tool[1] < lift_height - 1e-6 and tool[0] > hold[0] + 0.02:
             goal = np.array([tool[0], lift_height, tool[2]])
         else:
-            goal = np.array([hold[0], hold[1], self.tool_rest[:, 2].mean()])
+            goal = np.array([hold[0], hold[1], self.jaw_rest[2]])
         return np.clip((goal - tool) / self.max_step, -1.0, 1.0).astype(np.float32)
 
     def _markers(self):
-        return dict(tool=self.state.positions[self.tool_nodes].mean(axis=0),
+        return dict(tool=self.jaw_rest + self.tool_offset,
                     target=np.array([self.target_x.mean(), 0.0, 0.5 * self.episode_size[2]]))
 
     def _extra_drawing(self):

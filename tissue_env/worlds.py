@@ -238,6 +238,11 @@ class TaskWorlds:
     def _task_info(self, measures) -> dict:
         return {}
 
+    def _grasped(self, measures) -> np.ndarray:
+        """(N, T) bool: whether each world's T tools hold tissue (default: one tool, its patch held by
+        imposed displacements all episode)."""
+        return np.ones((self.num_envs, 1), dtype=bool)
+
     def _write_back_task(self, index: int, env):
         """Put world ``index``'s task state back into ``env`` (what its render and scripted
         controller read)."""
@@ -594,6 +599,10 @@ class TaskWorlds:
             out_of_range=np.array([reason is not None for reason in outside]),
             out_of_range_reason=outside,
             observation_clipped=self.clipped.copy(),
+            # (N, T, 3) N the force the tissue exerts on each tool: the opposite of the tool's on the
+            # tissue (0.0 - r, not -r: a tool that holds nothing reads 0.0, not -0.0)
+            tool_forces=0.0 - np.array(measures["reaction_force"], dtype=float)[:, None, :],
+            grasped=np.array(self._grasped(measures), dtype=bool),
         )
         for name in self.reward_names:
             info[f"reward_{name}"] = np.asarray(rewards[name], dtype=float)
