@@ -27,9 +27,10 @@ _DIGEST = "env_snapshot_digest"
 
 #: The solver attributes a snapshot does not hold: the stacked model, workspaces, kernel
 #: structures and scratch, caches by content, and what is derived from the per-world state
-#: (the kernels' factor lists and corrections, rebuilt by the solver's ``world_restored``).
+#: (the kernels' factor lists and corrections, rebuilt by the solver's ``world_restored``). The
+#: solvers of worlds of their own topology (``_own``: a cut world's) are held whole, their model with them.
 SOLVER_STRUCTURE = frozenset((
-    "stack", "monitors", "workspace", "_workspace", "_own", "_prepared", "factory", "_kept_starts", "_kept_first",
+    "stack", "monitors", "workspace", "_workspace", "_prepared", "factory", "_kept_starts", "_kept_first",
     "_first", "_mass", "_linearised", "_groups", "_packed", "_packed_groups", "_group_work", "_no_corrections",
     "_row_work", "_lu_int", "_lu_float", "_factor_of", "_no_correction", "_correction_of", "_corrections", "_imposed",
     "_patterns", "_structures", "_incidence", "_hg_positions", "_values", "symmetric"))
@@ -211,6 +212,7 @@ def restore(env, state: EpisodeState):
     if not world:
         return
     worlds.__dict__.update(world)
+    worlds.restored(0)
     integrator = worlds.integrator
     integrator.__dict__.update(solver)
     if monitors:
