@@ -102,6 +102,7 @@ class CuttingWorlds(TaskWorlds):
         count, env = self.num_envs, self.task
         #: (N, M, k) each world's elements (its nodes: a cut world's own numbering)
         self.elements = np.repeat(env.mesh.elements[None], count, axis=0)
+        self.n_elements_block = env.mesh.n_elements
         #: (N, rows) the block node each node row comes from (a parked row: the block's node count,
         #: a row past the block's arrays that ``node_rows`` fills)
         self.node_origin = np.tile(self._parked_origin(), (count, 1))
@@ -160,20 +161,26 @@ class CuttingWorlds(TaskWorlds):
         model = self.stack.given[index]
         positions = self.positions[index, :model.n_nodes]
         faces = blade_faces(model, positions, edge_from, edge_to)
+        if len(faces) and self.cuts[index]:  # a face cut before that copied no node is still shared: not again
+            done = np.concatenate(self.cuts[index])
+            size = self.n_elements_block
+            faces = faces[~np.isin(faces[:, 0] * size + faces[:, 1], done[:, 0] * size + done[:, 1])]
         if not len(faces):
             return
         centres = face_centres(model.mesh.elements, positions, faces)
+        every = np.concatenate(self.cuts[index] + [faces])  # the union: a crack one element wide copies no node
         try:
-            cut = cut_world(self.stack, State(self.positions, self.velocities), index, faces, self.integrator)
+            cut = cut_world(self.stack, State(self.positions, self.velocities), index, every, self.integrator,
+                            uncut=self.envs[index].model)
         except ValueError as error:
             if "spare_nodes" not in str(error):
                 raise
             self.cut_refused[index] = True  # out of node rows: the world stays as it was
             return
-        self.cut_models[index] = cut.model
-        self.elements[index] = cut.model.mesh.elements
-        rows = cut.model.n_nodes
-        self.node_origin[index, :rows] = self.node_origin[index, cut.origin]
+        if cut.model is not self.envs[index].model:
+            self.cut_models[index] = cut.model
+            self.elements[index] = cut.model.mesh.elements
+            self.node_origin[index, :cut.model.n_nodes] = cut.origin  # the uncut model's nodes are the block's
         self.cuts[index].append(faces)
         self.faces_cut[index] = len(faces)
         self.cut_faces[index] += len(faces)
