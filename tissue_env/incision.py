@@ -7,7 +7,7 @@ import numpy as np
 from sim_core import Material
 from sim_core.cutting import blade_faces
 
-from .base import TissueEnv, check_range, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
 from .blade import CuttingWorlds, corner_surface
 from .camera import ALBEDO, CameraView
 from .vector import TissueVectorEnv
@@ -234,6 +234,11 @@ class IncisionEnv(TissueEnv):
     Terminated on success (cut progress >= ``success_fraction`` = 0.9 with no vessel face cut) or on
     divergence (``info["unstable"]``). Truncated after 60 steps.
 
+    ## Difficulty
+
+    ``difficulty="easy" | "default" | "hard"`` sets ``success_fraction`` from ``IncisionEnv.DIFFICULTY``
+    (75%, 90%, the whole ideal incision; a keyword passed explicitly overrides its level's value).
+
     ## Arguments
 
     ```python
@@ -249,7 +254,7 @@ class IncisionEnv(TissueEnv):
     Task keywords: ``target_depth`` (m), ``line_start_range`` (m), ``line_z_range`` (m), ``line_length`` (m),
     ``tension`` (the sides' stretch, -), ``vessel_stiffness_ratio``, ``blade_length`` (m),
     ``progress_weight``, ``path_weight``, ``depth_weight``, ``damage_weight``, ``success_fraction``,
-    ``success_bonus``, ``spare_nodes`` (node rows per world for the cut's copies); shared keywords in
+    ``success_bonus``, ``difficulty``, ``spare_nodes`` (node rows per world for the cut's copies); shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
     ``young_modulus_range``, ``poisson_ratio_range``, ``density_range``; ``line_start_range`` and
     ``line_z_range`` place the line. The slab's size is fixed per env (no ``size_range``).
@@ -268,13 +273,22 @@ class IncisionEnv(TissueEnv):
     randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
                                  density="density_range")
     episode_keywords = ("line_start_range", "line_z_range")
+    #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them): the
+    #: share of the ideal incision's faces that counts as a success.
+    DIFFICULTY = dict(
+        easy=dict(success_fraction=0.75, terminate_on_success=True),
+        default=dict(success_fraction=0.9, terminate_on_success=True),
+        hard=dict(success_fraction=1.0, terminate_on_success=True),
+    )
     summary = "cut along a line marked on a stretched slab to a set depth without cutting the vessel layer below"
     success_summary = "{success_fraction:%} of the line cut to {target_depth:m} with no vessel face cut"
 
     def __init__(self, *, target_depth=0.01, line_start_range=(0.008, 0.015), line_z_range=(0.012, 0.018),
                  line_length=0.025, tension=0.05, vessel_stiffness_ratio=3.0, blade_length=0.03,
-                 progress_weight=10.0, path_weight=0.2, depth_weight=0.2, damage_weight=2.0, success_fraction=0.9,
+                 progress_weight=10.0, path_weight=0.2, depth_weight=0.2, damage_weight=2.0, success_fraction=None,
                  success_bonus=5.0, spare_nodes=None, difficulty="default", **kwargs):
+        success_fraction = difficulty_settings(self.DIFFICULTY, difficulty,
+                                               dict(success_fraction=success_fraction))["success_fraction"]
         self.target_depth = positive_scalar("target_depth", target_depth, "m")
         self.line_start_range = check_range("line_start_range", line_start_range,
                                             lambda name, value: nonnegative_scalar(name, value))
