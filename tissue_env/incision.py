@@ -160,7 +160,9 @@ class IncisionEnv(TissueEnv):
     half an element of the blade's path), adds no energy (each copy starts at its original's place
     and velocity), and the incision gapes under the tension. A blade plunged straight along its edge
     sweeps no surface and cuts nothing; it cuts when it moves sideways. The blade exerts no force on
-    the tissue (a sharp blade; cutting forces are not modelled).
+    the tissue (a sharp blade; cutting forces are not modelled). ``docs/figures/incision.png``
+    (``python -m benchmarks.incision_figure``) shows the slab after the scripted incision, its lips
+    apart, and the agent's rgb view.
 
     Physics: one implicit Euler step of ``dt`` = 20 ms per env step; a cut world is stepped on its
     own cut model. Each world has ``spare_nodes`` node rows for the copies (by default two
