@@ -16,7 +16,10 @@ from sim_core import cutting
 from sim_core.models.forces import internal_forces
 
 ENV_ID = "tissue_env/Incision-v0"
-ELEMENT = 0.005  # the default slab's element, m
+ELEMENT = 0.005  # the slabs' element, m
+#: A smaller slab of the same 5 mm elements (a cut rebuilds its model: cheaper tests)
+SMALL = dict(shape=(6, 3, 4), size=(0.03, 0.015, 0.02), line_start_range=(0.006, 0.008), line_length=0.015,
+             line_z_range=(0.008, 0.012))
 
 
 def scripted_steps(env, count):
@@ -31,23 +34,21 @@ def scripted_steps(env, count):
 
 
 def open_cut(seed=0, steps=17):
-    """An env whose scripted incision has cut a few columns (its world holds a cut model with copies)."""
-    env = gym.make(ENV_ID)
+    """A small slab whose scripted incision has cut a few columns (its world holds a cut model with copies)."""
+    env = gym.make(ENV_ID, **SMALL)
     env.reset(seed=seed)
     infos = scripted_steps(env, steps)
     assert not env.unwrapped.worlds.stack.shared[0], "the cut should have copied nodes by now"
     return env, infos
 
 
-def test_the_scripted_incision_succeeds_on_nine_of_ten_seeds_and_beats_random():
-    from tissue_env.episodes import random_policy, run_episode, scripted_policy
+def test_the_scripted_incision_succeeds_on_nine_of_ten_seeds():
+    from tissue_env.episodes import run_episode, scripted_policy
 
     env = gym.make(ENV_ID)
     scripted = [run_episode(env, scripted_policy, seed) for seed in range(10)]
     assert sum(info["is_success"] for _, _, info in scripted) >= 9
-    assert all(info["vessel_damage"] == 0 for _, _, info in scripted)
-    random = [run_episode(env, random_policy, seed) for seed in range(1)]
-    assert min(r for r, _, _ in scripted) > max(r for r, _, _ in random)
+    assert all(info["vessel_damage"] == 0 and info["cut_progress"] >= 0.9 for _, _, info in scripted)
 
 
 def test_the_cut_follows_the_blade_and_opens_under_tension():
@@ -105,7 +106,7 @@ def test_a_cut_adds_no_energy():
 def test_a_vector_copy_equals_the_single_env_through_cuts():
     """Copy 0 of a two-copy vector env, given the single env's scripted actions while copy 1 cuts
     elsewhere, takes the single env's steps (observations within 1e-9, the same rewards and cuts)."""
-    single = gym.make(ENV_ID)
+    single = gym.make(ENV_ID, **SMALL)
     single.reset(seed=5)
     actions, observations, rewards, faces = [], [], [], []
     for _ in range(22):
@@ -116,7 +117,7 @@ def test_a_vector_copy_equals_the_single_env_through_cuts():
         if terminated:
             break
     assert sum(faces) > 0
-    vector = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point")
+    vector = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", **SMALL)
     vector.reset(seed=[5, 9])
     other = np.array([0.6, -1.0, 0.3], np.float32)
     for step, action in enumerate(actions):
@@ -135,7 +136,7 @@ def test_reset_restores_the_uncut_tissue():
     worlds = env.unwrapped.worlds
     assert worlds.stack.shared[0] and worlds.stack.given[0] is env.unwrapped.model
     again = scripted_steps(env, 25)
-    fresh = gym.make(ENV_ID)
+    fresh = gym.make(ENV_ID, **SMALL)
     fresh.reset(seed=7)
     expected = scripted_steps(fresh, 25)
     assert_same_steps([tuple(info.values()) for info in expected], [tuple(info.values()) for info in again])
@@ -164,7 +165,7 @@ def test_snapshots_copies_and_pickles_hold_the_cut():
     env.set_state(snapshot)
     assert not env.worlds.stack.shared[0]
     assert_same_steps(expected, steps(env))
-    fresh = gym.make(ENV_ID).unwrapped
+    fresh = gym.make(ENV_ID, **SMALL).unwrapped
     fresh.set_state(pickle.loads(pickle.dumps(snapshot)))
     assert_same_steps(expected, steps(fresh))
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim_core import kernels
 from sim_core.cutting import blade_faces, cut_world, element_faces
 from sim_core.models.forces import internal_forces
 from sim_core.models.model import State
@@ -205,8 +206,8 @@ class CuttingWorlds(TaskWorlds):
                 measures["forces"][index] = 0.0
                 measures["forces"][index, :rows] = forces
                 measures["reaction_force"][index] = (forces * tool_mask[index, :rows]).sum(axis=0)
-                ends = positions[model.springs]
-                length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+                length = np.empty(len(model.springs))
+                kernels.spring_lengths(np.ascontiguousarray(positions), model.springs, length)
                 measures["max_strain"][index] = np.max(np.abs(length / model.rest_length - 1.0))
                 ratio = model.mesh.element_volumes(positions) / model.rest_volume
                 volume = float((ratio * model.rest_volume).sum())

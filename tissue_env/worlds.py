@@ -519,7 +519,9 @@ class TaskWorlds:
         with np.errstate(all="ignore"):
             flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
             flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
-            if self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
+            if not self.stack.shared.any():  # every world cut: each is measured on its own model (tissue_env.blade)
+                forces = np.zeros_like(flat)
+            elif self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
                 forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
                 self.integrator.workspace.add_damping(flat_velocities, forces)
             else:
