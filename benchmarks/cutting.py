@@ -24,6 +24,7 @@ import gymnasium as gym
 import numpy as np
 
 import tissue_env  # noqa: F401  (registers the envs)
+from benchmarks.memory_soak import rss_mb
 from training.common import write_json
 
 ENV_ID = "tissue_env/Incision-v0"
@@ -31,12 +32,8 @@ MEMORY_FIRST = 20
 
 
 def peak_rss_mb() -> float:
-    """This process's peak resident set size, MB (VmHWM of /proc/self/status)."""
-    with open("/proc/self/status") as status:
-        for line in status:
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
-    raise RuntimeError("no VmHWM in /proc/self/status")
+    """This process's peak resident set size, MB (VmHWM)."""
+    return rss_mb("VmHWM")
 
 
 def timed(env, action):
