@@ -175,3 +175,32 @@ def test_snapshots_copies_and_pickles_hold_the_cut():
 def test_bad_keywords_name_what_is_wrong(keyword, value):
     with pytest.raises(ValueError, match=keyword):
         gym.make(ENV_ID, **{keyword: value})
+
+
+def test_random_blades_give_finite_steps_and_refuse_cuts_beyond_the_spare_rows():
+    """300 random steps (a few cuts: the blade starts above the tissue) and 60 steps of a blade plunged
+    and then driven about at random on the small slab (it cuts most steps, until the copies fill the world's
+    spare node rows: the cuts beyond are refused, ``info["cut_refused"]``): every observation and
+    reward finite, no divergence."""
+    env = gym.make(ENV_ID)
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    for _ in range(300):
+        observation, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert np.all(np.isfinite(observation)) and np.isfinite(reward) and not info["unstable"]
+        if terminated or truncated:
+            env.reset()
+    env = gym.make(ENV_ID, spare_nodes=3, **SMALL)
+    env.reset(seed=1)
+    rng = np.random.default_rng(2)
+    cutting = refused = 0
+    for step in range(60):
+        action = np.array([0.0, -1.0, 0.0]) if step < 6 else rng.choice([-1.0, 1.0], 3) * [1.0, 0.0, 1.0]
+        observation, reward, terminated, truncated, info = env.step(action.astype(np.float32))
+        assert np.all(np.isfinite(observation)) and np.isfinite(reward) and not info["unstable"]
+        cutting += info["faces_cut"] > 0
+        refused += info["cut_refused"]
+        if terminated or truncated:
+            break
+    assert cutting >= 3 and refused >= 1
+    assert env.unwrapped.worlds.stack.given[0].n_nodes <= env.unwrapped.mesh.n_nodes + 3
