@@ -144,7 +144,8 @@ def test_reset_restores_the_uncut_tissue():
 
 
 def test_snapshots_copies_and_pickles_hold_the_cut():
-    """Taken with the world cut, a snapshot (restored on the env and on a fresh one, also pickled), a
+    """Taken with the world cut, a snapshot (under 2 MB pickled: it holds the faces cut and the cut
+    world's solver state, not its model; restored on the env and on a fresh one, also pickled), a
     deepcopy and a pickle of the env take the original's next steps bit for bit, cuts included."""
 
     def steps(env):
@@ -156,6 +157,7 @@ def test_snapshots_copies_and_pickles_hold_the_cut():
     env, _ = open_cut(seed=1, steps=16)
     env = env.unwrapped
     snapshot = env.get_state()
+    assert len(pickle.dumps(snapshot, protocol=pickle.HIGHEST_PROTOCOL)) < 2_000_000  # issue 43's floor
     duplicate, unpickled = copy.deepcopy(env), pickle.loads(pickle.dumps(env))
     expected = steps(env)
     assert sum(step[4]["faces_cut"] for step in expected) > 0

@@ -13,8 +13,9 @@ A cut world holds a model of its own topology in the ``ModelStack`` (its copied 
 node rows, ``TissueEnv.spare_nodes``) and is stepped on it; its measurements (spring strains,
 element volumes, nodal forces) are taken on its own model. A reset gives the world the uncut model
 back (``TaskWorlds.load``): nothing of the cut stays, and no process restart is needed. A snapshot
-(``get_state``) holds the cut model and the solver of the cut world (``tissue_env.snapshots``); a
-deepcopy or pickle of the env holds them as everything else.
+(``get_state``) holds the faces cut (the model is cut again along them at a restore: the same floats)
+and the cut world's solver state (``tissue_env.snapshots``); a deepcopy or pickle of the env holds
+everything as it is.
 
 ``info`` (per world): ``faces_cut`` (faces cut this step), ``cut_faces`` (all so far),
 ``cut_length`` (m, the blade tip's travel in the steps that cut), ``cut_deviation`` (m, the largest
@@ -29,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import kernels
-from sim_core.cutting import blade_faces, cut_world, element_faces
+from sim_core.cutting import blade_faces, cut_world, element_faces, separation
 from sim_core.models.forces import internal_forces
 from sim_core.models.model import State
 
@@ -109,8 +110,6 @@ class CuttingWorlds(TaskWorlds):
         self.node_origin = np.tile(self._parked_origin(), (count, 1))
         #: each world's cuts this episode: a list of (F, 2) element pairs per cutting step
         self.cuts = [[] for _ in range(count)]
-        #: each world's cut model (None: uncut), held here so that a snapshot holds it
-        self.cut_models = [None] * count
         self.faces_cut = np.zeros(count, dtype=int)
         self.cut_faces = np.zeros(count, dtype=int)
         self.cut_length = np.zeros(count)
@@ -138,15 +137,13 @@ class CuttingWorlds(TaskWorlds):
         self.elements[index] = env.model.mesh.elements
         self.node_origin[index] = self._parked_origin()
         self.cuts[index] = []
-        self.cut_models[index] = None
         self.faces_cut[index] = self.cut_faces[index] = 0
         self.cut_length[index] = self.cut_deviation[index] = 0.0
         self.cut_refused[index] = False
 
     def restored(self, index):
-        model = self.cut_models[index]
-        if model is not None:  # the snapshot's cut model (its solver came back with the solver's state)
-            self.stack.assign(index, model)
+        if self.cuts[index]:  # the snapshot's cut model: its uncut model cut along the same faces (the same floats)
+            self.stack.assign(index, separation(self.envs[index].model, np.concatenate(self.cuts[index])).model)
 
     # -- the cut -------------------------------------------------------------------------------------
     def _tool_moved(self, previous, active):
@@ -179,7 +176,6 @@ class CuttingWorlds(TaskWorlds):
             self.cut_refused[index] = True  # out of node rows: the world stays as it was
             return
         if cut.model is not self.envs[index].model:
-            self.cut_models[index] = cut.model
             self.elements[index] = cut.model.mesh.elements
             self.node_origin[index, :cut.model.n_nodes] = cut.origin  # the uncut model's nodes are the block's
         self.cuts[index].append(faces)
