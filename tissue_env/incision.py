@@ -147,7 +147,7 @@ class IncisionEnv(TissueEnv):
     A slab of skin-like tissue (5 x 2 x 3 cm, 10 x 4 x 6 hexahedra of 5 mm, Baudet's mass-spring
     model of ``sim_core`` with hourglass control and volume forces; gravity on) lies on the body,
     attached along its bottom face (y = 0), and is held stretched across the line by ``tension``
-    (default 5%: its faces z = 0 and z = 3 cm held that much apart, as skin is under tension). Its
+    (default 5%: its faces z = 0 and z = 3 cm held 5% further apart than at rest, as skin is under tension). Its
     bottom layer of elements (y < 5 mm) is a vessel / organ layer (``vessel_stiffness_ratio`` times
     stiffer) that must not be cut. A line is marked on the top surface along x; the agent moves a
     scalpel blade (a straight cutting edge ``blade_length`` long, vertical, its tip the tool) and must
