@@ -33,13 +33,13 @@ WARMUP_SHARE = 0.1
 BOUND = 0.15
 
 
-def rss_mb() -> float:
-    """This process's resident set size, MB (VmRSS of /proc/self/status)."""
+def rss_mb(field: str = "VmRSS") -> float:
+    """This process's resident set size, MB (``field`` of /proc/self/status: VmRSS now, VmHWM its peak)."""
     with open("/proc/self/status") as status:
         for line in status:
-            if line.startswith("VmRSS:"):
+            if line.startswith(field + ":"):
                 return int(line.split()[1]) / 1024.0
-    raise RuntimeError("no VmRSS in /proc/self/status")
+    raise RuntimeError(f"no {field} in /proc/self/status")
 
 
 def soak(env_id, steps, randomise, seed=0):

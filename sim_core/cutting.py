@@ -105,6 +105,8 @@ def separation(model: Model, faces) -> Separation:
     if not len(pairs):
         return Separation(model, np.arange(mesh.n_nodes, dtype=np.int64), pairs)
     elements, origin = _split_nodes(mesh, shared, shared[~np.isin(keys, wanted)])
+    if len(origin) == mesh.n_nodes:  # no node copied (a crack one element wide): the mesh born with it is this one
+        return Separation(model, origin, pairs)
     nodes = mesh.nodes[origin]
     cut_mesh = type(mesh)(nodes, elements, element_labels=mesh.element_labels)
     return Separation(_rebuild(model, cut_mesh), origin, pairs)
@@ -216,21 +218,37 @@ def _segments_cross_triangle(start, end, p0, p1, p2, tolerance=1e-12):
     return (inverse != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)
 
 
-def cut_world(stack, state: State, index: int, faces, solver=None) -> Separation:
+def carried_nodes(before: Model, after: Model) -> np.ndarray:
+    """(N',) the node of ``before`` each node of ``after`` comes from, for two models of one mesh's
+    elements (the same order) where ``after`` is cut further: a node of ``after`` sits at element
+    corners where ``before`` has the node it was copied from (cuts only split nodes)."""
+    carried = np.empty(after.n_nodes, dtype=np.int64)
+    carried[after.mesh.elements.ravel()] = before.mesh.elements.ravel()
+    return carried
+
+
+def cut_world(stack, state: State, index: int, faces, solver=None, uncut: Model | None = None) -> Separation:
     """Cut world ``index`` of a ``ModelStack`` along ``faces`` (``separation`` of the model it holds)
     in the middle of its episode: the cut model goes into the world (``ModelStack.assign``; a world
     holds at most ``stack.n_nodes`` node rows, so the stack needs ``spare_nodes`` for the copies),
     the world's rows of ``state`` (N, n, 3) are carried across in place (``Separation.state``: the
     cut moves nothing and adds no kinetic energy) and ``solver.model_changed(index)`` is called when
-    a solver is given. The other worlds are untouched. Returns the ``Separation``."""
+    a solver is given. The other worlds are untouched. Returns the ``Separation``.
+
+    ``uncut``: None, or the world's model before any cut, when ``faces`` are all the faces cut so far
+    (the world then holds ``separation(uncut, faces)``). Cutting in steps needs it: a face whose cut
+    copies no node yet (a crack one element wide) leaves the model as it was, and only the union of
+    the cuts separates the nodes that the cuts together split."""
     index = int(index)
-    cut = separation(stack.given[index], faces)
-    if cut.model is stack.given[index]:
+    current = stack.given[index]
+    cut = separation(current if uncut is None else uncut, faces)
+    if cut.model is current or (uncut is not None and cut.model is uncut and current is uncut):
         return cut
     count = cut.model.n_nodes
+    rows = cut.origin if uncut is None else carried_nodes(current, cut.model)
     stack.assign(index, cut.model)
     for array in (state.positions, state.velocities):
-        array[index, :count] = array[index, cut.origin]
+        array[index, :count] = array[index, rows]
     if solver is not None:
         solver.model_changed(index)
     return cut

@@ -229,3 +229,33 @@ def test_cut_world_cuts_one_world_mid_episode_without_adding_energy():
     with pytest.raises(ValueError, match="spare_nodes"):
         cutting.cut_world(sim_core.ModelStack(model, 1), sim_core.State(
             state.positions[:1, :mesh.n_nodes].copy(), state.velocities[:1, :mesh.n_nodes].copy()), 0, faces)
+
+
+def test_cuts_in_steps_keep_a_crack_that_copied_no_node():
+    """Three of the four faces around a node inside a 4x4x4 block (an L, the node on its front) copy no
+    node: ``separation`` gives the model itself. Cut the fourth in a second step:
+    ``cut_world(..., uncut=...)`` holds the uncut model cut along all four (the node copied), as one
+    separation of the union does, and carries the state through ``carried_nodes``; cutting the
+    current model with the fourth face alone would have copied nothing."""
+    mesh = HexMesh.block((4, 4, 4), 0.05)
+    model = build_model(mesh, MATERIAL, model="baudet-hyperelastic")
+    plane = faces_across(mesh, 0.1)
+    centre = mesh.nodes[mesh.elements].mean(axis=1)[plane[:, 0]]
+    around = plane[np.all((centre[:, 1:] > 0.05) & (centre[:, 1:] < 0.15), axis=1)]  # the 4 faces at node (0.1, 0.1, 0.1)
+    assert len(around) == 4
+    first, last = around[:3], around[3:]
+    assert cutting.separation(model, first).model is model
+    assert cutting.separation(model, last).model is model  # the current model, cut on its own: nothing
+    together = cutting.separation(model, around)
+    assert together.added == 1
+    stack = sim_core.ModelStack(model, 2, spare_nodes=1)
+    state = stack.new_state()
+    state.positions += np.random.default_rng(3).standard_normal(state.positions.shape) * 1e-3
+    before = state.positions[1, :model.n_nodes].copy()
+    cutting.cut_world(stack, state, 1, first, uncut=model)
+    assert stack.given[1] is model
+    cutting.cut_world(stack, state, 1, around, uncut=model)
+    cut = stack.given[1]
+    np.testing.assert_array_equal(cut.mesh.elements, together.model.mesh.elements)
+    np.testing.assert_array_equal(cutting.carried_nodes(model, cut), together.origin)
+    np.testing.assert_array_equal(state.positions[1, :cut.n_nodes], before[together.origin])

@@ -27,10 +27,18 @@ pytestmark = pytest.mark.skipif(not SAME_MACHINE, reason=(
     "needs the same CPU and library versions"))
 
 
+def _recorded(name):
+    """Skip a task whose fixtures were not recorded on the fixtures' machine yet (a task added on another
+    machine: ``python tests/fixtures/trajectories.py --task ID`` there adds it)."""
+    if f"{name}/vector/obs" not in FIXTURES.files:
+        pytest.skip(f"no fixtures recorded for {name} yet")
+
+
 @pytest.mark.parametrize("env_id", sorted(tissue_env.ENV_IDS))
 @pytest.mark.parametrize("seed", trajectories.SEEDS)
 def test_single_env_replays_its_fixture_bit_for_bit(env_id, seed):
     name = env_id.split("/")[1]
+    _recorded(name)
     obs, rewards, done = trajectories.single_run(env_id, seed)
     np.testing.assert_array_equal(obs, FIXTURES[f"{name}/single/{seed}/obs"])
     np.testing.assert_array_equal(rewards, FIXTURES[f"{name}/single/{seed}/reward"])
@@ -40,6 +48,7 @@ def test_single_env_replays_its_fixture_bit_for_bit(env_id, seed):
 @pytest.mark.parametrize("env_id", sorted(tissue_env.ENV_IDS))
 def test_vector_env_replays_its_fixture_bit_for_bit(env_id):
     name = env_id.split("/")[1]
+    _recorded(name)
     obs, rewards, done = trajectories.vector_run(env_id)
     np.testing.assert_array_equal(obs, FIXTURES[f"{name}/vector/obs"])
     np.testing.assert_array_equal(rewards, FIXTURES[f"{name}/vector/reward"])

@@ -95,7 +95,9 @@ def test_defaults_flag_exactly_the_steps_beyond_the_validated_strain_and_clip_no
                 assert info["out_of_range_reason"] is None
             if terminated or truncated:
                 break
-    assert 0 < flagged < steps  # random actions go beyond the validated strain, not always
+    assert flagged < steps
+    if len(env.unwrapped.tool_nodes):  # a tool that holds the tissue strains it beyond the range, not always
+        assert flagged > 0
     vector = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
     _, infos = vector.reset(seed=0)
     assert infos["out_of_range"].shape == (2,) and infos["observation_clipped"].dtype == bool

@@ -239,6 +239,9 @@ class TissueEnv(FrameRendering, gym.Env):
     default_model = "baudet"
     #: the tissue's elements: "hex" (hexahedra, every task), or "tet" where a task takes ``element``
     element = "hex"
+    #: node rows per world beyond the block's, for the nodes a cut adds (``ModelStack.spare_nodes``;
+    #: a cutting task sets it)
+    spare_nodes = 0
     #: Observation units: lengths in cm, forces in units of 0.1 N x E / 5 kPa (``worlds.REFERENCE_YOUNG_MODULUS``:
     #: the same strains read the same at any stiffness), strains and volume change in %.
     length_scale = 0.01

@@ -183,7 +183,7 @@ class FrameRendering:
             self._renderer = Renderer(self._surface_faces, self.mesh.size, self.centre,
                                       human=self.render_mode == "human", fps=self.metadata["render_fps"],
                                       scale=self.render_scale, key=self.render_key)
-        positions = self.state.positions
+        positions = self.state.positions[:self.episode_mesh.n_nodes]  # a cut's copied nodes follow (not drawn)
         displacement = np.linalg.norm(positions - self.episode_mesh.nodes, axis=1)
         frame = self._renderer.draw(positions, displacement, self._markers(), self._extra_drawing())
         return frame if self.render_mode == "rgb_array" else None

@@ -27,7 +27,9 @@ _DIGEST = "env_snapshot_digest"
 
 #: The solver attributes a snapshot does not hold: the stacked model, workspaces, kernel
 #: structures and scratch, caches by content, and what is derived from the per-world state
-#: (the kernels' factor lists and corrections, rebuilt by the solver's ``world_restored``).
+#: (the kernels' factor lists and corrections, rebuilt by the solver's ``world_restored``). The
+#: solver of a world of its own topology (a cut world: ``own_solver``) is held the same way, its
+#: episode attributes (its factors copied), and made again on the restored world's model.
 SOLVER_STRUCTURE = frozenset((
     "stack", "monitors", "workspace", "_workspace", "_own", "_prepared", "factory", "_kept_starts", "_kept_first",
     "_first", "_mass", "_linearised", "_groups", "_packed", "_packed_groups", "_group_work", "_no_corrections",
@@ -121,6 +123,21 @@ def _solver_factors(integrator) -> list:
     return [factor for name in FACTOR_LISTS for factor in getattr(integrator, name, ()) if factor is not None]
 
 
+def _episode_of(integrator):
+    """(the solver's episode attributes, its divergence monitors'): what a snapshot holds of it."""
+    solver = {name: value for name, value in vars(integrator).items() if name not in SOLVER_STRUCTURE}
+    monitors = {}
+    if hasattr(integrator, "monitors"):
+        monitors = {name: value for name, value in vars(integrator.monitors).items() if name not in MONITOR_STRUCTURE}
+    return solver, monitors
+
+
+def _restore_episode(integrator, solver, monitors):
+    integrator.__dict__.update(solver)
+    if monitors:
+        integrator.monitors.__dict__.update(monitors)
+
+
 def capture(env) -> EpisodeState:
     """The snapshot of ``env``'s episode (``TissueEnv.get_state``)."""
     worlds = env._worlds
@@ -138,7 +155,7 @@ def capture(env) -> EpisodeState:
                 memo[id(value)] = Ref(("model", key, name))
         memo[id(model)] = Ref(("model", key))
     attributes = {name: value for name, value in env.__dict__.items() if name not in shared and name != "_worlds"}
-    world, solver, monitors, factors = {}, {}, {}, []
+    world, solver, monitors, own, factors = {}, {}, {}, {}, []
     if worlds is not None:
         memo[id(worlds)] = Ref(("worlds",))
         for name in worlds.structure:
@@ -151,11 +168,10 @@ def capture(env) -> EpisodeState:
             if id(factor) not in memo:
                 memo[id(factor)] = Ref(("factor", len(factors)))
                 factors.append(factor)
-        solver = {name: value for name, value in vars(integrator).items() if name not in SOLVER_STRUCTURE}
-        if hasattr(integrator, "monitors"):
-            monitors = {name: value for name, value in vars(integrator.monitors).items()
-                        if name not in MONITOR_STRUCTURE}
-    payload = copy.deepcopy((attributes, world, solver, monitors), memo)
+        solver, monitors = _episode_of(integrator)
+        for index in getattr(integrator, "own_worlds", list)():
+            own[index] = _episode_of(integrator.own_solver(index))
+    payload = copy.deepcopy((attributes, world, solver, monitors, own), memo)
     model_key = env.model.derived.peek(MODEL_KEY)
     digests = {key: model_digest(models[key]) for key in
                {reference.path[1] for reference in memo.used if reference.path[0] == "model"} | {model_key}}
@@ -181,7 +197,7 @@ def restore(env, state: EpisodeState):
                              f"{type(env).__name__} builds for it (an env with other material keywords?); set_state "
                              "restores a snapshot on an env of the same task and keywords")
         models[key] = model
-    attributes, world, solver, monitors = state.payload
+    world = state.payload[1]
     if world and env._worlds is None:
         env._worlds = env.worlds_class([env], threads=1)
     worlds = env._worlds
@@ -206,15 +222,18 @@ def restore(env, state: EpisodeState):
         else:
             value = factors[path[0]]
         memo[id(reference)] = value
-    attributes, world, solver, monitors = copy.deepcopy(state.payload, memo)
+    attributes, world, solver, monitors, own = copy.deepcopy(state.payload, memo)
     env.__dict__.update(attributes)
     if not world:
         return
     worlds.__dict__.update(world)
+    worlds.restored(0)  # a cut world's model back (its own topology)
     integrator = worlds.integrator
-    integrator.__dict__.update(solver)
-    if monitors:
-        integrator.monitors.__dict__.update(monitors)
+    _restore_episode(integrator, solver, monitors)
+    for index, (own_solver, own_monitors) in own.items():  # a cut world's solver, made again on its model
+        one = integrator.own_solver(index)
+        _restore_episode(one, own_solver, own_monitors)
+        one.world_restored(0)
     if hasattr(integrator, "world_restored"):  # its derived state (the packed preconditioner), as at the snapshot
         integrator.world_restored(0)
 

@@ -147,7 +147,8 @@ class TaskWorlds:
         self.num_envs = count = len(self.envs)
         env = self.envs[0]
         self.task = env
-        self.stack = ModelStack(env.model, count)
+        # a task that changes topology (a cut) gives each world spare node rows for the nodes it adds
+        self.stack = ModelStack(env.model, count, spare_nodes=env.spare_nodes)
         self._forces = StackedForceWorkspace(self.stack, implicit=False, threads=self.threads)  # measurements
         solver = self.linear_solver if env.preconditioner == "auto" else env.preconditioner
         self.integrator = make_worlds_solver(env.integrator_name, self.stack, env.solver_tolerance, solver,
@@ -155,7 +156,9 @@ class TaskWorlds:
         self.static = env.integrator_name == "static"
         self.n_nodes = env.mesh.n_nodes
         self.rest_length = self.stack.model.rest_length.reshape(count, -1)
-        self.positions = np.tile(env.mesh.nodes, (count, 1, 1))
+        #: (N, rows, 3) the worlds' node positions, m: the block's nodes, then the spare rows
+        #: (``ModelStack.spare_nodes``: parked until a cut puts a copied node there)
+        self.positions = self.stack.new_state().positions
         self.velocities = np.zeros_like(self.positions)
         self._lengths = self.rest_length.copy()  # spring lengths (N, S) m of the current state
         self.tool_offset = np.zeros((count, 3))
@@ -206,6 +209,10 @@ class TaskWorlds:
         worlds ``rows`` (N,) bool only (None: all); the others keep theirs."""
         raise NotImplementedError
 
+    def _tool_moved(self, previous, active):
+        """The tool of the worlds ``active`` (N,) bool moved from the offsets ``previous`` (N, 3) m to
+        ``self.tool_offset``, before the physics: a blade cuts here (``tissue_env.blade``)."""
+
     def _after_substep(self, positions, velocities, rows):
         """Contact projection and the like on the worlds ``rows`` (N,) bool of the new state (in place)."""
 
@@ -248,6 +255,21 @@ class TaskWorlds:
         controller read)."""
 
     # -- loading episodes ----------------------------------------------------------------------------
+    def _rows(self, index: int, values, fill=None):
+        """World ``index``'s (rows, ...) array of the block's per-node ``values`` (n, ...): the values,
+        then its parked spare rows' (``fill``; None: their rest positions, m)."""
+        values = np.asarray(values)
+        if len(values) == self.stack.n_nodes:
+            return values
+        rows = np.empty((self.stack.n_nodes,) + values.shape[1:], dtype=values.dtype)
+        rows[len(values):] = self.stack.models[index].rest_positions[len(values):] if fill is None else fill
+        rows[:len(values)] = values
+        return rows
+
+    def restored(self, index: int):
+        """World ``index``'s episode attributes were put back from a snapshot (``tissue_env.snapshots``):
+        a task whose worlds change topology puts the world's model back here."""
+
     def load(self, index: int):
         """World ``index`` plays the episode its task env has just drawn (``TissueEnv._reset_episode``)."""
         env = self.envs[index]
@@ -255,19 +277,20 @@ class TaskWorlds:
         if not self.stack.shared[index]:  # the measurements read the stacked arrays of the block's topology
             raise ValueError(f"world {index}'s model does not have the task's block topology (a changed mesh); "
                              "the vector env steps worlds of the block's topology only")
-        self.positions[index] = env.state.positions
-        self.velocities[index] = env.state.velocities
-        kernels.spring_lengths(np.ascontiguousarray(env.state.positions, dtype=float), self.stack.reference.springs,
+        self.positions[index] = self._rows(index, env.state.positions)
+        self.velocities[index] = self._rows(index, env.state.velocities, 0.0)
+        kernels.spring_lengths(np.ascontiguousarray(self.positions[index], dtype=float), self.stack.reference.springs,
                                self._lengths[index])  # this world's springs only (the same floats per spring)
-        self.integrator.prepare(index, env.model, env.state.positions, env.dt, env.start_control.fixed)
         self.fixed, self.target = _writeable(self.fixed), _writeable(self.target)
-        self.fixed[index], self.target[index] = env.start_control.fixed, env.start_control.target
+        self.fixed[index] = self._rows(index, env.start_control.fixed, False)
+        self.target[index] = self._rows(index, env.start_control.target)
+        self.integrator.prepare(index, env.model, self.positions[index].copy(), env.dt, self.fixed[index].copy())
         self.tool_offset[index] = env.tool_offset
         self.workspace_low[index] = env.workspace_low
         self.workspace_high[index] = env.workspace_high
         self.rest_volume[index] = env.rest_volume
         self.block_size[index] = env.episode_size
-        self.rest_positions[index] = env.episode_mesh.nodes
+        self.rest_positions[index] = self._rows(index, env.episode_mesh.nodes)
         if self.parameters.shape[1]:
             self.parameters[index] = env.observed_parameters()
         self.episode_young_modulus[index] = env.episode_young_modulus
@@ -284,7 +307,7 @@ class TaskWorlds:
         rows = np.asarray(rows, dtype=bool)
         self.tool_mask = np.array(self.tool_mask)  # a copy: a task may hold the array its control returned
         for index in np.flatnonzero(rows):
-            self.tool_mask[index] = self.envs[index].start_tool_mask
+            self.tool_mask[index] = self._rows(index, self.envs[index].start_tool_mask, False)
         measures = self._measure(self.tool_mask)
         self._record(measures, rows, rows)
         success = self._is_success(measures)
@@ -304,11 +327,13 @@ class TaskWorlds:
         count = self.num_envs
         active = np.asarray(active, dtype=bool)
         clipped = np.clip(np.where(active[:, None], actions, 0.0), -1.0, 1.0)
+        previous = self.tool_offset
         self.tool_offset = np.where(
             active[:, None],
             self._constrain_tool(np.clip(self.tool_offset + self.max_step * clipped, self.workspace_low,
                                          self.workspace_high)),
             self.tool_offset)
+        self._tool_moved(previous, active)
         fixed, target, tool_mask = self._control()
         reasons, tool_mask, self.fixed, self.target = self._advance(fixed, target, tool_mask, active)
         self.tool_mask = tool_mask
@@ -499,7 +524,9 @@ class TaskWorlds:
         with np.errstate(all="ignore"):
             flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
             flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
-            if self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
+            if not self.stack.shared.any():  # every world cut: each is measured on its own model (tissue_env.blade)
+                forces = np.zeros_like(flat)
+            elif self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
                 forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
                 self.integrator.workspace.add_damping(flat_velocities, forces)
             else:
@@ -622,10 +649,11 @@ class TaskWorlds:
         """Put world ``index``'s state, tool, last measurements and task state into its task env
         (what its ``render``, ``scripted_action`` and ``get_state`` read)."""
         env = self.envs[index]
-        env.state = State(self.positions[index].copy(), self.velocities[index].copy())
+        rows = self.stack.given[index].n_nodes  # the world's model's nodes (a cut adds some), not its parked rows
+        env.state = State(self.positions[index, :rows].copy(), self.velocities[index, :rows].copy())
         env.tool_offset = self.tool_offset[index].copy()
         env.elapsed_steps = int(self.elapsed[index])
-        env.control = Control(self.fixed[index].copy(), self.target[index].copy(), np.zeros((self.n_nodes, 3)))
+        env.control = Control(self.fixed[index, :rows].copy(), self.target[index, :rows].copy(), np.zeros((rows, 3)))
         measures = self.measures
         if measures is not None:
             env.measures = {name: (value[index] if isinstance(value, np.ndarray) else value)

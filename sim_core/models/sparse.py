@@ -43,7 +43,10 @@ class BlockPattern:
         )
         own = np.repeat(np.arange(n_nodes), 2).reshape(-1, 2)
         extra = np.zeros((0, 2), dtype=pairs.dtype) if extra_pairs is None else np.asarray(extra_pairs, pairs.dtype)
-        pairs = np.unique(np.concatenate([pairs, own, extra]), axis=0)
+        # unique on one int64 key per pair (row-major, the order of unique(axis=0)): several times
+        # faster than unique over rows, which sorts structured views
+        keys = np.unique(np.concatenate([pairs, own, extra]).astype(np.int64) @ np.array([n_nodes, 1], np.int64))
+        pairs = np.stack([keys // n_nodes, keys % n_nodes], axis=1)
         rows = (3 * pairs[:, 0, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
         cols = (3 * pairs[:, 1, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
         matrix = sp.csr_matrix(

@@ -349,13 +349,27 @@ class WorldsSolver(OneWorldSolver):
         padded = self.stack.models[index]
         self._prepared[index] = padded
         if not self.stack.shared[index]:
-            own = self._own.get(index)
-            if own is None or own.stack.models[0] is not padded:
-                own = self._own[index] = type(self)(ModelStack(padded, 1), **self._single_options())
-            own.prepare(0, padded, positions, dt, fixed)
+            self.own_solver(index).prepare(0, padded, positions, dt, fixed)
             return
         self._own.pop(index, None)
         self._prepare_shared(index, padded, positions, dt, fixed)
+
+    def own_solver(self, index: int):
+        """The one-world solver of world ``index`` when it holds a model of its own topology
+        (``ModelStack.shared`` False: a cut world), made for that model if it has none yet (what
+        ``prepare`` makes and steps); None for a world of the stack's block."""
+        index = int(index)
+        if self.stack.shared[index]:
+            return None
+        padded = self.stack.models[index]
+        own = self._own.get(index)
+        if own is None or own.stack.models[0] is not padded:
+            own = self._own[index] = type(self)(ModelStack(padded, 1), **self._single_options())
+        return own
+
+    def own_worlds(self) -> list:
+        """The worlds stepped on a model of their own topology now (a snapshot holds their solvers' state)."""
+        return [index for index in self._own if not self.stack.shared[index]]
 
     def _prepare_shared(self, index, model, positions, dt, fixed):
         self.monitors.assign(index, model)

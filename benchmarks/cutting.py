@@ -1,0 +1,117 @@
+"""The cost of cutting in the environments (issue 44's floors) and the memory of many cut episodes.
+
+Usage: python -m benchmarks.cutting [--episodes 220] [--repeats 3] [--output benchmarks/results/cutting.json]
+
+On Incision-v0 (single env, default keywords, one thread):
+
+- an env step before any cut: the median CPU time of steps with the blade held above the tissue;
+- a step that cuts: the median of the scripted incision's cutting steps (each separates the faces the
+  blade crossed and rebuilds the world's model, ``sim_core.cutting.cut_world``), in env steps;
+- a step after a cut: the median of steps with the blade held still in a world that holds a cut
+  model with copied nodes (stepped on its own model), against the steps before;
+- memory: the scripted incision (every episode cuts, copies nodes and resets) ``--episodes``
+  times in one process; the peak resident set size (VmHWM of /proc/self/status) after 20 episodes
+  and at the end, and their ratio (the floor: less than 10% growth from 20 to 220 episodes).
+
+Each timing is the median over ``--repeats`` episodes' steps. Results to ``--output`` (JSON).
+"""
+
+import argparse
+import platform
+import time
+
+import gymnasium as gym
+import numpy as np
+
+import tissue_env  # noqa: F401  (registers the envs)
+from benchmarks.memory_soak import rss_mb
+from training.common import write_json
+
+ENV_ID = "tissue_env/Incision-v0"
+MEMORY_FIRST = 20
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident set size, MB (VmHWM)."""
+    return rss_mb("VmHWM")
+
+
+def timed(env, action):
+    """(CPU seconds of the step, its result): the process's CPU time, not the wall clock, so that other
+    processes on a shared machine do not count (the single env steps on one thread)."""
+    start = time.process_time()
+    result = env.step(action)
+    return time.process_time() - start, result
+
+
+def episode_times(env, seed, held=10):
+    """(before, cutting, after) lists of step wall times, s, of one scripted incision."""
+    env.reset(seed=seed)
+    still = np.zeros(3, np.float32)
+    before = [timed(env, still)[0] for _ in range(held)]  # the blade 5 mm above the tissue: no cut
+    cutting = []
+    for _ in range(60):
+        seconds, (_, _, terminated, truncated, info) = timed(env, env.unwrapped.scripted_action())
+        if info["faces_cut"]:
+            cutting.append(seconds)
+        if terminated or truncated:
+            break
+    if env.unwrapped.worlds.stack.shared[0]:
+        raise RuntimeError("the scripted incision left no cut world with copied nodes")
+    after = [timed(env, still)[0] for _ in range(held)]
+    return before, cutting, after
+
+
+def memory(env, episodes):
+    """(peak RSS after MEMORY_FIRST episodes, peak RSS at the end, MB; successes)."""
+    first, successes = None, 0
+    for episode in range(episodes):
+        env.reset(seed=episode)
+        for _ in range(60):
+            _, _, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
+            if terminated or truncated:
+                break
+        successes += bool(info["is_success"])
+        if episode + 1 == MEMORY_FIRST:
+            first = peak_rss_mb()
+    return first, peak_rss_mb(), successes
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=220)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--output", default="benchmarks/results/cutting.json")
+    args = parser.parse_args(argv)
+    if args.episodes <= MEMORY_FIRST or args.repeats < 1:
+        parser.error(f"--episodes must be > {MEMORY_FIRST} and --repeats >= 1")
+    env = gym.make(ENV_ID)
+    episode_times(env, 0)  # warm: kernels loaded, the start state solved
+    before, cutting, after = [], [], []
+    for seed in range(1, args.repeats + 1):
+        b, c, a = episode_times(env, seed)
+        before += b
+        cutting += c
+        after += a
+    step, cut, later = (float(np.median(values)) for values in (before, cutting, after))
+    start = time.perf_counter()
+    first, last, successes = memory(gym.make(ENV_ID), args.episodes)
+    result = dict(
+        env_id=ENV_ID, machine=platform.processor() or platform.machine(),
+        step_s=step, cutting_step_s=cut, step_after_cut_s=later,
+        cutting_step_in_env_steps=cut / step, step_after_cut_ratio=later / step,
+        steps_timed=dict(before=len(before), cutting=len(cutting), after=len(after)),
+        memory=dict(episodes=args.episodes, peak_rss_mb_after_20=first, peak_rss_mb_at_end=last,
+                    growth=last / first - 1.0, scripted_successes=successes,
+                    wall_time_s=time.perf_counter() - start),
+        floors=dict(cutting_step_in_env_steps=5.0, step_after_cut_ratio=1.2, memory_growth=0.10),
+    )
+    write_json(args.output, result)
+    print(f"env step {step * 1e3:.2f} ms; cutting step {cut * 1e3:.1f} ms = {cut / step:.1f} env steps; "
+          f"after a cut {later * 1e3:.2f} ms = {later / step:.2f}x; peak RSS {first:.0f} MB after "
+          f"{MEMORY_FIRST} episodes, {last:.0f} MB after {args.episodes} ({100 * (last / first - 1):+.1f}%)")
+    return result
+
+
+if __name__ == "__main__":
+    main()
