@@ -46,6 +46,8 @@ FEATURE_LIMITS = {"max_strain": 1000.0}
 #: forces are observed, and its force limits applied, in units scaled by E / REFERENCE_YOUNG_MODULUS,
 #: so the same strains read the same from a 1 kPa to a 1 MPa tissue (the default young_modulus).
 REFERENCE_YOUNG_MODULUS = 5.0e3
+#: The divergence reason of a world whose positions are finite and whose forces are not
+NON_FINITE_FORCES = "non-finite forces (an element turned inside out)"
 
 
 def feature_limit(name: str) -> float:
@@ -339,6 +341,7 @@ class TaskWorlds:
         self.tool_mask = tool_mask
         self.elapsed[active] += 1
         measures = self._measure(tool_mask)
+        self._unmeasurable(measures, reasons, active)
         self._record(measures, active, np.zeros(count, dtype=bool))
         unstable = np.array([reason is not None for reason in reasons])
         rewards, total = self._combine_rewards(self._reward_terms(measures), unstable)
@@ -346,6 +349,17 @@ class TaskWorlds:
         terminated = unstable | (success & self.terminate_on_success)
         self.measures = measures
         return self._observation(measures), total, terminated, self._info(measures, rewards, reasons, success)
+
+    @staticmethod
+    def _unmeasurable(measures, reasons, rows):
+        """Give ``reasons`` (N,) object (None: healthy) a reason where a world of ``rows`` (N,) bool has
+        finite positions but non-finite nodal forces: an element turned inside out between two of the
+        monitor's inversion checks (which run every few steps) has no energy, and its forces and the
+        rewards read from them are NaN. Such a step diverges: terminated with the penalty alone."""
+        bad = np.asarray(rows, dtype=bool) & ~np.all(np.isfinite(measures["forces"]), axis=(1, 2))
+        for index in np.flatnonzero(bad):
+            if reasons[index] is None:
+                reasons[index] = NON_FINITE_FORCES
 
     def _combine_rewards(self, terms, unstable):
         """(rewards: name -> (N,) each reward term, total (N,)) of the task's reward ``terms`` and
