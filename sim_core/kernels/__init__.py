@@ -68,7 +68,7 @@ from .threads import (  # noqa: F401
     variant,
 )
 from .measure import (  # noqa: F401
-    any_inverted, element_volumes, element_volumes_copies, health, health_copies, health_copies_serial,
+    any_collapsed, any_inverted, element_volumes, element_volumes_copies, health, health_copies, health_copies_serial,
     hex_volume, masked_reaction, spring_lengths, spring_lengths_copies, strain_extremes,
     strain_extremes_serial,
 )

@@ -124,6 +124,32 @@ def any_inverted(positions, elements, neighbours, signs):
     return False
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def any_collapsed(positions, elements, gradients):
+    """True when any element's mean deformation gradient F = sum_a x_a (outer) b_a (``gradients``
+    (M, n, 3) the b_a in 1/m) has det F <= 0: the inversion test of a model whose elements' energy
+    is a function of that F (``models.elements.inversion_gradients``)."""
+    for m in range(elements.shape[0]):
+        f00 = f01 = f02 = f10 = f11 = f12 = f20 = f21 = f22 = 0.0
+        for a in range(elements.shape[1]):
+            node = elements[m, a]
+            x, y, z = positions[node, 0], positions[node, 1], positions[node, 2]
+            b0, b1, b2 = gradients[m, a, 0], gradients[m, a, 1], gradients[m, a, 2]
+            f00 += x * b0
+            f01 += x * b1
+            f02 += x * b2
+            f10 += y * b0
+            f11 += y * b1
+            f12 += y * b2
+            f20 += z * b0
+            f21 += z * b1
+            f22 += z * b2
+        det = f00 * (f11 * f22 - f12 * f21) - f01 * (f10 * f22 - f12 * f20) + f02 * (f10 * f21 - f11 * f20)
+        if not det > 0.0:
+            return True
+    return False
+
+
 @njit(cache=True, error_model="numpy", parallel=True)
 def spring_lengths_copies(count, positions, springs, length):
     """``spring_lengths`` of a stacked model of ``count`` copies (copies first: copy c's springs are
@@ -190,7 +216,7 @@ def masked_reaction(forces, mask, out):
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
-                 has_previous, growing, due, neighbours, signs, elements, status, speed, c):
+                 has_previous, growing, due, neighbours, signs, elements, gradients, mean_test, status, speed, c):
     status[c] = 0
     if not rows[c]:
         return
@@ -225,30 +251,37 @@ def _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed,
             previous[c, node, k] = velocities[c, node, k]
     if growing[c] >= oscillation_steps[c]:
         status[c] = 5
+    elif due[c] and mean_test[c]:
+        if any_collapsed(positions[c], elements, gradients[c]):
+            status[c] = 6
     elif due[c] and any_inverted(positions[c], elements, neighbours, signs):
         status[c] = 4
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
 def health_copies(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
-                  has_previous, growing, due, neighbours, signs, elements, status, speed):
+                  has_previous, growing, due, neighbours, signs, elements, gradients, mean_test, status, speed):
     """``solver.DivergenceMonitors.check``'s tests for the copies ``rows`` (N,) bool of positions
     and velocities (N, n, 3), in this order: status[c] = 1 non-finite, 2 a node faster than
     ``max_speed[c]`` m/s (speed[c] its speed), 3 a node outside [low[c], high[c]] (N, 3) m; else the
     oscillation test against ``previous[c]`` (the copy's last checked velocities, where
     ``has_previous[c]``; then set to these): ``growing[c]`` counts the consecutive checks whose
     velocity field reverses (cosine below -0.5) and grows with v.v > n ``floor_speed[c]``^2, and
-    reaching ``oscillation_steps[c]`` gives 5; else, where ``due[c]``, 4 for an inverted element
+    reaching ``oscillation_steps[c]`` gives 5; else, where ``due[c]``, the inversion test: where
+    ``mean_test[c]``, 6 for an element whose mean deformation gradient has det <= 0 (``any_collapsed``
+    with the copy's ``gradients[c]`` (M, n, 3) 1/m), elsewhere 4 for an inverted corner
     (``any_inverted`` on ``elements``); 0 healthy."""
     for c in prange(positions.shape[0]):
         _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
-                     has_previous, growing, due, neighbours, signs, elements, status, speed, np.int64(c))
+                     has_previous, growing, due, neighbours, signs, elements, gradients, mean_test, status, speed,
+                     np.int64(c))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def health_copies_serial(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
-                         has_previous, growing, due, neighbours, signs, elements, status, speed):
+                         has_previous, growing, due, neighbours, signs, elements, gradients, mean_test, status,
+                         speed):
     """``health_copies`` in this thread only."""
     for c in range(positions.shape[0]):
         _health_copy(positions, velocities, rows, low, high, max_speed, floor_speed, oscillation_steps, previous,
-                     has_previous, growing, due, neighbours, signs, elements, status, speed, c)
+                     has_previous, growing, due, neighbours, signs, elements, gradients, mean_test, status, speed, c)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import kernels
 from ..geometry.mesh import CORNER_NEIGHBOURS, CORNER_SIGN, GAUSS_GRADIENTS
 
 #: the element kinds by nodes per element
@@ -35,6 +36,35 @@ def corner_frames(elements):
     from ..geometry.tetmesh import TET_CORNER_NEIGHBOURS, TET_CORNER_SIGN
 
     return TET_CORNER_NEIGHBOURS, TET_CORNER_SIGN
+
+
+def inversion_gradients(model) -> np.ndarray | None:
+    """The mean shape-function gradients b_a (M, 8, 3) 1/m on which a model's inversion test is taken,
+    or None for the corner test (``corner_frames``).
+
+    A hexahedral model whose elements' energy is a function of their mean deformation gradient
+    F = sum_a x_a (outer) b_a and of spring lengths ("baudet-hyperelastic", docs/physics.md section
+    11) is defined while det F > 0: that is its test (``kernels.any_collapsed``). Its springs let a
+    strongly compressed element fold a corner while its mean volume stays positive, and the
+    equilibrium it reaches is the right one (a cantilever hanging 1.14 m under its own weight lands
+    within 0.3% of converged neo-Hookean FEM with one corner folded), so the corner test would
+    reject a valid state. Every other model, and every tetrahedron (whose one frame is its F), keeps
+    the corner test: the small-strain corrections of "baudet" assume unfolded elements."""
+    correction = model.stress_correction
+    if (correction is None or correction.law != "neo-hookean" or model.mesh.elements.shape[1] != 8
+            or len(correction.mean_gradient) != len(model.mesh.elements)):
+        return None
+    return correction.mean_gradient
+
+
+def inverted(model, positions) -> bool:
+    """Whether ``positions`` (N, 3) m invert an element of ``model`` by its inversion test
+    (``inversion_gradients``)."""
+    elements = model.mesh.elements
+    gradients = inversion_gradients(model)
+    if gradients is None:
+        return bool(kernels.any_inverted(positions, elements, *corner_frames(elements)))
+    return bool(kernels.any_collapsed(positions, elements, np.ascontiguousarray(gradients)))
 
 
 def quadrature(nodes: np.ndarray, elements: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import kernels
-from ..models.elements import corner_frames
+from ..models.elements import corner_frames, inversion_gradients
 from ..models.model import Control, Model, State
 from ..models.stack import ModelStack
 
@@ -126,6 +126,7 @@ def impose_control(control: Control, state_in: State, positions: np.ndarray, vel
 
 _LEFT_REGION = "a node left the region of 10 block sizes around the rest mesh"
 _INVERTED = "inverted element (non-positive corner Jacobian)"
+_COLLAPSED = "inverted element (non-positive determinant of its mean deformation gradient)"
 
 
 def _too_fast(speed: float, max_speed: float) -> str:
@@ -143,7 +144,8 @@ class DivergenceMonitor:
     non-finite positions or velocities; a node faster than ``speed_factor`` times the fastest
     elastic wave speed sqrt(E / rho) (no tissue motion a tool imposes comes near it); a node
     farther than ``extent_factor`` block sizes from the rest mesh; an inverted element (a corner
-    Jacobian <= 0); a growing step-to-step oscillation: the velocity field reverses (cosine with
+    Jacobian <= 0, or for a model whose elements' energy is a function of their mean deformation
+    gradient, that gradient's determinant <= 0: ``models.elements.inversion_gradients``); a growing step-to-step oscillation: the velocity field reverses (cosine with
     the previous step's below -0.5) and grows, for ``oscillation_steps`` consecutive checks, with
     an RMS node speed above ``oscillation_floor`` times the wave speed. That is the signature of
     a time step beyond the explicit stability limit (the highest mode flips sign every step); it
@@ -188,6 +190,10 @@ class DivergenceMonitors:
         self.threads = int(threads)
         self.elements = np.ascontiguousarray(elements, dtype=np.int64)
         self.frames = corner_frames(self.elements)  # the inversion check's corner frames
+        #: per copy, whether its inversion test is on the mean deformation gradients ``gradients[c]``
+        #: (M, n, 3) 1/m rather than the corners (an (N, 0, n, 3) array while no copy needs them)
+        self.mean_test = np.zeros(count, dtype=bool)
+        self.gradients = np.zeros((count, 0) + self.elements.shape[1:] + (3,))
         self.max_speed = np.zeros(count)
         #: an oscillation counts above this RMS node speed, m/s (oscillation_floor x the wave speed)
         self.floor_speed = np.zeros(count)
@@ -215,6 +221,12 @@ class DivergenceMonitors:
         self.low[index] = rest.min(axis=0) - extent_factor * size
         self.high[index] = rest.max(axis=0) + extent_factor * size
         self.inversion_every[index] = max(int(inversion_every), 1)
+        gradients = inversion_gradients(model)
+        self.mean_test[index] = gradients is not None
+        if gradients is not None:
+            if self.gradients.shape[1] != len(self.elements):
+                self.gradients = np.zeros((self.count,) + self.elements.shape + (3,))
+            self.gradients[index] = gradients
         self.oscillation_steps[index] = int(oscillation_steps)
         self.checks[index] = self.growing[index] = 0
         self.has_previous[index] = False
@@ -237,7 +249,7 @@ class DivergenceMonitors:
         kernel = kernels.variant(kernels.health_copies, self.threads)
         kernel(positions, velocities, rows, self.low, self.high, self.max_speed, self.floor_speed,
                self.oscillation_steps, self.previous, self.has_previous, self.growing, due, *self.frames,
-               self.elements, status, speed)
+               self.elements, self.gradients, self.mean_test, status, speed)
         reasons = np.full(self.count, None, dtype=object)
         for index in np.flatnonzero(status):
             kind = status[index]
@@ -245,6 +257,7 @@ class DivergenceMonitors:
                               else _too_fast(speed[index], self.max_speed[index]) if kind == 2
                               else _LEFT_REGION if kind == 3
                               else _INVERTED if kind == 4
+                              else _COLLAPSED if kind == 6
                               else _oscillation(self.oscillation_steps[index]))
         return reasons
 

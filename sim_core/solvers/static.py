@@ -25,7 +25,7 @@ from ..caches import BudgetCache
 from ..models.forces import ForceWorkspace, external_forces, internal_forces, stiffness_data
 from .preconditioners import free_structure, pattern_arrays
 from .solver import DivergenceMonitor, OneWorldSolver, StepReport, check_dt
-from ..models.elements import corner_frames
+from ..models.elements import inverted
 from .._validate import count_not_finite, integer_at_least, positive_scalar, real_scalar
 from ..models.model import Control, Model, State
 
@@ -660,8 +660,7 @@ def _predict(model, positions, free, fixed, target, applied, cache=None, solver=
     force = _residual(model, positions, applied).ravel()
     predicted = trial.copy()
     predicted.ravel()[free] += factor.solve(force[free] - stiffness[free] @ delta)
-    if np.all(np.isfinite(predicted)) and not kernels.any_inverted(predicted, model.mesh.elements,
-                                                                   *corner_frames(model.mesh.elements)):
+    if np.all(np.isfinite(predicted)) and not inverted(model, predicted):
         return predicted, factor
     return trial, None
 
@@ -742,8 +741,7 @@ def _line_search(model, positions, free, applied, step, norm):
     for _ in range(12):
         trial = positions.copy()
         trial.ravel()[free] += scale * step
-        if np.all(np.isfinite(trial)) and not kernels.any_inverted(trial, model.mesh.elements,
-                                                                   *corner_frames(model.mesh.elements)):
+        if np.all(np.isfinite(trial)) and not inverted(model, trial):
             trial_force = _residual(model, trial, applied)
             trial_norm = np.linalg.norm(trial_force.ravel()[free])
             if trial_norm < (1.0 - 1e-4 * scale) * norm or trial_norm == 0:
