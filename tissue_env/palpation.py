@@ -298,8 +298,8 @@ class PalpationEnv(TissueEnv):
     """
     ## Description
 
-    A slab of liver-like tissue (6 x 3 x 6 cm, 10 x 5 x 10 hexahedra of 6 mm, Baudet mass-spring
-    model of ``sim_core``, gravity on) is attached to the body by its bottom face. A tumour, a box
+    A slab of liver-like tissue (6 x 3 x 6 cm, 10 x 5 x 10 hexahedra of 6 mm, the hyperelastic
+    mass-spring model of ``sim_core``, ``model="baudet-hyperelastic"``, gravity on) is attached to the body by its bottom face. A tumour, a box
     of ``inclusion_size`` (default 1.2 x 1 x 1.2 cm) centred 1.5 cm under the surface, is
     ``inclusion_ratio`` (default 10) times stiffer than the tissue: each element's Young's modulus
     is E (1 + (ratio - 1) f), f the share of its volume inside the box (the inclusion's stiff volume
@@ -465,9 +465,9 @@ class PalpationEnv(TissueEnv):
     ``tissue_env.base.TissueEnv``): the candidate cells are the ``size`` slab's lattice scaled with
     the drawn slab (cells of ``cell_size`` x drawn / ``size``: the palpation map keeps its C cells),
     the inclusion box, probe, depths and radii keep their sizes in m, and the probe's surface
-    projection is the drawn slab's. With the default ``baudet`` model the elements must stay
-    near-cubic (a ValueError at construction names the range's corner that is not): draw the axes
-    together, or use ``model="baudet-hyperelastic"``. ``observe_parameters=True`` appends the drawn
+    projection is the drawn slab's. The default ``baudet-hyperelastic`` takes any box; with
+    ``model="baudet"`` the elements must stay near-cubic (a ValueError at construction names the
+    range's corner that is not): draw the axes together. ``observe_parameters=True`` appends the drawn
     parameters (``randomised_parameters``), each normalised to [-1, 1] over its range, to the
     observation.
 
@@ -508,6 +508,12 @@ class PalpationEnv(TissueEnv):
     """
 
     worlds_class = PalpationWorlds
+    #: Chosen by measurement (benchmarks/material_range.py, issue 42): with the contact set solved
+    #: within each step, the scripted sweep succeeds on at least 2 of 3 seeds at every E in
+    #: 1 kPa-1 MPa and nu in 0.3-0.49 with it, and on none at nu 0.49 from 5 kPa up with "baudet",
+    #: whose volume force (sign(r) r^2 times 100 K, physics.md section 4) has no stiffness at rest: a
+    #: step's linearisation misses it, and the first held press read 1.9x its equilibrium at 100 kPa.
+    default_model = "baudet-hyperelastic"
     default_shape = (10, 5, 10)
     default_size = (0.06, 0.03, 0.06)
     default_dt = 0.04
