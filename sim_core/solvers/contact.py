@@ -292,3 +292,8 @@ def project(obstacle, positions, velocities, candidates, tip=None, surface=None)
         else:
             velocities[..., 1] = np.where(through, np.minimum(velocities[..., 1], 0.0), velocities[..., 1])
     return through
+
+
+def resolution_correction(depth, radius, spacing):
+    """Placeholder (replaced below)."""
+    return np.ones_like(np.asarray(depth, dtype=float))
