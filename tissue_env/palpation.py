@@ -789,8 +789,10 @@ class PalpationEnv(TissueEnv):
 
     # -- scripted sweep ------------------------------------------------------------------------------
     def scripted_action(self, probe_depth=0.004, settle_steps=1):
-        """A sweep: press ``probe_depth`` over each candidate cell centre (a serpentine from the
-        end nearest the start), hold it ``settle_steps``, record the apparent modulus (what the
+        """A sweep: press ``probe_depth`` into the tissue (below the start surface, which a soft
+        slab's weight sags: 3.4 mm at its centre at 1 kPa, nu 0.3, where a press 4 mm under the
+        undeformed surface went 0.6 mm into it and read nothing of the inclusion) over each candidate
+        cell centre (a serpentine from the end nearest the start), hold it ``settle_steps``, record the apparent modulus (what the
         palpation map records), then move over the stiffest one at the surface, press
         ``success_depth`` + 1 mm there and hold it."""
         self._require_reset("scripted_action()")
@@ -811,15 +813,18 @@ class PalpationEnv(TissueEnv):
         if sweep["index"] < len(sweep["order"]):
             cell = sweep["order"][sweep["index"]]
             goal_xz = sweep["centres"][cell]
+            # the press's height: probe_depth under the start surface there, inside the workspace
+            pressed = max(float(self.start_surface(np.array([[goal_xz[0], surface, goal_xz[1]]]),
+                                                   self.start_heights)[0]) - probe_depth, surface - self.max_depth)
             if sweep["phase"] == "move":
                 goal = np.array([goal_xz[0], surface, goal_xz[1]])
                 if np.allclose(tip[[0, 2]], goal_xz, atol=1e-6) and tip[1] >= surface - 1e-6:
                     sweep["phase"] = "press"
-                    goal = np.array([goal_xz[0], surface - probe_depth, goal_xz[1]])
-            elif tip[1] > surface - probe_depth + 1e-6 or sweep.setdefault("held", 0) < settle_steps:
+                    goal = np.array([goal_xz[0], pressed, goal_xz[1]])
+            elif tip[1] > pressed + 1e-6 or sweep.setdefault("held", 0) < settle_steps:
                 # pressing, then held ``settle_steps`` so that the tissue catches up with the probe
-                sweep["held"] = sweep.get("held", 0) + (tip[1] <= surface - probe_depth + 1e-6)
-                goal = np.array([goal_xz[0], surface - probe_depth, goal_xz[1]])
+                sweep["held"] = sweep.get("held", 0) + (tip[1] <= pressed + 1e-6)
+                goal = np.array([goal_xz[0], pressed, goal_xz[1]])
             else:  # pressed: record and go on
                 sweep["held"] = 0
                 sweep["stiffness"][cell] = self.measures["apparent_modulus"]
