@@ -792,7 +792,8 @@ class PalpationEnv(TissueEnv):
         """A sweep: press ``probe_depth`` into the tissue (below the start surface, which a soft
         slab's weight sags: 3.4 mm at its centre at 1 kPa, nu 0.3, where a press 4 mm under the
         undeformed surface went 0.6 mm into it and read nothing of the inclusion) over each candidate
-        cell centre (a serpentine from the end nearest the start), hold it ``settle_steps``, record the apparent modulus (what the
+        cell centre (a serpentine from the end nearest the start), hold it ``settle_steps`` and until
+        its reading moves less than 5% in a step (at most 3 steps more), record the apparent modulus (what the
         palpation map records), then move over the stiffest one at the surface, press
         ``success_depth`` + 1 mm there and hold it."""
         self._require_reset("scripted_action()")
@@ -816,14 +817,22 @@ class PalpationEnv(TissueEnv):
             # the press's height: probe_depth under the start surface there, inside the workspace
             pressed = max(float(self.start_surface(np.array([[goal_xz[0], surface, goal_xz[1]]]),
                                                    self.start_heights)[0]) - probe_depth, surface - self.max_depth)
+            # settled: the reading moved less than 5% in the last step (or held settle_steps + 3)
+            reading = float(self.measures["apparent_modulus"])
+            settled = (abs(reading - sweep.get("last", np.inf)) <= 0.05 * reading
+                       or sweep.get("held", 0) >= settle_steps + 3)
             if sweep["phase"] == "move":
+                sweep["last"] = np.inf
                 goal = np.array([goal_xz[0], surface, goal_xz[1]])
                 if np.allclose(tip[[0, 2]], goal_xz, atol=1e-6) and tip[1] >= surface - 1e-6:
                     sweep["phase"] = "press"
                     goal = np.array([goal_xz[0], pressed, goal_xz[1]])
-            elif tip[1] > pressed + 1e-6 or sweep.setdefault("held", 0) < settle_steps:
-                # pressing, then held ``settle_steps`` so that the tissue catches up with the probe
+            elif tip[1] > pressed + 1e-6 or sweep.setdefault("held", 0) < settle_steps or not settled:
+                # pressing, then held ``settle_steps`` and until the reading settles: the tissue
+                # catches up with the probe (soft tissue is slow: at 1 kPa a press held one 40 ms
+                # step after the inclusion's read the next cell 1.25x its equilibrium)
                 sweep["held"] = sweep.get("held", 0) + (tip[1] <= pressed + 1e-6)
+                sweep["last"] = reading
                 goal = np.array([goal_xz[0], pressed, goal_xz[1]])
             else:  # pressed: record and go on
                 sweep["held"] = 0
