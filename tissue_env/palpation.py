@@ -36,8 +36,8 @@ def update_palpation_map(palpation_map, centres, tips, depth, reading, map_depth
     (``reading`` (N,) > 0: the apparent modulus, Pa, depth-normalised so that a deeper press
     reads the same tissue alike); the cell keeps the reading of its latest probe, so that a
     press held still replaces the first step's (the first step of a press at full speed reads
-    0.96-3.87x the held reading at the same place at the default shape: the damping of the tissue
-    it sets moving, a contact still forming). Only ``rows`` (N,) bool are updated."""
+    0.96-1.11x the held reading at the same place at the default shape: the damping of the tissue
+    it sets moving). Only ``rows`` (N,) bool are updated."""
     centres = np.broadcast_to(centres, palpation_map.shape + (2,))
     distance = np.hypot(centres[..., 0] - tips[:, None, 0], centres[..., 1] - tips[:, None, 2])
     cell = np.argmin(distance, axis=1)
@@ -53,7 +53,7 @@ def apparent_modulus(force, indentation, radius, tip):
     half-space: a sphere of ``radius`` (m) pushed ``indentation`` (m) with ``force`` (N):
     F = 4/3 E* sqrt(R) d^1.5; a flat punch: F = 2 E* R d (Boussinesq). Arrays broadcast; 0 where
     the indentation is below 0.1 mm or the force is not a push. On Palpation's homogeneous slab
-    (E* 6.3 kPa, 3 cm thick) it reads 5.0-6.0 kPa held 4-8 mm deep (F / d: 30-60 N/m; the default
+    (E* 6.3 kPa, 3 cm thick) it reads 6.0-6.9 kPa held 4-8 mm deep (F / d: 36-69 N/m; the default
     (10, 5, 10), ``benchmarks/palpation_map.py``)."""
     force, indentation = np.asarray(force, dtype=float), np.asarray(indentation, dtype=float)
     touching = (indentation > 1e-4) & (force > 0)
@@ -373,27 +373,29 @@ class PalpationEnv(TissueEnv):
     reading of its latest press: the apparent (Hertz) modulus E* = 3 F / (4 sqrt(R) d^1.5)
     (``apparent_modulus``; F the probe's vertical force, d its depth under the start surface),
     which reads the same tissue nearly alike at any depth (held 4 and 8 mm deep over three cells of
-    the homogeneous slab: 4.97-5.26 and 5.67-5.98 kPa, where F / d rises from 30-32 to 56-60 N/m;
+    the homogeneous slab: 5.96-6.38 and 6.29-6.89 kPa, where F / d rises from 36-39 to 62-69 N/m;
     E* = E / (1 - nu^2) = 6.3 kPa for a half-space; ``benchmarks/palpation_map.py``, which also
     shows finer meshes reading the 8 mm press higher), so a press 8 mm deep reads the same tissue
     19% above one 4 mm deep (tests/test_env_palpation.py's cell), less than the inclusion's
-    1.24-1.29x; and a press held still replaces the first step of a press at full speed, which
-    reads 0.96-3.87x the held reading at the same place (the map's grid over one node period: the
-    damping of the tissue it sets moving, a contact still forming; 0.50-1.84x at (8, 4, 8)).
+    1.23-1.33x; and a press held still replaces the first step of a press at full speed, which
+    reads 0.96-1.11x the held reading at the same place (the map's grid over one node period: the
+    damping of the tissue it sets moving; 0.96-3.87x before the contact set was solved within
+    each step, issue 42).
     The observation gives the map, and the indentation stiffness, relative to the episode's
     tissue (E* of its young_modulus and poisson_ratio; 2 E* R, R the probe radius): the
-    surrounding tissue reads about 0.8-1 at any stiffness and the inclusion its ratio, inside
+    surrounding tissue reads about 0.9-1.15 at any stiffness and the inclusion its ratio, inside
     the observation bounds from 1 kPa to 1 MPa (in kPa, an inclusion's first press read up to 102
     at the defaults, beyond the bound of 100).
 
     How well the map locates the inclusion (``benchmarks/palpation_map.py``; the tests in
     tests/test_env_palpation.py): presses 6 mm deep held two steps read a homogeneous slab within
-    1.13 (max/min) over one node period, and the inclusion's cell reads 1.24-1.29 times the
-    stiffest other cell in all 9 placements (1.11 and 1.15-1.26 at (8, 4, 8)). With the probe
+    1.08 (max/min) over one node period, and the inclusion's cell reads 1.23-1.33 times the
+    stiffest other cell in all 9 placements (1.11 and 1.15-1.26 at (8, 4, 8) with the first-order
+    projection). With the probe
     sampled at the nodes (``"node"``) the coarser (8, 4, 8) felt a press over a node on that node
     and one between nodes on four: 1.39 over the node period, and the inclusion's cell 0.75-1.80
     times the stiffest other (below 1 in 5 of the 9 placements); the default's 6 mm nodes under
-    the 9 mm probe read 1.13 and 1.27-1.35 that way.
+    the 9 mm probe read 1.10 and 1.20-1.22 that way.
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features
     as a ``Dict`` keyed by name. The inclusion position is not observed.
