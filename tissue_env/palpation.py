@@ -416,8 +416,9 @@ class PalpationEnv(TissueEnv):
     - ``reward_time = -time_penalty`` (default 0.05) per step
     - ``reward_force = -force_weight * max(0, |F| - force_limit) / force_limit`` (defaults 1, 2 N
       at E = 5 kPa, the limit scaled with the episode's E:
-      the default mesh resolves the stiff inclusion, and the scripted sweep's success presses peak
-      at 5.6 N; with the 1 N limit set on the (8, 4, 8) mesh, whose presses peaked at 1.35 N, PPO
+      the default mesh resolves the stiff inclusion; the scripted sweep's presses peak at 0.5 N
+      since it moves over the chosen cell before its final press (5.6 N when it ploughed there
+      pressed, issue 42); with the 1 N limit set on the (8, 4, 8) mesh, whose presses peaked at 1.35 N, PPO
       fell from 85% to 30-35% success at the benchmark's budget, see README)
     - ``reward_volume``, ``reward_strain`` as in every task (``tissue_env.base``), and
       ``reward_instability = -instability_penalty`` on a diverging step.
