@@ -193,7 +193,7 @@ class PalpationWorlds(TaskWorlds):
                 solving &= ~failed
                 if attempt + 1 == CONTACT_PASSES or not solving.any():
                     break
-                self._measure(tool_mask)  # the forces at the step's end: the nodes the tissue pulls
+                self._node_forces = self.net_forces()  # at the step's end: the nodes the tissue pulls
                 previous_fixed, previous_target = fixed, target
                 fixed, target, tool_mask = self._control(solving)
                 solving &= ~same_contacts(previous_fixed, previous_target, fixed, target,

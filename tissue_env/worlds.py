@@ -489,18 +489,11 @@ class TaskWorlds:
         the force the tool exerts (the reaction on its dofs ``tool_mask``) (N, 3) N, the largest
         spring strain (N,) and the relative volume change (N,), and the task's."""
         count = self.num_envs
-        positions, velocities = self.positions, self.velocities
+        positions = self.positions
         model = self.stack.model
         with np.errstate(all="ignore"):
             flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
-            flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
-            if self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
-                forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
-                self.integrator.workspace.add_damping(flat_velocities, forces)
-            else:
-                forces = self._forces.compute(flat, flat_velocities)
-            forces = forces + model.gravity_force
-            forces = forces.reshape(count, -1, 3)
+            forces = self.net_forces()
             reaction = np.empty((count, 3))
             kernels.masked_reaction(forces, tool_mask, reaction)
             strain = self._strain(self._lengths)[0]
@@ -516,6 +509,19 @@ class TaskWorlds:
                         volume_ratio_low=ratio.min(axis=1), volume_ratio_high=ratio.max(axis=1))
         measures.update(self._task_measures(positions))
         return measures
+
+    def net_forces(self):
+        """(N, n, 3) N: the net nodal forces at the worlds' state (elastic, corrections, volume,
+        hourglass, damping, gravity), the imposed components' constraint forces left out."""
+        flat = np.ascontiguousarray(self.positions.reshape(-1, 3), dtype=float)
+        flat_velocities = np.ascontiguousarray(self.velocities.reshape(-1, 3), dtype=float)
+        with np.errstate(all="ignore"):
+            if self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
+                forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
+                self.integrator.workspace.add_damping(flat_velocities, forces)
+            else:
+                forces = self._forces.compute(flat, flat_velocities)
+            return (forces + self.stack.model.gravity_force).reshape(self.num_envs, -1, 3)
 
     def _features(self, measures):
         env = self.task

@@ -248,7 +248,7 @@ class Probe:
         kernel(np.ascontiguousarray(rows[:, :, 0]), np.ascontiguousarray(rows[:, :, 2]), tips, projection.weights,
                offsets, reference, radii, reach, self.tip == "flat", out)
         if self.tip == "sphere" and self.curvature_corrected:
-            touched = np.flatnonzero(projection.weights.any(axis=1))
+            touched = np.flatnonzero(np.isfinite(out).any(axis=0))  # the nodes the probe bounds (any copy)
             bounds = out[:, touched]
             out[:, touched] = np.where(np.isfinite(bounds), bounds - curvature_offsets(
                 rows[:, touched], tips, projection.weights[touched], offsets, reference[:, touched], radii), bounds)
