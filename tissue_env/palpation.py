@@ -19,7 +19,7 @@ from .worlds import TaskWorlds
 #: Solves of one implicit step over the probe's contact set (``PalpationWorlds._advance``): the
 #: step is solved again from its start while the set it ends with differs from the one it was
 #: solved with. Pressing 4 mm in one step at nu 0.49 the set settles in 2-3 solves; a step that
-#: presses nothing takes one (1.2-1.4 solves per step over random and scripted episodes).
+#: presses nothing takes one (1.4 solves per env step over random and scripted episodes).
 CONTACT_PASSES = 4
 #: How far (m) the held heights may move between two solves of a step for its set to count as
 #: settled: a held node slides along the sphere (x, z free) and its bound follows. 20 um is 0.5% of
