@@ -37,14 +37,15 @@ bounds each node by the weighted indentation over its support instead of pointwi
 That average takes the sphere's curvature off: the hat average of the paraboloid d - r^2 / (2R) is
 its value at the node less the hat's second moment over 2R, (hx^2 + hz^2) / (12 R), so the
 first-order projection imposes the sphere as if it were that much shallower (0.67 mm at Palpation's
-6 mm cells with the 9 mm sphere: a 2 mm press imposed as 1.33 mm, its force 36% under a converged
+6 mm cells with the 9 mm sphere: a 2 mm press imposed as 1.33 mm, its force 41% under a converged
 reference). A projected sphere adds it back over the quadrature points it covers (``Probe``'s
 ``curvature_corrected``, default; ``curvature_offsets``): the nodes under the sphere get its own
 height (exact for a quadratic indentation, 31 um from the sphere at 4 mm on 3 mm cells), the rim
 stays the projection's, smooth wherever the nodes fall (docs/physics.md section 14,
 benchmarks/indentation_reference.py). It displaces more than the probe's volume (the rim's share is
-not taken back), which is what the mesh needs to carry the probe's force: at 6 mm cells the force is
-within 5-17% of the converged reference from 2 to 8 mm deep, against 23-39% short before.
+not taken back): what it gets right is the nodes' indentation under the probe. At 6 mm cells the
+force is 7-8% under a converged reference at 2 mm deep and 11-22% under it from 4 to 8 mm, against
+21-41% under it before.
 
 All functions work on one block ((n, 3) positions) or a stack of copies ((N, n, 3) positions with
 per-copy probe tips (N, 3)). SI units: m, N, m/s.
