@@ -12,10 +12,12 @@ soft tissue stretched to more than twice its length passes 100% of), the largest
 strain, the steps with an entry at its bound that ``info`` does not report as clipped
 (``observation_clipped``), and the largest |reward|; then the task's scripted controller runs one episode on each of
 ``--seeds`` seeds (100, 101, ...) and its successes are counted. Written to ``--output`` (JSON,
-replaced atomically).
+replaced atomically); with ``--env`` naming some tasks, the other tasks' rows already in
+``--output`` are kept.
 """
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -94,6 +96,10 @@ def main(argv=None):
                     print(f"{env_id} E={modulus:g} Pa nu={ratio:g}: {100 * r['share_at_bound']:.2f}% of entries at "
                           f"bound (max spring strain {r['max_strain_percent']:.0f}%), max |reward| "
                           f"{r['max_abs_reward']:.2f}, scripted {r['scripted_successes']}/{args.seeds}", flush=True)
+    if os.path.exists(args.output):  # the tasks not measured this time keep their rows
+        with open(args.output) as stream:
+            kept = [row for row in json.load(stream)["results"] if row["env_id"] not in args.env]
+        rows = sorted(kept + rows, key=lambda row: TASKS.index(row["env_id"]) if row["env_id"] in TASKS else len(TASKS))
     write_json(args.output, dict(command="python -m benchmarks.material_range", steps=args.steps, obs_limit=OBS_LIMIT, feature_limits=FEATURE_LIMITS, results=rows,
                                  machine=dict(platform=platform.platform(), cpus=os.cpu_count(),
                                               python=platform.python_version())))

@@ -94,7 +94,7 @@ def test_sphere_probe_scene_converges_with_the_mesh_where_the_flat_one_did_not()
 ])
 @pytest.mark.parametrize("offset", [(0.0, 0.0), (0.00375, 0.00375), (0.0011, 0.0052)])
 def test_projected_probe_displaces_the_probe_s_volume_wherever_the_nodes_fall(tip, volume, tolerance, offset):
-    """Projected on the top nodes' hat functions (lumped L2), a probe 4 mm into a flat surface
+    """Projected on the top nodes' hat functions (lumped L2, ``curvature_corrected=False``), a probe 4 mm into a flat surface
     imposes nodal indentations whose sum times the nodes' areas is the volume the probe displaces,
     over a node, between four or anywhere (measured with 4 midpoints per element side: the sphere
     within 1.3%, the flat probe 5%), and only on nodes whose faces the probe reaches. Sampled at the
@@ -103,7 +103,8 @@ def test_projected_probe_displaces_the_probe_s_volume_wherever_the_nodes_fall(ti
 
     mesh = HexMesh.block((8, 4, 8), (0.0075, 0.0075, 0.0075))
     top = np.flatnonzero(np.isclose(mesh.nodes[:, 1], 0.03))
-    probe = contact.Probe(0.009, tip, contact.SurfaceProjection.top_face(mesh, top))
+    # the first-order projection (the default adds the sphere's curvature back: the next test)
+    probe = contact.Probe(0.009, tip, contact.SurfaceProjection.top_face(mesh, top), curvature_corrected=False)
     tip_position = np.array([0.03 + offset[0], 0.03 - 0.004, 0.03 + offset[1]])
     heights = probe.surface(mesh.nodes, tip_position)
     pushed = np.isfinite(heights)
@@ -126,12 +127,13 @@ def test_projected_probe_on_stacked_copies_and_its_reference():
 
     mesh = HexMesh.block((6, 2, 6), (0.01, 0.01, 0.01))
     projection = contact.SurfaceProjection.top_face(mesh)
-    probe = contact.Probe(0.009, "sphere", projection)
+    probe = contact.Probe(0.009, "sphere", projection, curvature_corrected=False)  # the reference's plumbing
     tips = np.array([[0.03, 0.016, 0.03], [0.025, 0.017, 0.031]])
     single = np.stack([probe.surface(mesh.nodes, tip) for tip in tips])
     stacked = probe.surface(np.stack([mesh.nodes, mesh.nodes]), tips)
     np.testing.assert_array_equal(stacked, single)
-    lower = contact.Probe(0.009, "sphere", projection.with_reference(np.stack([mesh.nodes[:, 1] - 0.001] * 2)))
+    lower = contact.Probe(0.009, "sphere", projection.with_reference(np.stack([mesh.nodes[:, 1] - 0.001] * 2)),
+                          curvature_corrected=False)
     lowered = lower.surface(np.stack([mesh.nodes, mesh.nodes]), tips)
     centre = np.argmin(np.hypot(mesh.nodes[:, 0] - 0.03, mesh.nodes[:, 2] - 0.03) + 10 * (mesh.nodes[:, 1] < 0.02))
     finite = np.isfinite(lowered)
@@ -161,7 +163,7 @@ def test_projected_surface_kernel_equals_its_definition(tip):
 
     mesh = HexMesh.block((8, 4, 8), (0.0075, 0.0075, 0.0075))
     projection = contact.SurfaceProjection.top_face(mesh)
-    probe = contact.Probe(0.009, tip, projection)
+    probe = contact.Probe(0.009, tip, projection, curvature_corrected=False)  # the kernel's average alone
     rng = np.random.default_rng(1)
     for _ in range(20):
         positions = mesh.nodes + rng.normal(0.0, 5e-4, mesh.nodes.shape)
@@ -199,3 +201,55 @@ def test_a_stacked_projection_gives_each_row_its_own_blocks_surface():
                 np.testing.assert_array_equal(rows[index], expected)
     with pytest.raises(ValueError, match="same nodes and quadrature"):
         stacked.set_row(0, contact.SurfaceProjection.top_face(HexMesh.block((6, 4, 6), 0.01)))
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (0.00375, 0.00375), (0.0011, 0.0052)])
+def test_curvature_corrected_projection_imposes_the_sphere_at_the_nodes_it_covers(offset):
+    """The hat average of a sphere's indentation is its value at the node minus the hat's second
+    moment over 2R (contact.curvature_offsets): added back, a node whose whole support lies under a
+    9 mm sphere 4 mm into a 3 mm mesh is bounded by the sphere itself, wherever the nodes fall
+    (measured within 31 um: the sphere is not quite its paraboloid), where the first-order projection
+    bounds it 0.17-0.19 mm ((hx^2 + hz^2) / (12 R) = 0.167 mm, and the sphere's steeper flanks) short."""
+    from sim_core.geometry.mesh import HexMesh
+
+    h = 0.003
+    mesh = HexMesh.block((20, 4, 20), (h, h, h))
+    top = np.flatnonzero(np.isclose(mesh.nodes[:, 1], 4 * h))
+    projection = contact.SurfaceProjection.top_face(mesh, top)
+    tip = np.array([0.03 + offset[0], 4 * h - 0.004, 0.03 + offset[1]])
+    corrected = contact.Probe(0.009, "sphere", projection).surface(mesh.nodes, tip)
+    first_order = contact.Probe(0.009, "sphere", projection, curvature_corrected=False).surface(mesh.nodes, tip)
+    sphere = contact.Probe(0.009, "sphere").surface(mesh.nodes, tip)
+    # top nodes whose support (+-h in x and z) lies inside the footprint, radius sqrt(2 R d - d^2)
+    corners = mesh.nodes[:, None, [0, 2]] + h * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])
+    inside = np.all(np.hypot(*(corners - tip[[0, 2]]).transpose(2, 0, 1)) < np.sqrt(2 * 0.009 * 0.004 - 0.004**2),
+                    axis=1)
+    covered = np.isin(np.arange(mesh.n_nodes), top) & inside
+    assert covered.sum() >= 4
+    assert np.abs(corrected[covered] - sphere[covered]).max() < 4e-5
+    assert np.all(first_order[covered] - sphere[covered] > 1.5e-4)
+    # the rim stays smooth: the correction touches the nodes the projection touches, no others
+    assert np.array_equal(np.isfinite(corrected), np.isfinite(first_order))
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.003])
+def test_indentation_at_palpation_resolution_against_hertz(offset):
+    """Palpation's slab (6 x 3 x 6 cm, bottom attached, E 5 kPa, nu 0.45, no gravity) on its 6 mm
+    cubes, its 9 mm sphere pressed 2 mm over a node and over a cell's middle (static, active set
+    converged): the force lies between Hertz on a half-space, 4/3 E* sqrt(R) d^1.5, and Hertz on a
+    layer of the slab's thickness bonded to a rigid base (Dimitriadis et al. 2002; the slab's free
+    sides 3 cm away make it softer than that infinite layer). Measured 1.00 / 1.00 x Hertz (the bonded
+    layer 1.17 x); the first-order projection gave 0.64 x (benchmarks/indentation_reference.py)."""
+    from benchmarks.indentation_reference import bonded_layer_factor, hertz
+    from sim_core.studies.scenes import Scene
+    from sim_core.studies.solving import solve_scene
+
+    at, depth = 0.03 + offset, 0.002
+    scene = Scene(size=(0.06, 0.03, 0.06), young_modulus=5e3, poisson_ratio=0.45, gravity=0.0,
+                  tool_low=(at, 0.03, at), tool_high=(at, 0.03, at), tool_radius=0.009, tool_components=(1,),
+                  probe="sphere", displacements=[[(0, -0.001, 0), (0, -depth, 0)]], target=(0.03, 0.015, 0.03))
+    solution = solve_scene(scene, (10, 5, 10), model="baudet-hyperelastic", check_stability=False)
+    assert solution.converged.all()
+    force = -solution.force[-1, 1]
+    closed = hertz(depth, 0.009, 5e3, 0.45)
+    assert 0.95 * closed < force < 1.05 * closed * bonded_layer_factor(depth, 0.009, 0.03, 0.45)

@@ -18,7 +18,7 @@ PALPATION, POSITIONING, RETRACTION, LIVER = ("tissue_env/Palpation-v0", "tissue_
 #: TumorPositioning's default block is 5 cm cubed, Retraction's flap 6 x 0.8 x 3 cm
 TUMOR_SIZES = ((0.045, 0.045, 0.045), (0.055, 0.055, 0.055))
 FLAP_SIZES = ((0.055, 0.007, 0.027), (0.065, 0.009, 0.033))
-#: Palpation's slab is 6 x 3 x 6 cm; its default model (baudet) takes near-cubic elements only
+#: Palpation's slab is 6 x 3 x 6 cm; model="baudet" takes near-cubic elements only (its default, baudet-hyperelastic, any box)
 SLAB_SIZES = ((0.05, 0.026, 0.055), (0.07, 0.034, 0.065))
 
 
@@ -29,7 +29,7 @@ SLAB_SIZES = ((0.05, 0.026, 0.055), (0.07, 0.034, 0.065))
     # Baudet's springs refuse the 1:10:1 elements of that corner (baudet-hyperelastic takes any box)
     (POSITIONING, dict(model="baudet", size_range=((0.05, 0.05, 0.05), (0.05, 0.5, 0.05))), "size_range corner"),
     (LIVER, dict(size_range=(0.05, 0.06)), "LiverNeedleAlignmentEnv takes no size_range"),
-    (PALPATION, dict(size_range=SLAB_SIZES), "size_range corner"),
+    (PALPATION, dict(size_range=SLAB_SIZES, model="baudet"), "size_range corner"),
     (PALPATION, dict(cell_size=(0.012, 0.0, 0.012)), "cell_size must be finite and > 0"),
     (PALPATION, dict(cell_size=0.025), "too small for the palpation scene"),
     (POSITIONING, dict(tool_size_range=(0.03, 0.02)), "tool_size_range must have low <= high"),

@@ -533,22 +533,11 @@ class TaskWorlds:
         the force the tool exerts (the reaction on its dofs ``tool_mask``) (N, 3) N, the largest
         spring strain (N,) and the relative volume change (N,), and the task's."""
         count = self.num_envs
-        positions, velocities = self.positions, self.velocities
+        positions = self.positions
         model = self.stack.model
         with np.errstate(all="ignore"):
             flat = np.ascontiguousarray(positions.reshape(-1, 3), dtype=float)
-            flat_velocities = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
-            if not self.stack.shared.any():  # every world cut: each is measured on its own model (tissue_env.blade)
-                forces = np.zeros_like(flat)
-            elif self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
-                forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
-                self.integrator.workspace.add_damping(flat_velocities, forces)
-            else:
-                forces = self._forces.compute(flat, flat_velocities)
-            if self.task.damping_ratio is not None and isinstance(self.integrator, ImplicitEuler):
-                forces += self.integrator.damping_forces(flat, flat_velocities)  # the tissue's damping law
-            forces = forces + model.gravity_force
-            forces = forces.reshape(count, -1, 3)
+            forces = self.net_forces()
             reaction = np.empty((count, 3))
             kernels.masked_reaction(forces, tool_mask, reaction)
             strain = self._strain(self._lengths)[0]
@@ -564,6 +553,24 @@ class TaskWorlds:
                         volume_ratio_low=ratio.min(axis=1), volume_ratio_high=ratio.max(axis=1))
         measures.update(self._task_measures(positions))
         return measures
+
+    def net_forces(self):
+        """(N, n, 3) N: the net nodal forces at the worlds' state (elastic, corrections, volume,
+        hourglass, damping and the tissue's damping law, gravity), the imposed components' constraint
+        forces left out."""
+        flat = np.ascontiguousarray(self.positions.reshape(-1, 3), dtype=float)
+        flat_velocities = np.ascontiguousarray(self.velocities.reshape(-1, 3), dtype=float)
+        with np.errstate(all="ignore"):
+            if not self.stack.shared.any():  # every world cut: each is measured on its own model (tissue_env.blade)
+                forces = np.zeros_like(flat)
+            elif self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
+                forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
+                self.integrator.workspace.add_damping(flat_velocities, forces)
+            else:
+                forces = self._forces.compute(flat, flat_velocities)
+            if self.task.damping_ratio is not None and isinstance(self.integrator, ImplicitEuler):
+                forces += self.integrator.damping_forces(flat, flat_velocities)  # the tissue's damping law
+            return (forces + self.stack.model.gravity_force).reshape(self.num_envs, -1, 3)
 
     def _features(self, measures):
         env = self.task
