@@ -3,8 +3,10 @@
 ``separate(model, faces) -> Model`` cuts the faces ``faces`` (pairs of elements that share a face) and gives
 a node one copy per group of its elements that stay connected through its uncut faces: the model of
 the mesh born with that cut. A mass-spring model changes only what the cut touches, and here it is
-rebuilt from the cut mesh by ``build_model`` with the model's own material and options, so that it is
-exactly the model of that mesh (masses, springs, corrections, volumes, smoothing domains).
+built from the cut mesh by ``build_model`` with the model's own material and options, so that it is
+exactly the model of that mesh (masses, springs, corrections, volumes, smoothing domains); what
+depends on an element alone (its rest volume, its hourglass matrix) is taken from the uncut model
+(``build_model(same_elements=...)``), and the cut model's pattern is built only when a solver steps it.
 
 Numbering: the elements keep their order and indices, the original nodes keep theirs (each stays
 with the group of its elements that holds its lowest element corner), and the copies are appended in
