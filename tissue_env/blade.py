@@ -31,7 +31,7 @@ import numpy as np
 
 from sim_core import kernels
 from sim_core.cutting import blade_faces, cut_world, element_faces, separation
-from sim_core.models.forces import internal_forces
+from sim_core.models.forces import ForceWorkspace
 from sim_core.models.model import State
 
 from .worlds import TaskWorlds
@@ -198,7 +198,10 @@ class CuttingWorlds(TaskWorlds):
             rows = model.n_nodes
             positions, velocities = self.positions[index, :rows], self.velocities[index, :rows]
             with np.errstate(all="ignore"):
-                forces = internal_forces(model, positions, velocities) + model.gravity_force.reshape(-1, 3)
+                # the cut model's force workspace, kept with it (the world's own model: no other world reads it)
+                workspace = model.derived.get("measure_forces", lambda: ForceWorkspace(model, implicit=False))
+                forces = workspace.compute(np.ascontiguousarray(positions), np.ascontiguousarray(velocities)) \
+                    + model.gravity_force.reshape(-1, 3)
                 measures["forces"][index] = 0.0
                 measures["forces"][index, :rows] = forces
                 measures["reaction_force"][index] = (forces * tool_mask[index, :rows]).sum(axis=0)
