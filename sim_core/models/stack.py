@@ -166,6 +166,8 @@ class ModelStack:
             share_topology(model, self.model)
         # slots of each copy in the per-dof arrays the Model derived at construction
         self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
+        # built now, not at first use: ``assign`` rewrites its slices in place, from any thread
+        self.model.mass_data  # noqa: B018
         #: each world's model on the stack's ``n_nodes`` rows (the given one, its unused rows parked)
         self.models = [model] * count
         #: (N,) bool: the worlds whose model the stacked arrays hold (the block's topology); the
