@@ -357,13 +357,15 @@ class Control:
 #: (``share_topology``).
 TOPOLOGY_DERIVED = ("incidence", "element_scatter", "pattern", "spring_positions", "element_positions",
                     "node_blocks")
+#: The topology data the implicit solver reads (the others serve the numpy reference forces).
+SOLVER_TOPOLOGY = ("pattern", "spring_positions", "element_positions")
 
 
 def share_topology(source: Model, target: Model) -> None:
     """Give ``target``, a model of ``source``'s topology (the same node count, elements, springs and
-    smoothing domains; its values may differ), ``source``'s topology data (``TOPOLOGY_DERIVED``,
-    built now if it was not), instead of building its own: a stack of one world
-    (``stack.ModelStack``) is its model's topology."""
+    smoothing domains; its values may differ), ``source``'s topology data (``TOPOLOGY_DERIVED``: the
+    solver's, ``SOLVER_TOPOLOGY``, built now if it was not, and the rest it has built) instead of
+    building its own: a stack of one world (``stack.ModelStack``) is its model's topology."""
     if not (source.n_nodes == target.n_nodes and np.array_equal(source.mesh.elements, target.mesh.elements)
             and np.array_equal(source.springs, target.springs)
             and (source.smoothing is None) == (target.smoothing is None)
@@ -371,8 +373,9 @@ def share_topology(source: Model, target: Model) -> None:
                                               and np.array_equal(source.smoothing.nodes, target.smoothing.nodes)))):
         raise ValueError("share_topology needs two models of one topology (node count, elements, springs, smoothing "
                          "domains)")
-    for name in TOPOLOGY_DERIVED:
-        target.__dict__[name] = getattr(source, name)
+    for name in TOPOLOGY_DERIVED:  # what the solvers read, and what else the source has built already
+        if name in SOLVER_TOPOLOGY or name in source.__dict__:
+            target.__dict__[name] = getattr(source, name)
 
 
 def extend_topology(source: Model, target: Model) -> None:
