@@ -121,7 +121,8 @@ def main(argv=None):
     )
     write_json(args.output, result)
     print(f"env step {step * 1e3:.2f} ms; cutting step {cut * 1e3:.1f} ms = {cut / step:.1f} env steps; "
-          f"after a cut {later * 1e3:.2f} ms = {later / twin_step:.2f}x the uncut twin's {twin_step * 1e3:.2f} ms; peak RSS {first:.0f} MB after "
+          f"after a cut {later * 1e3:.2f} ms = {later / twin_step:.2f}x the uncut twin's {twin_step * 1e3:.2f} ms; "
+          f"peak RSS {first:.0f} MB after "
           f"{MEMORY_FIRST} episodes, {last:.0f} MB after {args.episodes} ({100 * (last / first - 1):+.1f}%)")
     return result
 

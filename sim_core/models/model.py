@@ -121,8 +121,8 @@ class Model:
         """(N, S) f = incidence @ (t u): +t u on node a, -t u on node b (t = tension, u from a to b)."""
         a, b = self.springs[:, 0], self.springs[:, 1]
         columns = np.arange(len(self.springs))
-        return sp.csr_matrix((np.r_[np.ones(len(columns)), -np.ones(len(columns))], (np.r_[a, b], np.r_[columns, columns])),
-                             shape=(self.n_nodes, len(columns)))
+        return sp.csr_matrix((np.r_[np.ones(len(columns)), -np.ones(len(columns))],
+                              (np.r_[a, b], np.r_[columns, columns])), shape=(self.n_nodes, len(columns)))
 
     @functools.cached_property
     def element_scatter(self) -> sp.csr_matrix:
@@ -135,7 +135,8 @@ class Model:
     def pattern(self) -> BlockPattern:
         """The (3N, 3N) block pattern of the nodes that share an element (a smoothing domain couples
         every pair of its nodes too: nodes two edges apart, outside the elements)."""
-        return BlockPattern(self.n_nodes, self.mesh.elements, None if self.smoothing is None else self.smoothing.pairs())
+        return BlockPattern(self.n_nodes, self.mesh.elements,
+                            None if self.smoothing is None else self.smoothing.pairs())
 
     @functools.cached_property
     def spring_positions(self) -> np.ndarray:

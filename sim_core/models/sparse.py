@@ -81,7 +81,8 @@ class BlockPattern:
         pattern.block_indptr = np.concatenate([self.block_indptr, self.block_indptr[-1] + 1 + np.arange(extra)])
         pattern.nnz = self.nnz + 9 * extra
         index_type = np.int32 if pattern.nnz < 2**31 else np.int64
-        pattern.indptr = np.concatenate([self.indptr, self.indptr[-1] + 3 + 3 * np.arange(3 * extra)]).astype(index_type)
+        pattern.indptr = np.concatenate([self.indptr, self.indptr[-1] + 3 + 3 * np.arange(3 * extra)]
+                                        ).astype(index_type)
         pattern.indices = np.concatenate([self.indices, (3 * np.repeat(new, 9) + np.tile(np.arange(3), 3 * extra))]
                                          ).astype(index_type)
         pattern.diagonal_positions = pattern.positions(np.arange(pattern.n_dofs), np.arange(pattern.n_dofs))
