@@ -8,7 +8,9 @@ On Incision-v0 (single env, default keywords, one thread):
 - a step that cuts: the median of the scripted incision's cutting steps (each separates the faces the
   blade crossed and rebuilds the world's model, ``sim_core.cutting.cut_world``), in env steps;
 - a step after a cut: the median of steps with the blade held still in a world that holds a cut
-  model with copied nodes (stepped on its own model), against the steps before;
+  model with copied nodes (stepped on its own model), against the median of the same steps of an
+  uncut twin (the same env and seed, its blade held above the tissue) taken in alternation with them,
+  so that a shared machine's load weighs on both alike;
 - memory: the scripted incision (every episode cuts, copies nodes and resets) ``--episodes``
   times in one process; the peak resident set size (VmHWM of /proc/self/status) after 20 episodes
   and at the end, and their ratio (the floor: less than 10% growth from 20 to 220 episodes).
@@ -44,8 +46,10 @@ def timed(env, action):
     return time.process_time() - start, result
 
 
-def episode_times(env, seed, held=10):
-    """(before, cutting, after) lists of step wall times, s, of one scripted incision."""
+def episode_times(env, seed, held=10, twin=None):
+    """(before, cutting, after, uncut) lists of step CPU times, s, of one scripted incision: ``uncut``
+    the steps of ``twin`` (an env of the same id, reset with the same seed, never cut; None: none)
+    timed in alternation with the ``after`` steps."""
     env.reset(seed=seed)
     still = np.zeros(3, np.float32)
     before = [timed(env, still)[0] for _ in range(held)]  # the blade 5 mm above the tissue: no cut
@@ -58,8 +62,16 @@ def episode_times(env, seed, held=10):
             break
     if env.unwrapped.worlds.stack.shared[0]:
         raise RuntimeError("the scripted incision left no cut world with copied nodes")
-    after = [timed(env, still)[0] for _ in range(held)]
-    return before, cutting, after
+    after, uncut = [], []
+    if twin is not None:  # past its first step (its factorisation), as the cut env's world is
+        twin.reset(seed=seed)
+        for _ in range(3):
+            twin.step(still)
+    for _ in range(held):
+        after.append(timed(env, still)[0])
+        if twin is not None:
+            uncut.append(timed(twin, still)[0])
+    return before, cutting, after, uncut
 
 
 def memory(env, episodes):
@@ -85,22 +97,23 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.episodes <= MEMORY_FIRST or args.repeats < 1:
         parser.error(f"--episodes must be > {MEMORY_FIRST} and --repeats >= 1")
-    env = gym.make(ENV_ID)
-    episode_times(env, 0)  # warm: kernels loaded, the start state solved
-    before, cutting, after = [], [], []
+    env, twin = gym.make(ENV_ID), gym.make(ENV_ID)
+    episode_times(env, 0, twin=twin)  # warm: kernels loaded, the start state solved
+    before, cutting, after, uncut = [], [], [], []
     for seed in range(1, args.repeats + 1):
-        b, c, a = episode_times(env, seed)
+        b, c, a, u = episode_times(env, seed, twin=twin)
         before += b
         cutting += c
         after += a
-    step, cut, later = (float(np.median(values)) for values in (before, cutting, after))
+        uncut += u
+    step, cut, later, twin_step = (float(np.median(values)) for values in (before, cutting, after, uncut))
     start = time.perf_counter()
     first, last, successes = memory(gym.make(ENV_ID), args.episodes)
     result = dict(
         env_id=ENV_ID, machine=platform.processor() or platform.machine(),
-        step_s=step, cutting_step_s=cut, step_after_cut_s=later,
-        cutting_step_in_env_steps=cut / step, step_after_cut_ratio=later / step,
-        steps_timed=dict(before=len(before), cutting=len(cutting), after=len(after)),
+        step_s=step, cutting_step_s=cut, step_after_cut_s=later, uncut_twin_step_s=twin_step,
+        cutting_step_in_env_steps=cut / step, step_after_cut_ratio=later / twin_step,
+        steps_timed=dict(before=len(before), cutting=len(cutting), after=len(after), uncut_twin=len(uncut)),
         memory=dict(episodes=args.episodes, peak_rss_mb_after_20=first, peak_rss_mb_at_end=last,
                     growth=last / first - 1.0, scripted_successes=successes,
                     wall_time_s=time.perf_counter() - start),
@@ -108,7 +121,8 @@ def main(argv=None):
     )
     write_json(args.output, result)
     print(f"env step {step * 1e3:.2f} ms; cutting step {cut * 1e3:.1f} ms = {cut / step:.1f} env steps; "
-          f"after a cut {later * 1e3:.2f} ms = {later / step:.2f}x; peak RSS {first:.0f} MB after "
+          f"after a cut {later * 1e3:.2f} ms = {later / twin_step:.2f}x the uncut twin's {twin_step * 1e3:.2f} ms; "
+          f"peak RSS {first:.0f} MB after "
           f"{MEMORY_FIRST} episodes, {last:.0f} MB after {args.episodes} ({100 * (last / first - 1):+.1f}%)")
     return result
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from sim_core import kernels
 from sim_core.cutting import blade_faces, cut_world, element_faces, separation
-from sim_core.models.forces import internal_forces
+from sim_core.models.forces import ForceWorkspace
 from sim_core.models.model import State
 
 from .worlds import TaskWorlds
@@ -115,6 +115,7 @@ class CuttingWorlds(TaskWorlds):
         self.cut_length = np.zeros(count)
         self.cut_deviation = np.zeros(count)
         self.cut_refused = np.zeros(count, dtype=bool)
+        self._force_workspaces = {}  # world -> the force workspace of its cut model (``_force_workspace``)
 
     def _parked_origin(self):
         origin = np.full(self.stack.n_nodes, self.n_nodes, dtype=np.int64)
@@ -140,6 +141,7 @@ class CuttingWorlds(TaskWorlds):
         self.faces_cut[index] = self.cut_faces[index] = 0
         self.cut_length[index] = self.cut_deviation[index] = 0.0
         self.cut_refused[index] = False
+        self._force_workspaces.pop(index, None)
 
     def restored(self, index):
         if self.cuts[index]:  # the snapshot's cut model: its uncut model cut along the same faces (the same floats)
@@ -198,7 +200,9 @@ class CuttingWorlds(TaskWorlds):
             rows = model.n_nodes
             positions, velocities = self.positions[index, :rows], self.velocities[index, :rows]
             with np.errstate(all="ignore"):
-                forces = internal_forces(model, positions, velocities) + model.gravity_force.reshape(-1, 3)
+                forces = (self._force_workspace(index, model).compute(np.ascontiguousarray(positions),
+                                                                      np.ascontiguousarray(velocities))
+                          + model.gravity_force.reshape(-1, 3))
                 measures["forces"][index] = 0.0
                 measures["forces"][index, :rows] = forces
                 measures["reaction_force"][index] = (forces * tool_mask[index, :rows]).sum(axis=0)
@@ -210,6 +214,15 @@ class CuttingWorlds(TaskWorlds):
             measures["relative_volume_change"][index] = (volume - self.rest_volume[index]) / self.rest_volume[index]
             measures["volume_ratio_low"][index], measures["volume_ratio_high"][index] = ratio.min(), ratio.max()
         return measures
+
+    def _force_workspace(self, index, model):
+        """World ``index``'s force workspace on its cut ``model``, kept while it holds that model (here,
+        not in the model's derived data: a workspace refers to its model, and the cycle would keep every
+        cut model of an episode alive until a full garbage collection)."""
+        workspace = self._force_workspaces.get(index)
+        if workspace is None or workspace.model is not model:
+            workspace = self._force_workspaces[index] = ForceWorkspace(model, implicit=False)
+        return workspace
 
     def corner_positions(self, positions):
         """(N, M * k, 3) the positions, m, of every world's element corners (``corner_surface``)."""

@@ -97,30 +97,72 @@ class Model:
 
     def __post_init__(self):
         n_nodes = self.mesh.n_nodes
-        a, b = self.springs[:, 0], self.springs[:, 1]
-        n_springs = len(self.springs)
-        columns = np.arange(n_springs)
-        # f = incidence @ (t u): +t u on node a, -t u on node b (t = tension, u from a to b).
-        incidence = sp.csr_matrix(
-            (np.r_[np.ones(n_springs), -np.ones(n_springs)], (np.r_[a, b], np.r_[columns, columns])),
-            shape=(n_nodes, n_springs),
-        )
+        hourglass = self.hourglass
         elements = self.mesh.elements
-        element_scatter = sp.csr_matrix(
-            (np.ones(elements.size), (elements.ravel(), np.arange(elements.size))),
-            shape=(n_nodes, elements.size),
+        # the value-derived arrays a stack rewrites in place (``stack.StackedModel``); the pattern and
+        # the other topology arrays are built on first use (``TOPOLOGY_DERIVED``): a cut model that is
+        # only measured (``cutting.separate``'s, before a stack pads it) never builds them
+        derived = dict(
+            hourglass_arrays=(
+                (hourglass.indptr.astype(np.int64), hourglass.indices.astype(np.int64), hourglass.data)
+                if hourglass is not None else
+                (np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0))
+            ),
+            # a node of no element (a stack's parked row) carries no load: nothing would hold it
+            gravity_force=np.where((np.bincount(elements.ravel(), minlength=n_nodes) > 0)[:, None],
+                                   self.mass[:, None] * self.gravity[None, :], 0.0),
+            rest_edge_direction=_edge_directions(self.mesh.nodes, elements),
         )
-        # a smoothing domain couples every pair of its nodes (nodes two edges apart, outside the elements)
-        pattern = BlockPattern(n_nodes, elements, None if self.smoothing is None else self.smoothing.pairs())
-        spring_positions = np.stack(
-            [pattern.block_positions(a, a), pattern.block_positions(b, b),
-             pattern.block_positions(a, b), pattern.block_positions(b, a)], axis=1
-        )
-        element_positions = element_block_positions(pattern, elements)
-        mass_data = pattern.assemble(
-            pattern.diagonal_positions, np.repeat(self.mass, 3)
-        )
-        # node-pair blocks of the spring graph (block CSR) for the compiled implicit solver
+        for key, value in derived.items():
+            object.__setattr__(self, key, value)
+
+    @functools.cached_property
+    def incidence(self) -> sp.csr_matrix:
+        """(N, S) f = incidence @ (t u): +t u on node a, -t u on node b (t = tension, u from a to b)."""
+        a, b = self.springs[:, 0], self.springs[:, 1]
+        columns = np.arange(len(self.springs))
+        return sp.csr_matrix((np.r_[np.ones(len(columns)), -np.ones(len(columns))],
+                              (np.r_[a, b], np.r_[columns, columns])), shape=(self.n_nodes, len(columns)))
+
+    @functools.cached_property
+    def element_scatter(self) -> sp.csr_matrix:
+        """(N, M n) the sum over each node's element corners."""
+        elements = self.mesh.elements
+        return sp.csr_matrix((np.ones(elements.size), (elements.ravel(), np.arange(elements.size))),
+                             shape=(self.n_nodes, elements.size))
+
+    @functools.cached_property
+    def pattern(self) -> BlockPattern:
+        """The (3N, 3N) block pattern of the nodes that share an element (a smoothing domain couples
+        every pair of its nodes too: nodes two edges apart, outside the elements)."""
+        return BlockPattern(self.n_nodes, self.mesh.elements,
+                            None if self.smoothing is None else self.smoothing.pairs())
+
+    @functools.cached_property
+    def spring_positions(self) -> np.ndarray:
+        """(S, 4, 3, 3) the pattern positions of each spring's blocks (a, a), (b, b), (a, b), (b, a)."""
+        a, b = self.springs[:, 0], self.springs[:, 1]
+        pattern = self.pattern
+        return np.stack([pattern.block_positions(a, a), pattern.block_positions(b, b),
+                         pattern.block_positions(a, b), pattern.block_positions(b, a)], axis=1)
+
+    @functools.cached_property
+    def element_positions(self) -> np.ndarray:
+        """(M, n, n, 3, 3) the pattern positions of each element's node-pair blocks."""
+        return element_block_positions(self.pattern, self.mesh.elements)
+
+    @functools.cached_property
+    def mass_data(self) -> np.ndarray:
+        """The pattern data of the lumped mass matrix (a stack rewrites its worlds' entries in place)."""
+        return self.pattern.assemble(self.pattern.diagonal_positions, np.repeat(self.mass, 3))
+
+    @functools.cached_property
+    def node_blocks(self) -> tuple:
+        """The node-pair blocks of the spring graph (block CSR) for the compiled implicit solver:
+        (node_indptr, node_indices, diagonal_block, block_of_spring)."""
+        n_nodes, n_springs = self.n_nodes, len(self.springs)
+        a, b = self.springs[:, 0], self.springs[:, 1]
+        columns = np.arange(n_springs)
         pairs = np.concatenate([np.stack([np.arange(n_nodes)] * 2, axis=1), self.springs, self.springs[:, ::-1]])
         order = np.lexsort((pairs[:, 1], pairs[:, 0]))
         sorted_pairs = pairs[order]
@@ -132,25 +174,13 @@ class Model:
             [diagonal_block[a], diagonal_block[b], block_index[n_nodes + columns],
              block_index[n_nodes + n_springs + columns]], axis=1,
         )
-        hourglass = self.hourglass
-        derived = dict(
-            node_indptr=node_indptr, node_indices=np.ascontiguousarray(sorted_pairs[:, 1]).astype(np.int64),
-            diagonal_block=diagonal_block, block_of_spring=np.ascontiguousarray(block_of_spring),
-            hourglass_arrays=(
-                (hourglass.indptr.astype(np.int64), hourglass.indices.astype(np.int64), hourglass.data)
-                if hourglass is not None else
-                (np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0))
-            ),
-            incidence=incidence, element_scatter=element_scatter, pattern=pattern,
-            spring_positions=spring_positions, element_positions=element_positions,
-            mass_data=mass_data,
-            # a node of no element (a stack's parked row) carries no load: nothing would hold it
-            gravity_force=np.where((np.bincount(elements.ravel(), minlength=n_nodes) > 0)[:, None],
-                                   self.mass[:, None] * self.gravity[None, :], 0.0),
-            rest_edge_direction=_edge_directions(self.mesh.nodes, elements),
-        )
-        for key, value in derived.items():
-            object.__setattr__(self, key, value)
+        return (node_indptr, np.ascontiguousarray(sorted_pairs[:, 1]).astype(np.int64), diagonal_block,
+                np.ascontiguousarray(block_of_spring))
+
+    node_indptr = property(lambda self: self.node_blocks[0])
+    node_indices = property(lambda self: self.node_blocks[1])
+    diagonal_block = property(lambda self: self.node_blocks[2])
+    block_of_spring = property(lambda self: self.node_blocks[3])
 
     @property
     def rayleigh(self) -> tuple[float, float]:
@@ -323,6 +353,49 @@ class Control:
         return Control(self.fixed.copy(), self.target.copy(), self.force.copy())
 
 
+#: The derived data of a model that depends on its topology alone (node count, elements, springs,
+#: smoothing domains), built on first use and never changed: models of one topology may share it
+#: (``share_topology``).
+TOPOLOGY_DERIVED = ("incidence", "element_scatter", "pattern", "spring_positions", "element_positions",
+                    "node_blocks")
+#: The topology data the implicit solver reads (the others serve the numpy reference forces).
+SOLVER_TOPOLOGY = ("pattern", "spring_positions", "element_positions")
+
+
+def share_topology(source: Model, target: Model) -> None:
+    """Give ``target``, a model of ``source``'s topology (the same node count, elements, springs and
+    smoothing domains; its values may differ), ``source``'s topology data (``TOPOLOGY_DERIVED``: the
+    solver's, ``SOLVER_TOPOLOGY``, built now if it was not, and the rest it has built) instead of
+    building its own: a stack of one world (``stack.ModelStack``) is its model's topology."""
+    if not (source.n_nodes == target.n_nodes and np.array_equal(source.mesh.elements, target.mesh.elements)
+            and np.array_equal(source.springs, target.springs)
+            and (source.smoothing is None) == (target.smoothing is None)
+            and (source.smoothing is None or (np.array_equal(source.smoothing.indptr, target.smoothing.indptr)
+                                              and np.array_equal(source.smoothing.nodes, target.smoothing.nodes)))):
+        raise ValueError("share_topology needs two models of one topology (node count, elements, springs, smoothing "
+                         "domains)")
+    for name in TOPOLOGY_DERIVED:  # what the solvers read, and what else the source has built already
+        if name in SOLVER_TOPOLOGY or name in source.__dict__:
+            target.__dict__[name] = getattr(source, name)
+
+
+def extend_topology(source: Model, target: Model) -> None:
+    """Give ``target``, ``source`` on more node rows (``source``'s nodes, then nodes of no element and
+    no spring: a stack's parked rows, ``stack.with_spare_nodes``), the topology data ``source`` has
+    built, extended to those rows (``BlockPattern.padded``: the entries of ``source``'s nodes keep
+    their positions, so its spring and element positions hold) instead of building it again."""
+    if not (target.n_nodes >= source.n_nodes and np.array_equal(source.mesh.elements, target.mesh.elements)
+            and np.array_equal(source.springs, target.springs) and source.smoothing is None
+            and target.smoothing is None):
+        raise ValueError("extend_topology needs a model and the same model on more node rows (no smoothing domains)")
+    if "pattern" not in source.__dict__:
+        return
+    target.__dict__["pattern"] = source.pattern.padded(target.n_nodes)
+    for name in ("spring_positions", "element_positions"):
+        if name in source.__dict__:
+            target.__dict__[name] = source.__dict__[name]
+
+
 def _edge_directions(positions, elements):
     edges = TET_EDGES if elements.shape[1] == 4 else EDGES
     vectors = positions[elements[:, edges[:, 1]]] - positions[elements[:, edges[:, 0]]]
@@ -345,6 +418,7 @@ def build_model(
     springs: str = "faces",
     max_shear_error: float | None = MAX_SHEAR_ERROR,
     smoothing: str | None = None,
+    same_elements: Model | None = None,
 ) -> Model:
     """Build a mass-spring ``Model`` once from geometry and material.
 
@@ -396,6 +470,10 @@ def build_model(
             stiffen in bending; the edge springs then only damp (their stiffness, which sets the
             damping of section 5, is not added to the elastic forces). "none": each tetrahedron's
             own F, exactly linear-tetrahedron FEM (which locks) [12].
+        same_elements: None, or a model whose elements have this mesh's rest corners and material
+            in the same order (the model of the mesh before a cut, ``cutting.separate``): the
+            per-element terms that depend on an element alone (rest volumes, hourglass element
+            matrices) are taken from it instead of computed again; the model is the same.
     """
     if model not in MSS_MODELS:
         raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
@@ -420,11 +498,12 @@ def build_model(
     props = material.per_element(mesh.n_elements)
     young_modulus, poisson_ratio, density = props["young_modulus"], props["poisson_ratio"], props["density"]
 
+    same = same_elements if _has_same_elements(same_elements, mesh, props) else None
     axis_rest_length = terms.axis_rest_lengths(mesh)
     local_pairs, values = terms.element_springs(mesh, model, young_modulus, poisson_ratio, axis_rest_length,
                                                 springs, max_shear_error)
     spring_pairs, stiffness, edge_spring, rest_length = terms.merge_springs(mesh, local_pairs, values)
-    rest_volume = mesh.element_volumes()
+    rest_volume = mesh.element_volumes() if same is None else same.rest_volume
     mass, damping = terms.masses_and_damping(mesh, density, rest_volume, spring_pairs, stiffness,
                                              options["damping_ratio"])
     w, correction_mode = np.zeros((mesh.n_elements, 3, 3)), None  # tetrahedra: the stress correction instead
@@ -446,8 +525,16 @@ def build_model(
              if options["volume_conservation"] else np.zeros(mesh.n_elements))
     hourglass = None
     if options["hourglass_control"] > 0:
-        hourglass = terms.hourglass_matrix(mesh, young_modulus, poisson_ratio, options["hourglass_control"])
-    return Model(
+        alpha = options["hourglass_control"]
+        matrices = None
+        if same is not None and same.hourglass is not None:  # computed once per uncut model, kept with it
+            matrices = same.derived.get(("hourglass_elements", alpha), lambda: terms.hourglass_element_matrices(
+                same.mesh, young_modulus, poisson_ratio, alpha))
+        # the model's own pattern (a hexahedral model's couples the nodes of its elements, as this matrix)
+        pattern = BlockPattern(mesh.n_nodes, mesh.elements)
+        positions = element_block_positions(pattern, mesh.elements)
+        hourglass = terms.hourglass_matrix(mesh, young_modulus, poisson_ratio, alpha, matrices, pattern, positions)
+    built = Model(
         mesh=mesh, name=model, hourglass=hourglass, mass=mass, springs=spring_pairs, rest_length=rest_length,
         stiffness=stiffness, damping=damping, edge_spring=edge_spring,
         axis_rest_length=axis_rest_length, correction_matrix=w, correction_mode=correction_mode,
@@ -456,6 +543,20 @@ def build_model(
         options=dict(corrections=corrections, **options), stress_correction=correction, smoothing=smoothed,
         damping_law=damping_law,
     )
+    if hourglass is not None:  # its pattern is the one the hourglass matrix was assembled on: not built again
+        built.__dict__.update(pattern=pattern, element_positions=positions)
+    return built
+
+
+def _has_same_elements(model: Model | None, mesh, props) -> bool:
+    """Whether ``model``'s elements have ``mesh``'s rest corners and the material ``props`` (per element)."""
+    if model is None:
+        return False
+    if type(model.mesh) is not type(mesh) or model.mesh.elements.shape != mesh.elements.shape:
+        return False
+    return (np.array_equal(model.mesh.nodes[model.mesh.elements], mesh.nodes[mesh.elements])
+            and all(np.array_equal(getattr(model, name), props[name])
+                    for name in ("young_modulus", "poisson_ratio", "density")))
 
 
 def _nonnegative(name, value) -> float:

@@ -22,7 +22,7 @@ import scipy.sparse as sp
 
 from .. import kernels
 from .forces import ForceWorkspace, hourglass_block_map, stress_arguments
-from .model import Control, Model, State
+from .model import Control, Model, State, extend_topology, share_topology
 from ..caches import digest
 from .smoothing import SmoothedStrain
 from .stress_correction import ARRAY_FIELDS, StressCorrection, write_lanes
@@ -72,7 +72,10 @@ def with_spare_nodes(model: Model, n_nodes: int) -> Model:
     fields = {field.name: getattr(model, field.name) for field in dataclasses.fields(Model)}
     fields.update(mesh=mesh, hourglass=hourglass,
                   mass=np.concatenate([model.mass, np.full(extra, float(np.mean(model.mass)))]))
-    return Model(**fields)
+    padded = Model(**fields)
+    if model.smoothing is None:  # the model's pattern, extended to the parked rows (not built again)
+        extend_topology(model, padded)
+    return padded
 
 
 def same_topology(model: Model, reference: Model) -> bool:
@@ -159,14 +162,21 @@ class ModelStack:
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
             options=dict(model.options), stress_correction=stress, smoothing=smoothing, **values,
         )
+        if count == 1:  # one world (a cut world's own solver): its model's pattern, not a second one
+            share_topology(model, self.model)
         # slots of each copy in the per-dof arrays the Model derived at construction
         self._mass_positions = self.model.pattern.diagonal_positions.reshape(count, -1)
+        # built now, not at first use: ``assign`` rewrites its slices in place, from any thread
+        self.model.mass_data  # noqa: B018
         #: each world's model on the stack's ``n_nodes`` rows (the given one, its unused rows parked)
         self.models = [model] * count
         #: (N,) bool: the worlds whose model the stacked arrays hold (the block's topology); the
         #: others hold a model of their own (``models[i]``) and are stepped on it
         self.shared = np.ones(count, dtype=bool)
-        self._hourglass_keys = [digest(model.hourglass.data) if model.hourglass is not None else None] * count
+        # the copies' hourglass matrices by content (``hourglass_groups``); one world is one group
+        # whatever its matrix (a cut world's own solver: no megabyte to hash)
+        self._hourglass_keys = [None if model.hourglass is None else digest(model.hourglass.data) if count > 1
+                                else "one world"] * count
         self._hourglass_by_key = {self._hourglass_keys[0]: model.hourglass}
         self._hourglass_groups = None
         self.version = 0

@@ -79,8 +79,11 @@ def merge_springs(mesh, local_pairs: np.ndarray, values: np.ndarray):
     of their stiffness) [2]: springs (S, 2) node pairs, stiffness (S,) N/m, edge_spring (M, E) the
     spring of each element edge (its first E = 12 or 6 local pairs), rest_length (S,) m."""
     nodes, elements = mesh.nodes, mesh.elements
-    pairs = np.sort(elements[:, local_pairs].reshape(-1, 2), axis=1)
-    springs, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    pairs = np.sort(elements[:, local_pairs].reshape(-1, 2), axis=1).astype(np.int64)
+    # one int64 key per pair: the order of unique(axis=0), several times faster (a cut merges again)
+    size = max(int(mesh.n_nodes), 1)
+    keys, inverse = np.unique(pairs[:, 0] * size + pairs[:, 1], return_inverse=True)
+    springs = np.stack([keys // size, keys % size], axis=1).astype(elements.dtype)
     inverse = inverse.ravel()
     stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(springs))
     edges = 6 if elements.shape[1] == 4 else 12
@@ -215,12 +218,25 @@ def hourglass_projectors(nodes: np.ndarray, elements: np.ndarray) -> np.ndarray:
     return np.eye(8)[None] - q @ q.transpose(0, 2, 1)
 
 
-def hourglass_matrix(mesh: HexMesh, young_modulus, poisson_ratio, alpha: float) -> sp.csr_matrix:
-    """alpha sum_e (P_e x I3) K_e^FEM (P_e x I3): FEM stiffness restricted to hourglass modes (N/m)."""
+def hourglass_element_matrices(mesh: HexMesh, young_modulus, poisson_ratio, alpha: float) -> np.ndarray:
+    """(M, 24, 24) alpha (P_e x I3) K_e^FEM (P_e x I3) per element (N/m): each depends on its element's
+    rest corners and material alone, so a cut mesh's are its uncut mesh's [6]."""
     projector = hourglass_projectors(mesh.nodes, mesh.elements)
     full = np.einsum("mab,ij->maibj", projector, np.eye(3)).reshape(-1, 24, 24)
     stiffness = element_stiffness(mesh.nodes, mesh.elements, young_modulus, poisson_ratio)
-    matrices = alpha * full @ stiffness @ full
-    pattern = BlockPattern(mesh.n_nodes, mesh.elements)
-    positions = element_block_positions(pattern, mesh.elements)
+    return alpha * full @ stiffness @ full
+
+
+def hourglass_matrix(mesh: HexMesh, young_modulus, poisson_ratio, alpha: float, matrices=None,
+                     pattern: BlockPattern | None = None, positions=None) -> sp.csr_matrix:
+    """alpha sum_e (P_e x I3) K_e^FEM (P_e x I3): FEM stiffness restricted to hourglass modes (N/m),
+    assembled from ``matrices`` (``hourglass_element_matrices``; None: computed here) on ``pattern``
+    (the ``BlockPattern`` of the mesh's elements, its index arrays shared) at the element blocks'
+    ``positions`` in it (``element_block_positions``); None: built here."""
+    if matrices is None:
+        matrices = hourglass_element_matrices(mesh, young_modulus, poisson_ratio, alpha)
+    if pattern is None:
+        pattern = BlockPattern(mesh.n_nodes, mesh.elements)
+    if positions is None:
+        positions = element_block_positions(pattern, mesh.elements)
     return pattern.matrix(pattern.assemble(positions, element_blocks(matrices, 8)))

@@ -330,10 +330,7 @@ class ImplicitEuler(WorldsSolver):
         #: instead of its LU: half the values for every preconditioner application
         self.symmetric = SYMMETRIC_FACTOR
         reference = stack.reference
-        hg_indptr, hg_indices, _ = reference.hourglass_arrays
-        rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
-        self._hg_positions = (reference.pattern.positions(rows, hg_indices) if len(hg_indices)
-                              else np.zeros(0, np.int64))
+        self._hg_positions = reference.pattern.csr_positions(*reference.hourglass_arrays[:2])
         self._values = np.empty(reference.pattern.nnz)
 
     @property

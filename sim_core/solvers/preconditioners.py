@@ -64,10 +64,9 @@ def _build_pattern_arrays(model: Model):
     pattern = model.pattern
     column = np.repeat(np.arange(pattern.n_dofs), np.diff(pattern.indptr))  # CSR row c = CSC column c
     rows = pattern.indices.astype(np.int64)
-    transpose = pattern.positions(rows, column)  # data position of (row, column): the pattern is symmetric
+    transpose = pattern.transpose_positions()  # data position of (row, column): the pattern is symmetric
     hg_indptr, hg_indices, _ = model.hourglass_arrays
-    hg_rows = np.repeat(np.arange(len(hg_indptr) - 1), np.diff(hg_indptr))
-    hg_positions = pattern.positions(hg_rows, hg_indices) if len(hg_indices) else np.zeros(0, np.int64)
+    hg_positions = pattern.csr_positions(hg_indptr, hg_indices)
     return column, rows, transpose, hg_positions, np.repeat(model.mass, 3)
 
 

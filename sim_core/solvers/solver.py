@@ -440,7 +440,8 @@ class WorldsSolver(OneWorldSolver):
             velocities = np.array(state_in.velocities, dtype=float)
             self.last_iterations, self.last_residual = np.zeros(count, dtype=int), np.zeros(count)
         reasons = np.full(count, None, dtype=object)
-        reasons[shared] = self.monitors.check(positions, velocities, shared)[shared]
+        if shared.any():  # (a cut world's own solver checks it; no stacked world stepped: nothing to check)
+            reasons[shared] = self.monitors.check(positions, velocities, shared)[shared]
         iterations, residual = self.last_iterations.copy(), self.last_residual.copy()
         for index in np.flatnonzero(active & ~stack.shared):
             one = slice(index, index + 1)

@@ -1,0 +1,103 @@
+"""What makes a cut cheap leaves the physics as it was: a model built with ``same_elements`` (the uncut
+model's per-element terms) is the model built without it, a pattern padded for a stack's parked rows
+is the pattern built on those rows, and the entry positions found through node blocks are those of
+the matrix's own entries."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from sim_core import HexMesh, Material, TetMesh, build_model, cutting
+from sim_core.models.model import Model, share_topology
+from sim_core.models.sparse import BlockPattern
+from sim_core.models.stack import with_spare_nodes
+
+MATERIAL = Material(1e4, 0.45, 1000.0)
+CASES = [(HexMesh, "baudet", dict(hourglass_control=1.0)), (HexMesh, "baudet-hyperelastic", {}),
+         (TetMesh, "baudet", {})]
+
+
+def cut_mesh(kind):
+    """A 4 x 2 x 2 block and the same block cut through at x = 2 elements (its nodes copied there)."""
+    mesh = kind.block((4, 2, 2), 0.01)
+    uncut = build_model(mesh, MATERIAL)
+    shared = cutting.shared_faces(mesh)
+    side = mesh.nodes[mesh.elements].mean(axis=1)[:, 0] < 0.02
+    return mesh, cutting.separate(uncut, shared[side[shared[:, 0]] != side[shared[:, 1]]]).mesh
+
+
+def model_arrays(model):
+    """Every array field of ``model`` (the hourglass matrix dense), by name."""
+    arrays = {}
+    for field in dataclasses.fields(Model):
+        value = getattr(model, field.name)
+        if isinstance(value, np.ndarray):
+            arrays[field.name] = value
+        elif sp.issparse(value):
+            arrays[field.name] = value.toarray()
+        elif dataclasses.is_dataclass(value):
+            arrays.update({f"{field.name}.{name}": item for name, item in vars(value).items()
+                           if isinstance(item, np.ndarray)})
+    return arrays
+
+
+@pytest.mark.parametrize("kind, name, options", CASES)
+def test_a_model_built_with_the_uncut_models_elements_is_the_model_built_alone(kind, name, options):
+    mesh, cut = cut_mesh(kind)
+    uncut = build_model(mesh, MATERIAL, model=name, **options)
+    alone = build_model(cut, MATERIAL, model=name, **options)
+    reused = build_model(cut, MATERIAL, model=name, same_elements=uncut, **options)
+    expected, got = model_arrays(alone), model_arrays(reused)
+    assert expected.keys() == got.keys()
+    for key in expected:
+        np.testing.assert_array_equal(got[key], expected[key], err_msg=key)
+
+
+def test_same_elements_of_another_material_is_not_used():
+    mesh, cut = cut_mesh(HexMesh)
+    other = build_model(mesh, Material(2e4, 0.45, 1000.0), hourglass_control=1.0)
+    alone = build_model(cut, MATERIAL, hourglass_control=1.0)
+    reused = build_model(cut, MATERIAL, hourglass_control=1.0, same_elements=other)
+    np.testing.assert_array_equal(reused.hourglass.toarray(), alone.hourglass.toarray())
+    np.testing.assert_array_equal(reused.stiffness, alone.stiffness)
+
+
+@pytest.mark.parametrize("kind", [HexMesh, TetMesh])
+def test_a_padded_pattern_is_the_pattern_built_on_its_rows(kind):
+    mesh = kind.block((3, 2, 2), 0.01)
+    padded, built = BlockPattern(mesh.n_nodes, mesh.elements).padded(mesh.n_nodes + 7), BlockPattern(
+        mesh.n_nodes + 7, mesh.elements)
+    np.testing.assert_array_equal(padded.indptr, built.indptr)
+    np.testing.assert_array_equal(padded.indices, built.indices)
+    np.testing.assert_array_equal(padded.diagonal_positions, built.diagonal_positions)
+    corners = mesh.elements
+    np.testing.assert_array_equal(padded.block_positions(corners[:, :, None], corners[:, None, :]),
+                                  built.block_positions(corners[:, :, None], corners[:, None, :]))
+
+
+def test_entry_positions_are_those_of_the_patterns_matrix():
+    mesh = HexMesh.block((3, 2, 2), 0.01)
+    model = with_spare_nodes(build_model(mesh, MATERIAL, hourglass_control=1.0), mesh.n_nodes + 5)
+    pattern = model.pattern
+    rows = np.repeat(np.arange(pattern.n_dofs), np.diff(pattern.indptr))
+    np.testing.assert_array_equal(pattern.positions(rows, pattern.indices), np.arange(pattern.nnz))
+    np.testing.assert_array_equal(pattern.transpose_positions(), pattern.positions(pattern.indices, rows))
+    hourglass = model.hourglass.tocoo()
+    np.testing.assert_array_equal(pattern.csr_positions(model.hourglass.indptr, model.hourglass.indices),
+                                  pattern.positions(hourglass.row, hourglass.col))
+    values = np.zeros(pattern.nnz)
+    values[pattern.csr_positions(model.hourglass.indptr, model.hourglass.indices)] = model.hourglass.data
+    np.testing.assert_array_equal(pattern.matrix(values).toarray(), model.hourglass.toarray())
+    with pytest.raises(ValueError, match="outside the fixed sparsity pattern"):
+        pattern.positions(np.array([0]), np.array([3 * (mesh.n_nodes + 4)]))  # a parked row: no coupling
+
+
+def test_topology_is_shared_only_between_models_of_one_topology():
+    mesh, cut = cut_mesh(HexMesh)
+    uncut, other = build_model(mesh, MATERIAL), build_model(mesh, Material(2e4, 0.4, 900.0))
+    share_topology(uncut, other)
+    assert other.pattern is uncut.pattern
+    with pytest.raises(ValueError, match="one topology"):
+        share_topology(uncut, build_model(cut, MATERIAL))
