@@ -21,6 +21,7 @@ stable-baselines3 (``pip install "tissue-gym[train]"``) and is not imported here
 import gymnasium
 
 from .base import TissueEnv
+from .bimanual import BimanualExposureEnv, BimanualExposureVectorEnv
 from .goal import forward_compute_reward
 from .liver_needle import LiverNeedleAlignmentEnv, LiverNeedleAlignmentVectorEnv
 from .palpation import PalpationEnv, PalpationVectorEnv
@@ -34,6 +35,7 @@ ENV_IDS = {
     "tissue_env/Palpation-v0": ("tissue_env.palpation:PalpationEnv", 100),
     "tissue_env/Retraction-v0": ("tissue_env.retraction:RetractionEnv", 60),
     "tissue_env/LiverNeedleAlignment-v0": ("tissue_env.liver_needle:LiverNeedleAlignmentEnv", 50),
+    "tissue_env/BimanualExposure-v0": ("tissue_env.bimanual:BimanualExposureEnv", 80),
 }
 #: Batched vector environments (``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``).
 VECTOR_ENTRY_POINTS = {
@@ -41,6 +43,7 @@ VECTOR_ENTRY_POINTS = {
     "tissue_env/Palpation-v0": "tissue_env.palpation:PalpationVectorEnv",
     "tissue_env/Retraction-v0": "tissue_env.retraction:RetractionVectorEnv",
     "tissue_env/LiverNeedleAlignment-v0": "tissue_env.liver_needle:LiverNeedleAlignmentVectorEnv",
+    "tissue_env/BimanualExposure-v0": "tissue_env.bimanual:BimanualExposureVectorEnv",
 }
 
 # gym.make's wrappers forward a goal env's compute_reward (tissue_env.goal: SB3's check_env and HER)
@@ -51,5 +54,5 @@ for _env_id, (_entry_point, _max_steps) in ENV_IDS.items():
         gymnasium.register(id=_env_id, entry_point=_entry_point, max_episode_steps=_max_steps,
                            vector_entry_point=VECTOR_ENTRY_POINTS.get(_env_id))
 
-__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "LiverNeedleAlignmentEnv", "LiverNeedleAlignmentVectorEnv", "PalpationEnv", "PalpationVectorEnv", "RetractionEnv",
+__all__ = ["BimanualExposureEnv", "BimanualExposureVectorEnv", "ENV_IDS", "VECTOR_ENTRY_POINTS", "LiverNeedleAlignmentEnv", "LiverNeedleAlignmentVectorEnv", "PalpationEnv", "PalpationVectorEnv", "RetractionEnv",
            "RetractionVectorEnv", "TissueEnv", "TissueVectorEnv", "TumorPositioningEnv", "TumorPositioningVectorEnv"]
