@@ -14,6 +14,14 @@ ENV_IDS = sorted(tissue_env.ENV_IDS)
 INFO_KEYS = ("relative_volume_change", "unstable", "unstable_reason", "is_success")
 
 
+def action_shape(env_id):
+    """The task's action shape: 3 increments per tool, then its grasp commands (if any)."""
+    env = gym.make(env_id)
+    shape = env.action_space.shape
+    env.close()
+    return shape
+
+
 def run(env_id, seed, actions, env=None, **kwargs):
     env = gym.make(env_id, **kwargs) if env is None else env
     obs, info = env.reset(seed=seed)
@@ -65,7 +73,7 @@ def test_make_vec(env_id, mode):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_same_seed_same_trajectory_different_seed_different_episode(env_id):
-    actions = np.random.default_rng(1).uniform(-1, 1, (4, 3)).astype(np.float32)
+    actions = np.random.default_rng(1).uniform(-1, 1, (4,) + action_shape(env_id)).astype(np.float32)
     first, rewards_first = run(env_id, 3, actions)
     second, rewards_second = run(env_id, 3, actions)
     other, _ = run(env_id, 4, actions)
@@ -84,15 +92,16 @@ def test_info_keys_fresh_arrays_and_observation_types(env_id):
             assert key in info
         reward_keys = [key for key in info if key.startswith("reward_")]
         assert reward_keys
-        obs2, reward, terminated, truncated, info2 = env.step(np.zeros(3, np.float32))
+        obs2, reward, terminated, truncated, info2 = env.step(np.zeros(env.action_space.shape, np.float32))
         assert env.observation_space.contains(obs2)
         for key in INFO_KEYS + tuple(reward_keys):
             assert key in info2
         assert np.isclose(reward, sum(info2[key] for key in reward_keys))
-        for values in (info, info2):  # one tool: its force on the tool (N) and whether it holds tissue
-            assert values["tool_forces"].shape == (1, 3) and values["tool_forces"].dtype == np.float64
-            assert values["grasped"].shape == (1,) and values["grasped"].dtype == bool
-            np.testing.assert_array_equal(values["tool_forces"][0], -np.asarray(values["reaction_force"]))
+        tools = env.unwrapped.tool_count
+        for values in (info, info2):  # per tool: the tissue's force on it (N) and whether it holds tissue
+            assert values["tool_forces"].shape == (tools, 3) and values["tool_forces"].dtype == np.float64
+            assert values["grasped"].shape == (tools,) and values["grasped"].dtype == bool
+            np.testing.assert_array_equal(values["tool_forces"].ravel(), -np.asarray(values["reaction_force"]))
         if observation_type != "dict":
             assert obs2 is not obs and not np.shares_memory(obs, obs2)
         env.close()
@@ -103,14 +112,16 @@ def test_info_keys_fresh_arrays_and_observation_types(env_id):
 def test_non_finite_action_raises(env_id, bad):
     env = gym.make(env_id)
     env.reset(seed=0)
+    action = np.zeros(env.action_space.shape, np.float32)
+    action[1] = bad
     with pytest.raises(ValueError, match="finite"):
-        env.step(np.array([0.0, bad, 0.0], np.float32))
+        env.step(action)
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_out_of_range_action_is_clipped(env_id):
-    clipped, rewards_clipped = run(env_id, 0, [np.array([5.0, -7.0, 3.0])])
-    unit, rewards_unit = run(env_id, 0, [np.array([1.0, -1.0, 1.0])])
+    clipped, rewards_clipped = run(env_id, 0, [np.resize([5.0, -7.0, 3.0], action_shape(env_id))])
+    unit, rewards_unit = run(env_id, 0, [np.resize([1.0, -1.0, 1.0], action_shape(env_id))])
     np.testing.assert_array_equal(clipped, unit)
     np.testing.assert_array_equal(rewards_clipped, rewards_unit)
 
