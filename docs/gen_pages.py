@@ -46,6 +46,7 @@ TASK_PAGES = {  # registered id -> page name (the class, the vector class and th
     "tissue_env/Palpation-v0": "palpation",
     "tissue_env/Retraction-v0": "retraction",
     "tissue_env/LiverNeedleAlignment-v0": "liver-needle-alignment",
+    "tissue_env/BimanualExposure-v0": "bimanual-exposure",
 }
 
 
