@@ -56,9 +56,7 @@ class BimanualExposureWorlds(RetractionWorlds):
         self.held[index] = env.held
         self.grasp_anchors[index] = np.where(env.held[..., None], rest[None], 0.0)
         self.held_count[index] = self.grasp_size[index] = env.held.sum(axis=-1)
-        self.target_x[index] = env.target_x
-        self.target_points[index] = env.target_points
-        self.contact[index] = env.contact
+        self._load_floor_scene(index, env)
 
     def _write_back_task(self, index, env):
         env.contact = self.contact[index].copy()
@@ -447,10 +445,6 @@ class BimanualExposureEnv(RetractionEnv):
         jaws = (self.jaw_rest + self.tool_offset).reshape(2, 3)
         return dict(tool=jaws[0], tool_right=jaws[1],
                     target=np.array([self.target_x.mean(), 0.0, 0.5 * self.size[2]]))
-
-    def _extra_drawing(self):
-        width = self.size[2]
-        return [("rectangle", (self.target_x[0], self.target_x[1], 0.25 * width, 0.75 * width, 0.0))]
 
 
 class BimanualExposureVectorEnv(TissueVectorEnv):

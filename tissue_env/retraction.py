@@ -110,6 +110,10 @@ class RetractionWorlds(TaskWorlds):
         self.grasp_chosen[index] = env.grasp_chosen
         self.grasp_size[index] = self.held[index].sum()
         self.grasp_reach[index] = env.episode_size[0]
+        self._load_floor_scene(index, env)
+
+    def _load_floor_scene(self, index, env):
+        """World ``index``'s target on the floor (its x range and grid points) and the nodes its floor holds."""
         self.target_x[index] = env.target_x
         self.target_points[index] = env.target_points
         self.contact[index] = env.contact
