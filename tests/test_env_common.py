@@ -219,9 +219,12 @@ def test_the_strain_entry_reads_beyond_100_percent(env_id):
     per-feature boxes and the goal form's ``observation`` have the same bounds."""
     from tissue_env.worlds import FEATURE_LIMITS, OBS_LIMIT
 
-    state = gym.make(env_id).observation_space
+    env = gym.make(env_id)
+    state = env.observation_space
     high = np.full(state.shape, OBS_LIMIT, dtype=np.float32)
-    high[10] = FEATURE_LIMITS["max_strain"]  # index 10: every task's Observation Space table
+    # after 3 x 3 entries per tool (position, displacement, force) and the volume change: index 10 of a
+    # one-tool task's Observation Space table, 19 of a two-tool task's
+    high[9 * env.unwrapped.tool_count + 1] = FEATURE_LIMITS["max_strain"]
     assert np.array_equal(state.high, high) and np.array_equal(state.low, -high)
     spaces = gym.make(env_id, observation_type="dict").observation_space
     assert float(spaces["max_strain"].high[0]) == FEATURE_LIMITS["max_strain"]
@@ -238,15 +241,16 @@ def test_an_episode_does_not_depend_on_the_episodes_before_it(env_id):
     # an episode must stay bitwise that of a fresh env, whatever the earlier episodes' first actions
     # (another imposed set, other iteration counts).
     rng = np.random.default_rng(3)
-    actions = rng.uniform(-1, 1, (30, 3)).astype(np.float32)
+    size = action_shape(env_id)[0]  # 3 per tool (then grasp commands): the first 3 are the first tool's
+    actions = rng.uniform(-1, 1, (30, size)).astype(np.float32)
     env = gym.make(env_id)
     for seed, first in ((5, [0.0, 0.0, 0.0]), (5, [0.0, 1.0, 0.0]), (12, [1.0, 1.0, -1.0]), (5, [1.0, -1.0, 1.0])):
         env.reset(seed=seed)
-        for action in [first] + list(rng.uniform(-1, 1, (12, 3))):
+        for action in [np.resize(first, size)] + list(rng.uniform(-1, 1, (12, size))):
             if env.step(np.asarray(action, dtype=np.float32))[2]:
                 break
     for first in ((0.0, -1.0, 0.0), (0.5, 0.5, 0.5)):  # Palpation: a probe contact at the first step, none
-        actions[0] = first
+        actions[0] = np.resize(first, size)
         fresh = run(env_id, 5, actions)
         after = run(env_id, 5, actions, env=env)
         np.testing.assert_array_equal(fresh[0], after[0])
@@ -273,5 +277,6 @@ def test_tool_forces_are_the_tissue_force_on_the_tool(env_id):
         static = solve_static(task.model, task.start_control, initial=task.state.positions)
         np.testing.assert_allclose(info["tool_forces"][0], -static.reaction[tool].sum(axis=0), rtol=1e-6, atol=1e-9)
         assert np.linalg.norm(info["tool_forces"][0]) > 1e-4  # the patch holds part of the block's weight
-    assert info["grasped"][0] == (env_id != "tissue_env/Palpation-v0")
+    # a probe grasps nothing, BimanualExposure's graspers start open (closed by their grasp commands)
+    assert info["grasped"][0] == (env_id not in ("tissue_env/Palpation-v0", "tissue_env/BimanualExposure-v0"))
     env.close()
