@@ -310,7 +310,7 @@ class BimanualExposureEnv(RetractionEnv):
     randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
                                  density="density_range")
     episode_keywords = ("target_shift_range",)
-    summary = ("two graspers close on the free edges of the two flaps of a cleft lying on a rigid floor and fold "
+    summary = ("two graspers hold the free edges of the two flaps of a cleft lying on a rigid floor and fold "
                "them back to expose a target strip under the cleft, each under a tension limit")
     success_summary = "every target point exposed with each tool's force at most {force_limit:N}"
     DIFFICULTY = dict(
