@@ -122,3 +122,26 @@ def test_snapshot_and_deepcopy_reproduce_the_next_steps():
 def test_invalid_keywords_raise(keyword, value):
     with pytest.raises(ValueError, match=keyword):
         gym.make(ENV_ID, **{keyword: value})
+
+
+def test_grasp_commands_in_a_vector_env_give_the_single_envs_steps():
+    """The grasp commands act per world: a vector env's copies, each closing and opening its own
+    graspers, take the single envs' steps (same seeds, same actions) to the last bit."""
+    vector = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode="vector_entry_point", threads=1, grasp_commands=True)
+    singles = [gym.make(ENV_ID, grasp_commands=True) for _ in range(2)]
+    vector.reset(seed=[4, 5])
+    for index, env in enumerate(singles):
+        env.reset(seed=4 + index)
+    actions = np.random.default_rng(2).uniform(-1, 1, (6, 2, 8)).astype(np.float32)
+    actions[0, :, 6:] = [[1.0, 0.0], [0.0, 1.0]]  # copy 0 closes its left grasper, copy 1 its right one
+    held = []
+    for step in actions:
+        observations, rewards, _, _, infos = vector.step(step)
+        held.append(infos["grasped"].copy())
+        for index, env in enumerate(singles):
+            observation, reward, _, _, info = env.step(step[index])
+            np.testing.assert_array_equal(observations[index], observation)
+            assert rewards[index] == reward
+            np.testing.assert_array_equal(infos["grasped"][index], info["grasped"])
+            np.testing.assert_array_equal(infos["tool_forces"][index], info["tool_forces"])
+    assert held[0].tolist() == [[True, False], [False, True]]  # each copy's own command closed its own jaw
