@@ -26,7 +26,7 @@ def _generator():
 def test_generated_pages_match_the_committed_ones():
     pages = _generator().pages()
     assert {"docs/tasks/tumor-positioning.md", "docs/tasks/palpation.md", "docs/tasks/retraction.md",
-            "docs/tasks/liver-needle-alignment.md",
+            "docs/tasks/liver-needle-alignment.md", "docs/tasks/bimanual-exposure.md",
             "docs/generated/validation.md", "docs/generated/performance.md", "docs/generated/training.md",
             "docs/generated/environment_accuracy.md", "README.md"} <= set(pages)
     stale = [name for name, text in pages.items()
@@ -42,7 +42,8 @@ def test_task_pages_come_from_the_docstrings_and_the_registry():
     pages = _generator().pages()
     for cls, page in ((tissue_env.TumorPositioningEnv, "tumor-positioning"), (tissue_env.PalpationEnv, "palpation"),
                       (tissue_env.RetractionEnv, "retraction"),
-                      (tissue_env.LiverNeedleAlignmentEnv, "liver-needle-alignment"), (tissue_env.IncisionEnv, "incision")):
+                      (tissue_env.LiverNeedleAlignmentEnv, "liver-needle-alignment"), (tissue_env.IncisionEnv, "incision"),
+                      (tissue_env.BimanualExposureEnv, "bimanual-exposure")):
         text = pages[f"docs/tasks/{page}.md"]
         first_line = inspect.getdoc(cls).splitlines()[2]  # under "## Description"
         assert first_line.replace("``", "`") in text

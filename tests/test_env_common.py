@@ -14,6 +14,14 @@ ENV_IDS = sorted(tissue_env.ENV_IDS)
 INFO_KEYS = ("relative_volume_change", "unstable", "unstable_reason", "is_success")
 
 
+def action_shape(env_id):
+    """The task's action shape: 3 increments per tool, then its grasp commands (if any)."""
+    env = gym.make(env_id)
+    shape = env.action_space.shape
+    env.close()
+    return shape
+
+
 def run(env_id, seed, actions, env=None, **kwargs):
     env = gym.make(env_id, **kwargs) if env is None else env
     obs, info = env.reset(seed=seed)
@@ -65,7 +73,7 @@ def test_make_vec(env_id, mode):
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_same_seed_same_trajectory_different_seed_different_episode(env_id):
-    actions = np.random.default_rng(1).uniform(-1, 1, (4, 3)).astype(np.float32)
+    actions = np.random.default_rng(1).uniform(-1, 1, (4,) + action_shape(env_id)).astype(np.float32)
     first, rewards_first = run(env_id, 3, actions)
     second, rewards_second = run(env_id, 3, actions)
     other, _ = run(env_id, 4, actions)
@@ -84,15 +92,16 @@ def test_info_keys_fresh_arrays_and_observation_types(env_id):
             assert key in info
         reward_keys = [key for key in info if key.startswith("reward_")]
         assert reward_keys
-        obs2, reward, terminated, truncated, info2 = env.step(np.zeros(3, np.float32))
+        obs2, reward, terminated, truncated, info2 = env.step(np.zeros(env.action_space.shape, np.float32))
         assert env.observation_space.contains(obs2)
         for key in INFO_KEYS + tuple(reward_keys):
             assert key in info2
         assert np.isclose(reward, sum(info2[key] for key in reward_keys))
-        for values in (info, info2):  # one tool: its force on the tool (N) and whether it holds tissue
-            assert values["tool_forces"].shape == (1, 3) and values["tool_forces"].dtype == np.float64
-            assert values["grasped"].shape == (1,) and values["grasped"].dtype == bool
-            np.testing.assert_array_equal(values["tool_forces"][0], -np.asarray(values["reaction_force"]))
+        tools = env.unwrapped.tool_count
+        for values in (info, info2):  # per tool: the tissue's force on it (N) and whether it holds tissue
+            assert values["tool_forces"].shape == (tools, 3) and values["tool_forces"].dtype == np.float64
+            assert values["grasped"].shape == (tools,) and values["grasped"].dtype == bool
+            np.testing.assert_array_equal(values["tool_forces"].ravel(), -np.asarray(values["reaction_force"]))
         if observation_type != "dict":
             assert obs2 is not obs and not np.shares_memory(obs, obs2)
         env.close()
@@ -103,14 +112,16 @@ def test_info_keys_fresh_arrays_and_observation_types(env_id):
 def test_non_finite_action_raises(env_id, bad):
     env = gym.make(env_id)
     env.reset(seed=0)
+    action = np.zeros(env.action_space.shape, np.float32)
+    action[1] = bad
     with pytest.raises(ValueError, match="finite"):
-        env.step(np.array([0.0, bad, 0.0], np.float32))
+        env.step(action)
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_out_of_range_action_is_clipped(env_id):
-    clipped, rewards_clipped = run(env_id, 0, [np.array([5.0, -7.0, 3.0])])
-    unit, rewards_unit = run(env_id, 0, [np.array([1.0, -1.0, 1.0])])
+    clipped, rewards_clipped = run(env_id, 0, [np.resize([5.0, -7.0, 3.0], action_shape(env_id))])
+    unit, rewards_unit = run(env_id, 0, [np.resize([1.0, -1.0, 1.0], action_shape(env_id))])
     np.testing.assert_array_equal(clipped, unit)
     np.testing.assert_array_equal(rewards_clipped, rewards_unit)
 
@@ -208,9 +219,12 @@ def test_the_strain_entry_reads_beyond_100_percent(env_id):
     per-feature boxes and the goal form's ``observation`` have the same bounds."""
     from tissue_env.worlds import FEATURE_LIMITS, OBS_LIMIT
 
-    state = gym.make(env_id).observation_space
+    env = gym.make(env_id)
+    state = env.observation_space
     high = np.full(state.shape, OBS_LIMIT, dtype=np.float32)
-    high[10] = FEATURE_LIMITS["max_strain"]  # index 10: every task's Observation Space table
+    # after 3 x 3 entries per tool (position, displacement, force) and the volume change: index 10 of a
+    # one-tool task's Observation Space table, 19 of a two-tool task's
+    high[9 * env.unwrapped.tool_count + 1] = FEATURE_LIMITS["max_strain"]
     assert np.array_equal(state.high, high) and np.array_equal(state.low, -high)
     spaces = gym.make(env_id, observation_type="dict").observation_space
     assert float(spaces["max_strain"].high[0]) == FEATURE_LIMITS["max_strain"]
@@ -227,15 +241,16 @@ def test_an_episode_does_not_depend_on_the_episodes_before_it(env_id):
     # an episode must stay bitwise that of a fresh env, whatever the earlier episodes' first actions
     # (another imposed set, other iteration counts).
     rng = np.random.default_rng(3)
-    actions = rng.uniform(-1, 1, (30, 3)).astype(np.float32)
+    size = action_shape(env_id)[0]  # 3 per tool (then grasp commands): the first 3 are the first tool's
+    actions = rng.uniform(-1, 1, (30, size)).astype(np.float32)
     env = gym.make(env_id)
     for seed, first in ((5, [0.0, 0.0, 0.0]), (5, [0.0, 1.0, 0.0]), (12, [1.0, 1.0, -1.0]), (5, [1.0, -1.0, 1.0])):
         env.reset(seed=seed)
-        for action in [first] + list(rng.uniform(-1, 1, (12, 3))):
+        for action in [np.resize(first, size)] + list(rng.uniform(-1, 1, (12, size))):
             if env.step(np.asarray(action, dtype=np.float32))[2]:
                 break
     for first in ((0.0, -1.0, 0.0), (0.5, 0.5, 0.5)):  # Palpation: a probe contact at the first step, none
-        actions[0] = first
+        actions[0] = np.resize(first, size)
         fresh = run(env_id, 5, actions)
         after = run(env_id, 5, actions, env=env)
         np.testing.assert_array_equal(fresh[0], after[0])
@@ -257,7 +272,8 @@ def test_tool_forces_are_the_tissue_force_on_the_tool(env_id):
     task = env.unwrapped
     tool = task.start_tool_mask[:, 0]
     net = internal_forces(task.model, task.state.positions) + task.model.gravity_force
-    np.testing.assert_allclose(info["tool_forces"][0], net[tool].sum(axis=0), rtol=1e-6, atol=1e-12)
+    # the tools together (BimanualExposure: two) hold the nodes of the start's tool mask
+    np.testing.assert_allclose(info["tool_forces"].sum(axis=0), net[tool].sum(axis=0), rtol=1e-6, atol=1e-12)
     if env_id in ("tissue_env/TumorPositioning-v0", "tissue_env/LiverNeedleAlignment-v0"):
         static = solve_static(task.model, task.start_control, initial=task.state.positions)
         np.testing.assert_allclose(info["tool_forces"][0], -static.reaction[tool].sum(axis=0), rtol=1e-6, atol=1e-9)

@@ -106,7 +106,7 @@ def test_dict_observations_and_reset_mask(env_id):
     vector, sync = make_pair(env_id, 3, observation_type="dict", solver_tolerance=1e-9)
     vector_obs, _ = vector.reset(seed=[3, 4, 5])
     sync_obs, _ = sync.reset(seed=[3, 4, 5])
-    actions = np.full((3, 3), 0.5, np.float32)
+    actions = np.full(vector.action_space.shape, 0.5, np.float32)
     v_obs = vector.step(actions)[0]
     s_obs = sync.step(actions)[0]
     for name in s_obs:
@@ -127,16 +127,19 @@ def test_actions_checked_clipped_and_fresh_arrays(env_id):
     clipped = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point")
     obs, _ = vector.reset(seed=0)
     clipped.reset(seed=0)
+    shape = vector.action_space.shape  # (2, 3 per tool [+ grasp commands])
+    bad = np.zeros(shape, np.float32)
+    bad[0, 1] = np.nan
     with pytest.raises(ValueError, match="finite"):
-        vector.step(np.array([[0.0, np.nan, 0.0], [0.0, 0.0, 0.0]], np.float32))
+        vector.step(bad)
     with pytest.raises(ValueError, match="shape"):
-        vector.step(np.zeros(3, np.float32))
-    big = np.array([[5.0, -7.0, 3.0], [0.2, 9.0, -0.3]])
+        vector.step(np.zeros(3 if shape[1] != 3 else 4, np.float32))
+    big = np.resize([[5.0, -7.0, 3.0], [0.2, 9.0, -0.3]], shape)
     first = vector.step(big)
     second = clipped.step(np.clip(big, -1, 1))
     np.testing.assert_array_equal(first[0], second[0])
     assert not np.shares_memory(first[0], obs)
-    again = vector.step(np.zeros((2, 3)))
+    again = vector.step(np.zeros(shape))
     assert not np.shares_memory(again[0], first[0])
     vector.close()
     clipped.close()
@@ -151,7 +154,7 @@ def test_divergence_ends_only_that_episode_and_autoresets(env_id):
     vector.reset(seed=0)
     unstable = np.zeros(3, dtype=bool)
     for _ in range(30):
-        obs, reward, terminated, truncated, info = vector.step(np.ones((3, 3), np.float32))
+        obs, reward, terminated, truncated, info = vector.step(np.ones(vector.action_space.shape, np.float32))
         assert np.all(np.isfinite(obs)) and np.all(np.isfinite(reward))
         newly = info["unstable"]
         assert np.all(terminated[newly]) and np.all(reward[newly] == -7.0)
@@ -169,7 +172,7 @@ def test_divergence_ends_only_that_episode_and_autoresets(env_id):
 def test_render_rgb_array(env_id):
     vector = gym.make_vec(env_id, num_envs=2, vectorization_mode="vector_entry_point", render_mode="rgb_array")
     vector.reset(seed=0)
-    vector.step(np.ones((2, 3), np.float32))
+    vector.step(np.ones(vector.action_space.shape, np.float32))
     frames = vector.render()
     assert len(frames) == 2 and frames[0].dtype == np.uint8 and frames[0].shape == frames[1].shape
     vector.close()
@@ -434,8 +437,8 @@ def _copy_zero(env_id, other_seed, steps=150):
     observations, _ = envs.reset(seed=[7, 8 + other_seed, 9 + other_seed])
     trajectory = [observations[0]]
     for _ in range(steps):
-        actions = others.uniform(-1, 1, (3, 3)).astype(np.float32)
-        actions[0] = mine.uniform(-1, 1, 3)
+        actions = others.uniform(-1, 1, envs.action_space.shape).astype(np.float32)
+        actions[0] = mine.uniform(-1, 1, envs.action_space.shape[1])
         trajectory.append(envs.step(actions)[0][0])
     envs.close()
     return np.array(trajectory)
@@ -456,7 +459,8 @@ def test_a_copy_does_not_depend_on_the_other_copies(env_id):
     # The two runs (two vector envs) differ only in the other copies' seeds and actions: equal
     # trajectories show that copy 0 depends on its own seed and actions alone, and repeats.
     steps = {"tissue_env/TumorPositioning-v0": 60, "tissue_env/Palpation-v0": 105, "tissue_env/Retraction-v0": 70,
-             "tissue_env/LiverNeedleAlignment-v0": 60, "tissue_env/Incision-v0": 65}[env_id]
+             "tissue_env/LiverNeedleAlignment-v0": 60, "tissue_env/Incision-v0": 65,
+             "tissue_env/BimanualExposure-v0": 90}[env_id]
     cold = _copy_zero(env_id, 1, steps)
     other = _copy_zero(env_id, 2, steps)
     np.testing.assert_array_equal(cold, other)
@@ -509,7 +513,7 @@ def test_the_default_threads_changing_between_steps_give_the_one_thread_floats(e
     for envs in (default, single):
         envs.reset(seed=11)
     for step in range(20):
-        actions = rng.uniform(-1.0, 1.0, (4, 3)).astype(np.float32)
+        actions = rng.uniform(-1.0, 1.0, default.action_space.shape).astype(np.float32)
         if step == 10:  # a masked reset on one thread
             mask = np.array([True, False, True, False])
             outs = [envs.reset(seed=[1, 2, 3, 4], options={"reset_mask": mask}) for envs in (default, single)]

@@ -21,6 +21,7 @@ stable-baselines3 (``pip install "tissue-gym[train]"``) and is not imported here
 import gymnasium
 
 from .base import TissueEnv
+from .bimanual import BimanualExposureEnv, BimanualExposureVectorEnv
 from .goal import forward_compute_reward
 from .incision import IncisionEnv, IncisionVectorEnv
 from .liver_needle import LiverNeedleAlignmentEnv, LiverNeedleAlignmentVectorEnv
@@ -36,6 +37,7 @@ ENV_IDS = {
     "tissue_env/Retraction-v0": ("tissue_env.retraction:RetractionEnv", 60),
     "tissue_env/LiverNeedleAlignment-v0": ("tissue_env.liver_needle:LiverNeedleAlignmentEnv", 50),
     "tissue_env/Incision-v0": ("tissue_env.incision:IncisionEnv", 60),
+    "tissue_env/BimanualExposure-v0": ("tissue_env.bimanual:BimanualExposureEnv", 80),
 }
 #: Batched vector environments (``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``).
 VECTOR_ENTRY_POINTS = {
@@ -44,6 +46,7 @@ VECTOR_ENTRY_POINTS = {
     "tissue_env/Retraction-v0": "tissue_env.retraction:RetractionVectorEnv",
     "tissue_env/LiverNeedleAlignment-v0": "tissue_env.liver_needle:LiverNeedleAlignmentVectorEnv",
     "tissue_env/Incision-v0": "tissue_env.incision:IncisionVectorEnv",
+    "tissue_env/BimanualExposure-v0": "tissue_env.bimanual:BimanualExposureVectorEnv",
 }
 
 # gym.make's wrappers forward a goal env's compute_reward (tissue_env.goal: SB3's check_env and HER)
@@ -54,5 +57,7 @@ for _env_id, (_entry_point, _max_steps) in ENV_IDS.items():
         gymnasium.register(id=_env_id, entry_point=_entry_point, max_episode_steps=_max_steps,
                            vector_entry_point=VECTOR_ENTRY_POINTS.get(_env_id))
 
-__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "IncisionEnv", "IncisionVectorEnv", "LiverNeedleAlignmentEnv", "LiverNeedleAlignmentVectorEnv", "PalpationEnv", "PalpationVectorEnv", "RetractionEnv",
-           "RetractionVectorEnv", "TissueEnv", "TissueVectorEnv", "TumorPositioningEnv", "TumorPositioningVectorEnv"]
+__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "BimanualExposureEnv", "BimanualExposureVectorEnv", "IncisionEnv",
+           "IncisionVectorEnv", "LiverNeedleAlignmentEnv", "LiverNeedleAlignmentVectorEnv", "PalpationEnv",
+           "PalpationVectorEnv", "RetractionEnv", "RetractionVectorEnv", "TissueEnv", "TissueVectorEnv",
+           "TumorPositioningEnv", "TumorPositioningVectorEnv"]

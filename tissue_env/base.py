@@ -242,6 +242,12 @@ class TissueEnv(FrameRendering, gym.Env):
     #: node rows per world beyond the block's, for the nodes a cut adds (``ModelStack.spare_nodes``;
     #: a cutting task sets it)
     spare_nodes = 0
+    #: The tools a task moves (T): the action is each tool's (dx, dy, dz) increment in turn, y up, then
+    #: the grasp commands (``grasp_commands``: one per tool); the tool features and ``tool_offset``
+    #: hold 3 entries per tool in the same order.
+    tool_count = 1
+    #: Whether the action ends with one grasp command per tool (open / keep / close, ``TaskWorlds._grasp_commands``).
+    grasp_commands = False
     #: Observation units: lengths in cm, forces in units of 0.1 N x E / 5 kPa (``worlds.REFERENCE_YOUNG_MODULUS``:
     #: the same strains read the same at any stiffness), strains and volume change in %.
     length_scale = 0.01
@@ -414,9 +420,10 @@ class TissueEnv(FrameRendering, gym.Env):
         """The action space (the tool's move, in units of max_step) and the observation space of the
         observation type: the features' sizes (the task's, the surface's, the randomised parameters')."""
         observation_type = self.observation_type
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(3,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(self.action_size,), dtype=np.float32)
+        tools = 3 * self.tool_count
         self._feature_sizes = OrderedDict(
-            tool_position=3, tool_displacement=3, reaction_force=3, relative_volume_change=1, max_strain=1)
+            tool_position=tools, tool_displacement=tools, reaction_force=tools, relative_volume_change=1, max_strain=1)
         self._feature_sizes.update(self._task_feature_sizes())
         if observation_type not in ("state", "goal"):
             self._feature_sizes["surface_displacement"] = 3 * len(self.surface_nodes)
@@ -436,6 +443,12 @@ class TissueEnv(FrameRendering, gym.Env):
             self.observation_space = self._state_space()
         if observation_type == "goal":
             self.observation_space = self._goal_space()
+
+    @property
+    def action_size(self) -> int:
+        """Entries of an action: 3 per tool (its displacement increment, x, y up, z), then one grasp
+        command per tool where the task has them (``grasp_commands``)."""
+        return (4 if self.grasp_commands else 3) * self.tool_count
 
     #: The task's worlds (``tissue_env.worlds.TaskWorlds`` subclass): its env step on arrays over
     #: worlds, the single env's (one world) and the vector env's (N).
@@ -697,7 +710,7 @@ class TissueEnv(FrameRendering, gym.Env):
             self.episode_size = self.np_random.uniform(*self.size_range)
             self.episode_mesh = self._block_mesh(self.episode_size)
             self._place_scene(self.episode_mesh.nodes)
-        self.tool_offset = np.zeros(3)
+        self.tool_offset = np.zeros(3 * self.tool_count)
         self.task_key = self._default_task_key()
         self._reset_task(options)
         self.model = self._model(young_modulus, poisson_ratio, self.task_key, self.episode_density, self.episode_size)
@@ -830,8 +843,9 @@ class TissueEnv(FrameRendering, gym.Env):
 
     def step(self, action):
         action = np.asarray(action, dtype=np.float64)
-        if action.shape != (3,):
-            raise ValueError(f"action must have shape (3,), got {action.shape}")
+        if action.shape != self.action_space.shape:
+            raise ValueError(f"action must have shape {self.action_space.shape} (each tool's dx, dy, dz"
+                             f"{', then a grasp command per tool' if self.grasp_commands else ''}), got {action.shape}")
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action must be finite (no NaN or infinity), got {action.tolist()}")
         self._require_reset("step()")

@@ -36,6 +36,26 @@ def grasp_limit(value) -> float:
     return limit
 
 
+def flap_footprint(elements):
+    """(2M, 4) node indices of the bottom and top face of each of the M hexahedra ``elements``: a
+    target point on the floor under one of these quads, seen from above (x-z), is hidden."""
+    return np.concatenate([elements[:, _BOTTOM], elements[:, _TOP]])
+
+
+def flap_constraint(offset, length):
+    """The offsets (..., 3) m of a grasped free edge of a flap of ``length`` (...) m, projected where
+    the one-element-thick flap deforms without inverting elements (``RetractionEnv.constrain_tool``):
+    back towards the attached edge (-x) only as far as lifted, max(dy, 2 dy - L/3), sideways only
+    as far as lifted, min(1 cm, dy / 2)."""
+    offset = np.array(offset, dtype=np.float64, copy=True)
+    lift = np.maximum(offset[..., 1], 0.0)
+    back = np.maximum(lift, 2.0 * lift - length / 3.0)
+    offset[..., 0] = np.maximum(offset[..., 0], -back)
+    side = np.minimum(0.01, 0.5 * lift)
+    offset[..., 2] = np.clip(offset[..., 2], -side, side)
+    return offset
+
+
 class RetractionWorlds(TaskWorlds):
     """Retraction's step on N worlds (``tissue_env.worlds``)."""
 
@@ -90,6 +110,10 @@ class RetractionWorlds(TaskWorlds):
         self.grasp_chosen[index] = env.grasp_chosen
         self.grasp_size[index] = self.held[index].sum()
         self.grasp_reach[index] = env.episode_size[0]
+        self._load_floor_scene(index, env)
+
+    def _load_floor_scene(self, index, env):
+        """World ``index``'s target on the floor (its x range and grid points) and the nodes its floor holds."""
         self.target_x[index] = env.target_x
         self.target_points[index] = env.target_points
         self.contact[index] = env.contact
@@ -168,11 +192,17 @@ class RetractionWorlds(TaskWorlds):
         if self._node_forces is not None:
             held = self.contact & (self._node_forces[..., 1] <= 0.0)
             self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
-        # the grasped nodes follow the jaw's displacement from where it closed on them (``sim_core.solvers.grasp``)
-        fixed, target = self.grasper.control(self._base_fixed, self._base_target, self.held, self.grasp_anchors,
-                                             self.tool_offset)
+        fixed, target, tool_mask = self._grasp_control()
         target[..., 1] = np.where(self.contact, 0.0, target[..., 1])
         fixed[..., 1] |= self.contact
+        return fixed, target, tool_mask
+
+    def _grasp_control(self):
+        """(fixed (N, n, 3), target (N, n, 3) m, tool_mask (N, n, 3)): the attached nodes and the
+        grasped ones, which follow the jaw's displacement from where it closed on them
+        (``sim_core.solvers.grasp``)."""
+        fixed, target = self.grasper.control(self._base_fixed, self._base_target, self.held, self.grasp_anchors,
+                                             self.tool_offset)
         return fixed, target, np.repeat(self.held[..., None], 3, axis=2)
 
     def _after_substep(self, positions, velocities, rows):
@@ -193,15 +223,18 @@ class RetractionWorlds(TaskWorlds):
         return measures
 
     def _record(self, measures, rows, fresh):
-        # the share of the nodes the grasper closed on that slipped out of it in this step
-        count = self.held.sum(axis=1)
+        # the share of the nodes the grasper closed on that slipped out of it in this step (per
+        # grasper where ``held`` is (N, T, n): a task with T tools)
+        count = self.held.sum(axis=-1)
+        per_world = (-1,) + (1,) * (count.ndim - 1)
+        rows, fresh = rows.reshape(per_world), fresh.reshape(per_world)
         before = np.where(fresh, count, self.held_count)
         measures["grasp_slipped"] = np.where(rows, (before - count) / np.maximum(self.grasp_size, 1), 0.0)
         measures["grasped_nodes"] = count
         self.held_count = np.where(rows, count, self.held_count)
 
     def _grasped(self, measures):
-        return measures["grasped_nodes"][:, None] > 0
+        return (measures["grasped_nodes"] > 0).reshape(self.num_envs, -1)
 
     @property
     def footprint_quads(self) -> np.ndarray:
@@ -492,8 +525,7 @@ class RetractionEnv(TissueEnv):
         self.top_candidates = np.isclose(nodes[:, 1], self.size[1]) & self._floor_candidates
         self.contact = self._floor_candidates & np.isclose(nodes[:, 1], 0.0)
         self._place_scene(nodes)
-        elements = self.mesh.elements
-        self._footprint = np.concatenate([elements[:, _BOTTOM], elements[:, _TOP]])  # (2M, 4) quads
+        self._footprint = flap_footprint(self.mesh.elements)
 
     def _place_scene(self, nodes):
         # the grasped edge may come back to the attached one: the workspace spans the flap's length
@@ -552,14 +584,8 @@ class RetractionEnv(TissueEnv):
         one-element-thick flap into inverted elements (an ``unstable`` episode end); every offset
         inside this set stayed valid. Offsets in m, shape (..., 3); ``size``: the flaps' extents
         (..., 3) m (None: this episode's)."""
-        offset = np.array(offset, dtype=np.float64, copy=True)
         length = (self.episode_size if size is None else np.asarray(size, dtype=float))[..., 0]
-        lift = np.maximum(offset[..., 1], 0.0)
-        back = np.maximum(lift, 2.0 * lift - length / 3.0)
-        offset[..., 0] = np.maximum(offset[..., 0], -back)
-        side = np.minimum(0.01, 0.5 * lift)
-        offset[..., 2] = np.clip(offset[..., 2], -side, side)
-        return offset
+        return flap_constraint(offset, length)
 
     def scripted_action(self, lift_height=0.04, hold=(0.005, 0.05)):
         """Lift and pull: raise the free edge to ``lift_height`` m, then bring it over the attached

@@ -302,8 +302,8 @@ class TissueVectorEnv(VectorEnv):
     def _step(self, actions):
         count = self.num_envs
         actions = np.asarray(actions, dtype=np.float64)
-        if actions.shape != (count, 3):
-            raise ValueError(f"actions must have shape ({count}, 3), got {actions.shape}")
+        if actions.shape != (count,) + self.single_action_space.shape:
+            raise ValueError(f"actions must have shape {(count,) + self.single_action_space.shape}, got {actions.shape}")
         resetting = self._autoreset.copy()
         active = ~resetting
         if not np.all(np.isfinite(actions[active])):

@@ -163,9 +163,10 @@ class TaskWorlds:
         self.positions = self.stack.new_state().positions
         self.velocities = np.zeros_like(self.positions)
         self._lengths = self.rest_length.copy()  # spring lengths (N, S) m of the current state
-        self.tool_offset = np.zeros((count, 3))
-        self.workspace_low = np.zeros((count, 3))
-        self.workspace_high = np.zeros((count, 3))
+        #: (N, 3 T) each world's tools' offsets from rest and workspace bounds, m: (x, y, z) per tool in turn
+        self.tool_offset = np.zeros((count, 3 * env.tool_count))
+        self.workspace_low = np.zeros_like(self.tool_offset)
+        self.workspace_high = np.zeros_like(self.tool_offset)
         self.rest_volume = np.ones(count)
         #: (N, 3) each world's block extent, m, and (N, n, 3) its rest positions (``size_range``)
         self.block_size = np.tile(env.size, (count, 1))
@@ -214,6 +215,21 @@ class TaskWorlds:
     def _tool_moved(self, previous, active):
         """The tool of the worlds ``active`` (N,) bool moved from the offsets ``previous`` (N, 3) m to
         ``self.tool_offset``, before the physics: a blade cuts here (``tissue_env.blade``)."""
+
+    def _tool_moves(self, actions, active):
+        """The tools' displacement increments (N, 3 T) of the clipped actions (N, A) (each tool's
+        x, y, z in turn: the actions themselves for one tool without grasp commands); the grasp
+        commands after them (one per tool) go to ``_grasp_commands`` first."""
+        moves = self.tool_offset.shape[1]
+        if actions.shape[1] == moves:
+            return actions
+        self._grasp_commands(actions[:, moves:], active)
+        return actions[:, :moves]
+
+    def _grasp_commands(self, commands, active):
+        """Act on the grasp commands (N, T) in [-1, 1] of the worlds ``active`` (N,) bool, before
+        the tools move (a task with ``grasp_commands`` implements it)."""
+        raise NotImplementedError
 
     def _after_substep(self, positions, velocities, rows):
         """Contact projection and the like on the worlds ``rows`` (N,) bool of the new state (in place)."""
@@ -329,6 +345,7 @@ class TaskWorlds:
         count = self.num_envs
         active = np.asarray(active, dtype=bool)
         clipped = np.clip(np.where(active[:, None], actions, 0.0), -1.0, 1.0)
+        clipped = self._tool_moves(clipped, active)
         previous = self.tool_offset
         self.tool_offset = np.where(
             active[:, None],
@@ -576,7 +593,8 @@ class TaskWorlds:
         env = self.task
         positions = measures["positions"]
         features = dict(
-            tool_position=(self._tool_position(positions) - self.centre) / self.length_scale,
+            tool_position=((self._tool_position(positions).reshape(self.num_envs, -1, 3) - self.centre)
+                           / self.length_scale).reshape(self.num_envs, -1),
             tool_displacement=self.tool_offset / self.length_scale,
             reaction_force=measures["reaction_force"] / self.scaled_force(self.force_scale)[:, None],
             relative_volume_change=100.0 * measures["relative_volume_change"][:, None],
@@ -649,7 +667,7 @@ class TaskWorlds:
             observation_clipped=self.clipped.copy(),
             # (N, T, 3) N the force the tissue exerts on each tool: the opposite of the tool's on the
             # tissue (0.0 - r, not -r: a tool that holds nothing reads 0.0, not -0.0)
-            tool_forces=0.0 - np.array(measures["reaction_force"], dtype=float)[:, None, :],
+            tool_forces=0.0 - np.array(measures["reaction_force"], dtype=float).reshape(self.num_envs, -1, 3),
             grasped=np.array(self._grasped(measures), dtype=bool),
         )
         for name in self.reward_names:
