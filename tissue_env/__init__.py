@@ -22,6 +22,7 @@ import gymnasium
 
 from .base import TissueEnv
 from .goal import forward_compute_reward
+from .dissection import DissectionEnv, DissectionVectorEnv
 from .incision import IncisionEnv, IncisionVectorEnv
 from .liver_needle import LiverNeedleAlignmentEnv, LiverNeedleAlignmentVectorEnv
 from .palpation import PalpationEnv, PalpationVectorEnv
@@ -36,6 +37,7 @@ ENV_IDS = {
     "tissue_env/Retraction-v0": ("tissue_env.retraction:RetractionEnv", 60),
     "tissue_env/LiverNeedleAlignment-v0": ("tissue_env.liver_needle:LiverNeedleAlignmentEnv", 50),
     "tissue_env/Incision-v0": ("tissue_env.incision:IncisionEnv", 60),
+    "tissue_env/Dissection-v0": ("tissue_env.dissection:DissectionEnv", 60),
 }
 #: Batched vector environments (``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``).
 VECTOR_ENTRY_POINTS = {
@@ -44,6 +46,7 @@ VECTOR_ENTRY_POINTS = {
     "tissue_env/Retraction-v0": "tissue_env.retraction:RetractionVectorEnv",
     "tissue_env/LiverNeedleAlignment-v0": "tissue_env.liver_needle:LiverNeedleAlignmentVectorEnv",
     "tissue_env/Incision-v0": "tissue_env.incision:IncisionVectorEnv",
+    "tissue_env/Dissection-v0": "tissue_env.dissection:DissectionVectorEnv",
 }
 
 # gym.make's wrappers forward a goal env's compute_reward (tissue_env.goal: SB3's check_env and HER)
@@ -54,5 +57,5 @@ for _env_id, (_entry_point, _max_steps) in ENV_IDS.items():
         gymnasium.register(id=_env_id, entry_point=_entry_point, max_episode_steps=_max_steps,
                            vector_entry_point=VECTOR_ENTRY_POINTS.get(_env_id))
 
-__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "IncisionEnv", "IncisionVectorEnv", "LiverNeedleAlignmentEnv", "LiverNeedleAlignmentVectorEnv", "PalpationEnv", "PalpationVectorEnv", "RetractionEnv",
+__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "DissectionEnv", "DissectionVectorEnv", "IncisionEnv", "IncisionVectorEnv", "LiverNeedleAlignmentEnv", "LiverNeedleAlignmentVectorEnv", "PalpationEnv", "PalpationVectorEnv", "RetractionEnv",
            "RetractionVectorEnv", "TissueEnv", "TissueVectorEnv", "TumorPositioningEnv", "TumorPositioningVectorEnv"]
