@@ -47,6 +47,7 @@ TASK_PAGES = {  # registered id -> page name (the class, the vector class and th
     "tissue_env/Retraction-v0": "retraction",
     "tissue_env/LiverNeedleAlignment-v0": "liver-needle-alignment",
     "tissue_env/Incision-v0": "incision",
+    "tissue_env/Dissection-v0": "dissection",
 }
 
 

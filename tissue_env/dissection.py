@@ -235,7 +235,9 @@ class DissectionEnv(TissueEnv):
     node until the flap is free; with the edge held at rest (``peel_angle=0``) the freed flap sinks
     into the layer it was cut from by over 1 mm. The episode ends at the step that frees the flap: in
     that step the flap's far end, no longer held, starts to fall (by about 4 mm on the default slab);
-    what would follow, the flap hanging from the grasper alone, is not part of the task. The grasp holds up to
+    what would follow, the flap hanging from the grasper alone, is not part of the task. ``docs/figures/dissection.png``
+    (``python -m benchmarks.dissection_figure``) shows the cut open behind the blade as the grasper
+    peels the flap, and the agent's rgb view. The grasp holds up to
     ``grasp_force_limit`` (default 5 N, Retraction's); past it the edge slips out of the jaws.
 
     The blade cuts as Incision-v0's (``tissue_env.blade``, ``sim_core.cutting``): when it moves in a
