@@ -1,8 +1,10 @@
 """The cost of cutting in the environments (issue 44's floors) and the memory of many cut episodes.
 
 Usage: python -m benchmarks.cutting [--episodes 220] [--repeats 3] [--output benchmarks/results/cutting.json]
+       [--env tissue_env/Incision-v0]
 
-On Incision-v0 (single env, default keywords, one thread):
+On Incision-v0 (or ``--env``, a cutting task with a scripted controller: Dissection-v0 writes
+benchmarks/results/cutting_dissection.json; single env, default keywords, one thread):
 
 - an env step before any cut: the median CPU time of steps with the blade held above the tissue;
 - a step that cuts: the median of the scripted incision's cutting steps (each separates the faces the
@@ -82,10 +84,12 @@ def main(argv=None):
     parser.add_argument("--episodes", type=int, default=220)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--output", default="benchmarks/results/cutting.json")
+    parser.add_argument("--env", default=ENV_ID)
     args = parser.parse_args(argv)
+    env_id = args.env
     if args.episodes <= MEMORY_FIRST or args.repeats < 1:
         parser.error(f"--episodes must be > {MEMORY_FIRST} and --repeats >= 1")
-    env = gym.make(ENV_ID)
+    env = gym.make(env_id)
     episode_times(env, 0)  # warm: kernels loaded, the start state solved
     before, cutting, after = [], [], []
     for seed in range(1, args.repeats + 1):
@@ -95,9 +99,9 @@ def main(argv=None):
         after += a
     step, cut, later = (float(np.median(values)) for values in (before, cutting, after))
     start = time.perf_counter()
-    first, last, successes = memory(gym.make(ENV_ID), args.episodes)
+    first, last, successes = memory(gym.make(env_id), args.episodes)
     result = dict(
-        env_id=ENV_ID, machine=platform.processor() or platform.machine(),
+        env_id=env_id, machine=platform.processor() or platform.machine(),
         step_s=step, cutting_step_s=cut, step_after_cut_s=later,
         cutting_step_in_env_steps=cut / step, step_after_cut_ratio=later / step,
         steps_timed=dict(before=len(before), cutting=len(cutting), after=len(after)),
