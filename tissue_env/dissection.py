@@ -11,8 +11,8 @@ from sim_core.cutting import shared_faces
 from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, nonnegative_scalar, positive_scalar
-from .blade import CuttingWorlds, corner_surface
-from .camera import ALBEDO, CameraView
+from .blade import CuttingWorlds, corner_view, spare_node_rows
+from .camera import ALBEDO
 from .retraction import GRASP_SLIP_FORCE, grasp_limit
 from .vector import TissueVectorEnv
 
@@ -397,11 +397,8 @@ class DissectionEnv(TissueEnv):
         if self.connective_layer + self.flap_layers >= layers:
             raise ValueError(f"connective_layer ({self.connective_layer}) + flap_layers ({self.flap_layers}) must "
                              f"leave a bed layer under them and fit in the slab's {layers} element layers along y")
-        if self._spare_nodes is None:  # two whole layers of nodes
-            self._spare_nodes = 2 * (self.shape[0] + 1) * (self.shape[2] + 1)
-        if isinstance(self._spare_nodes, bool) or not float(self._spare_nodes).is_integer() or self._spare_nodes < 0:
-            raise ValueError(f"spare_nodes must be an integer >= 0 (node rows per world), got {self._spare_nodes!r}")
-        self.spare_nodes = int(self._spare_nodes)
+        # two whole layers of nodes
+        self.spare_nodes = spare_node_rows(self._spare_nodes, 2 * (self.shape[0] + 1) * (self.shape[2] + 1))
         centres = nodes[self.mesh.elements].mean(axis=1)
         #: (M,) the label of each element: BED, CONNECTIVE or FLAP
         self.labels = layer_labels(centres, spacing, self.connective_layer, self.flap_layers)
@@ -433,9 +430,7 @@ class DissectionEnv(TissueEnv):
     def _camera_setup(self, image_size, camera, point_count, point_normals):
         """The base camera on the elements' corners (``tissue_env.blade.corner_surface``): each side of
         a cut is drawn apart."""
-        view = super()._camera_setup(image_size, camera, point_count, point_normals)
-        faces, corners = corner_surface(self.mesh)
-        return CameraView(view.camera, faces, corners, [], view.point_count, view.point_normals, view.bounds)
+        return corner_view(super()._camera_setup(image_size, camera, point_count, point_normals), self.mesh)
 
     camera_target = (0.5, 0.5, 0.5)
     camera_direction = (0.35, 0.6, 1.0)
