@@ -166,7 +166,9 @@ class DissectionWorlds(CuttingWorlds):
         return self.tip_rest + self.tool_offset
 
     def _task_measures(self, positions):
-        height = (self.tip_rest + self.tool_offset)[:, 1] - self.layer_y.mean()
+        # from the layer's top: midway between the layer's and the flap's centroids, the height that
+        # cuts the layer off the flap with the most margin (its middle is on the layer's centroids)
+        height = (self.tip_rest + self.tool_offset)[:, 1] - self.layer_y[1]
         return dict(height_error=height)
 
     def _task_features(self, measures):
@@ -277,7 +279,7 @@ class DissectionEnv(TissueEnv):
     | 9     | relative volume change (V - V0) / V0                     | %                    |
     | 10    | maximum spring strain abs(L - L0) / L0                   | %                    |
     | 11-12 | the connective layer's bottom and top (y)                | cm from slab centre  |
-    | 13    | blade height above the connective layer's middle         | cm                   |
+    | 13    | blade height above the connective layer's top            | cm                   |
     | 14    | cut progress: the share of the layer's columns cut off   | 0-1                  |
     | 15    | flap and bed faces cut so far                            | faces                |
     | 16    | flap length freed from the grasped edge                  | cm                   |
@@ -296,7 +298,9 @@ class DissectionEnv(TissueEnv):
     - ``reward_progress = progress_weight * (gain in cut progress this step)`` (default 10); the
       progress is the share of the connective layer's columns (its elements) separated from the flap
       or from the bed;
-    - ``reward_height = -height_weight * |blade height - the layer's middle| / 1 cm`` (default 0.2);
+    - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 0.2): the
+      layer's top is midway between the layer's and the flap's centroids, where a horizontal sweep
+      cuts the layer off the flap with the most margin;
     - ``reward_damage = -damage_weight * (flap or bed faces cut this step)`` (default 2): a face
       between two flap elements or two bed elements;
     - ``reward_success = success_bonus`` (default 5) when the flap is free;
