@@ -101,8 +101,9 @@ def test_success_is_the_flap_separated_from_the_bed():
 
 
 def test_cutting_the_flap_or_the_bed_is_damage():
-    """A blade swept through the flap (above the layer) cuts flap faces and frees nothing; plunged
-    through the slab beside the free edge's first column it cuts flap and bed faces: each is penalised."""
+    """A blade swept through the flap (above the layer) cuts flap faces and frees nothing (the flap
+    freed after that ends the episode without a success: more than ``damage_allowed`` faces cut);
+    plunged through the slab between the last two columns it cuts flap and bed faces: each is penalised."""
     env = gym.make(ENV_ID, **SMALL)
     env.reset(seed=0)
     task = env.unwrapped
@@ -112,7 +113,13 @@ def test_cutting_the_flap_or_the_bed_is_damage():
         for _ in range(steps):
             tip = task.tip_rest + task.tool_offset
             *_, info = env.step(np.clip((np.array(goal) - tip) / task.max_step, -1, 1).astype(np.float32))
-    assert info["flap_damage"] > 0 and info["bed_damage"] == 0 and info["cut_progress"] == 0.0
+    assert info["flap_damage"] > task.damage_allowed and info["bed_damage"] == 0 and info["cut_progress"] == 0.0
+    for _ in range(12):  # up out of the slab and back beside the free edge, then the scripted dissection
+        tip = task.tip_rest + task.tool_offset
+        goal = np.array([task.size[0] + 0.25 * spacing[0], task.size[1] + 0.005, 0.5 * task.size[2]])
+        env.step(np.clip((goal - tip) / task.max_step, -1, 1).astype(np.float32))
+    infos = scripted_steps(env, 40)  # the flap cut free: the episode ends, not a success
+    assert infos[-1]["flap_free"] and not infos[-1]["is_success"] and infos[-1]["reward_success"] == 0.0
     env.reset(seed=0)
     x = task.size[0] - spacing[0]  # between the last two columns' centroids
     damage = []
@@ -185,7 +192,8 @@ def test_reset_restores_the_uncut_tissue_and_snapshots_copies_and_pickles_hold_t
 
 @pytest.mark.parametrize("keyword, value", [("connective_layer", 0), ("flap_layers", 3), ("peel_angle", 120.0),
                                             ("blade_start_range", ((0.05, 0.02, 0.01),)), ("spare_nodes", -1),
-                                            ("grasp_force_limit", 0.0), ("connective_stiffness_ratio", -1.0)])
+                                            ("grasp_force_limit", 0.0), ("connective_stiffness_ratio", -1.0),
+                                            ("damage_allowed", -1), ("damage_allowed", 1.5)])
 def test_bad_keywords_name_what_is_wrong(keyword, value):
     with pytest.raises(ValueError, match=keyword):
         gym.make(ENV_ID, **{keyword: value})

@@ -10,7 +10,7 @@ from sim_core import Material
 from sim_core.cutting import shared_faces
 from sim_core.solvers.grasp import Grasper
 
-from .base import TissueEnv, nonnegative_scalar, positive_scalar
+from .base import TissueEnv, difficulty_settings, nonnegative_scalar, positive_scalar
 from .blade import CuttingWorlds, corner_view, spare_node_rows
 from .camera import ALBEDO
 from .retraction import GRASP_SLIP_FORCE, grasp_limit
@@ -66,7 +66,7 @@ class DissectionWorlds(CuttingWorlds):
         self.bed_damage = np.zeros(count, dtype=int)
         self.damage_step = np.zeros(count, dtype=int)
         self.free = np.zeros(count, dtype=bool)
-        for name in ("progress_weight", "height_weight", "damage_weight", "success_bonus"):
+        for name in ("progress_weight", "height_weight", "damage_weight", "success_bonus", "damage_allowed"):
             setattr(self, name, getattr(env, name))
 
     def blade_edges(self, offsets):
@@ -180,15 +180,22 @@ class DissectionWorlds(CuttingWorlds):
                     damage=(self.flap_damage + self.bed_damage)[:, None].astype(float),
                     freed_length=run[:, None] / scale, jaw_displacement=self.jaw_offset / scale)
 
+    def step(self, actions, active):
+        """Every task's step; a world whose flap is free ends its episode, a success or not (with more
+        than ``damage_allowed`` flap or bed faces cut): nothing is left to cut, and the flap would
+        hang from the grasper alone."""
+        observations, rewards, terminated, infos = super().step(actions, active)
+        return observations, rewards, terminated | (self.free & np.asarray(active, dtype=bool)), infos
+
     def _is_success(self, measures):
-        return self.free.copy()
+        return self.free & (self.flap_damage + self.bed_damage <= self.damage_allowed)
 
     def _reward_terms(self, measures):
         terms = dict(
             progress=self.progress_weight * self.progress_gain,
             height=-self.height_weight * np.abs(measures["height_error"]) / self.length_scale,
             damage=-self.damage_weight * self.damage_step,
-            success=np.where(self.free, self.success_bonus, 0.0),
+            success=np.where(self._is_success(measures), self.success_bonus, 0.0),
         )
         terms.update(self._damage_terms(measures))
         return terms
@@ -303,7 +310,8 @@ class DissectionEnv(TissueEnv):
       cuts the layer off the flap with the most margin;
     - ``reward_damage = -damage_weight * (flap or bed faces cut this step)`` (default 2): a face
       between two flap elements or two bed elements;
-    - ``reward_success = success_bonus`` (default 5) when the flap is free;
+    - ``reward_success = success_bonus`` (default 5) on success: the flap free with at most
+      ``damage_allowed`` flap or bed faces cut;
     - ``reward_volume``, ``reward_strain`` as in every task, ``reward_instability`` on divergence.
 
     ## Info
@@ -323,8 +331,14 @@ class DissectionEnv(TissueEnv):
 
     ## Episode End
 
-    Terminated when the flap is free (success) or on divergence (``info["unstable"]``). Truncated
-    after 60 steps.
+    Terminated when the flap is free (a success with at most ``damage_allowed`` flap or bed faces
+    cut, default 2; a freed flap ends the episode either way, also with ``terminate_on_success=False``:
+    nothing is left to cut) or on divergence (``info["unstable"]``). Truncated after 60 steps.
+
+    ## Difficulty
+
+    ``difficulty="easy" | "default" | "hard"`` sets ``damage_allowed`` from ``DissectionEnv.DIFFICULTY``
+    (6, 2, 0 flap or bed faces; a keyword passed explicitly overrides its level's value).
 
     ## Arguments
 
@@ -341,7 +355,8 @@ class DissectionEnv(TissueEnv):
     layer; default 1), ``flap_layers`` (element layers of the flap above it; default 2),
     ``connective_stiffness_ratio``, ``blade_length`` (m), ``blade_start_range`` ((low, high) corners
     in m), ``peel_angle`` (deg, in [0, 90]), ``grasp_force_limit`` (N), ``progress_weight``,
-    ``height_weight``, ``damage_weight``, ``success_bonus``, ``spare_nodes``; shared keywords in
+    ``height_weight``, ``damage_weight``, ``success_bonus``, ``damage_allowed`` (faces), ``difficulty``,
+    ``spare_nodes``; shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation: ``young_modulus_range``,
     ``poisson_ratio_range``, ``density_range``; ``blade_start_range`` places the blade. No
     ``size_range``.
@@ -360,13 +375,25 @@ class DissectionEnv(TissueEnv):
     randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
                                  density="density_range")
     episode_keywords = ("blade_start_range",)
+    #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them): the
+    #: flap or bed faces a success may have cut.
+    DIFFICULTY = dict(
+        easy=dict(damage_allowed=6, terminate_on_success=True),
+        default=dict(damage_allowed=2, terminate_on_success=True),
+        hard=dict(damage_allowed=0, terminate_on_success=True),
+    )
     summary = "free a flap from its bed by cutting the connective layer between them, a grasper peeling it"
-    success_summary = "no uncut face joins the flap to the bed"
+    success_summary = "no uncut face joins the flap to the bed, at most {damage_allowed} flap or bed faces cut"
 
     def __init__(self, *, connective_layer=1, flap_layers=2, connective_stiffness_ratio=0.5, blade_length=0.04,
                  blade_start_range=((0.053, 0.022, 0.01), (0.058, 0.028, 0.02)), peel_angle=30.0,
                  grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=10.0, height_weight=0.2, damage_weight=2.0,
-                 success_bonus=5.0, spare_nodes=None, **kwargs):
+                 success_bonus=5.0, damage_allowed=None, spare_nodes=None, difficulty="default", **kwargs):
+        damage_allowed = difficulty_settings(self.DIFFICULTY, difficulty,
+                                             dict(damage_allowed=damage_allowed))["damage_allowed"]
+        if isinstance(damage_allowed, bool) or not isinstance(damage_allowed, (int, np.integer)) or damage_allowed < 0:
+            raise ValueError(f"damage_allowed must be an integer >= 0 (flap or bed faces), got {damage_allowed!r}")
+        self.damage_allowed = int(damage_allowed)
         for name, value in (("connective_layer", connective_layer), ("flap_layers", flap_layers)):
             number = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
             if not number or value < 1:  # connective_layer >= 1: a bed layer under it
@@ -392,7 +419,7 @@ class DissectionEnv(TissueEnv):
                             ("damage_weight", damage_weight), ("success_bonus", success_bonus)):
             setattr(self, name, nonnegative_scalar(name, value))
         self._spare_nodes = spare_nodes
-        super().__init__(**kwargs)
+        super().__init__(difficulty=difficulty, **kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
     def _setup_scene(self):
