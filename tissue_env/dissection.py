@@ -479,15 +479,23 @@ class DissectionEnv(TissueEnv):
         self.jaw_offset = np.zeros(3)
 
     def scripted_action(self) -> np.ndarray:
-        """Beside the free edge, down to the middle of the connective layer's top half (between the
-        layer's and the flap's centroids: it separates the flap), at the slab's middle in z; then
-        along x through the whole layer, from the grasped edge in (the grasper peels what is cut)."""
+        """Beside the free edge, down to the connective layer's top (midway between the layer's and the
+        flap's centroids: it separates the layer from the flap), at the slab's middle in z; then along
+        x through the whole layer, from the grasped edge in (the grasper peels what is cut). From
+        elsewhere in the slab: up above it, then over to beside the free edge."""
         self._require_reset("scripted_action()")
         tip = self.tip_rest + self.tool_offset
-        height = self.layer_y[1]
+        height, clear = self.layer_y[1], self.size[1] + 0.002
         entry = np.array([self.size[0] + 0.25 * self.spacing[0], height, 0.5 * self.size[2]])
-        inside = tip[0] < entry[0] + 1e-6 and abs(tip[1] - height) < 1e-6
-        goal = np.array([-0.25 * self.spacing[0], height, entry[2]]) if inside else entry
+        at_height = abs(tip[1] - height) < 1e-6
+        if at_height and tip[0] < entry[0] + 1e-6:  # the sweep
+            goal = np.array([-0.25 * self.spacing[0], height, entry[2]])
+        elif tip[0] < entry[0] - 1e-6 and tip[1] < clear - 1e-6:  # in the slab off the sweep: up first
+            goal = np.array([tip[0], clear, tip[2]])
+        elif tip[0] < entry[0] - 1e-6:  # above the slab: over to beside the free edge
+            goal = np.array([entry[0], tip[1], entry[2]])
+        else:  # beside the free edge: down to the layer
+            goal = entry
         return np.clip((goal - tip) / self.max_step, -1.0, 1.0).astype(np.float32)
 
     def _markers(self):
