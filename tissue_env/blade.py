@@ -62,6 +62,14 @@ def corner_view(view, mesh):
     return CameraView(view.camera, faces, corners, [], view.point_count, view.point_normals, view.bounds)
 
 
+class CornerCamera:
+    """Mixin of a cutting task's env (before ``TissueEnv`` in its bases): its camera draws the
+    elements' corners (``corner_view``), so that each side of a cut is drawn apart."""
+
+    def _camera_setup(self, image_size, camera, point_count, point_normals):
+        return corner_view(super()._camera_setup(image_size, camera, point_count, point_normals), self.mesh)
+
+
 def spare_node_rows(value, default) -> int:
     """The ``spare_nodes`` keyword (node rows per world for a cut's copies) as an int, ``default`` for
     None; ValueError unless an integer >= 0."""

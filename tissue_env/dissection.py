@@ -11,7 +11,7 @@ from sim_core.cutting import shared_faces
 from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, difficulty_settings, nonnegative_scalar, positive_scalar
-from .blade import CuttingWorlds, corner_view, spare_node_rows
+from .blade import CornerCamera, CuttingWorlds, spare_node_rows
 from .camera import ALBEDO
 from .retraction import GRASP_SLIP_FORCE, grasp_limit
 from .vector import TissueVectorEnv
@@ -218,7 +218,7 @@ class DissectionWorlds(CuttingWorlds):
         return vertices, triangles, np.tile(ALBEDO["tool"], (4, 1))
 
 
-class DissectionEnv(TissueEnv):
+class DissectionEnv(CornerCamera, TissueEnv):
     """
     ## Description
 
@@ -457,11 +457,6 @@ class DissectionEnv(TissueEnv):
     def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
         young = float(young_modulus) * np.where(self.labels == CONNECTIVE, self.connective_stiffness_ratio, 1.0)
         return Material(young, poisson_ratio, density)
-
-    def _camera_setup(self, image_size, camera, point_count, point_normals):
-        """The base camera on the elements' corners (``tissue_env.blade.corner_surface``): each side of
-        a cut is drawn apart."""
-        return corner_view(super()._camera_setup(image_size, camera, point_count, point_normals), self.mesh)
 
     camera_target = (0.5, 0.5, 0.5)
     camera_direction = (0.35, 0.6, 1.0)

@@ -8,7 +8,7 @@ from sim_core import Material
 from sim_core.cutting import blade_faces
 
 from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
-from .blade import CuttingWorlds, corner_view, spare_node_rows
+from .blade import CornerCamera, CuttingWorlds, spare_node_rows
 from .camera import ALBEDO
 from .vector import TissueVectorEnv
 
@@ -140,7 +140,7 @@ class IncisionWorlds(CuttingWorlds):
         return vertices, triangles, albedo
 
 
-class IncisionEnv(TissueEnv):
+class IncisionEnv(CornerCamera, TissueEnv):
     """
     ## Description
 
@@ -349,11 +349,6 @@ class IncisionEnv(TissueEnv):
     def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
         young = float(young_modulus) * np.where(self.vessel_elements, self.vessel_stiffness_ratio, 1.0)
         return Material(young, poisson_ratio, density)
-
-    def _camera_setup(self, image_size, camera, point_count, point_normals):
-        """The base camera on the elements' corners (``tissue_env.blade.corner_surface``): each side of
-        a cut is drawn apart."""
-        return corner_view(super()._camera_setup(image_size, camera, point_count, point_normals), self.mesh)
 
     camera_target = (0.5, 0.6, 0.5)
     camera_direction = (0.0, 1.0, 0.45)
