@@ -1,8 +1,10 @@
 """The cost of cutting in the environments (issue 44's floors) and the memory of many cut episodes.
 
 Usage: python -m benchmarks.cutting [--episodes 220] [--repeats 3] [--output benchmarks/results/cutting.json]
+       [--env tissue_env/Incision-v0]
 
-On Incision-v0 (single env, default keywords, one thread):
+On Incision-v0 (or ``--env``, a cutting task with a scripted controller: Dissection-v0 writes
+benchmarks/results/cutting_dissection.json; single env, default keywords, one thread):
 
 - an env step before any cut: the median CPU time of steps with the blade held above the tissue;
 - a step that cuts: the median of the scripted incision's cutting steps (each separates the faces the
@@ -94,10 +96,12 @@ def main(argv=None):
     parser.add_argument("--episodes", type=int, default=220)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--output", default="benchmarks/results/cutting.json")
+    parser.add_argument("--env", default=ENV_ID)
     args = parser.parse_args(argv)
+    env_id = args.env
     if args.episodes <= MEMORY_FIRST or args.repeats < 1:
         parser.error(f"--episodes must be > {MEMORY_FIRST} and --repeats >= 1")
-    env, twin = gym.make(ENV_ID), gym.make(ENV_ID)
+    env, twin = gym.make(env_id), gym.make(env_id)
     episode_times(env, 0, twin=twin)  # warm: kernels loaded, the start state solved
     before, cutting, after, uncut = [], [], [], []
     for seed in range(1, args.repeats + 1):
@@ -108,9 +112,9 @@ def main(argv=None):
         uncut += u
     step, cut, later, twin_step = (float(np.median(values)) for values in (before, cutting, after, uncut))
     start = time.perf_counter()
-    first, last, successes = memory(gym.make(ENV_ID), args.episodes)
+    first, last, successes = memory(gym.make(env_id), args.episodes)
     result = dict(
-        env_id=ENV_ID, machine=platform.processor() or platform.machine(),
+        env_id=env_id, machine=platform.processor() or platform.machine(),
         step_s=step, cutting_step_s=cut, step_after_cut_s=later, uncut_twin_step_s=twin_step,
         cutting_step_in_env_steps=cut / step, step_after_cut_ratio=later / twin_step,
         steps_timed=dict(before=len(before), cutting=len(cutting), after=len(after), uncut_twin=len(uncut)),

@@ -48,6 +48,7 @@ TASK_PAGES = {  # registered id -> page name (the class, the vector class and th
     "tissue_env/LiverNeedleAlignment-v0": "liver-needle-alignment",
     "tissue_env/Incision-v0": "incision",
     "tissue_env/BimanualExposure-v0": "bimanual-exposure",
+    "tissue_env/Dissection-v0": "dissection",
 }
 
 

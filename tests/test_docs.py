@@ -43,7 +43,8 @@ def test_task_pages_come_from_the_docstrings_and_the_registry():
     for cls, page in ((tissue_env.TumorPositioningEnv, "tumor-positioning"), (tissue_env.PalpationEnv, "palpation"),
                       (tissue_env.RetractionEnv, "retraction"),
                       (tissue_env.LiverNeedleAlignmentEnv, "liver-needle-alignment"), (tissue_env.IncisionEnv, "incision"),
-                      (tissue_env.BimanualExposureEnv, "bimanual-exposure")):
+                      (tissue_env.BimanualExposureEnv, "bimanual-exposure"),
+                      (tissue_env.DissectionEnv, "dissection")):
         text = pages[f"docs/tasks/{page}.md"]
         first_line = inspect.getdoc(cls).splitlines()[2]  # under "## Description"
         assert first_line.replace("``", "`") in text

@@ -460,7 +460,8 @@ def test_a_copy_does_not_depend_on_the_other_copies(env_id):
     # trajectories show that copy 0 depends on its own seed and actions alone, and repeats.
     steps = {"tissue_env/TumorPositioning-v0": 60, "tissue_env/Palpation-v0": 105, "tissue_env/Retraction-v0": 70,
              "tissue_env/LiverNeedleAlignment-v0": 60, "tissue_env/Incision-v0": 65,
-             "tissue_env/BimanualExposure-v0": 90}[env_id]
+             "tissue_env/BimanualExposure-v0": 90,
+             "tissue_env/Dissection-v0": 65}[env_id]
     cold = _copy_zero(env_id, 1, steps)
     other = _copy_zero(env_id, 2, steps)
     np.testing.assert_array_equal(cold, other)

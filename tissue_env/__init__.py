@@ -23,6 +23,7 @@ import gymnasium
 from .base import TissueEnv
 from .bimanual import BimanualExposureEnv, BimanualExposureVectorEnv
 from .goal import forward_compute_reward
+from .dissection import DissectionEnv, DissectionVectorEnv
 from .incision import IncisionEnv, IncisionVectorEnv
 from .liver_needle import LiverNeedleAlignmentEnv, LiverNeedleAlignmentVectorEnv
 from .palpation import PalpationEnv, PalpationVectorEnv
@@ -38,6 +39,7 @@ ENV_IDS = {
     "tissue_env/LiverNeedleAlignment-v0": ("tissue_env.liver_needle:LiverNeedleAlignmentEnv", 50),
     "tissue_env/Incision-v0": ("tissue_env.incision:IncisionEnv", 60),
     "tissue_env/BimanualExposure-v0": ("tissue_env.bimanual:BimanualExposureEnv", 80),
+    "tissue_env/Dissection-v0": ("tissue_env.dissection:DissectionEnv", 60),
 }
 #: Batched vector environments (``gym.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``).
 VECTOR_ENTRY_POINTS = {
@@ -47,6 +49,7 @@ VECTOR_ENTRY_POINTS = {
     "tissue_env/LiverNeedleAlignment-v0": "tissue_env.liver_needle:LiverNeedleAlignmentVectorEnv",
     "tissue_env/Incision-v0": "tissue_env.incision:IncisionVectorEnv",
     "tissue_env/BimanualExposure-v0": "tissue_env.bimanual:BimanualExposureVectorEnv",
+    "tissue_env/Dissection-v0": "tissue_env.dissection:DissectionVectorEnv",
 }
 
 # gym.make's wrappers forward a goal env's compute_reward (tissue_env.goal: SB3's check_env and HER)
@@ -57,7 +60,8 @@ for _env_id, (_entry_point, _max_steps) in ENV_IDS.items():
         gymnasium.register(id=_env_id, entry_point=_entry_point, max_episode_steps=_max_steps,
                            vector_entry_point=VECTOR_ENTRY_POINTS.get(_env_id))
 
-__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "BimanualExposureEnv", "BimanualExposureVectorEnv", "IncisionEnv",
+__all__ = ["ENV_IDS", "VECTOR_ENTRY_POINTS", "BimanualExposureEnv", "BimanualExposureVectorEnv", "DissectionEnv",
+           "DissectionVectorEnv", "IncisionEnv",
            "IncisionVectorEnv", "LiverNeedleAlignmentEnv", "LiverNeedleAlignmentVectorEnv", "PalpationEnv",
            "PalpationVectorEnv", "RetractionEnv", "RetractionVectorEnv", "TissueEnv", "TissueVectorEnv",
            "TumorPositioningEnv", "TumorPositioningVectorEnv"]

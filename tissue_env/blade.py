@@ -34,6 +34,7 @@ from sim_core.cutting import blade_faces, cut_world, element_faces, separation
 from sim_core.models.forces import ForceWorkspace
 from sim_core.models.model import State
 
+from .camera import CameraView
 from .worlds import TaskWorlds
 
 
@@ -52,6 +53,30 @@ def corner_surface(mesh):
     element = np.repeat(np.arange(count), per)
     slots = element[:, None] * corners + local
     return slots[boundary], mesh.nodes[mesh.elements].reshape(-1, 3)
+
+
+def corner_view(view, mesh):
+    """The ``CameraView`` ``view`` (a task's base camera) on the element corners of ``mesh``
+    (``corner_surface``), so that each side of a cut is drawn apart."""
+    faces, corners = corner_surface(mesh)
+    return CameraView(view.camera, faces, corners, [], view.point_count, view.point_normals, view.bounds)
+
+
+class CornerCamera:
+    """Mixin of a cutting task's env (before ``TissueEnv`` in its bases): its camera draws the
+    elements' corners (``corner_view``), so that each side of a cut is drawn apart."""
+
+    def _camera_setup(self, image_size, camera, point_count, point_normals):
+        return corner_view(super()._camera_setup(image_size, camera, point_count, point_normals), self.mesh)
+
+
+def spare_node_rows(value, default) -> int:
+    """The ``spare_nodes`` keyword (node rows per world for a cut's copies) as an int, ``default`` for
+    None; ValueError unless an integer >= 0."""
+    value = default if value is None else value
+    if isinstance(value, bool) or not float(value).is_integer() or value < 0:
+        raise ValueError(f"spare_nodes must be an integer >= 0 (node rows per world), got {value!r}")
+    return int(value)
 
 
 def element_local_faces(mesh):

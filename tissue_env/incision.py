@@ -8,8 +8,8 @@ from sim_core import Material
 from sim_core.cutting import blade_faces
 
 from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
-from .blade import CuttingWorlds, corner_surface
-from .camera import ALBEDO, CameraView
+from .blade import CornerCamera, CuttingWorlds, spare_node_rows
+from .camera import ALBEDO
 from .vector import TissueVectorEnv
 
 
@@ -140,7 +140,7 @@ class IncisionWorlds(CuttingWorlds):
         return vertices, triangles, albedo
 
 
-class IncisionEnv(TissueEnv):
+class IncisionEnv(CornerCamera, TissueEnv):
     """
     ## Description
 
@@ -325,11 +325,7 @@ class IncisionEnv(TissueEnv):
         nodes = self.mesh.nodes
         size = self.size
         count = self.shape[0] + 1
-        if self._spare_nodes is None:  # two full-depth cuts along x
-            self._spare_nodes = 2 * count * (self.shape[1] + 1)
-        if isinstance(self._spare_nodes, bool) or not float(self._spare_nodes).is_integer() or self._spare_nodes < 0:
-            raise ValueError(f"spare_nodes must be an integer >= 0 (node rows per world), got {self._spare_nodes!r}")
-        self.spare_nodes = int(self._spare_nodes)
+        self.spare_nodes = spare_node_rows(self._spare_nodes, 2 * count * (self.shape[1] + 1))  # two full-depth cuts
         bottom = np.isclose(nodes[:, 1], 0.0)
         sides = np.isclose(nodes[:, 2], 0.0) | np.isclose(nodes[:, 2], size[2])
         self.fixed_nodes = np.flatnonzero(bottom | sides)
@@ -353,13 +349,6 @@ class IncisionEnv(TissueEnv):
     def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
         young = float(young_modulus) * np.where(self.vessel_elements, self.vessel_stiffness_ratio, 1.0)
         return Material(young, poisson_ratio, density)
-
-    def _camera_setup(self, image_size, camera, point_count, point_normals):
-        """The base camera on the elements' corners (``tissue_env.blade.corner_surface``): each side of
-        a cut is drawn apart."""
-        view = super()._camera_setup(image_size, camera, point_count, point_normals)
-        faces, corners = corner_surface(self.mesh)
-        return CameraView(view.camera, faces, corners, [], view.point_count, view.point_normals, view.bounds)
 
     camera_target = (0.5, 0.6, 0.5)
     camera_direction = (0.0, 1.0, 0.45)
