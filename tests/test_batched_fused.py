@@ -35,11 +35,12 @@ def test_fused_factorisations_equal_the_per_copy_factors():
     envs = _stepped("tissue_env/Retraction-v0")
     integrator = envs.worlds.integrator
     count, dofs = envs.num_envs, 3 * envs.worlds.n_nodes
-    fixed, _, _ = envs.worlds._control()
+    fixed, _, tool_mask = envs.worlds._control()
     free = ~fixed.reshape(count, dofs)
     rng = np.random.default_rng(0)
     covers = free.copy()
-    covers[1] |= ~np.asarray(envs.worlds._fixed[1]).reshape(-1)  # the floor contact released
+    held = envs.worlds.envs[1].base_control.fixed | np.asarray(tool_mask[1])  # attached and grasped
+    covers[1] |= ~held.reshape(-1)  # the floor contact released
     covers[2] &= rng.uniform(size=dofs) > 0.1  # single dofs imposed inside free nodes (decoupled)
     assert np.any(covers[2] != free[2])
     system = _system(integrator, envs.worlds.dt)
@@ -145,7 +146,7 @@ def test_per_copy_solves_read_the_hourglass_matrices_in_node_blocks():
     copy's hourglass matrix, solve_copies_lu's operator) equals apply_operator with the copy's CSR
     matrix (to rounding), for copies with different hourglass matrices."""
     from sim_core import kernels
-    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=4, seed=0)
+    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=4, seed=0, model="baudet")
     integrator, stack = envs.worlds.integrator, envs.worlds.stack
     assert len(stack.hourglass_groups()) > 1
     stacked, hg_rows, hg_group = integrator.copies_first()
@@ -212,7 +213,7 @@ def test_per_copy_solves_scale_their_guess_to_the_least_residual():
 
     from sim_core import kernels
     # (8, 4, 8): unpreconditioned, the default (10, 5, 10) needs about 3000 iterations from zero
-    envs = _stepped("tissue_env/Palpation-v0", count=3, steps=4, seed=1, shape=(8, 4, 8))
+    envs = _stepped("tissue_env/Palpation-v0", count=3, steps=4, seed=1, shape=(8, 4, 8), model="baudet")
     integrator = envs.worlds.integrator
     stacked, hg_rows, hg_group = integrator.copies_first()
     blocks = integrator.workspace.hourglass_blocks()
@@ -261,7 +262,7 @@ def test_grouped_lockstep_solves_equal_the_per_copy_solves():
     cap, an inactive copy, a zero and a non-finite right-hand side; for a given chunk size, the
     threaded kernel gives the serial one's floats exactly."""
     from sim_core import kernels
-    envs = _stepped("tissue_env/Palpation-v0", count=6, steps=10, seed=2)
+    envs = _stepped("tissue_env/Palpation-v0", count=6, steps=10, seed=2, model="baudet")
     assert any(len(imposed) for imposed in envs.worlds.integrator.correction_lists[1])  # corrections are exercised
     count, dofs = envs.num_envs, 3 * envs.worlds.n_nodes
     system = _system(envs.worlds.integrator, 2.0 * envs.worlds.dt)  # the factors are approximate: several iterations
@@ -317,7 +318,7 @@ def test_threaded_measurement_kernels_give_the_serial_floats():
     serial pass, bit for bit."""
     from sim_core import kernels
     from sim_core.models.stack import StackedForceWorkspace
-    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
+    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0, model="baudet")
     stack, count = envs.worlds.stack, envs.num_envs
     model = stack.model
     positions = np.ascontiguousarray(envs.worlds.positions.reshape(-1, 3))
@@ -344,7 +345,7 @@ def test_the_probe_surface_of_all_copies_on_threads_gives_the_serial_floats():
     """Palpation's vector env computes its copies' projected probe surfaces with the copies on
     numba's threads (``Probe.surface(parallel=True)``): the same floats as the serial pass, with the
     probe over the tissue in some copies and away from it in others."""
-    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0)
+    envs = _stepped("tissue_env/Palpation-v0", count=4, steps=6, seed=0, model="baudet")
     tips = envs.worlds.probe_start + envs.worlds.tool_offset  # (N, 3) m, each copy's probe tip
     serial = envs.worlds.probe.surface(envs.worlds.positions, tips)
     threaded = envs.worlds.probe.surface(envs.worlds.positions, tips, parallel=True)
