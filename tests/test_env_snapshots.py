@@ -33,9 +33,10 @@ def _env(env_id, seed=3, steps=5, **kwargs):
     env = gym.make(env_id, **kwargs).unwrapped
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
-    for action in rng.uniform(-1, 1, (steps, 3)).astype(np.float32):
+    shape = env.action_space.shape  # (3,) per tool, then any grasp commands
+    for action in rng.uniform(-1, 1, (steps,) + shape).astype(np.float32):
         env.step(action)
-    return env, rng.uniform(-1, 1, (12, 3)).astype(np.float32)
+    return env, rng.uniform(-1, 1, (12,) + shape).astype(np.float32)
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
