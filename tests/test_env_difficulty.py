@@ -53,8 +53,8 @@ def test_every_level_sets_its_keywords_and_explicit_keywords_override_them(env_i
 
 @pytest.mark.parametrize("env_id", ENV_IDS)
 def test_the_default_level_is_the_registered_task(env_id):
-    actions = np.random.default_rng(5).uniform(-1, 1, (5, 3)).astype(np.float32)
     plain, default = gym.make(env_id), gym.make(env_id, difficulty="default")
+    actions = np.random.default_rng(5).uniform(-1, 1, (5,) + plain.action_space.shape).astype(np.float32)
     np.testing.assert_array_equal(plain.reset(seed=3)[0], default.reset(seed=3)[0])
     for action in actions:
         first, second = plain.step(action), default.step(action)

@@ -145,7 +145,7 @@ def test_density_range_draws_the_mass_of_each_episode(env_id):
     densities = _draws(env, (0, 1, 2), "density")
     assert all(900.0 <= d <= 1200.0 for d in densities) and len({float(d) for d in densities}) == 3
     assert float(_draws(env, (1,), "density")[0]) == float(densities[1])
-    info = env.step(np.zeros(3, np.float32))[4]
+    info = env.step(np.zeros(env.action_space.shape, np.float32))[4]
     model = env.unwrapped.model
     assert info["density"] == float(densities[1])
     assert model.mass.sum() == pytest.approx(info["density"] * model.rest_volume.sum(), rel=1e-12)
@@ -187,7 +187,7 @@ def test_a_vector_copy_equals_the_single_env_under_randomisation(env_id):
     singles = [gym.make(env_id, **ranges) for _ in range(2)]
     observations, infos = vector.reset(seed=[10, 11])
     expected = [single.reset(seed=seed) for single, seed in zip(singles, (10, 11))]
-    actions = np.random.default_rng(4).uniform(-1, 1, (4, 2, 3)).astype(np.float32)
+    actions = np.random.default_rng(4).uniform(-1, 1, (4, 2) + singles[0].action_space.shape).astype(np.float32)
     for step in range(len(actions) + 1):
         for index in range(2):
             np.testing.assert_allclose(observations[index], expected[index][0], rtol=0, atol=1e-6)

@@ -32,9 +32,10 @@ def _mid_episode(env_id, integrator="implicit", seed=4):
     env = gym.make(env_id, integrator=integrator)
     env.reset(seed=seed)
     rng = np.random.default_rng(seed)
-    for action in rng.uniform(-1, 1, (6, 3)).astype(np.float32):
+    shape = env.action_space.shape  # (3,) per tool, then any grasp commands
+    for action in rng.uniform(-1, 1, (6,) + shape).astype(np.float32):
         env.step(action)
-    return env, rng.uniform(-1, 1, (25, 3)).astype(np.float32)
+    return env, rng.uniform(-1, 1, (25,) + shape).astype(np.float32)
 
 
 @pytest.mark.parametrize("env_id", ENV_IDS)

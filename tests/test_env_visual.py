@@ -70,7 +70,7 @@ def test_a_vector_copy_reproduces_the_single_envs_images(env_id):
         v, s = vector.reset(seed=7)[0], sync.reset(seed=7)[0]
         np.testing.assert_array_equal(v, s)
         for _ in range(14):
-            actions = rng.uniform(-1, 1, (3, 3)).astype(np.float32)
+            actions = rng.uniform(-1, 1, (3,) + vector.single_action_space.shape).astype(np.float32)
             v, s = vector.step(actions)[0], sync.step(actions)[0]
             assert v.shape == (3,) + vector.single_observation_space.shape
             np.testing.assert_array_equal(v, s)

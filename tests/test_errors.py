@@ -59,7 +59,7 @@ def test_scripted_action_before_reset_raises(env_id):
 def test_step_before_reset_still_raises(env_id):
     env = gym.make(env_id).unwrapped
     with pytest.raises(RuntimeError, match=r"^call reset\(\) before step\(\)$"):
-        env.step(np.zeros(3))
+        env.step(np.zeros(env.action_space.shape))
     env.close()
 
 
