@@ -367,8 +367,7 @@ class TaskWorlds:
         self.measures = measures
         return self._observation(measures), total, terminated, self._info(measures, rewards, reasons, success)
 
-    @staticmethod
-    def _unmeasurable(measures, reasons, rows):
+    def _unmeasurable(self, measures, reasons, rows):
         """Give ``reasons`` (N,) object (None: healthy) a reason where a world of ``rows`` (N,) bool has
         finite positions but non-finite nodal forces: an element turned inside out between two of the
         monitor's inversion checks (which run every few steps) has no energy, and its forces and the
@@ -377,6 +376,8 @@ class TaskWorlds:
         for index in np.flatnonzero(bad):
             if reasons[index] is None:
                 reasons[index] = NON_FINITE_FORCES
+                if self.task.integrator_name == "explicit":
+                    reasons[index] += self._explicit_step_cause(index)
 
     def _combine_rewards(self, terms, unstable):
         """(rewards: name -> (N,) each reward term, total (N,)) of the task's reward ``terms`` and
