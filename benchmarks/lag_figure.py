@@ -2,7 +2,7 @@
 
 Usage: python -m benchmarks.lag_figure [--output docs/figures/static_vs_implicit.png]
 
-Palpation (``MODEL``, its other defaults), the probe over the middle of the slab (over the inclusion), pressed
+Palpation (its defaults: ``baudet-hyperelastic``), the probe over the middle of the slab (over the inclusion), pressed
 at full speed (``max_step`` = 4 mm per env step) to 8 mm, held for 6 steps and lifted at full
 speed, once with ``integrator="implicit"`` (the default) and once with ``integrator="static"``
 (``sim_core.solvers.static.QuasiStatic``): the vertical force the probe exerts (N) at every env step. The
@@ -26,16 +26,11 @@ from sim_core.files import finish_figure  # noqa: E402
 DEPTH_STEPS, HOLD_STEPS = 3, 6  # 2 mm above the surface + 2 steps of 4 mm, then held
 
 
-#: the model the figure is drawn with. Palpation's default, baudet-hyperelastic, is not used: on it the
-#: implicit press held still settles 11% below the static reading (0.815 against 0.912 N at 8 mm), a
-#: disagreement between the two integrators' contact equilibria still to be explained; on baudet they
-#: agree within 0.5% (tests/test_lag_figure.py)
-MODEL = "baudet"
-
-
-def press(integrator, seed=0, model=MODEL):
-    """(tip depth (m, positive below the surface), probe force (N, downward positive)) per env step."""
-    env = gym.make("tissue_env/Palpation-v0", integrator=integrator, model=model)
+def press(integrator, seed=0, inspect=None, **kwargs):
+    """(tip depth (m, positive below the surface), probe force (N, downward positive)) per env step
+    of the press (``kwargs``: Palpation's keywords, e.g. ``model``; ``inspect(env)``, when given, is
+    called with the unwrapped env after each of them)."""
+    env = gym.make("tissue_env/Palpation-v0", integrator=integrator, **kwargs)
     env.reset(seed=seed)
     unwrapped = env.unwrapped
     unwrapped.terminate_on_success = False  # keep pressing after the success press
@@ -50,6 +45,8 @@ def press(integrator, seed=0, model=MODEL):
         _, _, terminated, truncated, info = env.step(np.array(action, np.float32))
         depths.append(info["depth"])
         forces.append(-float(unwrapped.measures["reaction_force"][1]))
+        if inspect is not None:
+            inspect(unwrapped)
         if terminated or truncated:
             break
     env.close()

@@ -115,6 +115,7 @@ class PalpationWorlds(TaskWorlds):
         self.press_steps = np.zeros(count, dtype=int)
         self.contact = np.zeros((count, env.mesh.n_nodes), dtype=bool)  # nodes each copy's probe holds
         self._node_forces = None  # (N, n, 3) net forces of the last measurement
+        self._sampled = None  # (N, n, 3) m: within a step, where its last contact pass read the held heights
         self._tool_mask = None  # (N, n, 3) the step's contact dofs (projected nodes join after the step)
         self.palpation_map = np.zeros((count, len(env.cell_centres)))
         self.distance = np.zeros(count)
@@ -152,6 +153,8 @@ class PalpationWorlds(TaskWorlds):
         from the probe (net force on it downward, measured at the current state) is released."""
         count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
         forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
+        if self._sampled is not None:  # a step's next contact pass: the held heights read nearer where they were
+            positions = self._sampled = contact.relaxed_positions(self._sampled, positions, self.contact)
         # once for the contact update and its targets, the copies on the kernels' threads when threaded
         surface = self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads))
         held = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips,
@@ -179,9 +182,18 @@ class PalpationWorlds(TaskWorlds):
         1.7x (``baudet-hyperelastic``) to 4x (``baudet``) the equilibrium's at nu 0.49, decaying over
         3-5 steps, which the scripted sweep (one held step per press) read as stiffness. Solved
         within the step, the first held reading is within 1% of the static equilibrium's
-        (tests/test_env_palpation.py). ``integrator="static"`` iterates the set in the base class."""
-        if self.static:
-            return super()._advance(fixed, target, tool_mask, active)
+        (tests/test_env_palpation.py). ``integrator="static"`` iterates the set in the base class.
+        Either way a pass reads the held heights at ``contact.relaxed_positions`` (from where the
+        step's first control read them: the nodes at its start)."""
+        self._sampled = self.positions.copy()
+        try:
+            if self.static:
+                return super()._advance(fixed, target, tool_mask, active)
+            return self._advance_implicit(fixed, target, tool_mask, active)
+        finally:
+            self._sampled = None
+
+    def _advance_implicit(self, fixed, target, tool_mask, active):
         reasons = np.full(self.num_envs, None, dtype=object)
         running = active.copy()
         for _ in range(self.substeps):
@@ -207,9 +219,11 @@ class PalpationWorlds(TaskWorlds):
         return reasons, tool_mask, fixed, target
 
     def _after_substep(self, positions, velocities, rows):
-        # a top node that went into the probe is put back on its surface and joins the contact
+        # a free top node that went into the probe is put back on its surface and joins the contact (a
+        # held one is where its imposed height put it: the next pass reads its height again)
         tips = self._tips()
-        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None], tips,
+        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None] & ~self.contact,
+                                  tips,
                                   surface=self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads)))
         self.contact |= through
         self._tool_mask[..., 1] |= through

@@ -175,7 +175,7 @@ def solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, 
     """Static solve with a frictionless obstacle (``sim_core.solvers.contact``: the floor y >= 0 or a probe
     from above) by an active set: the candidate nodes (n,) bool on or through its surface get
     their height imposed on it at their (x, z), the nodes it would pull are released, and the
-    heights follow the nodes' horizontal sliding; repeated until no node goes through the surface
+    heights follow the nodes' horizontal sliding (read at ``contact.relaxed_positions``); repeated until no node goes through the surface
     by more than ``tolerance`` (m) and the held heights are within ``slide_tolerance`` (m) of the
     surface under the nodes. Returns (positions, reaction, converged, lowest eigenvalue, control, contact (n,) bool)."""
     if obstacle is None:
@@ -183,12 +183,13 @@ def solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, 
         return positions, reaction, converged, lowest, control, np.zeros(len(control.fixed), bool)
     start = rest if initial is None else initial
     contact = contact_.touching(obstacle, start, candidates, tip, tolerance=1e-12)
+    sampled = start  # where the held heights are read (``contact.relaxed_positions`` after the first round)
     for _ in range(max_rounds):
         trial = control.copy()
         active = np.flatnonzero(contact)
         if len(active):
             target = start[active].copy()
-            target[:, 1] = contact_.targets(obstacle, start, contact, tip)[active]
+            target[:, 1] = contact_.targets(obstacle, sampled, contact, tip)[active]
             trial.impose(active, target, components=(1,))
         positions, reaction, converged, lowest = solve(trial, initial if initial is None else start)
         if not converged:
@@ -198,6 +199,7 @@ def solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, 
         drift = contact & (np.abs(contact_.gap(obstacle, positions, tip)) > slide_tolerance)
         if not through.any() and not pulled.any() and not drift.any():
             return positions, reaction, True, lowest, trial, contact
+        sampled = contact_.relaxed_positions(sampled, positions, contact)
         contact = (contact | through) & ~pulled
         start = initial = positions  # the solver ramps the newly imposed heights from here
     return positions, reaction, False, lowest, trial, contact
