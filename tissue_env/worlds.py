@@ -23,13 +23,13 @@ from collections import OrderedDict
 
 import numpy as np
 
-from sim_core import kernels
+from sim_core import HexMesh, kernels
 from sim_core.solvers.implicit import ImplicitEuler
 from sim_core.solvers.integrators import stable_time_step
 from sim_core.models.model import Control, State
 from sim_core.models.stack import ModelStack, StackedForceWorkspace
 from sim_core.solvers.static import STATIC_CONTACT_PASSES, same_contacts
-from sim_core.models.validity import ValidityRange, out_of_range
+from sim_core.models.validity import ValidityRange, model_range, out_of_range
 from sim_core.solvers.worlds import make_worlds_solver
 
 from .camera import VISUAL_TYPES
@@ -135,7 +135,7 @@ class TaskWorlds:
 
     #: The state range in which the model's accuracy is validated (``sim_core.models.validity``): a step
     #: whose state leaves it has ``info["out_of_range"]`` True and the reason in
-    #: ``info["out_of_range_reason"]``.
+    #: ``info["out_of_range_reason"]``. Each instance has its model's (``model_range``).
     validity = ValidityRange()
     #: The attributes that are the block's, not the episode's: a snapshot (``tissue_env.snapshots``)
     #: refers to the restoring env's own (the stacked model, its workspace, the solver, whose
@@ -156,6 +156,7 @@ class TaskWorlds:
         self.integrator = make_worlds_solver(env.integrator_name, self.stack, env.solver_tolerance, solver,
                                              self.refactor_amortise, self.threads, env.integrator_scheme)
         self.static = env.integrator_name == "static"
+        self.validity = model_range(env.model_name, isinstance(env.mesh, HexMesh))
         self.n_nodes = env.mesh.n_nodes
         self.rest_length = self.stack.model.rest_length.reshape(count, -1)
         #: (N, rows, 3) the worlds' node positions, m: the block's nodes, then the spare rows

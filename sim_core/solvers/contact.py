@@ -331,7 +331,7 @@ def relaxed_positions(sampled, positions, contact, relaxation=HELD_RELAXATION):
     nu 0.45, the sphere 8 mm deep, ``integrator="static"``), so reading at the nodes (x_{k+1} read
     where pass k left them) alternates with period 2 and does not settle: held heights 0.46 mm apart
     after 25 passes, the reading taken at the iterate whose nodes were snapped into the probe,
-    12.6% above the equilibrium (0.912 against 0.810 N; tests/test_contact.py). Read at
+    12.6% above the equilibrium (0.912 against 0.810 N; tests/test_lag_figure.py). Read at
     x~_{k+1} = x~_k + w (x_k - x~_k), the error changes by 1 + w (g - 1) per pass: w = 1/2 removes it
     at g = -1 and converges for -3 < g < 1 (halving it per pass where the surface is flat, g = 0)."""
     relaxed = np.array(positions, dtype=float)
