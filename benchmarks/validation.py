@@ -107,6 +107,11 @@ def save(fig, name):
     plt.close(fig)
 
 
+def rows_of(rows, *models):
+    """The rows of each model named, in the order named (a list of rows per model)."""
+    return [[r for r in rows if r["model"] == model] for model in models]
+
+
 def fem_errors(label, runs):
     """Row entries e_dm_vs_<law> and e_max_vs_<law>: %e_dm and %e_max (``position_errors``) of
     ``runs[label]`` against each FEM law's run in ``runs`` (0 against itself)."""
@@ -267,9 +272,8 @@ def figure_shear():
         ax.grid(alpha=0.3)
     fig.suptitle(f"Fig. 3 - simple shear of the 10x10x10 block, nu = {nu} (report Fig. 15); green band: floor 2%")
     save(fig, "validation_3_shear")
-    baudet = [r for r in rows if r["model"] == "baudet"]
+    baudet, hyper = rows_of(rows, "baudet", "baudet-hyperelastic")
     within = [r for r in baudet if 2 <= r["angle_deg"] <= 10]
-    hyper = [r for r in rows if r["model"] == "baudet-hyperelastic"]
     SUMMARY["3_shear"] = dict(
         headline=(f"baudet, 2-10 deg: worst %e_dm {max(r['e_dm_vs_fem-linear'] for r in within):.2f} "
                   f"(fem-linear), {max(r['e_dm_vs_fem-neohookean'] for r in within):.2f} (fem-neohookean); "
@@ -335,9 +339,8 @@ def figure_flexion():
     fig.suptitle("Fig. 4 - 10x5x4 cantilever of 0.1 m cubes under gravity (E = 10 kPa, nu = 0.3, rho = 1500) "
                  "(report Fig. 16-17); green: 5% of L")
     save(fig, "validation_4_flexion")
-    baudet = [r for r in rows if r["model"] == "baudet"]
+    baudet, hyper = rows_of(rows, "baudet", "baudet-hyperelastic")
     linear_regime = [r for r in baudet if r["neo_tip_over_length"] < 0.05]
-    hyper = [r for r in rows if r["model"] == "baudet-hyperelastic"]
     SUMMARY["4_flexion"] = dict(
         headline=(f"baudet against fem-neohookean: %e_dm <= {max(r['e_dm_vs_fem-neohookean'] for r in linear_regime):.2f} "
                   f"below 5% tip deflection, {baudet[-2]['e_dm_vs_fem-neohookean']:.2f} at "

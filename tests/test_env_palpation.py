@@ -343,9 +343,12 @@ def test_a_press_at_nu_049_reads_its_equilibrium_after_one_held_step(young_modul
     scripted sweep records, the homogeneous slab at nu 0.49 reads what the static contact
     equilibrium reads there (integrator="static"), and the press step holds the equilibrium's
     contact set. With the set formed once per step the press held all 21 top nodes the probe's
-    bound passed (9 at equilibrium) and the held step read 1.7x the equilibrium at 100 kPa
-    (measured within 1% since the set is solved within the step; 10 kPa alike)."""
-    readings, sets = {}, {}
+    bound passed (9 at equilibrium) and the held step read 1.7x the equilibrium at 100 kPa. The
+    press rings (inertia; implicit Euler damps it over a few 40 ms steps): the first held step reads
+    within 10% of the equilibrium and the fifth within 1% (measured +6.9% and +0.3% at 100 kPa,
+    +3.9% and +0.3% at 10 kPa; before the cubes' bending took off the face diagonals' share, +1.4%
+    and +0.3%: the first held step falls at another phase of the ringing)."""
+    readings, sets, settled = {}, {}, {}
     for integrator in ("implicit", "static"):
         env = gym.make(ENV_ID, young_modulus=young_modulus, poisson_ratio=0.49, inclusion_ratio=1.0,
                        integrator=integrator, max_episode_steps=400).unwrapped
@@ -360,9 +363,13 @@ def test_a_press_at_nu_049_reads_its_equilibrium_after_one_held_step(young_modul
         sets[integrator] = env.contact_nodes
         env.step(np.zeros(3, np.float32))
         readings[integrator] = env.measures["apparent_modulus"]
+        for _ in range(4):
+            env.step(np.zeros(3, np.float32))
+        settled[integrator] = env.measures["apparent_modulus"]
         env.close()
     assert np.array_equal(sets["implicit"], sets["static"])
-    assert readings["implicit"] == pytest.approx(readings["static"], rel=0.03)
+    assert readings["implicit"] == pytest.approx(readings["static"], rel=0.1)
+    assert settled["implicit"] == pytest.approx(settled["static"], rel=0.01)
 
 
 def test_scripted_sweep_succeeds_in_stiff_near_incompressible_tissue():

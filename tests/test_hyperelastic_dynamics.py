@@ -263,15 +263,23 @@ def test_env_checker_and_1000_random_steps(env_id):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         check_env(env.unwrapped, skip_render_check=True)
-    env.reset(seed=0)
-    env.action_space.seed(0)
-    for _ in range(1000):
+    random_steps(env, 1000, seed=0)
+    env.close()
+
+
+def random_steps(env, count, seed, stable=False):
+    """``count`` random steps from ``env.reset(seed=seed)``, resetting as episodes end: every
+    observation and reward finite, ``info["unstable"]`` set exactly when a reason is given (and
+    never, if ``stable``)."""
+    env.reset(seed=seed)
+    env.action_space.seed(seed)
+    for _ in range(count):
         observation, reward, terminated, truncated, info = env.step(env.action_space.sample())
         assert np.all(np.isfinite(observation)) and np.isfinite(reward)
         assert info["unstable"] == (info["unstable_reason"] is not None)
+        assert not (stable and info["unstable"]), info["unstable_reason"]
         if terminated or truncated:
             env.reset()
-    env.close()
 
 
 @pytest.mark.parametrize("env_id", TASKS)
@@ -286,14 +294,5 @@ def test_env_static_and_explicit_integrators(env_id):
     dt = 0.25 * stable_time_step(probe.model, probe.start_control)
     for options in (dict(integrator="static"), dict(integrator="explicit", dt=dt)):
         env = gym.make(env_id, model=MODEL, **options)
-        env.reset(seed=1)
-        env.action_space.seed(1)
-        for _ in range(10):
-            observation, reward, terminated, truncated, info = env.step(env.action_space.sample())
-            assert np.all(np.isfinite(observation)) and np.isfinite(reward)
-            assert info["unstable"] == (info["unstable_reason"] is not None)
-            if options["integrator"] == "static":
-                assert not info["unstable"], info["unstable_reason"]
-            if terminated or truncated:
-                env.reset()
+        random_steps(env, 10, seed=1, stable=options["integrator"] == "static")
         env.close()

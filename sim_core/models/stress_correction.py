@@ -270,12 +270,17 @@ def element_spring_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ra
     """(M, S_e) per-element stiffness share (N/m) of each spring of ``element_spring_pairs(choice)``.
 
     "faces": the springs resist exactly the element's hourglass modes, so each is matched to the
-    strain energy of the modes it sees (box of edges i, j, k, volume V): the edges along i take the
-    bending modes (u_i = c s_i s_j, a strain eps_ii = 2 c s_j / i linear across the element) with
-    Young's modulus, k_e,i = E V / (12 i^2); the face diagonals of the i-j faces take the modes
-    u_i = c s_j s_k and u_j = c s_i s_k (shears linear across the element) with the shear modulus,
-    k_f,ij = G V (i^2 + j^2) / (12 i^2 j^2). Positive for every box and every nu, and free of lambda:
-    nu -> 0.5 stiffens only the correction's volumetric response, never the hourglass modes.
+    strain energy of the modes it sees (box of edges i, j, k, volume V). The face diagonals of the
+    i-j faces take the shear modes u_i = c s_j s_k and u_j = c s_i s_k (shears linear across the
+    element) with the shear modulus, k_f,ij = G V (i^2 + j^2) / (12 i^2 j^2). The bending mode
+    u_i = c s_i s_j (a strain eps_ii = 2 c s_j / i linear across the element) must carry Young's
+    modulus, E V c^2 (2/3) / i^2 as in a beam; the diagonals of the i-k faces stretch with it and
+    already carry G V c^2 (2/3) / k^2 of it, so the edges along i take the rest,
+    k_e,i = V (E / i^2 - G (1 / j^2 + 1 / k^2) / 2) / 12 (the mean over the two bending modes of
+    axis i: exact for both when j = k), kept at least E V / (48 i^2) so that the twist mode
+    u_i = c s_i s_j s_k, which only the edges resist, stays stiff (the bound acts on boxes
+    elongated along i by about 1.4 and more). Positive for every box and every nu, and free of
+    lambda: nu -> 0.5 stiffens only the correction's volumetric response, never the hourglass modes.
     Others: 12 edges then the 4 inner diagonals with ``spring_stiffness``'s (edge, diagonal) values.
     """
     if choice != "faces":
@@ -286,7 +291,9 @@ def element_spring_stiffness(axis_lengths: np.ndarray, young_modulus, poisson_ra
     shear = young_modulus / (2.0 * (1.0 + nu))
     volume = np.prod(axis_lengths, axis=1)
     squares = axis_lengths**2
-    edge = young_modulus[:, None] * volume[:, None] / (12.0 * squares)
+    beam = young_modulus[:, None] / squares
+    across = 0.5 * shear[:, None] * (1.0 / squares[:, [1, 0, 0]] + 1.0 / squares[:, [2, 2, 1]])
+    edge = volume[:, None] * np.maximum(beam - across, 0.25 * beam) / 12.0
     i, j = squares[:, FACE_DIAGONAL_AXES[:, 0]], squares[:, FACE_DIAGONAL_AXES[:, 1]]
     face = shear[:, None] * volume[:, None] * (i + j) / (12.0 * i * j)
     return np.concatenate([edge[:, np.repeat(np.arange(3), 4)], face], axis=1)
