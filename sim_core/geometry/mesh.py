@@ -130,7 +130,8 @@ class MeshGeometry:
         if labels is not None:
             labels = np.array(labels, dtype=np.int64)
             if labels.shape != (len(elements),):
-                raise ValueError(f"element_labels must be an ({len(elements)},) integer array, got shape {labels.shape}")
+                raise ValueError(f"element_labels must be an ({len(elements)},) integer array, got shape "
+                                 f"{labels.shape}")
             values["element_labels"] = labels
         mesh = object.__new__(type(self))
         for name, value in values.items():

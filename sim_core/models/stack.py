@@ -158,7 +158,8 @@ class ModelStack:
                 nodes=(single.nodes[None] + self.n_nodes * np.arange(count)[:, None]).ravel(),
                 gradient=np.ascontiguousarray(np.tile(single.gradient, (count, 1))), law=stress)
         self.model = StackedModel(
-            mesh=model.mesh.on_nodes(nodes, elements, shape=None, spacing=None, element_labels=None), name=model.name, springs=springs, edge_spring=edge_spring,
+            mesh=model.mesh.on_nodes(nodes, elements, shape=None, spacing=None, element_labels=None), name=model.name,
+            springs=springs, edge_spring=edge_spring,
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
             options=dict(model.options), stress_correction=stress, smoothing=smoothing, **values,
         )
