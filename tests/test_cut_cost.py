@@ -121,6 +121,8 @@ def test_a_mesh_on_other_node_rows_is_the_mesh_built_and_checked_on_them(kind):
         mesh.on_nodes(shifted, cut.elements)
     with pytest.raises(ValueError, match="element indices"):
         mesh.on_nodes(cut.nodes, cut.elements + len(cut.nodes))
+    with pytest.raises(ValueError, match="finite nodes"):
+        mesh.on_nodes(np.concatenate([cut.nodes, [[np.nan, 0.0, 0.0]]]), cut.elements)
     with pytest.raises(ValueError, match="element_labels"):
         mesh.on_nodes(cut.nodes, cut.elements, element_labels=np.zeros(3, dtype=int))
 

@@ -117,10 +117,11 @@ class MeshGeometry:
         nodes = np.array(nodes, dtype=float)
         elements = self.elements if elements is None else np.array(elements, dtype=np.int64)
         count, corners = self.elements.shape
-        if (nodes.ndim != 2 or nodes.shape[1] != 3 or elements.ndim != 2 or elements.shape[1] != corners
+        if (nodes.ndim != 2 or nodes.shape[1] != 3 or not np.all(np.isfinite(nodes)) or elements.ndim != 2
+                or elements.shape[1] != corners
                 or len(elements) % count or (elements.size and (elements.min() < 0 or elements.max() >= len(nodes)))):
-            raise ValueError(f"on_nodes takes (N, 3) nodes and (c {count}, {corners}) element indices into them, got "
-                             f"{nodes.shape} and {elements.shape}")
+            raise ValueError(f"on_nodes takes (N, 3) finite nodes and (c {count}, {corners}) element indices into "
+                             f"them, got {nodes.shape} and {elements.shape}")
         if not np.array_equal(nodes[elements].reshape(-1, count, corners, 3),
                               np.broadcast_to(self.nodes[self.elements], (len(elements) // count, count, corners, 3))):
             raise ValueError("on_nodes keeps the elements' rest corners: an element's corner is not this mesh's")
