@@ -60,6 +60,8 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.lag_figure
 	$(PY) -m benchmarks.speed_accuracy --budget 90
 	$(PY) -m benchmarks.memory_soak --randomise
+	$(PY) -m benchmarks.cutting
+	$(PY) -m benchmarks.cutting --env tissue_env/Dissection-v0 --output benchmarks/results/cutting_dissection.json
 	$(PY) -m benchmarks.large_mesh
 	$(PY) -m benchmarks.cantilever_reference
 	$(PY) -m benchmarks.tet_formulations

@@ -884,10 +884,35 @@ def speed_accuracy_peers_section():
 
 
 # -- performance page ----------------------------------------------------------------------------
+def cutting_section():
+    """The cost of a cut (issue 44's floors) per cutting task, from cutting*.json."""
+    runs = [("cutting.json", None), ("cutting_dissection.json", "cutting_dissection.json")]
+    data = [(load(name), command_for("cutting.py", output), name) for name, output in runs]
+    floors = data[0][0]["floors"]
+    out = ["## Cutting\n\n",
+           "CPU time of the single env on one core (`benchmarks/cutting.py`'s docstring: an env step with the blade "
+           "held above the tissue; a step that cuts, the median of the scripted cut's cutting steps; a step after a "
+           "cut against the same step of an uncut twin env timed in alternation with it), and the peak memory of "
+           f"the scripted cut repeated in one process. Floors (issue 44): a cutting step at most "
+           f"{num(floors['cutting_step_in_env_steps'])} env steps, a step after a cut at most "
+           f"{num(floors['step_after_cut_ratio'])}x, memory growth below {pct(floors['memory_growth'])}% "
+           "from 20 episodes to the last.\n\n"]
+    out += [caption(command, name) + "\n" for _, command, name in data]
+    out += [table(["env", "env step (ms)", "cutting step (ms)", "cutting step (env steps)", "step after a cut (ms)",
+                        "uncut twin step (ms)", "after / twin", "episodes", "peak RSS after 20 (MB)",
+                        "peak RSS at the end (MB)", "growth (%)"],
+                       [[short_id(d["env_id"]), num(1e3 * d["step_s"]), num(1e3 * d["cutting_step_s"]),
+                         num(d["cutting_step_in_env_steps"]), num(1e3 * d["step_after_cut_s"]),
+                         num(1e3 * d["uncut_twin_step_s"]) if "uncut_twin_step_s" in d else "-",
+                         num(d["step_after_cut_ratio"]), d["memory"]["episodes"], num(d["memory"]["peak_rss_mb_after_20"]),
+                         num(d["memory"]["peak_rss_mb_at_end"]), pct(d["memory"]["growth"])] for d, _, _ in data]), "\n"]
+    return out
+
+
 def performance_page():
     out = [HEADER.format(source="benchmarks/results/step_speed.json, env_speed*.json, reset_speed.json, snapshots.json, "
-                                "vector_env_speed*.json, visual_speed.json, stability*.csv, speed_accuracy.json "
-                                "and peers.json"),
+                                "vector_env_speed*.json, visual_speed.json, stability*.csv, speed_accuracy.json, "
+                                "cutting*.json and peers.json"),
            "# Performance\n\n",
            "Speeds measured on the project's 2-core machine, shared with other jobs: treat them as orders "
            "of magnitude and compare rows of the same table. Timing is never asserted in the tests.\n\n"]
@@ -1006,6 +1031,7 @@ def performance_page():
                   [[short_id(r["env_id"]), r["episodes"], num(r["rss_start_mb"]), num(r["rss_after_warmup_mb"]),
                     num(r["rss_max_mb"]), num(r["rss_final_mb"]), pct(r["growth_after_warmup"])]
                    for r in soak["results"]]), "\n"]
+    out += cutting_section()
     mesh = load("large_mesh.json")
     out += ["## Work against mesh size\n\n",
             f"The envs refuse a shape with more than {mesh['max_nodes']} nodes unless `max_nodes` is raised "

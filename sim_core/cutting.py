@@ -29,6 +29,7 @@ from .geometry.tetmesh import TET_FACES, TetMesh
 from .geometry.topology import FACES
 from .models.material import Material
 from .models.model import Model, State, build_model
+from .models.sparse import unique_keys
 
 
 @dataclass(frozen=True)
@@ -119,7 +120,7 @@ def separation(model: Model, faces) -> Separation:
     if len(origin) == mesh.n_nodes:  # no node copied (a crack one element wide): the mesh born with it is this one
         return Separation(model, origin, pairs)
     nodes = mesh.nodes[origin]
-    cut_mesh = type(mesh)(nodes, elements, element_labels=mesh.element_labels)
+    cut_mesh = mesh.on_nodes(nodes, elements, shape=None, spacing=None)  # the same corners: checked once
     return Separation(_rebuild(model, cut_mesh), origin, pairs)
 
 
@@ -176,7 +177,7 @@ def _split_nodes(mesh, shared, joined):
 def _unique_pairs(first, second, size):
     """(P, 2) the distinct rows (first, second) sorted, ``second`` < ``size``: np.unique(axis=0) on one
     int64 key per row (several times faster)."""
-    keys = np.unique(first.astype(np.int64) * size + second)
+    keys = unique_keys(first.astype(np.int64) * size + second)
     return np.stack([keys // size, keys % size], axis=1)
 
 

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from sim_core import HexMesh, Material, TetMesh, build_model, cutting
 from sim_core.models.model import Model, share_topology
-from sim_core.models.sparse import BlockPattern
+from sim_core.models.sparse import BlockPattern, unique_keys
 from sim_core.models.stack import with_spare_nodes
 
 MATERIAL = Material(1e4, 0.45, 1000.0)
@@ -101,3 +101,37 @@ def test_topology_is_shared_only_between_models_of_one_topology():
     assert other.pattern is uncut.pattern
     with pytest.raises(ValueError, match="one topology"):
         share_topology(uncut, build_model(cut, MATERIAL))
+
+
+@pytest.mark.parametrize("kind", [HexMesh, TetMesh])
+def test_a_mesh_on_other_node_rows_is_the_mesh_built_and_checked_on_them(kind):
+    mesh, cut = cut_mesh(kind)
+    built = kind(cut.nodes, cut.elements)
+    moved = mesh.on_nodes(cut.nodes, cut.elements, shape=None, spacing=None)
+    assert type(moved) is kind and moved.shape is None and moved.spacing is None
+    np.testing.assert_array_equal(moved.nodes, built.nodes)
+    np.testing.assert_array_equal(moved.elements, built.elements)
+    assert not moved.nodes.flags.writeable and not moved.elements.flags.writeable
+    np.testing.assert_array_equal(moved.element_volumes(), built.element_volumes())
+    parked = mesh.on_nodes(np.concatenate([mesh.nodes, mesh.nodes[:3]]))  # parked rows: the same elements
+    assert parked.n_nodes == mesh.n_nodes + 3 and parked.shape == mesh.shape
+    shifted = cut.nodes.copy()
+    shifted[cut.elements[0, 0]] += 1e-3
+    with pytest.raises(ValueError, match="corner is not this mesh's"):
+        mesh.on_nodes(shifted, cut.elements)
+    with pytest.raises(ValueError, match="element indices"):
+        mesh.on_nodes(cut.nodes, cut.elements + len(cut.nodes))
+    with pytest.raises(ValueError, match="finite nodes"):
+        mesh.on_nodes(np.concatenate([cut.nodes, [[np.nan, 0.0, 0.0]]]), cut.elements)
+    with pytest.raises(ValueError, match="element_labels"):
+        mesh.on_nodes(cut.nodes, cut.elements, element_labels=np.zeros(3, dtype=int))
+
+
+def test_unique_keys_is_numpys_unique():
+    keys = np.random.default_rng(0).integers(0, 500, 3000)
+    np.testing.assert_array_equal(unique_keys(keys), np.unique(keys))
+    values, inverse = unique_keys(keys, return_inverse=True)
+    expected, expected_inverse = np.unique(keys, return_inverse=True)
+    np.testing.assert_array_equal(values, expected)
+    np.testing.assert_array_equal(inverse, expected_inverse)
+    assert unique_keys(np.zeros(0, dtype=np.int64)).size == 0

@@ -107,6 +107,40 @@ class MeshGeometry:
     def n_elements(self) -> int:
         return len(self.elements)
 
+    def on_nodes(self, nodes, elements=None, **fields) -> "MeshGeometry":
+        """A mesh of this one's type whose elements are this mesh's on other node rows: ``nodes``
+        (N', 3) m and ``elements`` (c M, k) (None: this mesh's), each element ``e`` with the rest
+        corners of this mesh's element ``e mod M`` (a cut's copied nodes, a stack's parked rows, N
+        worlds side by side); ``fields``: the other fields (default: this mesh's). The elements'
+        geometry, checked when this mesh was built, is not checked again (a cut makes many such
+        meshes); ValueError where an index is out of range or a corner is not this mesh's."""
+        nodes = np.array(nodes, dtype=float)
+        elements = self.elements if elements is None else np.array(elements, dtype=np.int64)
+        count, corners = self.elements.shape
+        if (nodes.ndim != 2 or nodes.shape[1] != 3 or not np.all(np.isfinite(nodes)) or elements.ndim != 2
+                or elements.shape[1] != corners
+                or len(elements) % count or (elements.size and (elements.min() < 0 or elements.max() >= len(nodes)))):
+            raise ValueError(f"on_nodes takes (N, 3) finite nodes and (c {count}, {corners}) element indices into "
+                             f"them, got {nodes.shape} and {elements.shape}")
+        if not np.array_equal(nodes[elements].reshape(-1, count, corners, 3),
+                              np.broadcast_to(self.nodes[self.elements], (len(elements) // count, count, corners, 3))):
+            raise ValueError("on_nodes keeps the elements' rest corners: an element's corner is not this mesh's")
+        values = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        values.update(fields, nodes=nodes, elements=elements)
+        labels = values["element_labels"]
+        if labels is not None:
+            labels = np.array(labels, dtype=np.int64)
+            if labels.shape != (len(elements),):
+                raise ValueError(f"element_labels must be an ({len(elements)},) integer array, got shape "
+                                 f"{labels.shape}")
+            values["element_labels"] = labels
+        mesh = object.__new__(type(self))
+        for name, value in values.items():
+            if name in ("nodes", "elements", "element_labels") and value is not None:
+                value.setflags(write=False)  # copies made here, read-only as the checked constructor leaves them
+            object.__setattr__(mesh, name, value)
+        return mesh
+
     @property
     def size(self) -> np.ndarray:
         """Extent of the bounding box in m."""

@@ -23,6 +23,24 @@ from .. import kernels
 ORDER_CACHE_SIZE = 64
 
 
+def unique_keys(keys, return_inverse: bool = False):
+    """``np.unique`` of the integer array ``keys`` (1D; its sorted distinct values, and with
+    ``return_inverse`` the index of each key among them) by one sort: several times faster than
+    NumPy 2's hash-based ``unique`` on the tens of thousands of node-pair keys a cut renumbers."""
+    keys = np.asarray(keys).ravel()
+    order = np.argsort(keys, kind="stable") if return_inverse else None
+    ordered = keys[order] if return_inverse else np.sort(keys)
+    first = np.empty(len(ordered), dtype=bool)
+    first[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    values = ordered[first]
+    if not return_inverse:
+        return values
+    inverse = np.empty(len(keys), dtype=np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    return values, inverse
+
+
 class BlockPattern:
     """Fixed CSR pattern for a (3N, 3N) matrix over node pairs that share an element.
 
@@ -45,7 +63,7 @@ class BlockPattern:
         extra = np.zeros((0, 2), dtype=pairs.dtype) if extra_pairs is None else np.asarray(extra_pairs, pairs.dtype)
         # unique on one int64 key per pair (row-major, the order of unique(axis=0)): several times
         # faster than unique over rows, which sorts structured views
-        keys = np.unique(np.concatenate([pairs, own, extra]).astype(np.int64) @ np.array([n_nodes, 1], np.int64))
+        keys = unique_keys(np.concatenate([pairs, own, extra]).astype(np.int64) @ np.array([n_nodes, 1], np.int64))
         #: the node-pair blocks, sorted (a * n_nodes + b): every entry is found through its block, a
         #: search among 9 times fewer keys than the entries (a cut rebuilds these patterns)
         self.block_keys = keys
@@ -99,7 +117,7 @@ class BlockPattern:
     def _blocks(self, a, b) -> np.ndarray:
         """The index of each node-pair block (a, b) among ``block_keys``; raises if one is outside."""
         keys = a * self.n_nodes + b
-        found = np.minimum(np.searchsorted(self.block_keys, keys), len(self.block_keys) - 1)
+        found = _sorted_index(self.block_keys, keys, self.n_nodes * self.n_nodes)
         if not np.array_equal(self.block_keys[found], keys):
             raise ValueError("entry outside the fixed sparsity pattern")
         return found
@@ -121,18 +139,11 @@ class BlockPattern:
 
     def transpose_positions(self) -> np.ndarray:
         """(nnz,) for each stored entry (r, c), in ``data`` order, the position of (c, r) (the pattern is
-        symmetric: every block (a, b) has its (b, a)); found block by block."""
-        n_nodes = self.n_nodes
-        a, b = self.block_keys // n_nodes, self.block_keys % n_nodes
-        mirror = self._blocks(b, a)  # each block's (b, a)
-        start = 9 * self.block_indptr[a] + 3 * (np.arange(len(a)) - self.block_indptr[a])
-        mirror_start = 9 * self.block_indptr[b] + 3 * (mirror - self.block_indptr[b])
-        i, j = np.arange(3)[:, None], np.arange(3)[None, :]
-        here = start[:, None, None] + 3 * self._degree[a][:, None, None] * i + j
-        there = mirror_start[:, None, None] + 3 * self._degree[b][:, None, None] * j + i
-        transpose = np.empty(self.nnz, np.int64)
-        transpose[here.ravel()] = there.ravel()
-        return transpose
+        symmetric: every block (a, b) has its (b, a), and its rows are sorted): the positions
+        ``arange(nnz)`` as a matrix, transposed (its CSC form: the same pattern, entry by entry)."""
+        positions = sp.csr_matrix((np.arange(self.nnz, dtype=np.int64), self.indices, self.indptr),
+                                  shape=(self.n_dofs, self.n_dofs))
+        return np.asarray(positions.tocsc().data, dtype=np.int64)
 
     def block_positions(self, node_rows: np.ndarray, node_cols: np.ndarray) -> np.ndarray:
         """Positions of the 3x3 blocks (node_rows[..., None], node_cols) -> shape (..., 3, 3)."""
@@ -224,6 +235,23 @@ class NodeBlockLU:
             raise np.linalg.LinAlgError("node-block factor: zero or non-finite pivot")
 
 
+#: ``_sorted_index`` looks keys below this up in a dense table instead of searching them
+DENSE_LOOKUP = 1 << 20
+
+
+def _sorted_index(keys, wanted, bound):
+    """(W,) for each of ``wanted`` the index of the same value in ``keys`` (sorted, distinct, all in
+    [0, ``bound``)), clipped to the last key where it is missing (the caller checks): a dense table
+    when ``bound`` is small (a cut's small systems: a binary search per entry was a noticeable part
+    of a cut's factorisation), else ``np.searchsorted``."""
+    last = max(len(keys) - 1, 0)
+    if bound > DENSE_LOOKUP:
+        return np.minimum(np.searchsorted(keys, wanted), last)
+    table = np.full(bound + 1, last, dtype=np.int64)
+    table[keys] = np.arange(len(keys))
+    return table[np.clip(wanted, 0, bound)]
+
+
 def block_structure(matrix, free):
     """``NodeBlockLU``'s symbolic part: the node ordering, the permuted block pattern of A with the
     position of each stored entry in its blocks, the block fill patterns of L and U, and the packed
@@ -236,10 +264,10 @@ def block_structure(matrix, free):
     # blocks: nine times fewer keys to sort), or from every entry where a block lacks that entry
     entry_keys = node_row * nb + node_col
     corner = (coo.row % 3 == 0) & (coo.col % 3 == 0)
-    blocks = np.unique(entry_keys[corner])
-    entry_block = np.minimum(np.searchsorted(blocks, entry_keys), max(len(blocks) - 1, 0))
+    blocks = unique_keys(entry_keys[corner])
+    entry_block = _sorted_index(blocks, entry_keys, nb * nb)
     if not (len(blocks) and np.array_equal(blocks[entry_block], entry_keys)):
-        blocks = np.unique(entry_keys)
+        blocks = unique_keys(entry_keys)
         entry_block = np.searchsorted(blocks, entry_keys)
     block_row, block_col = blocks // nb, blocks % nb
     graph = sp.csc_matrix((np.ones(len(blocks)), (block_row, block_col)), shape=(nb, nb))
@@ -293,7 +321,7 @@ def symmetric_structure(structure):
         rows = np.repeat(np.arange(nb, dtype=np.int64), np.diff(indptr))
         keys = np.repeat(np.arange(nb, dtype=np.int64), np.diff(other_indptr)) * nb + other_indices
         wanted = indices * nb + rows
-        found = np.minimum(np.searchsorted(keys, wanted), len(keys) - 1)
+        found = _sorted_index(keys, wanted, nb * nb)
         if len(indices) != len(other_indices) or not np.array_equal(keys[found], wanted):
             raise np.linalg.LinAlgError("the node-block pattern is not symmetric")
         return found.astype(np.int64)
@@ -313,22 +341,21 @@ def edge_incidence(model):
     tetrahedra (no axis groups, no corrections' coupling)."""
     elements, springs, edge_spring = model.mesh.elements, model.springs, model.edge_spring
     count = len(elements)
+    none = np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
     if elements.shape[1] != 8:
-        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
-    node_edge = np.full((count, 8, 3), -1, dtype=np.int64)
-    node_sign = np.zeros((count, 8, 3))
-    rows = np.arange(count)
-    for e in range(12):
-        spring = edge_spring[:, e]
-        for end, sign in ((0, 1.0), (1, -1.0)):
-            local = elements == springs[spring, end][:, None]  # (M, 8)
-            if not np.all(local.sum(axis=1) == 1):
-                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
-            k = np.argmax(local, axis=1)
-            if np.any(node_edge[rows, k, e // 4] >= 0):
-                return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
-            node_edge[rows, k, e // 4] = spring
-            node_sign[rows, k, e // 4] = sign
-    if np.any(node_edge < 0):
-        return np.zeros((0, 8, 3), np.int64), np.zeros((0, 8, 3))
+        return none
+    ends = springs[edge_spring]  # (M, 12, 2) the two nodes of each element edge's spring
+    local = elements[:, None, None, :] == ends[..., None]  # (M, 12, 2, 8): the local node of each end
+    if not np.all(local.sum(axis=3) == 1):
+        return none
+    k = np.argmax(local, axis=3)
+    group = np.broadcast_to((np.arange(12) // 4)[None, :, None], k.shape)
+    slots = (3 * k + group).reshape(count, 24)  # each (local node, axis group) once: all 24 of them
+    if not np.all(np.sort(slots, axis=1) == np.arange(24)):
+        return none
+    node_edge = np.empty((count, 8, 3), dtype=np.int64)
+    node_sign = np.empty((count, 8, 3))
+    rows = np.broadcast_to(np.arange(count)[:, None, None], k.shape)
+    node_edge[rows, k, group] = np.broadcast_to(edge_spring[:, :, None], k.shape)
+    node_sign[rows, k, group] = np.broadcast_to(np.array([1.0, -1.0]), k.shape)
     return node_edge, node_sign

@@ -63,7 +63,7 @@ def with_spare_nodes(model: Model, n_nodes: int) -> Model:
     if extra == 0:
         return model
     nodes = np.concatenate([model.mesh.nodes, np.repeat(model.mesh.nodes[:1], extra, axis=0)])
-    mesh = dataclasses.replace(model.mesh, nodes=nodes)
+    mesh = model.mesh.on_nodes(nodes)
     hourglass = model.hourglass
     if hourglass is not None:
         rows = 3 * int(n_nodes)
@@ -158,7 +158,8 @@ class ModelStack:
                 nodes=(single.nodes[None] + self.n_nodes * np.arange(count)[:, None]).ravel(),
                 gradient=np.ascontiguousarray(np.tile(single.gradient, (count, 1))), law=stress)
         self.model = StackedModel(
-            mesh=type(model.mesh)(nodes, elements), name=model.name, springs=springs, edge_spring=edge_spring,
+            mesh=model.mesh.on_nodes(nodes, elements, shape=None, spacing=None, element_labels=None), name=model.name,
+            springs=springs, edge_spring=edge_spring,
             correction_mode=model.correction_mode, gravity=model.gravity.copy(), hourglass=hourglass,
             options=dict(model.options), stress_correction=stress, smoothing=smoothing, **values,
         )

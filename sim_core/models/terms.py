@@ -14,7 +14,7 @@ from .._validate import finite_array
 from .elements import element_block_positions, element_blocks, element_stiffness
 from .laws import baudet_shear_ratio, baudet_stiffness, lame_parameters
 from ..geometry.mesh import DIAGONALS, EDGE_AXIS, EDGES, HexMesh
-from .sparse import BlockPattern
+from .sparse import BlockPattern, unique_keys
 from .stress_correction import (StressCorrection, element_spring_pairs, element_spring_stiffness, mean_gradients,
                                 merge_parallel_springs, tetrahedron_spring_stiffness)
 from ..geometry.tetmesh import TET_EDGES
@@ -82,7 +82,7 @@ def merge_springs(mesh, local_pairs: np.ndarray, values: np.ndarray):
     pairs = np.sort(elements[:, local_pairs].reshape(-1, 2), axis=1).astype(np.int64)
     # one int64 key per pair: the order of unique(axis=0), several times faster (a cut merges again)
     size = max(int(mesh.n_nodes), 1)
-    keys, inverse = np.unique(pairs[:, 0] * size + pairs[:, 1], return_inverse=True)
+    keys, inverse = unique_keys(pairs[:, 0] * size + pairs[:, 1], return_inverse=True)
     springs = np.stack([keys // size, keys % size], axis=1).astype(elements.dtype)
     inverse = inverse.ravel()
     stiffness = np.bincount(inverse, weights=values.ravel(), minlength=len(springs))
