@@ -20,7 +20,7 @@ from .worlds import TaskWorlds
 # kept), for the reset time: long chord runs, accelerated, reuse one factorisation for most of a
 # goal, and the increment cap bounds the time a goal that cannot converge (a deep press on a fine
 # mesh) takes to fail; the goals are Newton's (docs/performance_notes.md, "Static solves and resets").
-GOAL_SOLVER = dict(tolerance=1e-5, chord_contraction=0.95, acceleration=5, max_load_steps=8)
+GOAL_SOLVER = dict(chord_contraction=0.95, acceleration=5, max_load_steps=8)
 #: A retry (a larger displacement, solved from the previous equilibrium) gives up sooner: the
 #: failing ones (large compressions at the workspace corners) are the slowest resets, and giving up
 #: sooner leaves the goals the same.
@@ -538,7 +538,7 @@ class TumorPositioningEnv(TissueEnv):
         reached = np.zeros(3)  # the tool displacement of the last converged solve
         for _ in range(3):
             control = self.base_control.copy().impose(self.tool_nodes, self.tool_rest + displacement)
-            result = solve_static(self.model, control, initial=positions,
+            result = solve_static(self.model, control, initial=positions, tolerance=1e-5,
                                   **(GOAL_SOLVER if positions is start else GOAL_RETRY_SOLVER),
                                   cache=self._goal_factors if positions is start else None)
             if not result.converged:
