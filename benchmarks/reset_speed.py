@@ -85,6 +85,7 @@ def main(argv=None):
     if args.seeds < 1:
         parser.error(f"--seeds must be >= 1, got {args.seeds}")
     rows = []
+    start_load = os.getloadavg()  # the machine's load, beside the times (a shared machine)
     print(f"{'env id':34s} {'median':>8s} {'mean':>8s} {'p95':>8s} {'max':>8s}  ms per reset, seeds 1-{args.seeds}")
     for env_id in args.env:
         row = measure(env_id, args.seeds, args.env_kwargs)
@@ -95,7 +96,8 @@ def main(argv=None):
         print(f"{env_id:34s} {row['median_ms']:8.1f} {row['mean_ms']:8.1f} {row['p95_ms']:8.1f} {row['max_ms']:8.1f}"
               f"{extra}", flush=True)
     result = dict(benchmark="reset_speed", unit="ms of wall time per reset",
-                  machine=dict(cpus=os.cpu_count(), platform=platform.platform()), results=rows)
+                  machine=dict(cpus=os.cpu_count(), platform=platform.platform()), load_average_start=start_load,
+                  load_average=os.getloadavg(), results=rows)
     write_json(args.output, result)
     return 0
 

@@ -939,7 +939,9 @@ def performance_page():
                               num(r["observation_ms"]), num(r["reward_ms"])] for r in data["results"]]), "\n"]
 
     reset = load("reset_speed.json")
-    out += ["## Resets\n\n", f"Unit: {reset['unit']}.\n\n", caption(command_for("reset_speed.py"), "reset_speed.json"),
+    load_note = (f"Load average (1 min) {reset['load_average_start'][0]:.2f} at the start, {reset['load_average'][0]:.2f} at "
+                 f"the end ({reset['machine']['cpus']} cores). " if "load_average" in reset else "")
+    out += ["## Resets\n\n", f"{load_note}Unit: {reset['unit']}.\n\n", caption(command_for("reset_speed.py"), "reset_speed.json"),
             "\n", table(["env", "seeds", "median ms", "mean ms", "p95 ms", "max ms", "factorisations per reset"],
                         [[short_id(r["env_id"]), r["seeds"], num(r["median_ms"]), num(r["mean_ms"]), num(r["p95_ms"]),
                           num(r["max_ms"]), num(r["factorisations_per_reset"])] for r in reset["results"]]), "\n"]
