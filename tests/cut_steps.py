@@ -8,6 +8,7 @@ import pickle
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 from same_steps import assert_same_steps
 
@@ -120,3 +121,30 @@ def assert_random_blades_are_finite(env_id, keywords, spare_nodes, steps, plunge
             break
     assert env.unwrapped.worlds.stack.given[0].n_nodes <= env.unwrapped.mesh.n_nodes + spare_nodes
     return cutting, refused
+
+
+def assert_approach_is_the_route_shortening(env_id, keywords, seed):
+    """On the scripted episode (seed ``seed``) each step's ``reward_approach`` is ``approach_weight``
+    times the shortening of the route (``info["route_remaining"]``, m) over 1 cm, the scripted blade
+    lengthens the route by less than 0.1 mm in all (Incision's moves back to the line's exact start,
+    short of its first face) and ends within an element of its end; a blade lifted straight up
+    from the start lengthens it and is penalised by the same rule. Returns the summed approach reward."""
+    env = gym.make(env_id, **keywords)
+    _, info = env.reset(seed=seed)
+    task = env.unwrapped
+    weight, element = task.approach_weight, float(np.max(task.spacing))
+    remaining, total, lengthened = [info["route_remaining"]], 0.0, 0.0
+    for info in scripted_steps(env, 60):
+        remaining.append(info["route_remaining"])
+        np.testing.assert_allclose(info["reward_approach"], weight * (remaining[-2] - remaining[-1]) / 0.01,
+                                   rtol=1e-9, atol=1e-12)
+        lengthened += max(remaining[-1] - remaining[-2], 0.0)
+        total += info["reward_approach"]
+    assert lengthened < 1e-4 and info["is_success"] and remaining[-1] <= element < remaining[0]
+    _, info = env.reset(seed=seed)
+    before = info["route_remaining"]
+    *_, info = env.step(np.array([0.0, 1.0, 0.0], np.float32))
+    assert info["route_remaining"] > before
+    assert info["reward_approach"] < 0
+    assert info["reward_approach"] == pytest.approx(weight * (before - info["route_remaining"]) / 0.01)
+    return total

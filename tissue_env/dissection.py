@@ -106,13 +106,11 @@ class DissectionWorlds(BladeTaskWorlds):
 
     def route(self, offsets):
         """Over to beside the free edge at the layer's top (``entry``), then along x through the layer
-        to the sweep's end: a blade counts as on the sweep within ``band`` of the layer's top between
-        the entry and an element behind the cut front (the freed length from the grasped edge)."""
+        to the sweep's end: a blade counts as on the sweep within ``band`` of the layer's top, from
+        the entry on (there it cuts the layer off the flap, nothing else)."""
         centre = self.tip_rest + offsets
         entry = self.entry
-        front = entry[:, 0] - 0.25 * self.spacing_x - self.freed_length() - self.spacing_x
-        on_sweep = ((np.abs(centre[:, 1] - entry[:, 1]) <= self.band) & (centre[:, 0] <= entry[:, 0])
-                    & (centre[:, 0] >= front))
+        on_sweep = (np.abs(centre[:, 1] - entry[:, 1]) <= self.band) & (centre[:, 0] <= entry[:, 0])
         sweep = centre[:, 0] - self.sweep_end + np.abs(centre[:, 1:] - entry[:, 1:]).sum(axis=1)
         approach = np.abs(centre - entry).sum(axis=1) + entry[:, 0] - self.sweep_end
         end = np.column_stack([np.full(self.num_envs, self.sweep_end), entry[:, 1:]])
@@ -263,13 +261,13 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
 
     | Num | Action                      | Min | Max | Unit         |
     |-----|-----------------------------|-----|-----|--------------|
-    | 0   | blade increment along x     | -1  | 1   | max_step (m) |
-    | 1   | blade increment along y     | -1  | 1   | max_step (m) |
-    | 2   | blade increment along z     | -1  | 1   | max_step (m) |
+    | 0   | blade centre's move in x    | -1  | 1   | max_step (m) |
+    | 1   | blade centre's move in y    | -1  | 1   | max_step (m) |
+    | 2   | blade centre's move in z    | -1  | 1   | max_step (m) |
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (20,), float32)``, the maximum spring strain within
+    ``observation_type="state"``: ``Box(-100, 100, (23,), float32)``, the maximum spring strain within
     +-1000, every other entry within +-100.
 
     | Index | Observation                                              | Unit (normalised)    |
@@ -279,12 +277,13 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     | 6-8   | force the grasper exerts on the flap                     | 0.1 N x E / 5 kPa    |
     | 9     | relative volume change (V - V0) / V0                     | %                    |
     | 10    | maximum spring strain abs(L - L0) / L0                   | %                    |
-    | 11-12 | the connective layer's bottom and top (y)                | cm from slab centre  |
-    | 13    | blade height above the connective layer's top            | cm                   |
-    | 14    | cut progress: the share of the layer's columns cut off   | 0-1                  |
-    | 15    | flap and bed faces cut so far                            | faces                |
-    | 16    | flap length freed from the grasped edge                  | cm                   |
-    | 17-19 | the jaw's displacement (the peel)                        | cm                   |
+    | 11-12 | the connective layer's bottom and top (y) at rest        | cm from slab centre  |
+    | 13    | blade height above the layer's top at the start          | cm                   |
+    | 14    | flap length freed from the grasped edge                  | cm                   |
+    | 15-17 | the jaw's displacement (the peel)                        | cm                   |
+    | 18    | cut progress: the share of the layer's columns cut off   | 0-1                  |
+    | 19    | flap and bed faces cut so far                            | faces                |
+    | 20-22 | the route's next point from the blade (Rewards)          | cm                   |
 
     ``"deformation"`` appends the surface-node
     displacements (cm); ``"dict"`` gives the features as a ``Dict`` keyed by name; the visual
@@ -293,15 +292,23 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
 
     ## Rewards
 
-    ``r = reward_progress + reward_height + reward_damage + reward_success + reward_volume +
-    reward_strain (+ reward_instability)``:
+    ``r = reward_progress + reward_approach + reward_height + reward_damage + reward_success +
+    reward_volume + reward_strain (+ reward_instability)``:
 
     - ``reward_progress = progress_weight * (gain in cut progress this step)`` (default 10); the
       progress is the share of the connective layer's columns (its elements) separated from the flap
       or from the bed;
+    - ``reward_approach = approach_weight * (R_before - R_after) / 1 cm`` (default 1), R the length
+      (L1, m) of what remains of the route: over to beside the free edge at the layer's top, mid-slab
+      in z (``sweep_entry``), then along x through the layer to a quarter element past the far end; a
+      blade counts as on the sweep within half an element of the layer's top from the entry on
+      (``info["route_remaining"]``): potential-based shaping
+      (``tissue_env.cut_tasks``; it sums to the route's net shortening, 7.0-7.6 on the scripted
+      dissection), which lets an agent learn the approach before its first cut;
     - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 0.2): the
-      layer's top is midway between the layer's and the flap's centroids, where a horizontal sweep
-      cuts the layer off the flap with the most margin;
+      layer's top is midway between the mean heights of the layer's and the flap's centroids in the
+      start equilibrium (a soft slab sags under its weight), where a horizontal sweep cuts the layer
+      off the flap with the most margin;
     - ``reward_damage = -damage_weight * (flap or bed faces cut this step)`` (default 2): a face
       between two flap elements or two bed elements;
     - ``reward_success = success_bonus`` (default 5) on success: the flap free with at most
@@ -315,7 +322,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     cut report: ``faces_cut`` (this step), ``cut_faces`` (all), ``cut_length`` (m), ``cut_deviation``
     (m), ``element_quality``, ``cut_refused``; and ``cut_progress``, ``flap_damage``, ``bed_damage``
     (faces), ``flap_free`` (no uncut face joins a flap element to a bed element, through any chain of
-    elements), ``grasped_nodes``, ``jaw_displacement`` (m), ``height_error`` (m).
+    elements), ``grasped_nodes``, ``jaw_displacement`` (m), ``height_error`` (m), ``route_remaining`` (m).
 
     ## Starting State
 
@@ -349,7 +356,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     layer; default 1), ``flap_layers`` (element layers of the flap above it; default 2),
     ``connective_stiffness_ratio``, ``blade_length`` (m), ``blade_start_range`` ((low, high) corners
     in m), ``peel_angle`` (deg, in [0, 90]), ``grasp_force_limit`` (N), ``progress_weight``,
-    ``height_weight``, ``damage_weight``, ``success_bonus``, ``damage_allowed`` (faces), ``difficulty``,
+    ``approach_weight``, ``height_weight``, ``damage_weight``, ``success_bonus``, ``damage_allowed`` (faces), ``difficulty``,
     ``spare_nodes``; shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation: ``young_modulus_range``,
     ``poisson_ratio_range``, ``density_range``; ``blade_start_range`` places the blade. No
@@ -468,7 +475,8 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
         """Where the sweep starts (``sweep_entry``, (3,) m): beside the free edge, mid-slab in z, at the
         layer's top at the episode's start (midway between the mean heights of the layer's and the flap's
         first layer's centroids in the start equilibrium: it separates the layer from the flap with the
-        most margin; a soft slab sags under its weight: by 1.1 mm at E = 1 kPa and nu = 0.3, 0.2 mm at the defaults)."""
+        most margin; a soft slab sags under its weight: by 1.1 mm at E = 1 kPa and nu = 0.3, 0.2 mm at
+        the defaults)."""
         centres = self.state.positions[self.mesh.elements].mean(axis=1)[:, 1]
         layer = self.connective_layer
         top = 0.5 * (centres[self._layer_of == layer].mean() + centres[self._layer_of == layer + 1].mean())
@@ -478,21 +486,22 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
         """Beside the free edge, down to the connective layer's top (midway between the layer's and the
         flap's centroids: it separates the layer from the flap), at the slab's middle in z; then along
         x through the whole layer, from the grasped edge in (the grasper peels what is cut). If the
-        flap still holds at the sweep's end (a soft flap the peel lifts slides back over the blade:
-        at E = 1 kPa the last slice's segment from the layer's centroid to the flap's crossed the
-        blade's height at x = 3.3 mm and two steps later at 4.0 mm, so the move from 3.75 to 1.25 mm
-        missed it),
-        the blade steps aside by ``max_step`` in z (along its edge: it cuts nothing), sweeps back
-        along the cut to an element past the cut front and forth again. From elsewhere in the slab:
-        up above it, then over to beside the free edge."""
+        flap still holds at the sweep's end (a soft flap the peel lifts slides over the blade: at
+        E = 1 kPa the last slice's segment from the layer's centroid to the flap's crossed the blade's
+        height at x = 3.3 mm and two steps later at 4.0 mm, so the move from 3.75 to 1.25 mm missed
+        it), the blade steps aside by ``max_step`` in z (along its edge: it cuts nothing), sweeps back
+        to 0.2 elements past the cut front (at nu = 0.3 the held slice's segment crossed 0.1 element
+        past it; no further: the freed flap's corners sag into the cut behind it, and sweeps back to
+        0.4 or 1 element past the front cut 4 of its faces at nu = 0.45) and forth again.
+        From elsewhere in the slab: up above it, then over to beside the free edge."""
         self._require_reset("scripted_action()")
         tip = self.tip_rest + self.tool_offset
         entry, clear = self.sweep_entry, self.size[1] + 0.002
         at_height = abs(tip[1] - entry[1]) < 1e-6
         if at_height and tip[0] < entry[0] + 1e-6:  # the sweep; the blade's z says which way
             aside = entry[2] + self.max_step
-            if abs(tip[2] - aside) < 1e-6:  # back along the cut, to an element past the front
-                back = min(self.size[0] - self.freed_length + self.spacing[0], entry[0])
+            if abs(tip[2] - aside) < 1e-6:  # back along the cut, to 0.2 elements past the cut front
+                back = min(self.size[0] - self.freed_length + 0.2 * self.spacing[0], entry[0])
                 goal = np.array([back, entry[1], aside if tip[0] < back - 1e-6 else entry[2]])
             elif tip[0] > self.sweep_end + 1e-6 or abs(tip[2] - entry[2]) > 1e-6:  # forth (or back to mid-slab)
                 goal = np.array([self.sweep_end, entry[1], entry[2]])

@@ -169,13 +169,13 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
 
     | Num | Action                     | Min | Max | Unit         |
     |-----|----------------------------|-----|-----|--------------|
-    | 0   | blade increment along x    | -1  | 1   | max_step (m) |
-    | 1   | blade increment along y    | -1  | 1   | max_step (m) |
-    | 2   | blade increment along z    | -1  | 1   | max_step (m) |
+    | 0   | blade tip's increment in x | -1  | 1   | max_step (m) |
+    | 1   | blade tip's increment in y | -1  | 1   | max_step (m) |
+    | 2   | blade tip's increment in z | -1  | 1   | max_step (m) |
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (21,), float32)``, the maximum spring strain within
+    ``observation_type="state"``: ``Box(-100, 100, (24,), float32)``, the maximum spring strain within
     +-1000, every other entry within +-100.
 
     | Index | Observation                                          | Unit (normalised)    |
@@ -191,6 +191,7 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
     | 18    | depth error: tip depth - target depth                | cm                   |
     | 19    | cut progress: the share of the line's faces cut      | 0-1                  |
     | 20    | vessel-layer faces cut so far                        | faces                |
+    | 21-23 | the route's next point from the tip (Rewards)        | cm                   |
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features as
     a ``Dict`` keyed by name; the visual observations show the tissue (each side of a cut apart,
@@ -200,12 +201,18 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
 
     ## Rewards
 
-    ``r = reward_progress + reward_path + reward_depth + reward_damage + reward_success +
-    reward_volume + reward_strain (+ reward_instability)``:
+    ``r = reward_progress + reward_approach + reward_path + reward_depth + reward_damage +
+    reward_success + reward_volume + reward_strain (+ reward_instability)``:
 
     - ``reward_progress = progress_weight * (gain in cut progress this step)`` (default 10: a whole
       incision earns 10); the progress is the share of the faces of the ideal incision (the line
       swept to ``target_depth`` at the episode's start) that are cut;
+    - ``reward_approach = approach_weight * (R_before - R_after) / 1 cm`` (default 1), R the length
+      (L1, m) of what remains of the route: from the tip to the line's start at the target depth, or
+      to the nearest point of the line at depth up to its first face not yet cut, and from there
+      along the line to half an element past its end (``info["route_remaining"]``): potential-based
+      shaping (``tissue_env.cut_tasks``; it sums to the route's net shortening, 5.1-5.4 on the
+      scripted incision), which lets an agent learn the approach and the plunge before its first cut;
     - ``reward_path = -path_weight * (|tip z - line z| + distance along x beyond the line's ends) / 1 cm``
       (default 0.2), the path deviation;
     - ``reward_depth = -depth_weight * |tip depth - target depth| / 1 cm`` (default 0.2);
@@ -215,7 +222,8 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
 
     ``info`` also has the cut's report: ``faces_cut`` (this step), ``cut_faces`` (all), ``cut_length``
     (m), ``cut_deviation`` (m, this step's faces from the swept surface), ``element_quality``,
-    ``cut_refused``, and ``cut_progress``, ``vessel_damage``, ``tip_depth`` (m), ``path_error`` (m).
+    ``cut_refused``, and ``cut_progress``, ``vessel_damage``, ``tip_depth`` (m), ``path_error`` (m),
+    ``route_remaining`` (m).
 
     ## Starting State
 
@@ -247,7 +255,7 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
 
     Task keywords: ``target_depth`` (m), ``line_start_range`` (m), ``line_z_range`` (m), ``line_length`` (m),
     ``tension`` (the sides' stretch, -), ``vessel_stiffness_ratio``, ``blade_length`` (m),
-    ``progress_weight``, ``path_weight``, ``depth_weight``, ``damage_weight``, ``success_fraction``,
+    ``progress_weight``, ``approach_weight``, ``path_weight``, ``depth_weight``, ``damage_weight``, ``success_fraction``,
     ``success_bonus``, ``difficulty``, ``spare_nodes`` (node rows per world for the cut's copies); shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
     ``young_modulus_range``, ``poisson_ratio_range``, ``density_range``; ``line_start_range`` and
