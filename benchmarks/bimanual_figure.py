@@ -4,15 +4,13 @@ end) and, per step, the exposed fraction of the target and each grasper's force 
 Usage: python -m benchmarks.bimanual_figure [--seed 0] [--output docs/figures/bimanual_exposure.png]
 """
 
-import argparse
-
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from benchmarks.task_gallery import draw_frames, episode_frames  # noqa: E402
+from benchmarks.task_gallery import draw_frames, episode_frames, figure_arguments  # noqa: E402
 from sim_core.files import finish_figure  # noqa: E402
 
 TASK = "BimanualExposure"
@@ -48,10 +46,7 @@ def figure(frames, exposed, forces, info, path):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", default="docs/figures/bimanual_exposure.png")
-    args = parser.parse_args(argv)
+    args = figure_arguments(__doc__, "docs/figures/bimanual_exposure.png", argv)
     frames, exposed, forces, info = episode(args.seed)
     figure(frames, exposed, forces, info, args.output)
     print(f"{len(frames) - 1} steps, success {bool(info['is_success'])}, largest tool force {forces.max():.3f} N")

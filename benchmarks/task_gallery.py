@@ -57,11 +57,17 @@ def figure(rows, path):
     finish_figure(fig, path, dpi=90)
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def figure_arguments(doc, output, argv=None):
+    """The ``--seed`` (default 0) and ``--output`` (default ``output``) of a figure script whose
+    docstring is ``doc``."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", default="docs/figures/tasks.png")
-    args = parser.parse_args(argv)
+    parser.add_argument("--output", default=output)
+    return parser.parse_args(argv)
+
+
+def main(argv=None):
+    args = figure_arguments(__doc__, "docs/figures/tasks.png", argv)
     rows = [(task, episode_frames(task, args.seed)) for task in TASKS]
     figure(rows, args.output)
     for task, frames in rows:

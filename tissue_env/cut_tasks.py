@@ -16,8 +16,8 @@ place, given the faces cut so far, and the point it heads to) and its own bookke
 - ``reward_success = success_bonus`` on success;
 
 and the features ``cut_progress``, ``damage`` and ``route_offset`` (the route's next point from
-the blade, cm). ``BladeTaskEnv`` is the env's share: the reward weights' keywords, a stiffness
-factor per element (``_stiffness_factor``), the spare node rows, the tool marker, the scripted
+the blade, cm). ``BladeTaskEnv`` is the env's share: the reward weights' keywords, the features, the
+stiffness of the task's layer, the spare node rows, the tool marker, the scripted
 controller's step towards a goal. SI units.
 """
 
@@ -35,6 +35,12 @@ from .blade import CornerCamera, CuttingWorlds, spare_node_rows
 BLADE_WEIGHTS = dict(progress_weight=10.0, approach_weight=1.0, damage_weight=2.0, success_bonus=5.0)
 #: The features every blade task appends to its own (name: size).
 BLADE_FEATURES = dict(cut_progress=1, damage=1, route_offset=3)
+
+
+def difficulty_levels(keyword, easy, default, hard) -> dict:
+    """A blade task's ``DIFFICULTY`` table: one keyword's value per level (episodes end on success)."""
+    return {level: {keyword: value, "terminate_on_success": True}
+            for level, value in (("easy", easy), ("default", default), ("hard", hard))}
 
 
 class BladeTaskWorlds(CuttingWorlds):
@@ -124,8 +130,9 @@ class BladeTaskWorlds(CuttingWorlds):
 
 class BladeTaskEnv(CornerCamera):
     """The env's share of a blade task (before ``TissueEnv`` in its bases): the reward weights of
-    ``BLADE_WEIGHTS`` as keywords (``_blade_keywords``), the material (``_stiffness_factor`` times the
-    episode's Young's modulus per element), the spare node rows and the scripted step."""
+    ``BLADE_WEIGHTS`` as keywords (``_blade_keywords``), the features (``task_features``, then
+    ``BLADE_FEATURES``), the material (the episode's Young's modulus, times ``layer_ratio_keyword``'s
+    value on the task's layer), the spare node rows and the scripted step."""
 
     #: the slab of both tasks: 5 x 2 x 3 cm of 5 mm hexahedra
     default_shape = (10, 4, 6)
@@ -144,12 +151,18 @@ class BladeTaskEnv(CornerCamera):
         """Set ``spare_nodes`` from the keyword (``default`` node rows when None)."""
         self.spare_nodes = spare_node_rows(self._spare_nodes, default)
 
-    def _stiffness_factor(self) -> np.ndarray:
-        """(M,) each element's Young's modulus over the episode's."""
-        raise NotImplementedError
+    #: the task's own features (name: size), before ``BLADE_FEATURES``
+    task_features = {}
+    #: the keyword of the stiffness ratio of the task's layer (``layer_elements``, (M,) bool, set by
+    #: its scene): that layer's Young's modulus over the rest's
+    layer_ratio_keyword = None
+
+    def _task_feature_sizes(self):
+        return {**self.task_features, **BLADE_FEATURES}
 
     def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
-        return Material(float(young_modulus) * self._stiffness_factor(), poisson_ratio, density)
+        ratio = getattr(self, self.layer_ratio_keyword)
+        return Material(float(young_modulus) * np.where(self.layer_elements, ratio, 1.0), poisson_ratio, density)
 
     def _towards(self, goal, tip):
         """The action that moves the blade from ``tip`` towards ``goal`` (3,) m, at most ``max_step`` per axis."""

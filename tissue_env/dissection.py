@@ -11,7 +11,7 @@ from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, difficulty_settings, nonnegative_scalar, positive_scalar
 from .camera import ALBEDO
-from .cut_tasks import BLADE_FEATURES, BladeTaskEnv, BladeTaskWorlds
+from .cut_tasks import BladeTaskEnv, BladeTaskWorlds, difficulty_levels
 from .retraction import GRASP_SLIP_FORCE, grasp_limit
 from .vector import TissueVectorEnv
 
@@ -255,15 +255,10 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
 
     ## Action Space
 
-    ``Box(-1, 1, (3,), float32)``: displacement increment of the blade's centre, scaled by
-    ``max_step`` (default 2.5 mm, half an element), clipped to the workspace (x from -5 mm to 1 cm past
-    the free edge, y from 0 to 1 cm above the slab, z across the slab). The grasper is not commanded.
-
-    | Num | Action                      | Min | Max | Unit         |
-    |-----|-----------------------------|-----|-----|--------------|
-    | 0   | blade centre's move in x    | -1  | 1   | max_step (m) |
-    | 1   | blade centre's move in y    | -1  | 1   | max_step (m) |
-    | 2   | blade centre's move in z    | -1  | 1   | max_step (m) |
+    ``Box(-1, 1, (3,), float32)``: the blade centre's displacement increment along x, y and z (entries
+    0, 1, 2, each in [-1, 1]), scaled by ``max_step`` (default 2.5 mm, half an element), clipped to
+    the workspace (x from -5 mm to 1 cm past the free edge, y from 0 to 1 cm above the slab, z across
+    the slab). The grasper is not commanded.
 
     ## Observation Space
 
@@ -371,13 +366,11 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     min_shape = (2, 3, 1)
     reward_names = ("progress", "approach", "height", "damage", "success", "volume", "strain")
     episode_keywords = ("blade_start_range",)
+    task_features = dict(layer=2, height_error=1, freed_length=1, jaw_displacement=3)
+    layer_ratio_keyword = "connective_stiffness_ratio"
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them): the
     #: flap or bed faces a success may have cut.
-    DIFFICULTY = dict(
-        easy=dict(damage_allowed=6, terminate_on_success=True),
-        default=dict(damage_allowed=2, terminate_on_success=True),
-        hard=dict(damage_allowed=0, terminate_on_success=True),
-    )
+    DIFFICULTY = difficulty_levels("damage_allowed", 6, 2, 0)
     summary = "free a flap from its bed by cutting the connective layer between them, a grasper peeling it"
     success_summary = "no uncut face joins the flap to the bed, at most {damage_allowed} flap or bed faces cut"
 
@@ -429,6 +422,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
         centres = nodes[self.mesh.elements].mean(axis=1)
         #: (M,) the label of each element: BED, CONNECTIVE or FLAP
         self.labels = layer_labels(centres, spacing, self.connective_layer, self.flap_layers)
+        self.layer_elements = self.labels == CONNECTIVE
         #: (2,) m the connective layer's bottom and top at rest
         self.layer_y = (self.connective_layer * spacing[1], (self.connective_layer + 1) * spacing[1])
         self.columns = (self.shape[0], self.shape[2])
@@ -453,15 +447,9 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
         self.workspace_low = np.array([-0.005, 0.0, 0.0]) - self.tip_rest
         self.workspace_high = np.array([size[0] + 0.01, size[1] + 0.01, size[2]]) - self.tip_rest
 
-    def _stiffness_factor(self):
-        return np.where(self.labels == CONNECTIVE, self.connective_stiffness_ratio, 1.0)
-
     camera_target = (0.5, 0.5, 0.5)
     camera_direction = (0.35, 0.6, 1.0)
     camera_distance = 1.9
-
-    def _task_feature_sizes(self):
-        return dict(layer=2, height_error=1, freed_length=1, jaw_displacement=3, **BLADE_FEATURES)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):

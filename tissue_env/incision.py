@@ -9,7 +9,7 @@ from sim_core.cutting import blade_faces
 from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
 from .blade import face_centres
 from .camera import ALBEDO
-from .cut_tasks import BLADE_FEATURES, BladeTaskEnv, BladeTaskWorlds
+from .cut_tasks import BladeTaskEnv, BladeTaskWorlds, difficulty_levels
 from .vector import TissueVectorEnv
 
 
@@ -270,13 +270,11 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
     min_shape = (4, 3, 2)
     reward_names = ("progress", "approach", "path", "depth", "damage", "success", "volume", "strain")
     episode_keywords = ("line_start_range", "line_z_range")
+    task_features = dict(line=4, tip_depth=1, path_error=2, depth_error=1)
+    layer_ratio_keyword = "vessel_stiffness_ratio"
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them): the
     #: share of the ideal incision's faces that counts as a success.
-    DIFFICULTY = dict(
-        easy=dict(success_fraction=0.75, terminate_on_success=True),
-        default=dict(success_fraction=0.9, terminate_on_success=True),
-        hard=dict(success_fraction=1.0, terminate_on_success=True),
-    )
+    DIFFICULTY = difficulty_levels("success_fraction", 0.75, 0.9, 1.0)
     summary = "cut along a line marked on a stretched slab to a set depth without cutting the vessel layer below"
     success_summary = "{success_fraction:%} of the line cut to {target_depth:m} with no vessel face cut"
 
@@ -325,7 +323,7 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
         self.tool_nodes = np.zeros(0, dtype=np.int64)
         centres = nodes[self.mesh.elements].mean(axis=1)
         #: (M,) bool: the vessel layer's elements (the bottom layer)
-        self.vessel_elements = centres[:, 1] < self.spacing[1]
+        self.vessel_elements = self.layer_elements = centres[:, 1] < self.spacing[1]
         self.tip_rest = np.array([0.5 * size[0], size[1] + 0.005, 0.5 * size[2]])
         self._place_scene(nodes)
 
@@ -339,15 +337,9 @@ class IncisionEnv(BladeTaskEnv, TissueEnv):
         self.workspace_low = np.array([0.0, 0.0, 0.0]) - self.tip_rest
         self.workspace_high = np.array([self.size[0], self.size[1] + 0.01, self.size[2]]) - self.tip_rest
 
-    def _stiffness_factor(self):
-        return np.where(self.vessel_elements, self.vessel_stiffness_ratio, 1.0)
-
     camera_target = (0.5, 0.6, 0.5)
     camera_direction = (0.0, 1.0, 0.45)
     camera_distance = 1.7
-
-    def _task_feature_sizes(self):
-        return dict(line=4, tip_depth=1, path_error=2, depth_error=1, **BLADE_FEATURES)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
