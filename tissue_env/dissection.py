@@ -298,7 +298,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
       in z (``sweep_entry``), then along x through the layer to a quarter element past the far end; a
       blade counts as on the sweep within half an element of the layer's top from the entry on
       (``info["route_remaining"]``): potential-based shaping
-      (``tissue_env.cut_tasks``; it sums to the route's net shortening, 7.0-7.6 on the scripted
+      (``tissue_env.cut_tasks``; it sums to the route's net shortening, 6.0-6.4 on the scripted
       dissection), which lets an agent learn the approach before its first cut;
     - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 0.2): the
       layer's top is midway between the mean heights of the layer's and the flap's centroids in the
@@ -322,8 +322,10 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     ## Starting State
 
     The slab at its static equilibrium under gravity, the free edge held at rest; the blade's centre
-    beside the free edge, drawn in ``blade_start_range`` (default x 5.3-5.8 cm, y 2.2-2.8 cm, z
-    1-2 cm: above the slab's top, 2 cm up).
+    beside the free edge, drawn in ``blade_start_range`` (default x 5.3-5.8 cm, y 1.2-1.6 cm, z
+    1-2 cm: beside the flap, 2 to 6 mm above the layer's top; it was 2.2-2.8 cm, above the slab,
+    from where SAC learned to bring the blade beside the free edge at the layer's height but not,
+    in 6000 steps, to sweep it in).
 
     ## Episode End
 
@@ -375,7 +377,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     success_summary = "no uncut face joins the flap to the bed, at most {damage_allowed} flap or bed faces cut"
 
     def __init__(self, *, connective_layer=1, flap_layers=2, connective_stiffness_ratio=0.5, blade_length=0.04,
-                 blade_start_range=((0.053, 0.022, 0.01), (0.058, 0.028, 0.02)), peel_angle=30.0,
+                 blade_start_range=((0.053, 0.012, 0.01), (0.058, 0.016, 0.02)), peel_angle=30.0,
                  grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=None, approach_weight=None, height_weight=0.2,
                  damage_weight=None, success_bonus=None, damage_allowed=None, spare_nodes=None, difficulty="default",
                  **kwargs):
