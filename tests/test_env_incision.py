@@ -117,7 +117,7 @@ def test_snapshots_copies_and_pickles_hold_the_cut():
     world's solver state, not its model; restored on the env and on a fresh one, also pickled), a
     deepcopy and a pickle of the env take the original's next steps bit for bit, cuts included."""
     env, _ = open_cut(seed=1, steps=16)
-    assert_snapshots_hold_the_cut(env.unwrapped, ENV_ID, SMALL)
+    assert_snapshots_hold_the_cut(env.unwrapped, ENV_ID, SMALL, max_bytes=2_000_000)  # issue 43's floor
 
 
 @pytest.mark.parametrize("keyword, value", [("target_depth", 0.03), ("tension", 0.7), ("line_length", 0.06),

@@ -64,7 +64,6 @@ class DissectionWorlds(BladeTaskWorlds):
         #: (N, 3) m where each world's sweep starts (beside the free edge, at the layer's top at the
         #: episode's start, mid-slab), and the x its sweep ends at
         self.entry, self.sweep_end = np.tile(env.sweep_entry, (count, 1)), env.sweep_end
-        self.band = 0.5 * env.spacing[1]  # m: a sweep within it of the layer's top cuts the layer off the flap
 
     def blade_edges(self, offsets):
         centre = self.tip_rest + offsets
@@ -106,11 +105,12 @@ class DissectionWorlds(BladeTaskWorlds):
 
     def route(self, offsets):
         """Over to beside the free edge at the layer's top (``entry``), then along x through the layer
-        to the sweep's end: a blade counts as on the sweep within ``band`` of the layer's top, from
-        the entry on (there it cuts the layer off the flap, nothing else)."""
+        to the sweep's end: a blade past the entry in x counts as on the sweep, its distance from the
+        layer's top and from mid-slab in z added (continuous: a blade that strays from the layer's top
+        meets no jump in the route, only a longer one, and the damage it cuts)."""
         centre = self.tip_rest + offsets
         entry = self.entry
-        on_sweep = (np.abs(centre[:, 1] - entry[:, 1]) <= self.band) & (centre[:, 0] <= entry[:, 0])
+        on_sweep = centre[:, 0] <= entry[:, 0]
         sweep = centre[:, 0] - self.sweep_end + np.abs(centre[:, 1:] - entry[:, 1:]).sum(axis=1)
         approach = np.abs(centre - entry).sum(axis=1) + entry[:, 0] - self.sweep_end
         end = np.column_stack([np.full(self.num_envs, self.sweep_end), entry[:, 1:]])
@@ -295,9 +295,9 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
       or from the bed;
     - ``reward_approach = approach_weight * (R_before - R_after) / 1 cm`` (default 1), R the length
       (L1, m) of what remains of the route: over to beside the free edge at the layer's top, mid-slab
-      in z (``sweep_entry``), then along x through the layer to a quarter element past the far end; a
-      blade counts as on the sweep within half an element of the layer's top from the entry on
-      (``info["route_remaining"]``): potential-based shaping
+      in z (``sweep_entry``), then along x through the layer to a quarter element past the far end,
+      with the blade's distance from the layer's top and from mid-slab in z (``info["route_remaining"]``;
+      continuous in the blade's place): potential-based shaping
       (``tissue_env.cut_tasks``; it sums to the route's net shortening, 6.0-6.4 on the scripted
       dissection), which lets an agent learn the approach before its first cut;
     - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 0.2): the
@@ -323,9 +323,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
 
     The slab at its static equilibrium under gravity, the free edge held at rest; the blade's centre
     beside the free edge, drawn in ``blade_start_range`` (default x 5.3-5.8 cm, y 1.2-1.6 cm, z
-    1-2 cm: beside the flap, 2 to 6 mm above the layer's top; it was 2.2-2.8 cm, above the slab,
-    from where SAC learned to bring the blade beside the free edge at the layer's height but not,
-    in 6000 steps, to sweep it in).
+    1-2 cm: beside the flap, 2 to 6 mm above the layer's top).
 
     ## Episode End
 
