@@ -4,47 +4,30 @@ end) and, per step, the exposed fraction of the target and each grasper's force 
 Usage: python -m benchmarks.bimanual_figure [--seed 0] [--output docs/figures/bimanual_exposure.png]
 """
 
-import argparse
-
-import gymnasium as gym
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-import tissue_env  # noqa: E402,F401  (registers the tasks)
+from benchmarks.task_gallery import draw_frames, episode_frames, figure_arguments  # noqa: E402
 from sim_core.files import finish_figure  # noqa: E402
 
-ENV_ID = "tissue_env/BimanualExposure-v0"
+TASK = "BimanualExposure"
 
 
 def episode(seed=0):
-    """(frames [(step, frame)], exposed (S,), tool force magnitudes (S, 2) N, last info) of the
-    scripted controller's episode."""
-    env = gym.make(ENV_ID, render_mode="rgb_array")
-    _, info = env.reset(seed=seed)
-    frames, exposed, forces = [(0, env.render())], [info["exposed_fraction"]], [np.linalg.norm(info["tool_forces"], axis=1)]
-    done, step = False, 0
-    while not done:
-        _, _, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
-        step += 1
-        frames.append((step, env.render()))
-        exposed.append(info["exposed_fraction"])
-        forces.append(np.linalg.norm(info["tool_forces"], axis=1))
-        done = terminated or truncated
-    env.close()
-    return frames, np.array(exposed), np.array(forces), info
+    """(frames [(step, frame, info)] (``task_gallery.episode_frames``), exposed (S,), tool force
+    magnitudes (S, 2) N, last info) of the scripted controller's episode."""
+    frames = episode_frames(TASK, seed)
+    exposed = np.array([info["exposed_fraction"] for *_, info in frames])
+    forces = np.array([np.linalg.norm(info["tool_forces"], axis=1) for *_, info in frames])
+    return frames, exposed, forces, frames[-1][2]
 
 
 def figure(frames, exposed, forces, info, path):
     fig, axes = plt.subplots(1, 4, figsize=(13, 3.2), gridspec_kw=dict(width_ratios=[1, 1, 1, 1.3]))
-    for ax, (step, frame) in zip(axes, (frames[0], frames[len(frames) // 2], frames[-1])):
-        ax.imshow(frame)
-        ax.set_xticks([])
-        ax.set_yticks([])
-        ax.set_title(f"step {step}" + (" (success)" if step == frames[-1][0] and info["is_success"] else ""),
-                     fontsize=9)
+    draw_frames(axes[:3], frames, "(success)")
     ax = axes[3]
     steps = np.arange(len(exposed))
     ax.plot(steps, exposed, "k-o", ms=3, label="exposed fraction")
@@ -63,10 +46,7 @@ def figure(frames, exposed, forces, info, path):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", default="docs/figures/bimanual_exposure.png")
-    args = parser.parse_args(argv)
+    args = figure_arguments(__doc__, "docs/figures/bimanual_exposure.png", argv)
     frames, exposed, forces, info = episode(args.seed)
     figure(frames, exposed, forces, info, args.output)
     print(f"{len(frames) - 1} steps, success {bool(info['is_success'])}, largest tool force {forces.max():.3f} N")

@@ -15,20 +15,10 @@ import argparse
 import gymnasium as gym
 import numpy as np
 
-import tissue_env  # noqa: F401  (registers the envs)
+from benchmarks.cut_figure import element_corners, save, scripted_state
 from tissue_env.dissection import BED, CONNECTIVE, FLAP
 
 COLOURS = {BED: "#c98f80", CONNECTIVE: "#f2e3a0", FLAP: "#e8b4a0"}
-
-
-def run(seed, steps):
-    env = gym.make("tissue_env/Dissection-v0", observation_type="rgb")
-    observation, info = env.reset(seed=seed)
-    for _ in range(steps):
-        observation, _, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
-        if terminated or truncated:
-            break
-    return env.unwrapped, observation, info
 
 
 def success_rate(seeds=10):
@@ -46,41 +36,29 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=17)
     parser.add_argument("--output", default="docs/figures/dissection.png")
     args = parser.parse_args(argv)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.collections import PolyCollection
 
-    env, image, info = run(args.seed, args.steps)
-    worlds = env.worlds
-    corners = worlds.corner_positions(worlds.positions)[0].reshape(-1, 8, 3)  # (M, 8, 3) m
+    env, image, info = scripted_state("tissue_env/Dissection-v0", args.seed, args.steps)
+    corners = element_corners(env)
     centres = env.mesh.nodes[env.mesh.elements].mean(axis=1)
     row = np.isclose(centres[:, 2], 0.5 * env.size[2] - 0.5 * env.spacing[2])  # the row just short of the middle
     faces = corners[row][:, [4, 5, 6, 7]][..., :2] * 1e3  # each element's face z = its far side, x-y in mm
-    figure, (left, right) = plt.subplots(1, 2, figsize=(10, 4.0), gridspec_kw=dict(width_ratios=[1.5, 1]))
-    left.add_collection(PolyCollection(faces, facecolor=[COLOURS[label] for label in env.labels[row]],
-                                       edgecolor="#6a3b2a", linewidths=0.5))
-    blade = (env.tip_rest + env.tool_offset) * 1e3
-    left.plot(blade[0], blade[1], "k>", ms=8, label="blade (edge along z)")
-    jaw = (env.mesh.nodes[env.tool_nodes].mean(axis=0) + env.jaw_offset) * 1e3
-    left.plot(jaw[0], jaw[1], "bs", ms=7, label="grasper (scripted peel)")
-    for label, name in ((FLAP, "flap"), (CONNECTIVE, "connective layer"), (BED, "bed")):
-        left.fill([], [], color=COLOURS[label], label=name)
-    left.set_xlim(-3, env.size[0] * 1e3 + 8)
-    left.set_ylim(-2, env.size[1] * 1e3 + 22)
-    left.set_aspect("equal")
-    left.set_xlabel("x (mm)")
-    left.set_ylabel("y (mm)")
-    left.legend(loc="upper left", fontsize=7, ncol=2)
-    left.set_title(f"after {info['cut_faces']} faces cut: progress {info['cut_progress']:.0%}, "
-                   f"flap/bed faces cut {info['flap_damage']}/{info['bed_damage']}", fontsize=9)
-    right.imshow(image)
-    right.set_axis_off()
-    right.set_title("the agent's rgb observation", fontsize=9)
-    figure.tight_layout()
-    figure.savefig(args.output, dpi=120)
-    print(f"wrote {args.output}")
+
+    def draw(left):
+        left.add_collection(PolyCollection(faces, facecolor=[COLOURS[label] for label in env.labels[row]],
+                                           edgecolor="#6a3b2a", linewidths=0.5))
+        blade = (env.tip_rest + env.tool_offset) * 1e3
+        left.plot(blade[0], blade[1], "k>", ms=8, label="blade (edge along z)")
+        jaw = (env.mesh.nodes[env.tool_nodes].mean(axis=0) + env.jaw_offset) * 1e3
+        left.plot(jaw[0], jaw[1], "bs", ms=7, label="grasper (scripted peel)")
+        for label, name in ((FLAP, "flap"), (CONNECTIVE, "connective layer"), (BED, "bed")):
+            left.fill([], [], color=COLOURS[label], label=name)
+        left.legend(loc="upper left", fontsize=7, ncol=2)
+        left.set_title(f"after {info['cut_faces']} faces cut: progress {info['cut_progress']:.0%}, "
+                       f"flap/bed faces cut {info['flap_damage']}/{info['bed_damage']}", fontsize=9)
+
+    save(draw, image, args.output, 4.0, xlim=(-3, env.size[0] * 1e3 + 8), ylim=(-2, env.size[1] * 1e3 + 22),
+         xlabel="x (mm)", ylabel="y (mm)")
     freed, length = success_rate()
     print(f"scripted dissection, default slab: the flap freed on {freed}/10 seeds, {length:.1f} steps per episode")
 

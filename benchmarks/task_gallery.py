@@ -38,26 +38,36 @@ def episode_frames(task, seed=0):
     return frames
 
 
+def draw_frames(axes, frames, success_label="success"):
+    """Draw the first, the middle and the last of ``frames`` (``episode_frames``) on three ``axes``,
+    each titled with its step (and ``success_label`` where the episode succeeded)."""
+    for ax, (step, frame, info) in zip(axes, (frames[0], frames[len(frames) // 2], frames[-1])):
+        ax.imshow(frame)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"step {step} {success_label if info.get('is_success') else ''}".rstrip(), fontsize=9)
+
+
 def figure(rows, path):
     fig, axes = plt.subplots(len(rows), 3, figsize=(9, 3.1 * len(rows)))
     for row, (task, frames) in zip(np.atleast_2d(axes), rows):
-        picks = (frames[0], frames[len(frames) // 2], frames[-1])
-        for ax, (step, frame, info) in zip(row, picks):
-            ax.imshow(frame)
-            ax.set_xticks([])
-            ax.set_yticks([])
-            status = "success" if info.get("is_success") else ""
-            ax.set_title(f"step {step} {status}", fontsize=9)
+        draw_frames(row, frames)
         row[0].set_ylabel(task, fontsize=11)
     fig.suptitle("Scripted controller, one episode per task (start, middle, end)", fontsize=11)
     finish_figure(fig, path, dpi=90)
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def figure_arguments(doc, output, argv=None):
+    """The ``--seed`` (default 0) and ``--output`` (default ``output``) of a figure script whose
+    docstring is ``doc``."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--output", default="docs/figures/tasks.png")
-    args = parser.parse_args(argv)
+    parser.add_argument("--output", default=output)
+    return parser.parse_args(argv)
+
+
+def main(argv=None):
+    args = figure_arguments(__doc__, "docs/figures/tasks.png", argv)
     rows = [(task, episode_frames(task, args.seed)) for task in TASKS]
     figure(rows, args.output)
     for task, frames in rows:

@@ -1234,9 +1234,14 @@ def readme_task_table():
 def readme_training_table():
     """The README's training table, from benchmarks/results/training.json: one row per entry (its
     env keywords, ``--variant``, in the setting column) and one for random / scripted per task and
-    setting. Success rates as in the file, returns cut (not rounded) to three decimals."""
+    setting (none for a setting whose random and scripted results are its default's); the defaults'
+    setting is left blank. Success rates
+    as in the file, returns cut (not rounded) to two decimals."""
     def cut(value):
-        return f"{int(value * 1000) / 1000:.3f}"
+        return f"{int(value * 100) / 100:.2f}"
+
+    def shown(setting):
+        return "" if setting == "default" else setting
 
     rows = []
     entries = list(load("training.json").values())
@@ -1245,13 +1250,14 @@ def readme_training_table():
         for entry in (e for e in entries if e["env"] == env_id):
             setting = ", ".join(f"{k}={v}" for k, v in (entry.get("env_kwargs") or {}).items()) or "default"
             settings.setdefault(setting, entry)
-            rows.append([task, entry["algo"].upper(), setting, entry["timesteps"],
+            rows.append([task, entry["algo"].upper(), shown(setting), entry["timesteps"],
                          ", ".join(str(s) for s in entry["seeds"]), ", ".join(f"{s:g}" for s in entry["agent_success"]),
                          ", ".join(cut(r) for r in entry["agent_return"])])
-        rows += [[task, "random / scripted", setting, "", "",
-                  f"{entry['random']['success_rate']:g} / {entry['scripted']['success_rate']:g}",
-                  f"{cut(entry['random']['mean_return'])} / {cut(entry['scripted']['mean_return'])}"]
-                 for setting, entry in settings.items()]
+        baselines = {setting: [f"{entry['random']['success_rate']:g} / {entry['scripted']['success_rate']:g}",
+                               f"{cut(entry['random']['mean_return'])} / {cut(entry['scripted']['mean_return'])}"]
+                     for setting, entry in settings.items()}
+        rows += [[task, "random / scripted", shown(setting), "", "", *baseline] for setting, baseline in baselines.items()
+                 if setting == "default" or baseline != baselines.get("default")]
     return table(["task", "policy", "setting", "env steps", "seeds", "success per seed", "return per seed"], rows)
 
 

@@ -8,20 +8,14 @@ import pytest
 from benchmarks.material_range import TASKS, measure
 
 
-#: known failures, kept visible (strict: a fix turns them into errors to remove here)
-KNOWN = {("tissue_env/Dissection-v0", 1e3): "Dissection's scripted peel frees no flap at 1 kPa (0 of 3 seeds)"}
-
-
 @pytest.mark.parametrize("young_modulus", [1e3, 1e4, 1e5, 1e6])
 @pytest.mark.parametrize("env_id", TASKS)
-def test_observations_and_rewards_hold_across_tissue_stiffness(env_id, young_modulus, request):
+def test_observations_and_rewards_hold_across_tissue_stiffness(env_id, young_modulus):
     """Over 100 random steps: under 1% of observation entries at their bound (the observation
     space's), every step with an entry at its bound reported in ``info["observation_clipped"]``, and
     |reward| < 50; at 1 kPa and 100 kPa the scripted controller succeeds on at least 2 of 3 seeds.
     (Retraction's 1 kPa flap strains 127% at its grasp, as neo-Hookean FEM on its mesh does:
     tests/test_env_retraction.py; the strain entry's bound is 1000%.)"""
-    if (env_id, young_modulus) in KNOWN:
-        request.applymarker(pytest.mark.xfail(reason=KNOWN[(env_id, young_modulus)], strict=True))
     seeds = 3 if young_modulus in (1e3, 1e5) else 0
     result = measure(env_id, young_modulus, steps=100, seeds=seeds)
     assert result["share_at_bound"] < 0.01

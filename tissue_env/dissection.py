@@ -6,13 +6,12 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from sim_core import Material
 from sim_core.cutting import shared_faces
 from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, difficulty_settings, nonnegative_scalar, positive_scalar
-from .blade import CornerCamera, CuttingWorlds, spare_node_rows
 from .camera import ALBEDO
+from .cut_tasks import BladeTaskEnv, BladeTaskWorlds, difficulty_levels
 from .retraction import GRASP_SLIP_FORCE, grasp_limit
 from .vector import TissueVectorEnv
 
@@ -32,17 +31,16 @@ def layer_labels(centres, spacing, connective_layer, flap_layers):
     return mask[layer]
 
 
-class DissectionWorlds(CuttingWorlds):
-    """Dissection's step on N worlds (``tissue_env.worlds``, ``tissue_env.blade``): a blade the agent
-    moves, and a grasper on the flap's free edge that peels the freed flap up (scripted)."""
+class DissectionWorlds(BladeTaskWorlds):
+    """Dissection's step on N worlds (``tissue_env.worlds``, ``tissue_env.blade``, ``tissue_env.cut_tasks``):
+    a blade the agent moves, and a grasper on the flap's free edge that peels the freed flap up (scripted)."""
+
+    task_weights = ("height_weight", "damage_allowed")
 
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
         env, count = self.task, self.num_envs
-        self._block_fixed = np.repeat(env.base_control.fixed[None], count, axis=0)
-        self._block_target = np.repeat(env.base_control.target[None], count, axis=0)
         self._anchor_block = np.repeat(env.mesh.nodes[None], count, axis=0)  # a held node's place at closing
-        self._controls = None  # (fixed, target, anchors) on the worlds' node rows, until a cut or a reset
         self.grasper = Grasper(float(np.max(env.size)), env.grasp_force_limit)
         #: (N, rows) bool the node rows each world's grasper holds (a copy of a held node is held too)
         self.held = np.zeros(self.positions.shape[:2], dtype=bool)
@@ -60,14 +58,12 @@ class DissectionWorlds(CuttingWorlds):
         self._pairs = shared_faces(env.mesh)  # (P, 2) the block's element pairs that share a face
         self._pair_keys = self._pairs[:, 0] * self.n_elements_block + self._pairs[:, 1]
         self.freed = np.zeros((count, int(np.prod(self.columns))), dtype=bool)  # columns cut off the bed
-        self.progress = np.zeros(count)
-        self.progress_gain = np.zeros(count)
         self.flap_damage = np.zeros(count, dtype=int)
         self.bed_damage = np.zeros(count, dtype=int)
-        self.damage_step = np.zeros(count, dtype=int)
         self.free = np.zeros(count, dtype=bool)
-        for name in ("progress_weight", "height_weight", "damage_weight", "success_bonus", "damage_allowed"):
-            setattr(self, name, getattr(env, name))
+        #: (N, 3) m where each world's sweep starts (beside the free edge, at the layer's top at the
+        #: episode's start, mid-slab), and the x its sweep ends at
+        self.entry, self.sweep_end = np.tile(env.sweep_entry, (count, 1)), env.sweep_end
 
     def blade_edges(self, offsets):
         centre = self.tip_rest + offsets
@@ -77,23 +73,22 @@ class DissectionWorlds(CuttingWorlds):
         super()._load_task(index, env)
         self._controls = None
         self.tip_rest[index] = env.tip_rest
+        self.entry[index] = env.sweep_entry
         self.held[index] = False
         self.held[index, env.tool_nodes] = True
         self.held_count[index] = len(env.tool_nodes)
         self.jaw_offset[index] = 0.0
         self.freed[index] = False
-        self.progress[index] = self.progress_gain[index] = 0.0
-        self.flap_damage[index] = self.bed_damage[index] = self.damage_step[index] = 0
+        self.flap_damage[index] = self.bed_damage[index] = 0
         self.free[index] = False
 
     def _write_back_task(self, index, env):
         env.progress = float(self.progress[index])
         env.jaw_offset = self.jaw_offset[index].copy()
         env.free = bool(self.free[index])
+        env.freed_length = float(self.freed_length()[index])
 
     def _tool_moved(self, previous, active):
-        self.progress_gain[active] = 0.0
-        self.damage_step[active] = 0
         super()._tool_moved(previous, active)
         # the jaw peels the freed flap back: towards the place the free edge has when the flap turns
         # by the peel angle about the cut front, at most max_step a step (no jerk when a slice frees)
@@ -108,21 +103,30 @@ class DissectionWorlds(CuttingWorlds):
         freed = self.freed.reshape(self.num_envs, nz, nx)[:, :, ::-1]
         return self.spacing_x * np.cumprod(freed, axis=2).sum(axis=2).min(axis=1)
 
+    def route(self, offsets):
+        """Over to beside the free edge at the layer's top (``entry``), then along x through the layer
+        to the sweep's end: a blade past the entry in x counts as on the sweep, its distance from the
+        layer's top and from mid-slab in z added (continuous: a blade that strays from the layer's top
+        meets no jump in the route, only a longer one, and the damage it cuts)."""
+        centre = self.tip_rest + offsets
+        entry = self.entry
+        on_sweep = centre[:, 0] <= entry[:, 0]
+        sweep = centre[:, 0] - self.sweep_end + np.abs(centre[:, 1:] - entry[:, 1:]).sum(axis=1)
+        approach = np.abs(centre - entry).sum(axis=1) + entry[:, 0] - self.sweep_end
+        end = np.column_stack([np.full(self.num_envs, self.sweep_end), entry[:, 1:]])
+        return np.where(on_sweep, sweep, approach), np.where(on_sweep[:, None], end, entry)
+
     def _cut_made(self, index, faces):
-        self._controls = None
         first, second = self.labels[faces[:, 0]], self.labels[faces[:, 1]]
         # a face between the connective layer and the flap or the bed frees its column
         opened = (first == CONNECTIVE) != (second == CONNECTIVE)
         connective = np.where(first[opened] == CONNECTIVE, faces[opened, 0], faces[opened, 1])
         self.freed[index, self.column_of[connective]] = True
-        progress = float(self.freed[index].mean())
-        self.progress_gain[index] = progress - self.progress[index]
-        self.progress[index] = progress
         flap = int(np.count_nonzero((first == FLAP) & (second == FLAP)))
         bed = int(np.count_nonzero((first == BED) & (second == BED)))
         self.flap_damage[index] += flap
         self.bed_damage[index] += bed
-        self.damage_step[index] = flap + bed
+        super()._cut_made(index, faces, float(self.freed[index].mean()), flap + bed)
         self.free[index] = self._flap_free(index)
         # a copy of a held node is held as its original
         padded = np.concatenate([self.held[index, :self.n_nodes], [False]])
@@ -162,23 +166,18 @@ class DissectionWorlds(CuttingWorlds):
     def _grasped(self, measures):
         return measures["grasped_nodes"][:, None] > 0
 
-    def _tool_position(self, positions):
-        return self.tip_rest + self.tool_offset
-
     def _task_measures(self, positions):
-        # from the layer's top: midway between the layer's and the flap's centroids, the height that
-        # cuts the layer off the flap with the most margin (its middle is on the layer's centroids)
-        height = (self.tip_rest + self.tool_offset)[:, 1] - self.layer_y[1]
-        return dict(height_error=height)
+        measures = super()._task_measures(positions)
+        # from the layer's top at the start: midway between the layer's and the flap's centroids, the
+        # height that cuts the layer off the flap with the most margin (its middle is on the layer's centroids)
+        measures["height_error"] = (self.tip_rest + self.tool_offset)[:, 1] - self.entry[:, 1]
+        return measures
 
-    def _task_features(self, measures):
+    def _blade_task_features(self, measures):
         scale = self.length_scale
         layer = np.broadcast_to((self.layer_y - self.centre[1]) / scale, (self.num_envs, 2))
-        run = self.freed_length()
         return dict(layer=layer, height_error=measures["height_error"][:, None] / scale,
-                    cut_progress=self.progress[:, None],
-                    damage=(self.flap_damage + self.bed_damage)[:, None].astype(float),
-                    freed_length=run[:, None] / scale, jaw_displacement=self.jaw_offset / scale)
+                    freed_length=self.freed_length()[:, None] / scale, jaw_displacement=self.jaw_offset / scale)
 
     def step(self, actions, active):
         """Every task's step; a world whose flap is free ends its episode, a success or not (with more
@@ -188,21 +187,14 @@ class DissectionWorlds(CuttingWorlds):
         return observations, rewards, terminated | (self.free & np.asarray(active, dtype=bool)), infos
 
     def _is_success(self, measures):
-        return self.free & (self.flap_damage + self.bed_damage <= self.damage_allowed)
+        return self.free & (self.damage <= self.damage_allowed)
 
-    def _reward_terms(self, measures):
-        terms = dict(
-            progress=self.progress_weight * self.progress_gain,
-            height=-self.height_weight * np.abs(measures["height_error"]) / self.length_scale,
-            damage=-self.damage_weight * self.damage_step,
-            success=np.where(self._is_success(measures), self.success_bonus, 0.0),
-        )
-        terms.update(self._damage_terms(measures))
-        return terms
+    def _task_reward_terms(self, measures):
+        return dict(height=-self.height_weight * np.abs(measures["height_error"]) / self.length_scale)
 
     def _task_info(self, measures):
         info = super()._task_info(measures)
-        info.update(cut_progress=self.progress.copy(), flap_damage=self.flap_damage.copy(),
+        info.update(flap_damage=self.flap_damage.copy(),
                     bed_damage=self.bed_damage.copy(), flap_free=self.free.copy(),
                     grasped_nodes=measures["grasped_nodes"].copy(), jaw_displacement=self.jaw_offset.copy(),
                     height_error=np.array(measures["height_error"], dtype=float))
@@ -218,7 +210,7 @@ class DissectionWorlds(CuttingWorlds):
         return vertices, triangles, np.tile(ALBEDO["tool"], (4, 1))
 
 
-class DissectionEnv(CornerCamera, TissueEnv):
+class DissectionEnv(BladeTaskEnv, TissueEnv):
     """
     ## Description
 
@@ -263,19 +255,14 @@ class DissectionEnv(CornerCamera, TissueEnv):
 
     ## Action Space
 
-    ``Box(-1, 1, (3,), float32)``: displacement increment of the blade's centre, scaled by
-    ``max_step`` (default 2.5 mm, half an element), clipped to the workspace (x from -5 mm to 1 cm past
-    the free edge, y from 0 to 1 cm above the slab, z across the slab). The grasper is not commanded.
-
-    | Num | Action                      | Min | Max | Unit         |
-    |-----|-----------------------------|-----|-----|--------------|
-    | 0   | blade increment along x     | -1  | 1   | max_step (m) |
-    | 1   | blade increment along y     | -1  | 1   | max_step (m) |
-    | 2   | blade increment along z     | -1  | 1   | max_step (m) |
+    ``Box(-1, 1, (3,), float32)``: the blade centre's displacement increment along x, y and z (entries
+    0, 1, 2, each in [-1, 1]), scaled by ``max_step`` (default 2.5 mm, half an element), clipped to
+    the workspace (x from -5 mm to 1 cm past the free edge, y from 0 to 1 cm above the slab, z across
+    the slab). The grasper is not commanded.
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (20,), float32)``, the maximum spring strain within
+    ``observation_type="state"``: ``Box(-100, 100, (23,), float32)``, the maximum spring strain within
     +-1000, every other entry within +-100.
 
     | Index | Observation                                              | Unit (normalised)    |
@@ -285,12 +272,13 @@ class DissectionEnv(CornerCamera, TissueEnv):
     | 6-8   | force the grasper exerts on the flap                     | 0.1 N x E / 5 kPa    |
     | 9     | relative volume change (V - V0) / V0                     | %                    |
     | 10    | maximum spring strain abs(L - L0) / L0                   | %                    |
-    | 11-12 | the connective layer's bottom and top (y)                | cm from slab centre  |
-    | 13    | blade height above the connective layer's top            | cm                   |
-    | 14    | cut progress: the share of the layer's columns cut off   | 0-1                  |
-    | 15    | flap and bed faces cut so far                            | faces                |
-    | 16    | flap length freed from the grasped edge                  | cm                   |
-    | 17-19 | the jaw's displacement (the peel)                        | cm                   |
+    | 11-12 | the connective layer's bottom and top (y) at rest        | cm from slab centre  |
+    | 13    | blade height above the layer's top at the start          | cm                   |
+    | 14    | flap length freed from the grasped edge                  | cm                   |
+    | 15-17 | the jaw's displacement (the peel)                        | cm                   |
+    | 18    | cut progress: the share of the layer's columns cut off   | 0-1                  |
+    | 19    | flap and bed faces cut so far                            | faces                |
+    | 20-22 | the route's next point from the blade (Rewards)          | cm                   |
 
     ``"deformation"`` appends the surface-node
     displacements (cm); ``"dict"`` gives the features as a ``Dict`` keyed by name; the visual
@@ -299,15 +287,23 @@ class DissectionEnv(CornerCamera, TissueEnv):
 
     ## Rewards
 
-    ``r = reward_progress + reward_height + reward_damage + reward_success + reward_volume +
-    reward_strain (+ reward_instability)``:
+    ``r = reward_progress + reward_approach + reward_height + reward_damage + reward_success +
+    reward_volume + reward_strain (+ reward_instability)``:
 
     - ``reward_progress = progress_weight * (gain in cut progress this step)`` (default 10); the
       progress is the share of the connective layer's columns (its elements) separated from the flap
       or from the bed;
+    - ``reward_approach = approach_weight * (R_before - R_after) / 1 cm`` (default 1), R the length
+      (L1, m) of what remains of the route: over to beside the free edge at the layer's top, mid-slab
+      in z (``sweep_entry``), then along x through the layer to a quarter element past the far end,
+      with the blade's distance from the layer's top and from mid-slab in z (``info["route_remaining"]``;
+      continuous in the blade's place): potential-based shaping
+      (``tissue_env.cut_tasks``; it sums to the route's net shortening, 6.0-6.4 on the scripted
+      dissection), which lets an agent learn the approach before its first cut;
     - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 0.2): the
-      layer's top is midway between the layer's and the flap's centroids, where a horizontal sweep
-      cuts the layer off the flap with the most margin;
+      layer's top is midway between the mean heights of the layer's and the flap's centroids in the
+      start equilibrium (a soft slab sags under its weight), where a horizontal sweep cuts the layer
+      off the flap with the most margin;
     - ``reward_damage = -damage_weight * (flap or bed faces cut this step)`` (default 2): a face
       between two flap elements or two bed elements;
     - ``reward_success = success_bonus`` (default 5) on success: the flap free with at most
@@ -321,13 +317,13 @@ class DissectionEnv(CornerCamera, TissueEnv):
     cut report: ``faces_cut`` (this step), ``cut_faces`` (all), ``cut_length`` (m), ``cut_deviation``
     (m), ``element_quality``, ``cut_refused``; and ``cut_progress``, ``flap_damage``, ``bed_damage``
     (faces), ``flap_free`` (no uncut face joins a flap element to a bed element, through any chain of
-    elements), ``grasped_nodes``, ``jaw_displacement`` (m), ``height_error`` (m).
+    elements), ``grasped_nodes``, ``jaw_displacement`` (m), ``height_error`` (m), ``route_remaining`` (m).
 
     ## Starting State
 
     The slab at its static equilibrium under gravity, the free edge held at rest; the blade's centre
-    beside the free edge, drawn in ``blade_start_range`` (default x 5.3-5.8 cm, y 2.2-2.8 cm, z
-    1-2 cm: above the slab's top, 2 cm up).
+    beside the free edge, drawn in ``blade_start_range`` (default x 5.3-5.8 cm, y 1.2-1.6 cm, z
+    1-2 cm: beside the flap, 2 to 6 mm above the layer's top).
 
     ## Episode End
 
@@ -355,7 +351,7 @@ class DissectionEnv(CornerCamera, TissueEnv):
     layer; default 1), ``flap_layers`` (element layers of the flap above it; default 2),
     ``connective_stiffness_ratio``, ``blade_length`` (m), ``blade_start_range`` ((low, high) corners
     in m), ``peel_angle`` (deg, in [0, 90]), ``grasp_force_limit`` (N), ``progress_weight``,
-    ``height_weight``, ``damage_weight``, ``success_bonus``, ``damage_allowed`` (faces), ``difficulty``,
+    ``approach_weight``, ``height_weight``, ``damage_weight``, ``success_bonus``, ``damage_allowed`` (faces), ``difficulty``,
     ``spare_nodes``; shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation: ``young_modulus_range``,
     ``poisson_ratio_range``, ``density_range``; ``blade_start_range`` places the blade. No
@@ -367,28 +363,22 @@ class DissectionEnv(CornerCamera, TissueEnv):
     """
 
     worlds_class = DissectionWorlds
-    default_shape = (10, 4, 6)
-    default_size = (0.05, 0.02, 0.03)
-    default_max_step = 0.0025
     min_shape = (2, 3, 1)
-    reward_names = ("progress", "height", "damage", "success", "volume", "strain")
-    randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
-                                 density="density_range")
+    reward_names = ("progress", "approach", "height", "damage", "success", "volume", "strain")
     episode_keywords = ("blade_start_range",)
+    task_features = dict(layer=2, height_error=1, freed_length=1, jaw_displacement=3)
+    layer_ratio_keyword = "connective_stiffness_ratio"
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them): the
     #: flap or bed faces a success may have cut.
-    DIFFICULTY = dict(
-        easy=dict(damage_allowed=6, terminate_on_success=True),
-        default=dict(damage_allowed=2, terminate_on_success=True),
-        hard=dict(damage_allowed=0, terminate_on_success=True),
-    )
+    DIFFICULTY = difficulty_levels("damage_allowed", 6, 2, 0)
     summary = "free a flap from its bed by cutting the connective layer between them, a grasper peeling it"
     success_summary = "no uncut face joins the flap to the bed, at most {damage_allowed} flap or bed faces cut"
 
     def __init__(self, *, connective_layer=1, flap_layers=2, connective_stiffness_ratio=0.5, blade_length=0.04,
-                 blade_start_range=((0.053, 0.022, 0.01), (0.058, 0.028, 0.02)), peel_angle=30.0,
-                 grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=10.0, height_weight=0.2, damage_weight=2.0,
-                 success_bonus=5.0, damage_allowed=None, spare_nodes=None, difficulty="default", **kwargs):
+                 blade_start_range=((0.053, 0.012, 0.01), (0.058, 0.016, 0.02)), peel_angle=30.0,
+                 grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=None, approach_weight=None, height_weight=0.2,
+                 damage_weight=None, success_bonus=None, damage_allowed=None, spare_nodes=None, difficulty="default",
+                 **kwargs):
         damage_allowed = difficulty_settings(self.DIFFICULTY, difficulty,
                                              dict(damage_allowed=damage_allowed))["damage_allowed"]
         if isinstance(damage_allowed, bool) or not isinstance(damage_allowed, (int, np.integer)) or damage_allowed < 0:
@@ -415,10 +405,9 @@ class DissectionEnv(CornerCamera, TissueEnv):
             raise ValueError(f"peel_angle must lie in [0, 90] deg, got {peel_angle!r}")
         self.peel_angle_rad = np.deg2rad(self.peel_angle)
         self.grasp_force_limit = grasp_limit(grasp_force_limit)
-        for name, value in (("progress_weight", progress_weight), ("height_weight", height_weight),
-                            ("damage_weight", damage_weight), ("success_bonus", success_bonus)):
-            setattr(self, name, nonnegative_scalar(name, value))
-        self._spare_nodes = spare_nodes
+        self._blade_keywords(dict(progress_weight=progress_weight, approach_weight=approach_weight,
+                                  height_weight=height_weight, damage_weight=damage_weight,
+                                  success_bonus=success_bonus), spare_nodes)
         super().__init__(difficulty=difficulty, **kwargs)
 
     # -- scene ---------------------------------------------------------------------------------------
@@ -429,10 +418,11 @@ class DissectionEnv(CornerCamera, TissueEnv):
             raise ValueError(f"connective_layer ({self.connective_layer}) + flap_layers ({self.flap_layers}) must "
                              f"leave a bed layer under them and fit in the slab's {layers} element layers along y")
         # two whole layers of nodes
-        self.spare_nodes = spare_node_rows(self._spare_nodes, 2 * (self.shape[0] + 1) * (self.shape[2] + 1))
+        self._spare_rows(2 * (self.shape[0] + 1) * (self.shape[2] + 1))
         centres = nodes[self.mesh.elements].mean(axis=1)
         #: (M,) the label of each element: BED, CONNECTIVE or FLAP
         self.labels = layer_labels(centres, spacing, self.connective_layer, self.flap_layers)
+        self.layer_elements = self.labels == CONNECTIVE
         #: (2,) m the connective layer's bottom and top at rest
         self.layer_y = (self.connective_layer * spacing[1], (self.connective_layer + 1) * spacing[1])
         self.columns = (self.shape[0], self.shape[2])
@@ -443,6 +433,9 @@ class DissectionEnv(CornerCamera, TissueEnv):
         self.tool_nodes = np.flatnonzero(np.isclose(nodes[:, 0], size[0]) & (nodes[:, 1] > self.layer_y[1] + 1e-9)
                                          & (nodes[:, 1] <= (self.layer_y[1] + self.flap_layers * spacing[1]) + 1e-9))
         self.tip_rest = self.blade_start_range[0].copy()
+        self._layer_of = index[:, 1]  # (M,) each element's layer along y
+        self.sweep_entry = np.array([size[0] + 0.25 * spacing[0], self.layer_y[1], 0.5 * size[2]])
+        self.sweep_end = -0.25 * spacing[0]  # m, the x the sweep goes to: past the slab's far end
         self._place_scene(nodes)
 
     def _place_scene(self, nodes):
@@ -454,47 +447,61 @@ class DissectionEnv(CornerCamera, TissueEnv):
         self.workspace_low = np.array([-0.005, 0.0, 0.0]) - self.tip_rest
         self.workspace_high = np.array([size[0] + 0.01, size[1] + 0.01, size[2]]) - self.tip_rest
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
-        young = float(young_modulus) * np.where(self.labels == CONNECTIVE, self.connective_stiffness_ratio, 1.0)
-        return Material(young, poisson_ratio, density)
-
     camera_target = (0.5, 0.5, 0.5)
     camera_direction = (0.35, 0.6, 1.0)
     camera_distance = 1.9
-
-    def _task_feature_sizes(self):
-        return dict(layer=2, height_error=1, cut_progress=1, damage=1, freed_length=1, jaw_displacement=3)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
         low, high = self.blade_start_range
         self.tip_rest = self.np_random.uniform(low, high)
         self._workspace()
-        self.progress, self.free = 0.0, False
+        self.progress, self.free, self.freed_length = 0.0, False, 0.0
         self.jaw_offset = np.zeros(3)
+
+    def _start_hook(self):
+        """Where the sweep starts (``sweep_entry``, (3,) m): beside the free edge, mid-slab in z, at the
+        layer's top at the episode's start (midway between the mean heights of the layer's and the flap's
+        first layer's centroids in the start equilibrium: it separates the layer from the flap with the
+        most margin; a soft slab sags under its weight: by 1.1 mm at E = 1 kPa and nu = 0.3, 0.2 mm at
+        the defaults)."""
+        centres = self.state.positions[self.mesh.elements].mean(axis=1)[:, 1]
+        layer = self.connective_layer
+        top = 0.5 * (centres[self._layer_of == layer].mean() + centres[self._layer_of == layer + 1].mean())
+        self.sweep_entry = np.array([self.size[0] + 0.25 * self.spacing[0], top, 0.5 * self.size[2]])
 
     def scripted_action(self) -> np.ndarray:
         """Beside the free edge, down to the connective layer's top (midway between the layer's and the
         flap's centroids: it separates the layer from the flap), at the slab's middle in z; then along
-        x through the whole layer, from the grasped edge in (the grasper peels what is cut). From
-        elsewhere in the slab: up above it, then over to beside the free edge."""
+        x through the whole layer, from the grasped edge in (the grasper peels what is cut). If the
+        flap still holds at the sweep's end (a soft flap the peel lifts slides over the blade: at
+        E = 1 kPa the last slice's segment from the layer's centroid to the flap's crossed the blade's
+        height at x = 3.3 mm and two steps later at 4.0 mm, so the move from 3.75 to 1.25 mm missed
+        it), the blade steps aside by ``max_step`` in z (along its edge: it cuts nothing), sweeps back
+        to 0.2 elements past the cut front (at nu = 0.3 the held slice's segment crossed 0.1 element
+        past it; no further: the freed flap's corners sag into the cut behind it, and sweeps back to
+        0.4 or 1 element past the front cut 4 of its faces at nu = 0.45) and forth again.
+        From elsewhere in the slab: up above it, then over to beside the free edge."""
         self._require_reset("scripted_action()")
         tip = self.tip_rest + self.tool_offset
-        height, clear = self.layer_y[1], self.size[1] + 0.002
-        entry = np.array([self.size[0] + 0.25 * self.spacing[0], height, 0.5 * self.size[2]])
-        at_height = abs(tip[1] - height) < 1e-6
-        if at_height and tip[0] < entry[0] + 1e-6:  # the sweep
-            goal = np.array([-0.25 * self.spacing[0], height, entry[2]])
+        entry, clear = self.sweep_entry, self.size[1] + 0.002
+        at_height = abs(tip[1] - entry[1]) < 1e-6
+        if at_height and tip[0] < entry[0] + 1e-6:  # the sweep; the blade's z says which way
+            aside = entry[2] + self.max_step
+            if abs(tip[2] - aside) < 1e-6:  # back along the cut, to 0.2 elements past the cut front
+                back = min(self.size[0] - self.freed_length + 0.2 * self.spacing[0], entry[0])
+                goal = np.array([back, entry[1], aside if tip[0] < back - 1e-6 else entry[2]])
+            elif tip[0] > self.sweep_end + 1e-6 or abs(tip[2] - entry[2]) > 1e-6:  # forth (or back to mid-slab)
+                goal = np.array([self.sweep_end, entry[1], entry[2]])
+            else:  # at the sweep's end with the flap held: aside, to sweep back
+                goal = np.array([tip[0], entry[1], aside])
         elif tip[0] < entry[0] - 1e-6 and tip[1] < clear - 1e-6:  # in the slab off the sweep: up first
             goal = np.array([tip[0], clear, tip[2]])
         elif tip[0] < entry[0] - 1e-6:  # above the slab: over to beside the free edge
             goal = np.array([entry[0], tip[1], entry[2]])
         else:  # beside the free edge: down to the layer
             goal = entry
-        return np.clip((goal - tip) / self.max_step, -1.0, 1.0).astype(np.float32)
-
-    def _markers(self):
-        return dict(tool=self.tip_rest + self.tool_offset)
+        return self._towards(goal, tip)
 
 
 class DissectionVectorEnv(TissueVectorEnv):

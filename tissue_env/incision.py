@@ -4,40 +4,35 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim_core import Material
 from sim_core.cutting import blade_faces
 
 from .base import TissueEnv, check_range, difficulty_settings, nonnegative_scalar, positive_scalar
-from .blade import CornerCamera, CuttingWorlds, spare_node_rows
+from .blade import face_centres
 from .camera import ALBEDO
+from .cut_tasks import BladeTaskEnv, BladeTaskWorlds, difficulty_levels
 from .vector import TissueVectorEnv
 
 
-class IncisionWorlds(CuttingWorlds):
-    """Incision's step on N worlds (``tissue_env.worlds``, ``tissue_env.blade``)."""
+class IncisionWorlds(BladeTaskWorlds):
+    """Incision's step on N worlds (``tissue_env.worlds``, ``tissue_env.blade``, ``tissue_env.cut_tasks``)."""
+
+    task_weights = ("path_weight", "depth_weight", "success_fraction")
 
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
         env, count = self.task, self.num_envs
-        self._block_fixed = np.repeat(env.base_control.fixed[None], count, axis=0)
-        self._block_target = np.repeat(env.base_control.target[None], count, axis=0)
-        self._controls = None  # (fixed, target, tool mask) on the worlds' node rows, until a cut or a reset
         self.tip_rest = np.tile(env.tip_rest, (count, 1))
         self.blade_length = env.blade_length
         self.surface_y = np.full(count, env.size[1])
+        self.half_element = 0.5 * env.spacing[0]
         self.line = np.zeros((count, 3))  # x start, x end, z of each world's line, m
         self.target_depth = np.zeros(count)
         self.vessel = env.vessel_elements  # (M,) bool: the elements of the layer to spare
         self.n_elements = env.mesh.n_elements
         self.required = [np.zeros(0, dtype=np.int64)] * count  # each world's faces of the ideal incision (keys)
+        self.required_x = [np.zeros(0)] * count  # their centres' x at rest, m
         self.done = [np.zeros(0, dtype=bool)] * count  # which of them are cut
-        self.progress = np.zeros(count)
-        self.progress_gain = np.zeros(count)  # this step's
-        self.damage = np.zeros(count, dtype=int)  # faces of the vessel layer cut so far
-        self.damage_step = np.zeros(count, dtype=int)
-        for name in ("progress_weight", "path_weight", "depth_weight", "damage_weight", "success_fraction",
-                     "success_bonus"):
-            setattr(self, name, getattr(env, name))
+        self.reach = np.zeros(count)  # m, the x of the first face of the ideal incision not yet cut
 
     def blade_edges(self, offsets):
         tip = self.tip_rest + offsets
@@ -45,33 +40,39 @@ class IncisionWorlds(CuttingWorlds):
 
     def _load_task(self, index, env):
         super()._load_task(index, env)
-        self._controls = None
         self.line[index] = env.line
         self.target_depth[index] = env.target_depth
         self.required[index] = env.required_faces[:, 0] * self.n_elements + env.required_faces[:, 1]
+        self.required_x[index] = env.required_x
         self.done[index] = np.zeros(len(env.required_faces), dtype=bool)
-        self.progress[index] = self.progress_gain[index] = 0.0
-        self.damage[index] = self.damage_step[index] = 0
+        self._reach(index)
+
+    def _reach(self, index):
+        uncut = self.required_x[index][~self.done[index]]
+        self.reach[index] = uncut.min() if len(uncut) else self.line[index, 1] + self.half_element
 
     def _write_back_task(self, index, env):
         env.progress = float(self.progress[index])
         env.damage = int(self.damage[index])
 
-    def _tool_moved(self, previous, active):
-        self.progress_gain[active] = 0.0
-        self.damage_step[active] = 0
-        super()._tool_moved(previous, active)
-
     def _cut_made(self, index, faces):
-        self._controls = None
         keys = faces[:, 0] * self.n_elements + faces[:, 1]
         self.done[index] = self.done[index] | np.isin(self.required[index], keys)
+        self._reach(index)
         progress = float(self.done[index].mean()) if len(self.done[index]) else 1.0
-        self.progress_gain[index] = progress - self.progress[index]
-        self.progress[index] = progress
         vessel = int(np.count_nonzero(self.vessel[faces[:, 0]] | self.vessel[faces[:, 1]]))
-        self.damage_step[index] = vessel
-        self.damage[index] += vessel
+        super()._cut_made(index, faces, progress, vessel)
+
+    def route(self, offsets):
+        """The line's start at the target depth, then along the line to half an element past its end:
+        the route's next point is the line's point at depth nearest the tip between its start and
+        the first face of the ideal incision still uncut (``reach``)."""
+        tip = self.tip_rest + offsets
+        start, z = self.line[:, 0], self.line[:, 2]
+        along = np.clip(tip[:, 0], start, np.maximum(start, self.reach))
+        point = np.column_stack([along, self.surface_y - self.target_depth, z])
+        end = self.line[:, 1] + self.half_element
+        return np.abs(tip - point).sum(axis=1) + np.maximum(end - along, 0.0), point
 
     def _control(self, rows=None):
         """The attached bottom and the stretched sides, on each world's node rows (a node a cut copied
@@ -81,42 +82,33 @@ class IncisionWorlds(CuttingWorlds):
             self._controls = (fixed, self.node_rows(self._block_target, 0.0), np.zeros_like(fixed))
         return self._controls
 
-    def _tool_position(self, positions):
-        return self.tip_rest + self.tool_offset
-
     def _task_measures(self, positions):
+        measures = super()._task_measures(positions)
         tip = self.tip_rest + self.tool_offset
         depth = self.surface_y - tip[:, 1]
         off_line = np.stack([tip[:, 2] - self.line[:, 2], np.maximum.reduce(
             [self.line[:, 0] - tip[:, 0], np.zeros(self.num_envs), tip[:, 0] - self.line[:, 1]])], axis=1)
-        return dict(tip_depth=depth, path_error=off_line, depth_error=depth - self.target_depth)
+        measures.update(tip_depth=depth, path_error=off_line, depth_error=depth - self.target_depth)
+        return measures
 
-    def _task_features(self, measures):
+    def _blade_task_features(self, measures):
         scale = self.length_scale
         line = np.column_stack([self.line[:, :2] - self.centre[0], self.line[:, 2:] - self.centre[2],
                                 self.target_depth])
         return dict(line=line / scale, tip_depth=measures["tip_depth"][:, None] / scale,
-                    path_error=measures["path_error"] / scale, depth_error=measures["depth_error"][:, None] / scale,
-                    cut_progress=self.progress[:, None], damage=self.damage[:, None].astype(float))
+                    path_error=measures["path_error"] / scale, depth_error=measures["depth_error"][:, None] / scale)
 
     def _is_success(self, measures):
         return (self.progress >= self.success_fraction) & (self.damage == 0)
 
-    def _reward_terms(self, measures):
+    def _task_reward_terms(self, measures):
         scale = self.length_scale
-        terms = dict(
-            progress=self.progress_weight * self.progress_gain,
-            path=-self.path_weight * np.abs(measures["path_error"]).sum(axis=1) / scale,
-            depth=-self.depth_weight * np.abs(measures["depth_error"]) / scale,
-            damage=-self.damage_weight * self.damage_step,
-            success=np.where(self._is_success(measures), self.success_bonus, 0.0),
-        )
-        terms.update(self._damage_terms(measures))
-        return terms
+        return dict(path=-self.path_weight * np.abs(measures["path_error"]).sum(axis=1) / scale,
+                    depth=-self.depth_weight * np.abs(measures["depth_error"]) / scale)
 
     def _task_info(self, measures):
         info = super()._task_info(measures)
-        info.update(cut_progress=self.progress.copy(), vessel_damage=self.damage.copy(),
+        info.update(vessel_damage=self.damage.copy(),
                     tip_depth=np.array(measures["tip_depth"], dtype=float),
                     path_error=np.linalg.norm(measures["path_error"], axis=1))
         return info
@@ -140,7 +132,7 @@ class IncisionWorlds(CuttingWorlds):
         return vertices, triangles, albedo
 
 
-class IncisionEnv(CornerCamera, TissueEnv):
+class IncisionEnv(BladeTaskEnv, TissueEnv):
     """
     ## Description
 
@@ -177,13 +169,13 @@ class IncisionEnv(CornerCamera, TissueEnv):
 
     | Num | Action                     | Min | Max | Unit         |
     |-----|----------------------------|-----|-----|--------------|
-    | 0   | blade increment along x    | -1  | 1   | max_step (m) |
-    | 1   | blade increment along y    | -1  | 1   | max_step (m) |
-    | 2   | blade increment along z    | -1  | 1   | max_step (m) |
+    | 0   | blade tip's increment in x | -1  | 1   | max_step (m) |
+    | 1   | blade tip's increment in y | -1  | 1   | max_step (m) |
+    | 2   | blade tip's increment in z | -1  | 1   | max_step (m) |
 
     ## Observation Space
 
-    ``observation_type="state"``: ``Box(-100, 100, (21,), float32)``, the maximum spring strain within
+    ``observation_type="state"``: ``Box(-100, 100, (24,), float32)``, the maximum spring strain within
     +-1000, every other entry within +-100.
 
     | Index | Observation                                          | Unit (normalised)    |
@@ -199,6 +191,7 @@ class IncisionEnv(CornerCamera, TissueEnv):
     | 18    | depth error: tip depth - target depth                | cm                   |
     | 19    | cut progress: the share of the line's faces cut      | 0-1                  |
     | 20    | vessel-layer faces cut so far                        | faces                |
+    | 21-23 | the route's next point from the tip (Rewards)        | cm                   |
 
     ``"deformation"`` appends the surface-node displacements (cm); ``"dict"`` gives the features as
     a ``Dict`` keyed by name; the visual observations show the tissue (each side of a cut apart,
@@ -208,12 +201,18 @@ class IncisionEnv(CornerCamera, TissueEnv):
 
     ## Rewards
 
-    ``r = reward_progress + reward_path + reward_depth + reward_damage + reward_success +
-    reward_volume + reward_strain (+ reward_instability)``:
+    ``r = reward_progress + reward_approach + reward_path + reward_depth + reward_damage +
+    reward_success + reward_volume + reward_strain (+ reward_instability)``:
 
     - ``reward_progress = progress_weight * (gain in cut progress this step)`` (default 10: a whole
       incision earns 10); the progress is the share of the faces of the ideal incision (the line
       swept to ``target_depth`` at the episode's start) that are cut;
+    - ``reward_approach = approach_weight * (R_before - R_after) / 1 cm`` (default 1), R the length
+      (L1, m) of what remains of the route: from the tip to the line's start at the target depth, or
+      to the nearest point of the line at depth up to its first face not yet cut, and from there
+      along the line to half an element past its end (``info["route_remaining"]``): potential-based
+      shaping (``tissue_env.cut_tasks``; it sums to the route's net shortening, 5.1-5.4 on the
+      scripted incision), which lets an agent learn the approach and the plunge before its first cut;
     - ``reward_path = -path_weight * (|tip z - line z| + distance along x beyond the line's ends) / 1 cm``
       (default 0.2), the path deviation;
     - ``reward_depth = -depth_weight * |tip depth - target depth| / 1 cm`` (default 0.2);
@@ -223,7 +222,8 @@ class IncisionEnv(CornerCamera, TissueEnv):
 
     ``info`` also has the cut's report: ``faces_cut`` (this step), ``cut_faces`` (all), ``cut_length``
     (m), ``cut_deviation`` (m, this step's faces from the swept surface), ``element_quality``,
-    ``cut_refused``, and ``cut_progress``, ``vessel_damage``, ``tip_depth`` (m), ``path_error`` (m).
+    ``cut_refused``, and ``cut_progress``, ``vessel_damage``, ``tip_depth`` (m), ``path_error`` (m),
+    ``route_remaining`` (m).
 
     ## Starting State
 
@@ -255,7 +255,7 @@ class IncisionEnv(CornerCamera, TissueEnv):
 
     Task keywords: ``target_depth`` (m), ``line_start_range`` (m), ``line_z_range`` (m), ``line_length`` (m),
     ``tension`` (the sides' stretch, -), ``vessel_stiffness_ratio``, ``blade_length`` (m),
-    ``progress_weight``, ``path_weight``, ``depth_weight``, ``damage_weight``, ``success_fraction``,
+    ``progress_weight``, ``approach_weight``, ``path_weight``, ``depth_weight``, ``damage_weight``, ``success_fraction``,
     ``success_bonus``, ``difficulty``, ``spare_nodes`` (node rows per world for the cut's copies); shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
     ``young_modulus_range``, ``poisson_ratio_range``, ``density_range``; ``line_start_range`` and
@@ -267,28 +267,21 @@ class IncisionEnv(CornerCamera, TissueEnv):
     """
 
     worlds_class = IncisionWorlds
-    default_shape = (10, 4, 6)
-    default_size = (0.05, 0.02, 0.03)
-    default_max_step = 0.0025
     min_shape = (4, 3, 2)
-    reward_names = ("progress", "path", "depth", "damage", "success", "volume", "strain")
-    randomised_parameters = dict(young_modulus="young_modulus_range", poisson_ratio="poisson_ratio_range",
-                                 density="density_range")
+    reward_names = ("progress", "approach", "path", "depth", "damage", "success", "volume", "strain")
     episode_keywords = ("line_start_range", "line_z_range")
+    task_features = dict(line=4, tip_depth=1, path_error=2, depth_error=1)
+    layer_ratio_keyword = "vessel_stiffness_ratio"
     #: The difficulty levels' keywords (``difficulty``; keywords passed explicitly override them): the
     #: share of the ideal incision's faces that counts as a success.
-    DIFFICULTY = dict(
-        easy=dict(success_fraction=0.75, terminate_on_success=True),
-        default=dict(success_fraction=0.9, terminate_on_success=True),
-        hard=dict(success_fraction=1.0, terminate_on_success=True),
-    )
+    DIFFICULTY = difficulty_levels("success_fraction", 0.75, 0.9, 1.0)
     summary = "cut along a line marked on a stretched slab to a set depth without cutting the vessel layer below"
     success_summary = "{success_fraction:%} of the line cut to {target_depth:m} with no vessel face cut"
 
     def __init__(self, *, target_depth=0.01, line_start_range=(0.008, 0.015), line_z_range=(0.012, 0.018),
                  line_length=0.025, tension=0.05, vessel_stiffness_ratio=3.0, blade_length=0.03,
-                 progress_weight=10.0, path_weight=0.2, depth_weight=0.2, damage_weight=2.0, success_fraction=None,
-                 success_bonus=5.0, spare_nodes=None, difficulty="default", **kwargs):
+                 progress_weight=None, approach_weight=None, path_weight=0.2, depth_weight=0.2, damage_weight=None,
+                 success_fraction=None, success_bonus=None, spare_nodes=None, difficulty="default", **kwargs):
         success_fraction = difficulty_settings(self.DIFFICULTY, difficulty,
                                                dict(success_fraction=success_fraction))["success_fraction"]
         self.target_depth = positive_scalar("target_depth", target_depth, "m")
@@ -303,14 +296,12 @@ class IncisionEnv(CornerCamera, TissueEnv):
             raise ValueError(f"tension must lie in [0, 0.5) (the sides' stretch), got {tension!r}")
         self.vessel_stiffness_ratio = positive_scalar("vessel_stiffness_ratio", vessel_stiffness_ratio)
         self.blade_length = positive_scalar("blade_length", blade_length, "m")
-        for name, value in (("progress_weight", progress_weight), ("path_weight", path_weight),
-                            ("depth_weight", depth_weight), ("damage_weight", damage_weight),
-                            ("success_bonus", success_bonus)):
-            setattr(self, name, nonnegative_scalar(name, value))
+        self._blade_keywords(dict(progress_weight=progress_weight, approach_weight=approach_weight,
+                                  path_weight=path_weight, depth_weight=depth_weight, damage_weight=damage_weight,
+                                  success_bonus=success_bonus), spare_nodes)
         self.success_fraction = positive_scalar("success_fraction", success_fraction)
         if self.success_fraction > 1:
             raise ValueError(f"success_fraction must lie in (0, 1], got {success_fraction!r}")
-        self._spare_nodes = spare_nodes
         super().__init__(difficulty=difficulty, **kwargs)
         size = self.size
         if self.target_depth >= size[1]:
@@ -325,14 +316,14 @@ class IncisionEnv(CornerCamera, TissueEnv):
         nodes = self.mesh.nodes
         size = self.size
         count = self.shape[0] + 1
-        self.spare_nodes = spare_node_rows(self._spare_nodes, 2 * count * (self.shape[1] + 1))  # two full-depth cuts
+        self._spare_rows(2 * count * (self.shape[1] + 1))  # two full-depth cuts
         bottom = np.isclose(nodes[:, 1], 0.0)
         sides = np.isclose(nodes[:, 2], 0.0) | np.isclose(nodes[:, 2], size[2])
         self.fixed_nodes = np.flatnonzero(bottom | sides)
         self.tool_nodes = np.zeros(0, dtype=np.int64)
         centres = nodes[self.mesh.elements].mean(axis=1)
         #: (M,) bool: the vessel layer's elements (the bottom layer)
-        self.vessel_elements = centres[:, 1] < self.spacing[1]
+        self.vessel_elements = self.layer_elements = centres[:, 1] < self.spacing[1]
         self.tip_rest = np.array([0.5 * size[0], size[1] + 0.005, 0.5 * size[2]])
         self._place_scene(nodes)
 
@@ -346,16 +337,9 @@ class IncisionEnv(CornerCamera, TissueEnv):
         self.workspace_low = np.array([0.0, 0.0, 0.0]) - self.tip_rest
         self.workspace_high = np.array([self.size[0], self.size[1] + 0.01, self.size[2]]) - self.tip_rest
 
-    def _material(self, young_modulus, poisson_ratio, task_key, density, mesh, size):
-        young = float(young_modulus) * np.where(self.vessel_elements, self.vessel_stiffness_ratio, 1.0)
-        return Material(young, poisson_ratio, density)
-
     camera_target = (0.5, 0.6, 0.5)
     camera_direction = (0.0, 1.0, 0.45)
     camera_distance = 1.7
-
-    def _task_feature_sizes(self):
-        return dict(line=4, tip_depth=1, path_error=2, depth_error=1, cut_progress=1, damage=1)
 
     # -- episode -------------------------------------------------------------------------------------
     def _reset_task(self, options):
@@ -369,6 +353,8 @@ class IncisionEnv(CornerCamera, TissueEnv):
         edges = [self._edge(np.array([x, self.size[1] - self.target_depth, self.line[2]])) for x in self.line[:2]]
         #: (R, 2) the element pairs of the ideal incision (the cut progress is the share of them cut)
         self.required_faces = blade_faces(self.model, self.state.positions, *edges)
+        #: (R,) m the x of their shared faces' centres at rest (the route, ``IncisionWorlds.route``)
+        self.required_x = face_centres(self.mesh.elements, self.mesh.nodes, self.required_faces)[:, 0]
 
     def _edge(self, tip):
         return np.stack([tip, tip + np.array([0.0, self.blade_length, 0.0])])
@@ -388,10 +374,7 @@ class IncisionEnv(CornerCamera, TissueEnv):
             goal = np.array([tip[0], self.size[1] + 0.002, tip[2]])
         else:  # above the surface, to the line's start
             goal = np.array([start, tip[1], z])
-        return np.clip((goal - tip) / self.max_step, -1.0, 1.0).astype(np.float32)
-
-    def _markers(self):
-        return dict(tool=self.tip_rest + self.tool_offset)
+        return self._towards(goal, tip)
 
     def _extra_drawing(self):
         y = self.size[1]
