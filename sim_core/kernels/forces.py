@@ -200,7 +200,7 @@ def model_forces_copies(count, positions, velocities, use_velocity, springs, sti
         model_forces(positions[c * n:(c + 1) * n], velocities[c * n:(c + 1) * n], use_velocity, springs,
                      stiffness[a:b], rest_length[a:b], damping[a:b], elements, edge_spring, correction_matrix[e0:e1],
                      axis_rest_length[e0:e1], correction_kind, rest_edge_direction[e0:e1], rest_volume[e0:e1],
-                     kappa[e0:e1], has_volume, no_int, no_int, no_float, positions[c * n:(c + 1) * n], False,
+                     kappa[e0:e1], has_volume, no_int, no_int, no_float, positions[c * n:(c + 1) * n], np.bool_(False),
                      length[a:b], unit[a:b], tension[a:b], push[e0:e1], forces[c * n:(c + 1) * n], want_geometric,
                      geometric[c * g:(c + 1) * g], want_volume_jacobian, volume_coefficient[c * v:(c + 1) * v],
                      volume_direction[c * v:(c + 1) * v], volume_gradient[c * v:(c + 1) * v])
@@ -211,14 +211,15 @@ def volume_forces_add(positions, elements, rest_volume, kappa, forces):
     """Adds every element's volume-conservation force (docs/physics.md 4) to ``forces`` (N, 3): the
     body of ``volume_forces_jacobian_add`` without the stiffness terms."""
     none = np.empty((0, 8, 3))
-    _volume_forces(positions, elements, rest_volume, kappa, forces, False, np.empty(0), none, none)
+    _volume_forces(positions, elements, rest_volume, kappa, forces, np.bool_(False), np.empty(0), none, none)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, coefficient, direction, gradient):
     """``volume_forces_add`` that also fills the rank-one stiffness terms of
     ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3)."""
-    _volume_forces(positions, elements, rest_volume, kappa, forces, True, coefficient, direction, gradient)
+    _volume_forces(positions, elements, rest_volume, kappa, forces, np.bool_(True), coefficient, direction,
+                   gradient)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
