@@ -211,15 +211,16 @@ def volume_forces_add(positions, elements, rest_volume, kappa, forces):
     """Adds every element's volume-conservation force (docs/physics.md 4) to ``forces`` (N, 3): the
     body of ``volume_forces_jacobian_add`` without the stiffness terms."""
     none = np.empty((0, 8, 3))
-    _volume_forces(positions, elements, rest_volume, kappa, forces, np.bool_(False), np.empty(0), none, none)
+    # a literal flag (two specialisations, both warmed up): the pruned branch decides which products
+    # LLVM contracts into FMAs (FAST), so a run-time flag would change the floats
+    _volume_forces(positions, elements, rest_volume, kappa, forces, False, np.empty(0), none, none)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def volume_forces_jacobian_add(positions, elements, rest_volume, kappa, forces, coefficient, direction, gradient):
     """``volume_forces_add`` that also fills the rank-one stiffness terms of
     ``volume_jacobian_terms``: coefficient (M,), direction and gradient (M, 8, 3)."""
-    _volume_forces(positions, elements, rest_volume, kappa, forces, np.bool_(True), coefficient, direction,
-                   gradient)
+    _volume_forces(positions, elements, rest_volume, kappa, forces, True, coefficient, direction, gradient)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
