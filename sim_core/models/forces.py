@@ -266,7 +266,8 @@ def stress_arguments(model: Model, elements_of: Model | None = None) -> tuple:
         indptr, nodes, _ = owner.stress_cells
         elements, gradient = _NO_ELEMENTS, model.smoothing.gradient
     else:
-        elements = owner.derived.get("element_lanes", lambda: np.ascontiguousarray(owner.mesh.elements.T))
+        # a copy (writeable) even where the transpose is contiguous already (one element): one kernel signature
+        elements = owner.derived.get("element_lanes", lambda: np.array(owner.mesh.elements.T, order="C"))
         indptr, nodes, gradient = _NO_CELLS
     return (elements, lanes["mean_gradient"], correction.volume, correction.shear_modulus, correction.lame,
             lanes["spring_vector"], lanes["spring_length"], lanes["spring_stiffness"], correction.linear, indptr, nodes,
