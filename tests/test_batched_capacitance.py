@@ -121,6 +121,7 @@ def test_the_batched_corrections_equal_each_factors_own():
     ints, floats = integrator.factor_lists
     inverses = [InverseColumns(ints[t % 3], floats[t % 3], n_dofs) for t in range(4)]
     columns = np.concatenate([inverse.columns(picked).T for inverse, picked in zip(inverses, picks)])
+    columns = np.ascontiguousarray(columns)  # the integrator's layout: the kernel's compiled signature
     indptr = np.cumsum([0] + [len(picked) for picked in picks]).astype(np.int64)
     flat = np.concatenate(picks).astype(np.int64)
     threaded, serial = np.full(n_dofs * indptr[-1], np.nan), np.full(n_dofs * indptr[-1], np.nan)

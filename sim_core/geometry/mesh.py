@@ -99,6 +99,15 @@ class MeshGeometry:
             labels.setflags(write=False)
             object.__setattr__(self, "element_labels", labels)
 
+    def __setstate__(self, state):
+        """A copy (``copy.deepcopy``, pickle) is read-only as the original: numpy's copies of the
+        arrays are writeable, and a writeable mesh is another numba signature of every kernel that
+        reads it (a compilation per kernel after copying an env)."""
+        for name in ("nodes", "elements", "element_labels"):
+            if isinstance(state.get(name), np.ndarray):
+                state[name].setflags(write=False)
+        self.__dict__.update(state)
+
     @property
     def n_nodes(self) -> int:
         return len(self.nodes)
@@ -306,7 +315,7 @@ class HexMesh(MeshGeometry):
         positions = np.ascontiguousarray(positions, dtype=float)
         if positions.shape != self.nodes.shape:
             raise ValueError(f"positions must have shape {self.nodes.shape}, got {positions.shape}")
-        return kernels.element_volumes(positions, self.elements, np.empty(self.n_elements))
+        return kernels.element_volumes(kernels.writeable(positions), self.elements, np.empty(self.n_elements))
 
     def surface_faces(self) -> np.ndarray:
         """(F, 4) node indices of the boundary quads, outward oriented (faces used by one element)."""

@@ -6,7 +6,8 @@ run them at once (the vector envs reset their copies on several threads, whose s
 them; a kernel only writes the arrays it is given). The numpy formulation in ``sim_core.models.forces`` is
 the readable reference the tests compare these kernels with. SI units.
 
-The modules, lowest first: ``fastmath`` (the fastmath flag sets), ``vectors`` (3-vectors as tuples,
+The modules, lowest first: ``boundary`` (one numba type per array argument), ``fastmath`` (the
+fastmath flag sets), ``vectors`` (3-vectors as tuples,
 inlined into the per-element bodies), ``threads`` (the thread policy and ``variant``, the choice
 between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes, health, strain,
 reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the force passes),
@@ -60,6 +61,7 @@ def drop_stale_cache(cache: Path, sources=SOURCES) -> bool:
 
 drop_stale_cache(Path(__file__).parent / "__pycache__")
 
+from .boundary import writeable  # noqa: F401
 from .fastmath import (  # noqa: F401
     FAST, FAST_REDUCE,
 )

@@ -398,7 +398,7 @@ def block_lu_apply(ints, values, mask, vector, out, buffer):
     columns = np.zeros(1, dtype=np.int64)
     for i in range(out.shape[0]):
         out[i] = 0.0
-    block_lu_solve(ints, values, vector.reshape(-1, 1), out.reshape(-1, 1), columns, 1,
+    block_lu_solve(ints, values, vector.reshape(-1, 1), out.reshape(-1, 1), columns, np.int64(1),
                     buffer[:k].reshape(-1, 1), np.empty((3, 1)))
     for i in range(out.shape[0]):
         out[i] *= mask[i]

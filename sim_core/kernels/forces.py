@@ -200,7 +200,7 @@ def model_forces_copies(count, positions, velocities, use_velocity, springs, sti
         model_forces(positions[c * n:(c + 1) * n], velocities[c * n:(c + 1) * n], use_velocity, springs,
                      stiffness[a:b], rest_length[a:b], damping[a:b], elements, edge_spring, correction_matrix[e0:e1],
                      axis_rest_length[e0:e1], correction_kind, rest_edge_direction[e0:e1], rest_volume[e0:e1],
-                     kappa[e0:e1], has_volume, no_int, no_int, no_float, positions[c * n:(c + 1) * n], False,
+                     kappa[e0:e1], has_volume, no_int, no_int, no_float, positions[c * n:(c + 1) * n], np.bool_(False),
                      length[a:b], unit[a:b], tension[a:b], push[e0:e1], forces[c * n:(c + 1) * n], want_geometric,
                      geometric[c * g:(c + 1) * g], want_volume_jacobian, volume_coefficient[c * v:(c + 1) * v],
                      volume_direction[c * v:(c + 1) * v], volume_gradient[c * v:(c + 1) * v])
@@ -211,6 +211,8 @@ def volume_forces_add(positions, elements, rest_volume, kappa, forces):
     """Adds every element's volume-conservation force (docs/physics.md 4) to ``forces`` (N, 3): the
     body of ``volume_forces_jacobian_add`` without the stiffness terms."""
     none = np.empty((0, 8, 3))
+    # a literal flag (two specialisations, both warmed up): the pruned branch decides which products
+    # LLVM contracts into FMAs (FAST), so a run-time flag would change the floats
     _volume_forces(positions, elements, rest_volume, kappa, forces, False, np.empty(0), none, none)
 
 

@@ -292,7 +292,7 @@ def _precondition_rows(vector, out, running, first, lu_int, lu_float, factor_of,
         if pending[i]:
             g = factor_of[first + i]
             used = _take_group(factor_of, pending, first, i, columns)
-            lu_columns(lu_int[g], lu_float[g], vector.T, out.T, columns, used, buffer, accumulator)
+            lu_columns(lu_int[g], lu_float[g], vector.T, out.T, columns, np.int64(used), buffer, accumulator)
     for i in range(size):
         if running[i]:
             c = first + i
@@ -349,7 +349,7 @@ def _apply_rows(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_in
                 g = hg_group[first + i]
                 used = _take_group(hg_group, pending, first, i, columns)
                 bsr3_matvec_add_rows(hg_block_indptr, hg_block_indices, hg_block_rows[g], vector, scales[5], out,
-                                     columns, used, accumulator)
+                                     columns, np.int64(used), accumulator)
     for i in range(size):
         if running[i]:
             c = first + i

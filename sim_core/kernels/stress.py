@@ -616,8 +616,9 @@ def stress_correction_add(positions, elements, gradient, volume, mu, lam, spring
     arrays, ``elements`` (n, M) the element nodes, element-last, or the cells' compressed rows
     ``indptr``, ``cell_nodes``, ``entry_gradient``; ``linear`` the law: False neo-Hookean, True
     small-strain Hooke, ``stress_correction.StressCorrection``)."""
-    stress_correction_range(positions, elements, 0, gradient, volume, mu, lam, spring_vector, spring_length,
-                            spring_stiffness, linear, np.empty((0, 3, 3)), np.empty((0, 3, 3)), False, False, forces,
+    stress_correction_range(positions, elements, np.int64(0), gradient, volume, mu, lam, spring_vector, spring_length,
+                            spring_stiffness, linear, np.empty((0, 3, 3)), np.empty((0, 3, 3)), np.bool_(False),
+                            np.bool_(False), forces,
                             np.empty((0, 9, 9)), indptr, cell_nodes, entry_gradient)
 
 
@@ -630,8 +631,9 @@ def stress_correction_tangent_add(positions, elements, gradient, volume, mu, lam
     negative part of its geometric term dropped, and its positive part in the element's displacement
     metric where that is not enough; docs/physics.md section 11). Returns the number of elements
     whose positive part was taken."""
-    return stress_correction_range(positions, elements, 0, gradient, volume, mu, lam, spring_vector, spring_length,
-                                   spring_stiffness, linear, root, root_inverse, clamp, True, forces, tangent, indptr,
+    return stress_correction_range(positions, elements, np.int64(0), gradient, volume, mu, lam, spring_vector,
+                                   spring_length, spring_stiffness, linear, root, root_inverse, clamp, np.bool_(True),
+                                   forces, tangent, indptr,
                                    cell_nodes, entry_gradient)
 
 
@@ -651,7 +653,8 @@ def stress_correction_add_copies(count, positions, elements, gradient, volume, m
     for copy in prange(count):
         stress_correction_range(positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu,
                                 lam, spring_vector, spring_length, spring_stiffness, linear, empty_root, empty_root,
-                                False, False, forces[copy * n:(copy + 1) * n], empty_tangent, indptr, cell_nodes,
+                                np.bool_(False), np.bool_(False), forces[copy * n:(copy + 1) * n], empty_tangent,
+                                indptr, cell_nodes,
                                 entry_gradient[copy * nnz:(copy + 1) * nnz])
 
 
@@ -668,6 +671,7 @@ def stress_correction_tangent_add_copies(count, positions, elements, gradient, v
     for copy in prange(count):
         clamped[copy] = stress_correction_range(
             positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu, lam, spring_vector,
-            spring_length, spring_stiffness, linear, root, root_inverse, clamp, True, forces[copy * n:(copy + 1) * n],
+            spring_length, spring_stiffness, linear, root, root_inverse, clamp, np.bool_(True),
+            forces[copy * n:(copy + 1) * n],
             tangent, indptr, cell_nodes, entry_gradient[copy * nnz:(copy + 1) * nnz])
     return clamped.sum()

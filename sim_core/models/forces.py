@@ -202,14 +202,17 @@ class ForceWorkspace:
         (baudet-hyperelastic) clamped to its positive part, the SPD system of the implicit step
         [11], or with ``exact`` both unclamped (Newton's tangent, ``static.tangent_stiffness``)."""
         model = self.model
+        positions = kernels.writeable(positions)
         use_velocity = velocities is not None
+        velocities = kernels.writeable(velocities) if use_velocity else positions
         hg_indptr, hg_indices, hg_data = self.hourglass_arrays
-        # the hourglass term is added below, its matrix read in node blocks (hourglass_blocks)
+        # the hourglass term is added below, its matrix read in node blocks (hourglass_blocks); the
+        # kernel's rest positions (read by its own hourglass pass only) are the positions, as the copies'
         kernels.model_forces(
-            positions, velocities if use_velocity else positions, use_velocity, model.springs, model.stiffness,
+            positions, velocities, use_velocity, model.springs, model.stiffness,
             model.rest_length, model.damping, model.mesh.elements, model.edge_spring, model.correction_matrix,
             model.axis_rest_length, self.correction_kind, model.rest_edge_direction, model.rest_volume,
-            model.volume_stiffness, self.has_volume, hg_indptr, hg_indices, hg_data, self.rest_positions,
+            model.volume_stiffness, self.has_volume, hg_indptr, hg_indices, hg_data, positions,
             False, self.length, self.unit, self.tension, self.push, self.forces, geometric, self.geometric,
             volume_jacobian and self.has_volume, self.volume_coefficient, self.volume_direction, self.volume_gradient)
         if geometric and exact:
@@ -263,7 +266,8 @@ def stress_arguments(model: Model, elements_of: Model | None = None) -> tuple:
         indptr, nodes, _ = owner.stress_cells
         elements, gradient = _NO_ELEMENTS, model.smoothing.gradient
     else:
-        elements = owner.derived.get("element_lanes", lambda: np.ascontiguousarray(owner.mesh.elements.T))
+        # a copy (writeable) even where the transpose is contiguous already (one element): one kernel signature
+        elements = owner.derived.get("element_lanes", lambda: np.array(owner.mesh.elements.T, order="C"))
         indptr, nodes, gradient = _NO_CELLS
     return (elements, lanes["mean_gradient"], correction.volume, correction.shear_modulus, correction.lame,
             lanes["spring_vector"], lanes["spring_length"], lanes["spring_stiffness"], correction.linear, indptr, nodes,

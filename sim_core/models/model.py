@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import terms
+from .. import kernels
 from .._validate import finite_array
 from .elements import element_block_positions
 from .laws import baudet_stiffness  # noqa: F401  (re-exported: the formulas' users import it from here)
@@ -216,7 +217,8 @@ class Model:
             gradient = self.stress_correction.mean_gradient
             count, n = gradient.shape[:2]
             return (np.arange(0, count * n + 1, n, dtype=np.int64),
-                    np.ascontiguousarray(self.mesh.elements.reshape(-1), dtype=np.int64), gradient.reshape(-1, 3))
+                    kernels.writeable(np.ascontiguousarray(self.mesh.elements.reshape(-1), dtype=np.int64)),
+                    gradient.reshape(-1, 3))
         return self.derived.get("stress_cells", build)
 
     @property

@@ -114,8 +114,9 @@ def _mapped(value, memo, kind, make):
         if id(value) not in memo:
             memo[id(value)] = make(value)
         return memo[id(value)]
-    if isinstance(value, tuple):
-        return tuple(_mapped(item, memo, kind, make) for item in value)
+    if isinstance(value, tuple):  # a named tuple (kernels.OperatorData) stays one: numba types it by its class
+        items = [_mapped(item, memo, kind, make) for item in value]
+        return type(value)(*items) if hasattr(value, "_fields") else tuple(items)
     return value
 
 
