@@ -6,12 +6,14 @@
 Writes benchmarks/results/tet_cost.json: per model and smoothing, the median wall time of a force
 pass and of an implicit Euler step (20 ms, under gravity, clamped at x = 0, after warm-up) of a
 16 x 8 x 8-cube block (6144 tetrahedra), per tetrahedron, and the ratios edge-node / none. Medians
-of alternating repeats (the machine is shared). SI units: seconds.
+of alternating repeats (the machine is shared; the 1-minute load average at the end is recorded).
+SI units: seconds.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -76,7 +78,8 @@ def main():
         rows.append(row)
         print(json.dumps(row), flush=True)
     atomic_write(RESULTS, json.dumps(dict(command="python -m benchmarks.tet_cost", shape=SHAPE, spacing=SPACING,
-                                          dt=DT, repeats=REPEATS, steps=STEPS, rows=rows), indent=1) + "\n")
+                                          dt=DT, repeats=REPEATS, steps=STEPS, rows=rows,
+                                          load_average=os.getloadavg()[0], cores=os.cpu_count()), indent=1) + "\n")
     print(f"wrote {RESULTS}")
 
 
