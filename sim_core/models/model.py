@@ -22,7 +22,7 @@ from .laws import baudet_stiffness  # noqa: F401  (re-exported: the formulas' us
 from .material import Material, rayleigh_coefficients
 from ..geometry.mesh import EDGES, HexMesh
 from .smoothing import SMOOTHING, SmoothedStrain, cell_pairs, smoothed_strain
-from .sparse import BlockPattern
+from .sparse import NODE_ORDERINGS, BlockPattern
 from .stress_correction import SPRING_CHOICES, StressCorrection, mean_gradients
 from .terms import (SPRING_SHEAR_MODELS, check_shear_error, correction_coefficients,  # noqa: F401  (re-exported)
                     correction_matrix, hourglass_matrix, hourglass_projectors)
@@ -204,6 +204,13 @@ class Model:
             return 1.0
         return self.derived.get("pattern_density",
                                 lambda: self.pattern.nnz / BlockPattern(self.n_nodes, self.mesh.elements).nnz)
+
+    @property
+    def node_orderings(self) -> tuple:
+        """The fill-reducing node orderings its node-block factors try (``sparse.block_structure``
+        keeps the cheapest): MMD alone on the elements' pattern, also COLAMD on a wider one
+        (``pattern_density`` > 1: the smoothed tetrahedra's, where MMD fills most)."""
+        return NODE_ORDERINGS if self.pattern_density > 1.0 else NODE_ORDERINGS[:1]
 
     @property
     def stress_cells(self) -> tuple:

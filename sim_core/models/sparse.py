@@ -21,6 +21,11 @@ from .. import kernels
 
 #: symbolic structures (ordering, fill) kept by ``NodeBlockLU``, one per free set and matrix pattern
 ORDER_CACHE_SIZE = 64
+#: SuperLU's fill-reducing orderings of the node graph (``block_structure``): MMD on A + A^T, and
+#: COLAMD, which a pattern wider than its elements' also tries (``Model.node_orderings``): on the
+#: smoothed tetrahedra's (nodes coupled two edges apart) MMD fills most, and neither is the better
+#: on every such pattern (benchmarks/tet_cost.py)
+NODE_ORDERINGS = ("MMD_AT_PLUS_A", "COLAMD")
 
 
 def unique_keys(keys, return_inverse: bool = False):
@@ -166,7 +171,7 @@ class NodeBlockLU:
     """A sparse LU of a system matrix whose free dofs are whole nodes, in dense 3 x 3 node blocks,
     packed for ``kernels.block_lu_apply`` (one right-hand side) and ``kernels.block_lu_solve``
     (several) as (``ints``, ``floats``): P A P^T = L U with P a symmetric permutation of whole
-    nodes (SuperLU's minimum degree ordering of the node graph, MMD on A + A^T) and no pivoting
+    nodes (SuperLU's MMD on A + A^T or COLAMD of the node graph, ``NODE_ORDERINGS``) and no pivoting
     (the implicit system matrix M + dt D + dt^2 K is dominated by its diagonal), so that L and U
     keep the node blocks. The fill is that of SuperLU's scalar ordering (1.65e5 entries at
     TumorPositioning's 6^3 block, in 1.9e4 blocks), and the substitutions read one index per 9
@@ -188,6 +193,7 @@ class NodeBlockLU:
             structure; explicit zeros are kept as structural entries).
         free: (k,) the free dofs, whole nodes in order (``applies``).
         symmetric: factorise the symmetric part (LDL^T) instead of the matrix (LU).
+        orderings: the node orderings to try (``block_structure``; ``Model.node_orderings``).
     Raises np.linalg.LinAlgError on a zero or non-finite pivot."""
 
     #: symbolic structures per (free set, matrix pattern), shared by all threads (``_lock``)
@@ -203,15 +209,17 @@ class NodeBlockLU:
         triples = free.reshape(-1, 3)
         return bool(np.all(triples[:, 0] % 3 == 0) and np.all(triples == triples[:, :1] + np.arange(3)))
 
-    def __init__(self, matrix, free, symmetric: bool = False):
+    def __init__(self, matrix, free, symmetric: bool = False, orderings=NODE_ORDERINGS[:1]):
         matrix = sp.csc_matrix(matrix)
-        key = (np.asarray(free).tobytes(), matrix.indptr.tobytes(), matrix.indices.tobytes(), bool(symmetric))
+        orderings = tuple(orderings)
+        key = (np.asarray(free).tobytes(), matrix.indptr.tobytes(), matrix.indices.tobytes(), bool(symmetric),
+               orderings)
         with self._lock:
             structure = self._structures.get(key)
             if structure is not None:
                 self._structures.move_to_end(key)
         if structure is None:
-            structure = block_structure(matrix, np.asarray(free))
+            structure = block_structure(matrix, np.asarray(free), orderings)
             if symmetric:
                 structure = structure + symmetric_structure(structure)
             with self._lock:
@@ -252,10 +260,11 @@ def _sorted_index(keys, wanted, bound):
     return table[np.clip(wanted, 0, bound)]
 
 
-def block_structure(matrix, free):
-    """``NodeBlockLU``'s symbolic part: the node ordering, the permuted block pattern of A with the
-    position of each stored entry in its blocks, the block fill patterns of L and U, and the packed
-    integer header."""
+def block_structure(matrix, free, orderings=NODE_ORDERINGS[:1]):
+    """``NodeBlockLU``'s symbolic part: the node ordering (of ``orderings``, names of
+    ``NODE_ORDERINGS``, the one whose numeric factorisation does the fewest 3 x 3 block products;
+    the first on a tie), the permuted block pattern of A with the position of each stored entry in
+    its blocks, the block fill patterns of L and U, and the packed integer header."""
     k = matrix.shape[0]
     nb = k // 3
     coo = matrix.tocoo()
@@ -272,11 +281,28 @@ def block_structure(matrix, free):
     block_row, block_col = blocks // nb, blocks % nb
     graph = sp.csc_matrix((np.ones(len(blocks)), (block_row, block_col)), shape=(nb, nb))
     graph = (graph + graph.T + sp.diags(np.full(nb, float(nb)))).tocsc()
-    ordering = spla.splu(graph, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    node_order = np.argsort(ordering.perm_c)
+    best = None
+    for spec in orderings:
+        ordering = spla.splu(graph, permc_spec=spec, diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+        candidate = _ordered_fill(block_row, block_col, nb, np.argsort(ordering.perm_c))
+        if best is None or candidate[-1] < best[-1]:
+            best = candidate
+    node_order, a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, _ = best
+    a_map = 9 * rank[entry_block] + 3 * (coo.row % 3) + coo.col % 3
+    order = (3 * node_order[:, None] + np.arange(3)).ravel()
+    ints = np.concatenate([[-k, nb, len(l_indices), len(u_indices)], l_indptr, l_indices, u_indptr, u_indices,
+                           np.asarray(free)[order]]).astype(np.int64)
+    return a_indptr, a_indices, a_map.astype(np.int64), l_indptr, l_indices, u_indptr, u_indices, ints
+
+
+def _ordered_fill(block_row, block_col, nb, node_order):
+    """The node blocks (``block_row``, ``block_col``) of a matrix of ``nb`` block rows under the node
+    ordering ``node_order`` (the node at each position): (node_order, the permuted block pattern
+    (CSR indptr, indices), each block's rank in it, the block fill patterns of L and U (CSR
+    indptr, indices), the 3 x 3 block products of the numeric factorisation: for each block (i, k)
+    of L off the diagonal, the blocks of U's row k, ``kernels.block_lu_factor``'s work)."""
     position = np.empty(nb, np.int64)
     position[node_order] = np.arange(nb)
-    # block pattern of P A P^T (CSR) and where each stored entry of ``matrix`` goes
     permuted = position[block_row] * nb + position[block_col]
     sort = np.argsort(permuted)
     keys = permuted[sort]
@@ -285,7 +311,6 @@ def block_structure(matrix, free):
     a_indptr = np.zeros(nb + 1, np.int64)
     np.cumsum(np.bincount(keys // nb, minlength=nb), out=a_indptr[1:])
     a_indices = (keys % nb).astype(np.int64)
-    a_map = 9 * rank[entry_block] + 3 * (coo.row % 3) + coo.col % 3
     # block fill: a symbolic LU of the permuted node graph (generic values, no cancellation)
     generic = np.random.default_rng(0).uniform(0.1, 1.0, len(keys))
     permuted = sp.csr_matrix((generic, a_indices, a_indptr), shape=(nb, nb))
@@ -300,12 +325,12 @@ def block_structure(matrix, free):
     if not (np.array_equal(lower.indices[lower.indptr[1:] - 1], identity)
             and np.array_equal(upper.indices[upper.indptr[:-1]], identity)):
         raise np.linalg.LinAlgError("node-block LU without its diagonal blocks")
-    order = (3 * node_order[:, None] + np.arange(3)).ravel()
     l_indptr, l_indices = lower.indptr.astype(np.int64), lower.indices.astype(np.int64)
     u_indptr, u_indices = upper.indptr.astype(np.int64), upper.indices.astype(np.int64)
-    ints = np.concatenate([[-k, nb, len(l_indices), len(u_indices)], l_indptr, l_indices, u_indptr, u_indices,
-                           np.asarray(free)[order]]).astype(np.int64)
-    return a_indptr, a_indices, a_map.astype(np.int64), l_indptr, l_indices, u_indptr, u_indices, ints
+    u_row = np.diff(u_indptr)
+    off_diagonal = np.delete(l_indices, l_indptr[1:] - 1)
+    products = int(u_row[off_diagonal].sum())
+    return node_order, a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, products
 
 
 def symmetric_structure(structure):

@@ -139,7 +139,7 @@ def _system_factor_of(model, positions, dt, fixed):
     if NodeBlockLU.applies(free):
         try:
             with np.errstate(all="ignore"):
-                factor = NodeBlockLU(matrix, free, symmetric=SYMMETRIC_FACTOR)
+                factor = NodeBlockLU(matrix, free, symmetric=SYMMETRIC_FACTOR, orderings=model.node_orderings)
             if np.all(np.isfinite(factor.floats)):
                 return factor
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
@@ -540,7 +540,7 @@ class ImplicitEuler(WorldsSolver):
             whole = free_structure(self.stack.reference, node_dofs)
             matrix = sp.csc_matrix((np.ones(len(whole.take)), whole.indices, whole.indptr), shape=whole.shape)
             try:
-                symbolic = block_structure(matrix, node_dofs)
+                symbolic = block_structure(matrix, node_dofs, self.stack.reference.node_orderings)
                 a_indptr, a_indices, a_map, l_indptr, l_indices, u_indptr, u_indices, ints = symbolic
                 a_transpose, l_to_u = np.zeros(0, np.int64), np.zeros(0, np.int64)
                 if self.symmetric:

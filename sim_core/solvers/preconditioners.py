@@ -164,7 +164,7 @@ def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray, symmet
     matrix = sp.csc_matrix((data, whole.indices, whole.indptr), shape=whole.shape)
     try:
         with np.errstate(all="ignore"):
-            return NodeBlockLU(matrix, node_dofs, symmetric=symmetric)
+            return NodeBlockLU(matrix, node_dofs, symmetric=symmetric, orderings=model.node_orderings)
     except (RuntimeError, ValueError, np.linalg.LinAlgError):
         return None
 
