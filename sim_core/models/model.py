@@ -412,6 +412,59 @@ def _edge_directions(positions, elements):
 
 
 # -- builder -------------------------------------------------------------------------------------
+def _model_options(mesh, model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, damping_law,
+                   hourglass_control, springs, smoothing) -> dict:
+    """``build_model``'s arguments checked for ``mesh`` (hexahedral or tetrahedral): its options dict."""
+    if model not in MSS_MODELS:
+        raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
+    if not isinstance(mesh, (HexMesh, TetMesh)):
+        raise ValueError(f"mesh must be a HexMesh or a TetMesh, got {type(mesh).__name__}")
+    if damping_ratio is None:  # a damping law sets the damping alone; else the springs' dashpots [5]
+        damping_ratio = 1.0 if damping_law is None else 0.0
+    options = (_tet_options if isinstance(mesh, TetMesh) else _hex_options)(
+        model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, hourglass_control, springs)
+    if isinstance(mesh, TetMesh):
+        smoothing = "edge-node" if smoothing is None else smoothing
+        if smoothing not in SMOOTHING:
+            raise ValueError(f"smoothing must be one of {SMOOTHING} on a TetMesh, got {smoothing!r}")
+        options["smoothing"] = smoothing
+    elif smoothing is not None:
+        raise ValueError(f"smoothing={smoothing!r} applies to a TetMesh only (a hexahedral model's stress correction "
+                         "does not lock); leave it unset")
+    return options
+
+
+def _stress_correction_term(mesh, model, options, local_pairs, values, edge_spring, n_springs, young_modulus,
+                            poisson_ratio):
+    """(stress correction, smoothed strain domains or None) of a hyperelastic or tetrahedral model:
+    on tetrahedra with smoothing "edge-node" the law on edge and node domains
+    (``smoothing.smoothed_strain``) [12], else each element's own correction."""
+    law = "neo-hookean" if model == "baudet-hyperelastic" else "linear"
+    if options.get("smoothing") == "edge-node":
+        gradient, volume = mean_gradients(mesh.nodes, mesh.elements)
+        shear, lame = terms.lame_parameters(young_modulus, poisson_ratio)
+        smoothed = smoothed_strain(mesh.nodes, mesh.elements, edge_spring, n_springs, gradient, volume, shear, lame,
+                                   law)
+        return smoothed.law, smoothed
+    return terms.stress_correction(mesh, local_pairs, values, young_modulus, poisson_ratio, law), None
+
+
+def _hourglass_term(mesh, same, young_modulus, poisson_ratio, alpha):
+    """(hourglass matrix or None, its block pattern, the elements' block positions) for hourglass
+    control ``alpha`` (0: none); the element matrices are taken from ``same`` where it has them."""
+    if alpha <= 0:
+        return None, None, None
+    matrices = None
+    if same is not None and same.hourglass is not None:  # computed once per uncut model, kept with it
+        matrices = same.derived.get(("hourglass_elements", alpha), lambda: terms.hourglass_element_matrices(
+            same.mesh, young_modulus, poisson_ratio, alpha))
+    # the model's own pattern (a hexahedral model's couples the nodes of its elements, as this matrix)
+    pattern = BlockPattern(mesh.n_nodes, mesh.elements)
+    positions = element_block_positions(pattern, mesh.elements)
+    hourglass = terms.hourglass_matrix(mesh, young_modulus, poisson_ratio, alpha, matrices, pattern, positions)
+    return hourglass, pattern, positions
+
+
 def build_model(
     mesh: HexMesh | TetMesh,
     material: Material,
@@ -437,8 +490,7 @@ def build_model(
             a stress correction on its exact deformation gradient to the small-strain Hooke
             stress: linear elasticity at small strain, exact for every element shape and nu) and
             "baudet-hyperelastic" (the same to the neo-Hookean stress, at every strain); neither
-            takes volume forces, hourglass control (a linear tetrahedron has no hourglass modes)
-            or ``springs``.
+            takes volume forces, hourglass control (no hourglass modes) or ``springs``.
         material: ``Material`` (scalars or one value per element).
         model: "baudet" (stress-based corrections projected on the deformed edges, volume
             forces), "baudet-original" (the report's corrections as published: half size,
@@ -447,66 +499,42 @@ def build_model(
             "baudet-hyperelastic" (springs plus the finite-strain stress correction on each
             element's mean deformation gradient: compressible neo-Hookean under every homogeneous
             deformation, objective, no volume forces) [11].
-        corrections: switch the correction forces off (False) for ablations (for
-            "baudet-hyperelastic": the stress correction; the springs alone remain).
+        corrections: False switches the correction forces off (ablations; "baudet-hyperelastic":
+            the springs alone remain).
         volume_conservation: volume forces on/off; default on for "baudet" only.
         volume_stiffness: multiplier of kappa = K V0^(2/3), K = E / (3 (1 - 2 nu)) [4].
         nu_factor: "baudet-original" only: multiply the corrections by nu (report section 5.1).
-        damping_ratio: multiplier of the critical spring damping 2 sqrt(mu k) [5]; >= 0. None
-            (default): 1 for a material without a damping law, 0 for one with (``Material``'s
-            ``damping_ratio``: the law then sets the damping alone [14]).
+        damping_ratio: multiplier (>= 0) of the critical spring damping 2 sqrt(mu k) [5]. None:
+            1 for a material without a damping law, 0 for one with (the law damps alone [14]).
         gravity: (3,) acceleration in m/s^2; y is up, so Earth is (0, -9.81, 0).
-        hourglass_control: alpha >= 0. Adds alpha times the linear FEM element stiffness projected
-            on the element's hourglass space (the displacements orthogonal to every affine field),
-            a constant matrix that leaves uniform strain, hence measured E, nu and G, untouched,
-            and removes the zero-energy modes that buckle under compression [6]. Not objective:
-            "baudet-hyperelastic" refuses it (its springs resist the hourglass modes).
+        hourglass_control: alpha >= 0: alpha times the linear FEM element stiffness projected on
+            the hourglass space (displacements orthogonal to every affine field), which leaves E, nu
+            and G untouched and removes the zero-energy modes that buckle under compression [6]. Not
+            objective: "baudet-hyperelastic" refuses it (its springs resist the hourglass modes).
         springs: "baudet-hyperelastic" only: the element's springs, "faces" (12 edges and 12 face
             diagonals matched to the hourglass modes' energy, ``stress_correction.element_spring_stiffness``),
             "isotropic" (12 edges and 4 inner diagonals of a nu = 1/4 solid, positive for every box)
             or "baudet" (Baudet's springs and formula, non-positive on elongated boxes) [11].
-        max_shear_error: "baudet" and "baudet-original" on hexahedra: the largest relative error
+        max_shear_error: "baudet" and "baudet-original" on hexahedra: the largest accepted error
             |G_meas / G - 1| of the springs' shear modulus in any plane of any element
-            (``laws.baudet_shear_ratio``, D^2 / (3 k^2) - 1: exact for cubes only) accepted; an
-            element beyond it is a ValueError naming the models that are right on such elements
-            ("baudet-hyperelastic", whose stress correction gives the exact shear modulus on every
-            box, and the tetrahedral path, ``TetMesh``). Default ``MAX_SHEAR_ERROR`` (5%: elements
-            1:1:a with a in about [0.96, 1.04]); None accepts any box (ablations of the known shear
-            error). The other models ignore it [2].
-        smoothing: ``TetMesh`` only: "edge-node" (the default on tetrahedra) evaluates the law on
-            deformation gradients smoothed over domains around the edges (its deviatoric part) and
-            the nodes (its volumetric part), so that the tetrahedra neither lock near nu = 0.5 nor
-            stiffen in bending; the edge springs then only damp (their stiffness, which sets the
-            damping of section 5, is not added to the elastic forces). "none": each tetrahedron's
-            own F, exactly linear-tetrahedron FEM (which locks) [12].
+            (``laws.baudet_shear_ratio``; exact for cubes only); an element beyond it is a ValueError
+            naming the models right on such elements. Default ``MAX_SHEAR_ERROR`` (5%: boxes 1:1:a,
+            a in about [0.96, 1.04]); None accepts any box (ablations). Others ignore it [2].
+        smoothing: ``TetMesh`` only: "edge-node" (default) evaluates the law on deformation
+            gradients smoothed over edge domains (deviatoric part) and node domains (volumetric
+            part): no locking near nu = 0.5, no stiffening in bending; the edge springs then only
+            damp. "none": each tetrahedron's own F, linear-tetrahedron FEM (which locks) [12].
         same_elements: None, or a model whose elements have this mesh's rest corners and material
-            in the same order (the model of the mesh before a cut, ``cutting.separate``): the
-            per-element terms that depend on an element alone (rest volumes, hourglass element
-            matrices) are taken from it instead of computed again; the model is the same.
+            in the same order (the mesh before a cut, ``cutting.separate``): its per-element terms
+            (rest volumes, hourglass element matrices) are reused; the model is the same.
     """
-    if model not in MSS_MODELS:
-        raise ValueError(f"model must be one of {MSS_MODELS}, got {model!r}")
-    if not isinstance(mesh, (HexMesh, TetMesh)):
-        raise ValueError(f"mesh must be a HexMesh or a TetMesh, got {type(mesh).__name__}")
     damping_law = None if material.damping_ratio is None else (material.damping_ratio, material.damping_frequency)
-    if damping_ratio is None:  # a damping law sets the damping alone; else the springs' dashpots [5]
-        damping_ratio = 1.0 if damping_law is None else 0.0
-    options = (_tet_options if isinstance(mesh, TetMesh) else _hex_options)(
-        model, volume_conservation, volume_stiffness, nu_factor, damping_ratio, hourglass_control, springs)
-    if isinstance(mesh, TetMesh):
-        smoothing = "edge-node" if smoothing is None else smoothing
-        if smoothing not in SMOOTHING:
-            raise ValueError(f"smoothing must be one of {SMOOTHING} on a TetMesh, got {smoothing!r}")
-        options["smoothing"] = smoothing
-    elif smoothing is not None:
-        raise ValueError(f"smoothing={smoothing!r} applies to a TetMesh only (a hexahedral model's stress correction "
-                         "does not lock); leave it unset")
+    options = _model_options(mesh, model, volume_conservation, volume_stiffness, nu_factor, damping_ratio,
+                             damping_law, hourglass_control, springs, smoothing)
     gravity = finite_array("gravity", gravity, shape=(3,))
     tetrahedra = isinstance(mesh, TetMesh)
-    hyperelastic = model == "baudet-hyperelastic"
     props = material.per_element(mesh.n_elements)
     young_modulus, poisson_ratio, density = props["young_modulus"], props["poisson_ratio"], props["density"]
-
     same = same_elements if _has_same_elements(same_elements, mesh, props) else None
     axis_rest_length = terms.axis_rest_lengths(mesh)
     local_pairs, values = terms.element_springs(mesh, model, young_modulus, poisson_ratio, axis_rest_length,
@@ -517,41 +545,23 @@ def build_model(
                                              options["damping_ratio"])
     w, correction_mode = np.zeros((mesh.n_elements, 3, 3)), None  # tetrahedra: the stress correction instead
     if corrections and not tetrahedra:
-        w, correction_mode = terms.baudet_corrections(model, axis_rest_length, young_modulus, poisson_ratio,
-                                                      nu_factor)
+        w, correction_mode = terms.baudet_corrections(model, axis_rest_length, young_modulus, poisson_ratio, nu_factor)
     correction = smoothed = None
-    law = "neo-hookean" if hyperelastic else "linear"
-    if corrections and tetrahedra and options["smoothing"] == "edge-node":
-        gradient, volume = mean_gradients(mesh.nodes, mesh.elements)
-        shear, lame = terms.lame_parameters(young_modulus, poisson_ratio)
-        smoothed = smoothed_strain(mesh.nodes, mesh.elements, edge_spring, len(spring_pairs), gradient, volume, shear,
-                                   lame, law)
-        correction = smoothed.law
+    if corrections and (model == "baudet-hyperelastic" or tetrahedra):
+        correction, smoothed = _stress_correction_term(mesh, model, options, local_pairs, values, edge_spring,
+                                                       len(spring_pairs), young_modulus, poisson_ratio)
+    if smoothed is not None:
         stiffness = np.zeros_like(stiffness)  # the domains carry the whole elasticity; the springs damp [12]
-    elif corrections and (hyperelastic or tetrahedra):
-        correction = terms.stress_correction(mesh, local_pairs, values, young_modulus, poisson_ratio, law)
     kappa = (terms.volume_stiffness(young_modulus, poisson_ratio, rest_volume, options["volume_stiffness"])
              if options["volume_conservation"] else np.zeros(mesh.n_elements))
-    hourglass = None
-    if options["hourglass_control"] > 0:
-        alpha = options["hourglass_control"]
-        matrices = None
-        if same is not None and same.hourglass is not None:  # computed once per uncut model, kept with it
-            matrices = same.derived.get(("hourglass_elements", alpha), lambda: terms.hourglass_element_matrices(
-                same.mesh, young_modulus, poisson_ratio, alpha))
-        # the model's own pattern (a hexahedral model's couples the nodes of its elements, as this matrix)
-        pattern = BlockPattern(mesh.n_nodes, mesh.elements)
-        positions = element_block_positions(pattern, mesh.elements)
-        hourglass = terms.hourglass_matrix(mesh, young_modulus, poisson_ratio, alpha, matrices, pattern, positions)
-    built = Model(
-        mesh=mesh, name=model, hourglass=hourglass, mass=mass, springs=spring_pairs, rest_length=rest_length,
-        stiffness=stiffness, damping=damping, edge_spring=edge_spring,
-        axis_rest_length=axis_rest_length, correction_matrix=w, correction_mode=correction_mode,
-        rest_volume=rest_volume, volume_stiffness=kappa, gravity=gravity,
-        young_modulus=young_modulus, poisson_ratio=poisson_ratio, density=density,
-        options=dict(corrections=corrections, **options), stress_correction=correction, smoothing=smoothed,
-        damping_law=damping_law,
-    )
+    hourglass, pattern, positions = _hourglass_term(mesh, same, young_modulus, poisson_ratio,
+                                                    options["hourglass_control"])
+    built = Model(mesh=mesh, name=model, hourglass=hourglass, mass=mass, springs=spring_pairs, rest_length=rest_length,
+                  stiffness=stiffness, damping=damping, edge_spring=edge_spring, axis_rest_length=axis_rest_length,
+                  correction_matrix=w, correction_mode=correction_mode, rest_volume=rest_volume,
+                  volume_stiffness=kappa, gravity=gravity, young_modulus=young_modulus, poisson_ratio=poisson_ratio,
+                  density=density, options=dict(corrections=corrections, **options), stress_correction=correction,
+                  smoothing=smoothed, damping_law=damping_law)
     if hourglass is not None:  # its pattern is the one the hourglass matrix was assembled on: not built again
         built.__dict__.update(pattern=pattern, element_positions=positions)
     return built
