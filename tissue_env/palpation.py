@@ -16,7 +16,7 @@ from .camera import ALBEDO, probe_mesh
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
 
-#: Solves of one implicit step over the probe's contact set (``PalpationWorlds._advance``): the
+#: Solves of one implicit step over the probe's contact set (``TaskWorlds._advance``): the
 #: step is solved again from its start while the set it ends with differs from the one it was
 #: solved with. Pressing 4 mm in one step at nu 0.49 the set settles in 2-3 solves; a step that
 #: presses nothing takes one (1.4 solves per env step over random and scripted episodes).
@@ -171,52 +171,30 @@ class PalpationWorlds(TaskWorlds):
         return fixed, target, tool_mask
 
     def _advance(self, fixed, target, tool_mask, active):
-        """The implicit step with the probe's contact set solved within the step: after a solve the
-        set is re-formed at the step's end (``_control``: the nodes the tissue pulls are released,
-        those that went through the probe joined, held heights at the nodes' new (x, z)) and, where
-        it differs from the set the step was solved with, the step is solved again from its start
-        state, at most CONTACT_PASSES times. One solve per step, as before, left the set a step
+        """The implicit step with the probe's contact set solved within the step (``TaskWorlds._advance``,
+        at most CONTACT_PASSES solves): after a solve the set is re-formed at the step's end
+        (``_control``: the nodes the tissue pulls are released, those that went through the probe
+        joined, held heights at the nodes' new (x, z)) and, where it differs from the set the step was
+        solved with, the step is solved again from its start. A set formed once per step lags a step
         behind: a probe pushed 4 mm into the slab holds every top node its bound passed (21 at the
         default shape, where the equilibrium holds 9) for that whole step, the tissue pulls on the
-        outer ones, and the next step releases them all at once; the first held reading was then
-        1.7x (``baudet-hyperelastic``) to 4x (``baudet``) the equilibrium's at nu 0.49, decaying over
-        3-5 steps, which the scripted sweep (one held step per press) read as stiffness. Solved
-        within the step, the first held reading is within 1% of the static equilibrium's
-        (tests/test_env_palpation.py). ``integrator="static"`` iterates the set in the base class.
-        Either way a pass reads the held heights at ``contact.relaxed_positions`` (from where the
-        step's first control read them: the nodes at its start)."""
+        outer ones, and the next step releases them all at once; at nu 0.49 the first held reading
+        was then 1.7x (``baudet-hyperelastic``) to 4x (``baudet``) the equilibrium's, which the
+        scripted sweep (one held step per press) read as stiffness (tests/test_env_palpation.py).
+        ``integrator="static"`` iterates the set as every task does. Either way a pass reads the
+        held heights at ``contact.relaxed_positions`` (from where the step's first control read
+        them: the nodes at its start)."""
         self._sampled = self.positions.copy()
         try:
-            if self.static:
-                return super()._advance(fixed, target, tool_mask, active)
-            return self._advance_implicit(fixed, target, tool_mask, active)
+            return super()._advance(fixed, target, tool_mask, active)
         finally:
             self._sampled = None
 
-    def _advance_implicit(self, fixed, target, tool_mask, active):
-        reasons = np.full(self.num_envs, None, dtype=object)
-        running = active.copy()
-        for _ in range(self.substeps):
-            start = (self.positions.copy(), self.velocities.copy(), self._lengths.copy())
-            solving = running.copy()
-            for attempt in range(CONTACT_PASSES):
-                failed = self._substep(Control(fixed, target, self._no_force), solving, reasons)
-                running &= ~failed
-                solving &= ~failed
-                if attempt + 1 == CONTACT_PASSES or not solving.any():
-                    break
-                self._node_forces = self.net_forces()  # at the step's end: the nodes the tissue pulls
-                previous_fixed, previous_target = fixed, target
-                fixed, target, tool_mask = self._control(solving)
-                solving &= ~same_contacts(previous_fixed, previous_target, fixed, target,
-                                          tolerance=CONTACT_HEIGHT_TOLERANCE)
-                if not solving.any():
-                    break
-                # the worlds whose set changed start their step again (the others keep theirs)
-                self.positions = np.where(solving[:, None, None], start[0], self.positions)
-                self.velocities = np.where(solving[:, None, None], start[1], self.velocities)
-                self._lengths = np.where(solving[:, None], start[2], self._lengths)
-        return reasons, tool_mask, fixed, target
+    def _contact_passes(self):
+        return super()._contact_passes() if self.static else (CONTACT_PASSES, CONTACT_HEIGHT_TOLERANCE)
+
+    def _contact_forces(self, tool_mask):
+        self._node_forces = self.net_forces()  # at the solve's end: the nodes the tissue pulls
 
     def _after_substep(self, positions, velocities, rows):
         # a free top node that went into the probe is put back on its surface and joins the contact (a

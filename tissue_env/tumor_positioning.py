@@ -568,14 +568,13 @@ class TumorPositioningEnv(TissueEnv):
             control = self.base_control.copy().impose(nodes, self.tool_rest)
             free = np.flatnonzero(~control.fixed.ravel())
             stiffness, factor = self._goal_factors.factorise(model, start, free, 1e-10)
-            moved = np.zeros((3, model.n_nodes, 3))
-            for axis in range(3):  # each unit translation of the grasped patch
-                moved[axis, nodes, axis] = 1.0
-            delta = moved.reshape(3, -1).T
-            response = moved.reshape(3, -1)
-            rhs = -(stiffness[free] @ delta)
+            translations = np.zeros((3, model.n_nodes * 3))  # each unit translation of the grasped patch
+            for axis in range(3):
+                translations[axis, 3 * nodes + axis] = 1.0
+            rhs = -(stiffness[free] @ translations.T)
+            response = translations.copy()  # imposed on the patch; the free dofs' equilibrium solved below
             response[:, free] = [factor.solve(np.ascontiguousarray(column)) for column in rhs.T]
-            return moved
+            return response.reshape(3, model.n_nodes, 3)
 
         key = ("tumor_goal_response", nodes.tobytes(), start.tobytes())
         fields = model.derived.peek(key)

@@ -28,7 +28,7 @@ from sim_core.solvers.implicit import ImplicitEuler
 from sim_core.solvers.integrators import stable_time_step
 from sim_core.models.model import Control, State
 from sim_core.models.stack import ModelStack, StackedForceWorkspace
-from sim_core.solvers.static import STATIC_CONTACT_PASSES, same_contacts
+from sim_core.solvers.static import STATIC_CONTACT_PASSES, STATIC_SLIDE_TOLERANCE, same_contacts
 from sim_core.models.validity import ValidityRange, model_range, out_of_range
 from sim_core.solvers.worlds import make_worlds_solver
 
@@ -448,19 +448,23 @@ class TaskWorlds:
         last healthy state. Returns ((N,) reasons, None where healthy; the step's tool mask, imposed
         components and targets).
 
-        With ``integrator="static"`` a substep is a static equilibrium, and a contact's active set
-        (Palpation's probe, Retraction's floor) is iterated within it: after each solve the task
-        projects the nodes that went through the obstacle (``_after_substep``) and re-forms its
-        control at the new state (``_control``: nodes the tissue pulls away are released, held
-        heights follow the nodes' sliding), and the worlds whose imposed set or heights changed
-        (``sim_core.solvers.static.same_contacts``) are solved again, at most STATIC_CONTACT_PASSES times,
-        so the state is the equilibrium of the contact problem at the tool's position. The
+        A contact's active set (Palpation's probe, Retraction's floor) may be iterated within a
+        substep, up to ``_contact_passes()`` solves: after each solve the task projects the nodes
+        that went through the obstacle (``_after_substep``), measures the forces its control reads
+        (``_contact_forces``) and re-forms its control at the new state (``_control``: nodes the
+        tissue pulls away are released, held heights follow the nodes' sliding), and the worlds
+        whose imposed set or heights changed (``sim_core.solvers.static.same_contacts``) are solved
+        again. With ``integrator="static"`` (STATIC_CONTACT_PASSES) a substep is then the
+        equilibrium of the contact problem at the tool's position, each solve from the last one's
+        state; a dynamic step solved again starts over from the substep's start. By default the
         implicit integrator updates the set once per step: the dynamics carry it along."""
         count = self.num_envs
         reasons = np.full(count, None, dtype=object)
         running = active.copy()
-        passes = STATIC_CONTACT_PASSES if self.static else 1
+        passes, tolerance = self._contact_passes()
         for _ in range(self.substeps):
+            restart = None if self.static or passes == 1 else (
+                self.positions.copy(), self.velocities.copy(), self._lengths.copy())
             solving = running.copy()
             for attempt in range(passes):
                 failed = self._substep(Control(fixed, target, self._no_force), solving, reasons)
@@ -468,13 +472,28 @@ class TaskWorlds:
                 solving &= ~failed
                 if attempt + 1 == passes or not solving.any():
                     break
-                self._measure(tool_mask)  # the forces that release contact nodes
+                self._contact_forces(tool_mask)
                 previous_fixed, previous_target = fixed, target
                 fixed, target, tool_mask = self._control(solving)
-                solving &= ~same_contacts(previous_fixed, previous_target, fixed, target)
+                solving &= ~same_contacts(previous_fixed, previous_target, fixed, target, tolerance=tolerance)
                 if not solving.any():
                     break
+                if restart is not None:  # the worlds whose set changed start their step again
+                    self.positions = np.where(solving[:, None, None], restart[0], self.positions)
+                    self.velocities = np.where(solving[:, None, None], restart[1], self.velocities)
+                    self._lengths = np.where(solving[:, None], restart[2], self._lengths)
         return reasons, tool_mask, fixed, target
+
+    def _contact_passes(self):
+        """(solves per substep at most, tolerance m): how often ``_advance`` may solve a substep
+        while its contact set changes, and how far the held heights may move between two solves for
+        the set to count as settled (``same_contacts``)."""
+        return (STATIC_CONTACT_PASSES if self.static else 1), STATIC_SLIDE_TOLERANCE
+
+    def _contact_forces(self, tool_mask):
+        """Between two contact passes of ``_advance``: the measurement the next ``_control`` reads
+        (the forces that release contact nodes; a grasp judged at them, ``Grasper.slip``)."""
+        self._measure(tool_mask)
 
     def _explicit_step_cause(self, index):
         """For a world that diverged under the explicit integrator: the cause, when ``dt`` is above

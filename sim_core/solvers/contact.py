@@ -43,9 +43,8 @@ reference). A projected sphere adds it back over the quadrature points it covers
 height (exact for a quadratic indentation, 31 um from the sphere at 4 mm on 3 mm cells), the rim
 stays the projection's, smooth wherever the nodes fall (docs/physics.md section 16,
 benchmarks/indentation_reference.py). It displaces more than the probe's volume (the rim's share is
-not taken back): what it gets right is the nodes' indentation under the probe. At 6 mm cells the
-force is 7-8% under a converged reference at 2 mm deep and 11-22% under it from 4 to 8 mm, against
-21-41% under it before.
+not taken back): what it gets right is the nodes' indentation under the probe. Its force against a
+converged reference, per depth: docs/physics.md section 16 (``python -m benchmarks.indentation_reference``).
 
 All functions work on one block ((n, 3) positions) or a stack of copies ((N, n, 3) positions with
 per-copy probe tips (N, 3)). SI units: m, N, m/s.
@@ -363,4 +362,3 @@ def project(obstacle, positions, velocities, candidates, tip=None, surface=None)
         else:
             velocities[..., 1] = np.where(through, np.minimum(velocities[..., 1], 0.0), velocities[..., 1])
     return through
-

@@ -145,8 +145,9 @@ class DivergenceMonitor:
     elastic wave speed sqrt(E / rho) (no tissue motion a tool imposes comes near it); a node
     farther than ``extent_factor`` block sizes from the rest mesh; an inverted element (a corner
     Jacobian <= 0, or for a model whose elements' energy is a function of their mean deformation
-    gradient, that gradient's determinant <= 0: ``models.elements.inversion_gradients``); a growing step-to-step oscillation: the velocity field reverses (cosine with
-    the previous step's below -0.5) and grows, for ``oscillation_steps`` consecutive checks, with
+    gradient, that gradient's determinant <= 0: ``models.elements.inversion_gradients``); a
+    growing step-to-step oscillation: the velocity field reverses (cosine with the previous
+    step's below -0.5) and grows, for ``oscillation_steps`` consecutive checks, with
     an RMS node speed above ``oscillation_floor`` times the wave speed. That is the signature of
     a time step beyond the explicit stability limit (the highest mode flips sign every step); it
     catches a run at the very edge of the limit while its amplitude is still small, long before the
