@@ -9,9 +9,10 @@ place, given the faces cut so far, and the point it heads to) and its own bookke
 
 - ``reward_progress = progress_weight * (gain in progress this step)``;
 - ``reward_approach = approach_weight * (R_before - R_after) / 1 cm``, R the route's remaining
-  length before the step's move and cut and after them: potential-based shaping (it sums to the
-  route's net shortening over an episode, so it changes no policy's ranking), the term that lets
-  an agent learn to follow the route before the first face is cut;
+  length before the step's move and cut and after them: shaping by the route as a potential
+  (its sum over an episode is the route's net shortening; undiscounted, so it leaves the ranking
+  of policies unchanged only for a discount of 1, with a small pull towards short routes below
+  it), the term that lets an agent learn to follow the route before the first face is cut;
 - ``reward_damage = -damage_weight * (faces of the spared tissue cut this step)``;
 - ``reward_success = success_bonus`` on success;
 
