@@ -204,52 +204,82 @@ def test_a_stacked_projection_gives_each_row_its_own_blocks_surface():
 
 
 @pytest.mark.parametrize("offset", [(0.0, 0.0), (0.00375, 0.00375), (0.0011, 0.0052)])
-def test_curvature_corrected_projection_imposes_the_sphere_at_the_nodes_it_covers(offset):
+def test_curvature_corrected_projection_gives_each_contact_cell_the_sphere_s_mean_indentation(offset):
     """The hat average of a sphere's indentation is its value at the node minus the hat's second
-    moment over 2R (contact.curvature_offsets): added back, a node whose whole support lies under a
-    9 mm sphere 4 mm into a 3 mm mesh is bounded by the sphere itself, wherever the nodes fall
-    (measured within 31 um: the sphere is not quite its paraboloid), where the first-order projection
-    bounds it 0.17-0.19 mm ((hx^2 + hz^2) / (12 R) = 0.167 mm, and the sphere's steeper flanks) short."""
+    moment over 2R, and the bilinear surface through nodes on the sphere lies above it by the
+    interpolation bubble (contact.curvature_offsets): with both added back, the bilinear surface
+    through the bounds of a 9 mm sphere 4 mm into a 1.5 mm mesh has the sphere's mean height over
+    each cell inside Hertz's contact (a^2 = R d: the consistent L2 projection), wherever the nodes
+    fall, its nodes (hx^2 + hz^2) / (12 R) = 42 um below the sphere (both within 12 um: the sphere
+    is not quite its paraboloid; measured 6 um), where the first-order projection leaves each such
+    cell's mean twice that, 83 um, above it."""
     from sim_core.geometry.mesh import HexMesh
 
-    h = 0.003
-    mesh = HexMesh.block((20, 4, 20), (h, h, h))
-    top = np.flatnonzero(np.isclose(mesh.nodes[:, 1], 4 * h))
+    h, radius, depth = 0.0015, 0.009, 0.004
+    mesh = HexMesh.block((40, 2, 40), (h, h, h))
+    top = np.flatnonzero(np.isclose(mesh.nodes[:, 1], 2 * h))
     projection = contact.SurfaceProjection.top_face(mesh, top)
-    tip = np.array([0.03 + offset[0], 4 * h - 0.004, 0.03 + offset[1]])
-    corrected = contact.Probe(0.009, "sphere", projection).surface(mesh.nodes, tip)
-    first_order = contact.Probe(0.009, "sphere", projection, curvature_corrected=False).surface(mesh.nodes, tip)
-    sphere = contact.Probe(0.009, "sphere").surface(mesh.nodes, tip)
-    # top nodes whose support (+-h in x and z) lies inside the footprint, radius sqrt(2 R d - d^2)
-    corners = mesh.nodes[:, None, [0, 2]] + h * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])
-    inside = np.all(np.hypot(*(corners - tip[[0, 2]]).transpose(2, 0, 1)) < np.sqrt(2 * 0.009 * 0.004 - 0.004**2),
-                    axis=1)
-    covered = np.isin(np.arange(mesh.n_nodes), top) & inside
-    assert covered.sum() >= 4
-    assert np.abs(corrected[covered] - sphere[covered]).max() < 4e-5
-    assert np.all(first_order[covered] - sphere[covered] > 1.5e-4)
+    tip = np.array([0.03 + offset[0], 2 * h - depth, 0.03 + offset[1]])
+    corrected = contact.Probe(radius, "sphere", projection).surface(mesh.nodes, tip)
+    first_order = contact.Probe(radius, "sphere", projection, curvature_corrected=False).surface(mesh.nodes, tip)
+    sphere = contact.Probe(radius, "sphere")
+    # nodes whose support (+-h) lies inside the contact, less the quadrature's spacing; the cells between them
+    grid = {tuple(np.round(node[[0, 2]] / h).astype(int)): index for index, node in zip(top, mesh.nodes[top])}
+    inner = np.sqrt(radius * depth) - h / 4
+    interior = {(i, k) for (i, k) in grid if all(np.hypot((i + a) * h - tip[0], (k + b) * h - tip[2]) < inner
+                                                 for a in (-1, 1) for b in (-1, 1))}
+    cells = [(i, k) for (i, k) in interior if {(i + 1, k), (i, k + 1), (i + 1, k + 1)} <= interior]
+    assert len(cells) >= 1
+    t = (np.arange(40) + 0.5) / 40
+    u, v = (a.ravel() for a in np.meshgrid(t, t, indexing="ij"))
+    for i, k in cells:
+        corners = [grid[i, k], grid[i + 1, k], grid[i, k + 1], grid[i + 1, k + 1]]
+        shape = np.stack([(1 - u) * (1 - v), u * (1 - v), (1 - u) * v, u * v])
+        points = np.stack([(i + u) * h, np.full_like(u, 2 * h), (k + v) * h], axis=1)
+        target = sphere.surface(points, tip).mean()
+        assert abs(corrected[corners] @ shape.mean(axis=1) - target) < 1.2e-5
+        assert first_order[corners] @ shape.mean(axis=1) - target > 7.5e-5
+        np.testing.assert_allclose(corrected[corners], sphere.surface(mesh.nodes[corners], tip) - 2 * h**2 / (12 * radius),
+                                   atol=1.2e-5)
     # the rim stays smooth: the correction touches the nodes the projection touches, no others
     assert np.array_equal(np.isfinite(corrected), np.isfinite(first_order))
 
 
-@pytest.mark.parametrize("offset", [0.0, 0.003])
-def test_indentation_at_palpation_resolution_against_hertz(offset):
-    """Palpation's slab (6 x 3 x 6 cm, bottom attached, E 5 kPa, nu 0.45, no gravity) on its 6 mm
-    cubes, its 9 mm sphere pressed 2 mm over a node and over a cell's middle (static, active set
-    converged): the force lies between Hertz on a half-space, 4/3 E* sqrt(R) d^1.5, and Hertz on a
-    layer of the slab's thickness bonded to a rigid base (Dimitriadis et al. 2002; the slab's free
-    sides 3 cm away make it softer than that infinite layer). Measured 1.00 / 1.00 x Hertz (the bonded
-    layer 1.17 x); the first-order projection gave 0.64 x (benchmarks/indentation_reference.py)."""
-    from benchmarks.indentation_reference import bonded_layer_factor, hertz
+def test_axisymmetric_reference_reads_hertz_on_a_wide_bonded_layer():
+    """The independent reference (scikit-fem, benchmarks.indentation_reference.axisymmetric_forces) on a
+    cylinder 50 cm wide, 3 cm thick, its base bonded, E 5 kPa, nu 0.45: a 9 mm sphere 0.5 and 1 mm deep
+    against Hertz on a layer bonded to a rigid base (Dimitriadis et al. 2002, chi = sqrt(R d) / t of
+    0.07-0.1, where their series holds): measured -0.6 / -1.0%; 25% above Hertz on a half-space."""
+    from benchmarks.indentation_reference import axisymmetric_forces, bonded_layer_factor, hertz
+
+    depths = np.array([0.0005, 0.001])
+    forces = axisymmetric_forces(depths, 0.009, 0.03, 0.5, 5e3, 0.45)
+    layer = hertz(depths, 0.009, 5e3, 0.45) * bonded_layer_factor(depths, 0.009, 0.03, 0.45)
+    np.testing.assert_allclose(forces, layer, rtol=0.015)
+    assert np.all(forces > 1.05 * hertz(depths, 0.009, 5e3, 0.45))
+
+
+@pytest.mark.parametrize("position", ["node", "edge", "cell_centre"])
+@pytest.mark.parametrize("poisson_ratio, young_modulus", [(0.45, 5e3), (0.49, 40e3)])
+def test_indentation_at_palpation_resolution_against_the_axisymmetric_reference(position, poisson_ratio,
+                                                                                young_modulus):
+    """Palpation's slab (6 x 3 x 6 cm, bottom attached, no gravity) on its 6 mm cubes, its 9 mm sphere
+    pressed 2, 4 and 8 mm over a node, over a cell's side and over a cell's centre (static, active set
+    converged), against the independent axisymmetric reference on the cylinder of the slab's top area:
+    within 11% at 2 mm, where the contact (4.2 mm across its radius) is smaller than a cell, and 8% from
+    4 mm (measured +3.6 to +10.4% at 2 mm, -7.5 to +3.4% deeper; the first-order projection read
+    25-42% under at 2-8 mm, the nodes on the sphere alone 6-19%: benchmarks/indentation_reference.py)."""
+    from benchmarks.indentation_reference import CYLINDERS, POSITIONS, axisymmetric_forces
     from sim_core.studies.scenes import Scene
     from sim_core.studies.solving import solve_scene
 
-    at, depth = 0.03 + offset, 0.002
-    scene = Scene(size=(0.06, 0.03, 0.06), young_modulus=5e3, poisson_ratio=0.45, gravity=0.0,
-                  tool_low=(at, 0.03, at), tool_high=(at, 0.03, at), tool_radius=0.009, tool_components=(1,),
-                  probe="sphere", displacements=[[(0, -0.001, 0), (0, -depth, 0)]], target=(0.03, 0.015, 0.03))
+    depths, cell = np.array([0.002, 0.004, 0.008]), 0.006
+    x, z = (0.03 + cell * offset for offset in POSITIONS[position])
+    scene = Scene(size=(0.06, 0.03, 0.06), young_modulus=young_modulus, poisson_ratio=poisson_ratio, gravity=0.0,
+                  tool_low=(x, 0.03, z), tool_high=(x, 0.03, z), tool_radius=0.009, tool_components=(1,),
+                  probe="sphere", displacements=[[(0, -d, 0) for d in depths]], target=(0.03, 0.015, 0.03))
     solution = solve_scene(scene, (10, 5, 10), model="baudet-hyperelastic", check_stability=False)
     assert solution.converged.all()
-    force = -solution.force[-1, 1]
-    closed = hertz(depth, 0.009, 5e3, 0.45)
-    assert 0.95 * closed < force < 1.05 * closed * bonded_layer_factor(depth, 0.009, 0.03, 0.45)
+    error = -solution.force[:, 1] / axisymmetric_forces(depths, 0.009, 0.03, CYLINDERS["equal_area"], young_modulus,
+                                                        poisson_ratio) - 1.0
+    assert abs(error[0]) < 0.11 and np.all(np.abs(error[1:]) < 0.08), error

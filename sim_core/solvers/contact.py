@@ -39,12 +39,14 @@ its value at the node less the hat's second moment over 2R, (hx^2 + hz^2) / (12 
 first-order projection imposes the sphere as if it were that much shallower (0.67 mm at Palpation's
 6 mm cells with the 9 mm sphere: a 2 mm press imposed as 1.33 mm, its force 41% under a converged
 reference). A projected sphere adds it back over the quadrature points it covers (``Probe``'s
-``curvature_corrected``, default; ``curvature_offsets``): the nodes under the sphere get its own
-height (exact for a quadratic indentation, 31 um from the sphere at 4 mm on 3 mm cells), the rim
-stays the projection's, smooth wherever the nodes fall (docs/physics.md section 16,
-benchmarks/indentation_reference.py). It displaces more than the probe's volume (the rim's share is
-not taken back): what it gets right is the nodes' indentation under the probe. Its force against a
-converged reference, per depth: docs/physics.md section 16 (``python -m benchmarks.indentation_reference``).
+``curvature_corrected``, default; ``curvature_offsets``), and with it the cells' interpolation
+deficit: the bilinear surface through nodes on the sphere lies above it inside each cell by the
+same amount on average, so over Hertz's contact area (a^2 = R d) each cell's nodes are lowered by
+it, the consistent (mortar) L2 projection: the surface then has the sphere's mean indentation over
+each contact cell, its nodes (hx^2 + hz^2) / (12 R) below the sphere; the rim stays the
+projection's, smooth wherever the nodes fall (docs/physics.md section 16). Its force against an
+independent axisymmetric reference and the extrapolated meshes, per depth and probe position:
+docs/physics.md section 16 (``python -m benchmarks.indentation_reference``).
 
 All functions work on one block ((n, 3) positions) or a stack of copies ((N, n, 3) positions with
 per-copy probe tips (N, 3)). SI units: m, N, m/s.
@@ -260,19 +262,30 @@ class Probe:
 
 def curvature_offsets(positions, tips, weights, offsets, reference, radii):
     """(N, A) m: how much deeper than the hat-weighted average of its indentation a node's bound
-    must be for the projection to impose a sphere's indentation exactly at the node, for A nodes'
+    must be for the projection to impose a sphere's indentation consistently, for A nodes'
     ``positions`` (N, A, 3) m with their quadrature ``weights`` (A, Q), ``offsets`` (1 or N, Q, 2) m
     and ``reference`` heights (N, A) m, the spheres' ``tips`` (N, 3) m and ``radii`` (1 or N,) m.
 
-    Derivation: near the tip the indentation is the paraboloid w(x) = d - |x - x_tip|^2 / (2R), so
-    over a node's support its hat average is w(x_a) + sum_q w_q (o_q . grad w) + 1/2 sum_q w_q o_q^T
-    (Hess w) o_q = w(x_a) - sum_q w_q |o_q|^2 / (2R) (the first moment of the symmetric hat is zero,
-    Hess w = -I / R): the lumped projection imposes the sphere raised by the hat's second moment over
-    2R, (hx^2 + hz^2) / (12 R) for full bilinear hats of sides hx, hz (0.67 mm for Palpation's 6 mm
-    cells and 9 mm sphere: a 2 mm press imposed as 1.33 mm, F ~ d^1.5 then 46% short). Adding it
-    back, over the quadrature points the sphere covers (Hess w = 0 outside: a node at the rim gets
-    the covered part only), makes the projection exact for quadratic indentations (the nodal
-    values of the sphere wherever the nodes fall) while keeping its smooth rim."""
+    Derivation (docs/physics.md section 16): near the tip the indentation is the paraboloid
+    w(x) = d - |x - x_tip|^2 / (2R). Two terms, each a second moment over 2R:
+
+    - nodal: over a node's support the hat average of w is w(x_a) + sum_q w_q (o_q . grad w) +
+      1/2 sum_q w_q o_q^T (Hess w) o_q = w(x_a) - sum_q w_q |o_q|^2 / (2R) (the symmetric hat's first
+      moment is zero, Hess w = -I / R). Added back over the quadrature points the sphere's footprint
+      covers (Hess w = 0 outside it) it bounds the nodes under the sphere by the sphere itself;
+    - cell: the bilinear surface through nodes on the sphere lies above it inside each cell by the
+      interpolation bubble (xi (hx - xi) + zeta (hz - zeta)) / (2R) (xi, zeta from a corner), whose
+      cell mean is (hx^2 + hz^2) / (12 R). The consistent (mortar) L2 projection, whose nodal values
+      give each cell the sphere's mean indentation, lowers a cell's nodes by that mean. It is taken
+      over the part of the cell in contact, Hertz's a^2 = R d (half the area of the geometric
+      footprint: around the contact the tissue sinks away from the sphere): the midpoint mean of
+      the bubble over the cell's quadrature points, each counted by the share of its square inside
+      that circle (so the bound moves continuously as a node slides), and each node gets its cells'
+      means weighted by its hat.
+
+    A node whose support lies in the contact is then bounded (hx^2 + hz^2) / (12 R) below the sphere
+    (0.67 mm at Palpation's 6 mm cells and 9 mm sphere), exact for a quadratic indentation; the rim
+    keeps the projection's smooth spread. Both terms vanish as h^2."""
     radius = radii[:, None]  # (1 or N, 1)
     x = positions[:, :, None, 0] + offsets[:, None, :, 0]  # (N, A, Q)
     z = positions[:, :, None, 2] + offsets[:, None, :, 1]
@@ -280,7 +293,19 @@ def curvature_offsets(positions, tips, weights, offsets, reference, radii):
     depth = np.minimum(reference - tips[:, None, 1], radius)  # the sphere's depth under each node's reference
     covered = (depth[:, :, None] > 0) & (r2 <= (depth * (2.0 * radius - depth))[:, :, None])
     moment = weights[None] * (offsets[:, None, :, 0] ** 2 + offsets[:, None, :, 1] ** 2)  # (1 or N, A, Q)
-    return np.sum(np.where(covered, moment, 0.0), axis=2) / (2.0 * radius)
+    nodal = np.sum(np.where(covered, moment, 0.0), axis=2)
+    across, along = np.abs(offsets[..., 0]), np.abs(offsets[..., 1])  # (1 or N, Q): from the node, the cell's corner
+    sides = [a.max(axis=1, keepdims=True) + a.min(axis=1, keepdims=True) for a in (across, along)]  # hx, hz (midpoints)
+    bubble = across * (sides[0] - across) + along * (sides[1] - along)  # (1 or N, Q) m^2
+    cells = (2 * (offsets[..., 0] > 0) + (offsets[..., 1] > 0))[..., None] == np.arange(4)  # (1 or N, Q, 4)
+    # the share of each quadrature point's square (side: the points' spacing) inside Hertz's contact,
+    # a^2 = R d, to first order in the spacing: continuous as the nodes slide (held heights settle)
+    spacing = np.sqrt(4.0 * across.min(axis=1) * along.min(axis=1))[:, None, None]  # (1 or N, 1, 1)
+    contact_radius = np.sqrt(np.maximum(depth * radius, 0.0))[:, :, None]
+    inside = np.clip((contact_radius - np.sqrt(r2)) / spacing + 0.5, 0.0, 1.0) * (depth[:, :, None] > 0)
+    means = (inside * bubble[:, None, :]) @ (cells / cells.sum(axis=1, keepdims=True))  # (N, A, 4)
+    shares = weights[None] @ cells  # (1 or N, A, 4): each node's hat weight on its four cells
+    return (nodal + np.sum(means * shares, axis=2)) / (2.0 * radius)
 
 
 def gap(obstacle, positions, tip=None, surface=None):
