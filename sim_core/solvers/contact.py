@@ -28,8 +28,8 @@ feels a probe pressed over a node on that node alone and one pressed between nod
 them: at a 7.5 mm spacing (Palpation's earlier (8, 4, 8)) a 9 mm sphere 4 mm deep displaces
 0.58x its volume over a node and 1.33x between four (tests/test_contact.py), and held presses
 read a homogeneous slab 1.47 max/min over one node period. Projected, it displaces its own
-volume within 1.3% wherever the nodes fall, held presses read the slab within 1.12
-(benchmarks/palpation_map.py; 1.13 at Palpation's default (10, 5, 10)), and Palpation's fine
+volume within 1.3% wherever the nodes fall, held presses read the slab within 1.05
+at Palpation's default (10, 5, 10) (benchmarks/palpation_map.py), and Palpation's fine
 model converges to 5.7 / 9.9 / 7.6% (force / target / volume, 10 against 12 elements across;
 benchmarks/env_accuracy.py). This is a lumped L2 (mortar-like) projection of the indentation: it
 bounds each node by the weighted indentation over its support instead of pointwise.
