@@ -190,7 +190,8 @@ class Probe:
     radius: float | np.ndarray
     tip: str = "sphere"
     projection: SurfaceProjection | None = None
-    #: Projected sphere: add back the curvature the hat average takes off (``curvature_offsets``)
+    #: Projected sphere: add back the curvature the hat average takes off and the cells' interpolation
+    #: deficit over the contact (``curvature_offsets``: the consistent projection)
     curvature_corrected: bool = True
     #: -1: the obstacle bounds y from above (the admissible side is y <= surface)
     side = -1.0
