@@ -13,6 +13,9 @@ benchmarks/results/cutting_dissection.json; single env, default keywords, one th
   model with copied nodes (stepped on its own model), against the median of the same steps of an
   uncut twin (the same env and seed, its blade held above the tissue) taken in alternation with them,
   so that a shared machine's load weighs on both alike;
+- why a step after a cut costs more: the linear solver's iterations per step (``solver_iterations``)
+  and the largest node speed of the cut world in those steps, against the twin's; and the same
+  ratio, iterations and speed after ``SETTLE`` more held steps (the cut tissue at rest);
 - memory: the scripted incision (every episode cuts, copies nodes and resets) ``--episodes``
   times in one process; the peak resident set size (VmHWM of /proc/self/status) after 20 episodes
   and at the end, and their ratio (the floor: less than 10% growth from 20 to 220 episodes).
@@ -21,6 +24,7 @@ Each timing is the median over ``--repeats`` episodes' steps. Results to ``--out
 """
 
 import argparse
+import os
 import platform
 import time
 
@@ -33,6 +37,8 @@ from training.common import write_json
 
 ENV_ID = "tissue_env/Incision-v0"
 MEMORY_FIRST = 20
+#: held steps after the timed ones before the settled ones (the cut tissue at rest)
+SETTLE = 150
 
 
 def peak_rss_mb() -> float:
@@ -48,10 +54,33 @@ def timed(env, action):
     return time.process_time() - start, result
 
 
-def episode_times(env, seed, held=10, twin=None):
+def solver_iterations(env) -> int:
+    """The implicit solver's iterations in ``env``'s last step (a cut world's own solver's)."""
+    integrator = env.unwrapped.worlds.integrator
+    own = integrator.own_solver(0)
+    return int(np.ravel((integrator if own is None else own).last_iterations)[0])
+
+
+def held_steps(env, twin, held, still):
+    """(CPU times, s, iterations, largest node speeds, m/s) of ``held`` steps of ``env`` with the blade
+    held still, and of ``twin``'s (None: none) in alternation with them: lists (env's, twin's)."""
+    times, iterations, speeds = ([], []), ([], []), ([], [])
+    for _ in range(held):
+        for side, stepped in enumerate((env, twin)):
+            if stepped is None:
+                continue
+            times[side].append(timed(stepped, still)[0])
+            iterations[side].append(solver_iterations(stepped))
+            speeds[side].append(float(np.abs(stepped.unwrapped.worlds.velocities[0]).max()))
+    return times, iterations, speeds
+
+
+def episode_times(env, seed, held=10, twin=None, details=None):
     """(before, cutting, after, uncut) lists of step CPU times, s, of one scripted incision: ``uncut``
     the steps of ``twin`` (an env of the same id, reset with the same seed, never cut; None: none)
-    timed in alternation with the ``after`` steps."""
+    timed in alternation with the ``after`` steps. ``details``: None, or a dict of lists that gets
+    the after steps' and the twin's iterations and node speeds, and those of ``held`` steps timed the
+    same way after ``SETTLE`` more (keys ``after_*``, ``uncut_*``, ``settled_*``, ``settled_uncut_*``)."""
     env.reset(seed=seed)
     still = np.zeros(3, np.float32)
     before = [timed(env, still)[0] for _ in range(held)]  # the blade 5 mm above the tissue: no cut
@@ -69,11 +98,24 @@ def episode_times(env, seed, held=10, twin=None):
         twin.reset(seed=seed)
         for _ in range(3):
             twin.step(still)
-    for _ in range(held):
-        after.append(timed(env, still)[0])
-        if twin is not None:
-            uncut.append(timed(twin, still)[0])
+    (after, uncut), iterations, speeds = held_steps(env, twin, held, still)
+    if details is not None and twin is not None:
+        keep(details, "", iterations, speeds)
+        for _ in range(SETTLE):
+            env.step(still)
+            twin.step(still)
+        times, iterations, speeds = held_steps(env, twin, held, still)
+        keep(details, "settled_", iterations, speeds, times)
     return before, cutting, after, uncut
+
+
+def keep(details, prefix, iterations, speeds, times=None):
+    """Add ``held_steps``' lists (env's, twin's) to ``details`` under ``prefix``."""
+    for side, name in enumerate(("after", "uncut")):
+        details.setdefault(f"{prefix}{name}_iterations", []).extend(iterations[side])
+        details.setdefault(f"{prefix}{name}_speed", []).extend(speeds[side])
+        if times is not None:
+            details.setdefault(f"{prefix}{name}_s", []).extend(times[side])
 
 
 def memory(env, episodes):
@@ -91,6 +133,14 @@ def memory(env, episodes):
     return first, peak_rss_mb(), successes
 
 
+def details_line(after_cut) -> str:
+    """The after-cut diagnosis in one line."""
+    return (f"{after_cut['iterations']:.1f} vs {after_cut['uncut_twin_iterations']:.1f} iterations, node speed "
+            f"{after_cut['max_node_speed']:.2g} m/s; after {after_cut['settled_after_steps']} more steps "
+            f"{after_cut['settled_ratio']:.2f}x, {after_cut['settled_iterations']:.1f} vs "
+            f"{after_cut['settled_uncut_twin_iterations']:.1f} iterations, {after_cut['settled_max_node_speed']:.2g} m/s")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=220)
@@ -103,9 +153,9 @@ def main(argv=None):
         parser.error(f"--episodes must be > {MEMORY_FIRST} and --repeats >= 1")
     env, twin = gym.make(env_id), gym.make(env_id)
     episode_times(env, 0, twin=twin)  # warm: kernels loaded, the start state solved
-    before, cutting, after, uncut = [], [], [], []
+    before, cutting, after, uncut, details = [], [], [], [], {}
     for seed in range(1, args.repeats + 1):
-        b, c, a, u = episode_times(env, seed, twin=twin)
+        b, c, a, u = episode_times(env, seed, twin=twin, details=details)
         before += b
         cutting += c
         after += a
@@ -118,6 +168,17 @@ def main(argv=None):
         step_s=step, cutting_step_s=cut, step_after_cut_s=later, uncut_twin_step_s=twin_step,
         cutting_step_in_env_steps=cut / step, step_after_cut_ratio=later / twin_step,
         steps_timed=dict(before=len(before), cutting=len(cutting), after=len(after), uncut_twin=len(uncut)),
+        after_cut=dict(
+            iterations=float(np.mean(details["after_iterations"])),
+            uncut_twin_iterations=float(np.mean(details["uncut_iterations"])),
+            max_node_speed=float(np.median(details["after_speed"])),
+            uncut_twin_max_node_speed=float(np.median(details["uncut_speed"])),
+            settled_after_steps=SETTLE,
+            settled_ratio=float(np.median(details["settled_after_s"]) / np.median(details["settled_uncut_s"])),
+            settled_iterations=float(np.mean(details["settled_after_iterations"])),
+            settled_uncut_twin_iterations=float(np.mean(details["settled_uncut_iterations"])),
+            settled_max_node_speed=float(np.median(details["settled_after_speed"])),
+            load_average=list(os.getloadavg())),
         memory=dict(episodes=args.episodes, peak_rss_mb_after_20=first, peak_rss_mb_at_end=last,
                     growth=last / first - 1.0, scripted_successes=successes,
                     wall_time_s=time.perf_counter() - start),
@@ -126,7 +187,7 @@ def main(argv=None):
     write_json(args.output, result)
     print(f"env step {step * 1e3:.2f} ms; cutting step {cut * 1e3:.1f} ms = {cut / step:.1f} env steps; "
           f"after a cut {later * 1e3:.2f} ms = {later / twin_step:.2f}x the uncut twin's {twin_step * 1e3:.2f} ms; "
-          f"peak RSS {first:.0f} MB after "
+          f"({details_line(result['after_cut'])}); peak RSS {first:.0f} MB after "
           f"{MEMORY_FIRST} episodes, {last:.0f} MB after {args.episodes} ({100 * (last / first - 1):+.1f}%)")
     return result
 

@@ -906,6 +906,17 @@ def cutting_section():
                          num(1e3 * d["uncut_twin_step_s"]) if "uncut_twin_step_s" in d else "-",
                          num(d["step_after_cut_ratio"]), d["memory"]["episodes"], num(d["memory"]["peak_rss_mb_after_20"]),
                          num(d["memory"]["peak_rss_mb_at_end"]), pct(d["memory"]["growth"])] for d, _, _ in data]), "\n"]
+    diagnosed = [d for d, _, _ in data if "after_cut" in d]
+    if diagnosed:  # why a step after a cut costs more: the solver's iterations and the tissue's motion
+        out += ["Why a step after a cut costs more (the same runs): the implicit solver's iterations per step "
+                "after the cut and the cut world's largest node speed, against the uncut twin's, in the timed "
+                "steps and again after more held steps (the cut tissue at rest).\n\n",
+                table(["env", "iterations after / twin", "node speed after (m/s)", "held steps more",
+                       "then after / twin", "then iterations after / twin", "then node speed (m/s)"],
+                      [[short_id(d["env_id"]), f"{num(a['iterations'])} / {num(a['uncut_twin_iterations'])}",
+                        f"{a['max_node_speed']:.2g}", a["settled_after_steps"], num(a["settled_ratio"]),
+                        f"{num(a['settled_iterations'])} / {num(a['settled_uncut_twin_iterations'])}",
+                        f"{a['settled_max_node_speed']:.2g}"] for d in diagnosed for a in [d["after_cut"]]]), "\n"]
     return out
 
 

@@ -21,8 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from .geometry.mesh import HexMesh
 from .geometry.tetmesh import TET_FACES, TetMesh
@@ -133,16 +131,22 @@ def _corner_edges(elements, pairs):
     return a[rows] * n + i, b[rows] * n + j
 
 
-def _components(size, edges):
-    graph = sp.coo_matrix((np.ones(len(edges[0])), edges), shape=(size, size))
-    return connected_components(graph, directed=False)[1]
-
-
-def _first_slots(component, size):
-    """(size,) each slot's component's lowest slot."""
-    first = np.full(component.max() + 1, size, dtype=np.int64)
-    np.minimum.at(first, component, np.arange(size))
-    return first[component]
+def _lowest_slots(size, edges):
+    """(size,) for each of ``size`` slots the lowest slot of its connected component in the graph of
+    ``edges`` (two (E,) arrays): the lowest label spread along the edges, each label then replaced by
+    its own (pointer jumping) until nothing changes. A cut's edges join the corners of one node (at
+    most 8 for hexahedra), so a few passes do it, without building a sparse graph."""
+    label = np.arange(size, dtype=np.int64)
+    first, second = (np.asarray(side, dtype=np.int64) for side in edges)
+    while True:
+        low = np.minimum(label[first], label[second])
+        spread = label.copy()
+        np.minimum.at(spread, first, low)
+        np.minimum.at(spread, second, low)
+        spread = spread[spread]
+        if np.array_equal(spread, label):
+            return label
+        label = spread
 
 
 def _split_nodes(mesh, shared, joined):
@@ -155,12 +159,12 @@ def _split_nodes(mesh, shared, joined):
     count, n = elements.shape
     size = count * n
     node_of_slot = elements.ravel()
-    before = _first_slots(_components(size, _corner_edges(elements, shared)), size)
+    before = _lowest_slots(size, _corner_edges(elements, shared))
     # each node's groups before the cut, joined to its first group (a node-only contact stays one node)
     groups = _unique_pairs(node_of_slot, before, size)  # (node, group's first slot), sorted
     first_of_node = groups[np.searchsorted(groups[:, 0], groups[:, 0]), 1]
     cut_a, cut_b = _corner_edges(elements, joined)
-    after = _first_slots(_components(size, (np.r_[cut_a, groups[:, 1]], np.r_[cut_b, first_of_node])), size)
+    after = _lowest_slots(size, (np.r_[cut_a, groups[:, 1]], np.r_[cut_b, first_of_node]))
     # one node per (original node, group after the cut): the group with the node's lowest corner
     # keeps the node's index, the others are copies appended in (node, first corner) order
     kept = _unique_pairs(node_of_slot, after, size)

@@ -135,3 +135,70 @@ def test_unique_keys_is_numpys_unique():
     np.testing.assert_array_equal(values, expected)
     np.testing.assert_array_equal(inverse, expected_inverse)
     assert unique_keys(np.zeros(0, dtype=np.int64)).size == 0
+
+
+def superlu_fill(indptr, indices, nb):
+    """(U indptr, U indices) of SuperLU's LU without pivoting of the symmetric pattern (A + A^T, a
+    dominant diagonal, generic values: no cancellation), rows sorted: the reference fill."""
+    generic = np.random.default_rng(1).uniform(0.1, 1.0, len(indices))
+    matrix = sp.csr_matrix((generic, indices, indptr), shape=(nb, nb))
+    matrix = (matrix + matrix.T + sp.diags(np.full(nb, 4.0 * nb))).tocsc()
+    lu = sp.linalg.splu(matrix, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    assert np.array_equal(lu.perm_c, np.arange(nb)) and np.array_equal(lu.perm_r, np.arange(nb))
+    upper = lu.U.tocsr()
+    upper.sort_indices()
+    return upper.indptr, upper.indices
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_symbolic_fill_is_superlus(seed):
+    from sim_core import kernels
+    rng = np.random.default_rng(seed)
+    nb = int(rng.integers(20, 120))
+    rows, columns = rng.integers(0, nb, (2, 3 * nb))
+    keys = unique_keys(np.concatenate([rows * nb + columns, columns * nb + rows, np.arange(nb) * (nb + 1)]))
+    indptr = np.zeros(nb + 1, np.int64)
+    np.cumsum(np.bincount(keys // nb, minlength=nb), out=indptr[1:])
+    u_indptr, u_indices = kernels.symbolic_fill(indptr, keys % nb, nb)
+    expected_indptr, expected_indices = superlu_fill(indptr, keys % nb, nb)
+    assert len(u_indices) > len(keys) // 2 + nb // 2  # the pattern fills
+    np.testing.assert_array_equal(u_indptr, expected_indptr)
+    np.testing.assert_array_equal(u_indices, expected_indices)
+
+
+@pytest.mark.parametrize("spare", [0, 5])
+def test_the_hourglass_layout_read_off_the_pattern_is_the_bsr_conversions(spare):
+    from sim_core.models.forces import hourglass_block_map
+    mesh, cut = cut_mesh(HexMesh)
+    model = with_spare_nodes(build_model(cut, MATERIAL, hourglass_control=1.0), cut.n_nodes + spare)
+    layout, converted = hourglass_block_map(model.hourglass, model.pattern), hourglass_block_map(model.hourglass)
+    for got, expected in zip(layout, converted):
+        np.testing.assert_array_equal(got, expected)
+        assert got.dtype == expected.dtype
+
+
+@pytest.mark.parametrize("kind", [HexMesh, TetMesh])
+def test_a_cuts_nodes_are_the_connected_corner_groups(kind):
+    """Each node of a cut model is one connected group (scipy's connected components) of its
+    original's element corners joined through the uncut faces."""
+    from scipy.sparse.csgraph import connected_components
+    mesh = kind.block((4, 3, 2), 0.01)
+    uncut = build_model(mesh, MATERIAL)
+    shared = cutting.shared_faces(mesh)
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        faces = shared[rng.random(len(shared)) < 0.3]
+        cut = cutting.separation(uncut, faces)
+        kept = shared[~np.isin(shared[:, 0] * mesh.n_elements + shared[:, 1], faces[:, 0] * mesh.n_elements
+                               + faces[:, 1])]
+        n = mesh.elements.shape[1]
+        a, b = kept[:, 0], kept[:, 1]
+        row, i, j = np.nonzero(mesh.elements[a][:, :, None] == mesh.elements[b][:, None, :])
+        size = mesh.elements.size
+        graph = sp.coo_matrix((np.ones(len(row)), (a[row] * n + i, b[row] * n + j)), shape=(size, size))
+        group = connected_components(graph, directed=False)[1]
+        node = cut.model.mesh.elements.ravel()
+        # corners of one group share a node; corners of one original in two groups do not (but for
+        # groups that touched before the cut at a node only, which stay one node)
+        assert all(len(np.unique(node[group == g])) == 1 for g in np.unique(group))
+        np.testing.assert_array_equal(cut.origin[node], mesh.elements.ravel())

@@ -97,7 +97,7 @@ from .factor import (  # noqa: F401
     block_ldl_factor, block_ldl_solve, block_ldl_solve_one, block_lu_apply, block_lu_factor, block_lu_solve,
     capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply,
     factor_copies, factor_copies_serial, inverse_columns_copies, inverse_columns_copies_serial, lu_apply,
-    lu_columns, set_list_items,
+    lu_columns, set_list_items, symbolic_fill,
 )
 from .krylov_copies import (  # noqa: F401
     bsr3_matvec_add_rows, inverse_diagonal, jacobi_copies, jacobi_copies_serial, solve_copies_grouped,

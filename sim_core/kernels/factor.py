@@ -724,3 +724,50 @@ def set_list_items(first, second, index, first_value, second_value):
     in every process (about 0.4 s at the first factorisation of an env's life)."""
     first[index] = first_value
     second[index] = second_value
+
+
+@njit(cache=True, nogil=True)
+def symbolic_fill(indptr, indices, nb):
+    """The block fill pattern of a symbolic LU (or Cholesky) factor without pivoting of a structurally
+    symmetric matrix of ``nb`` block rows (CSR ``indptr``, ``indices``; the diagonal is taken as
+    present): (U indptr (nb + 1,), U indices, each row sorted). U's row k holds A's entries right of
+    the diagonal in row k and those of the rows of k's children in the elimination tree (the rows
+    whose first off-diagonal entry is k) right of k; L's pattern is its transpose."""
+    head = np.full(nb, -1, np.int64)  # each row's first child in the elimination tree, then their siblings
+    sibling = np.full(nb, -1, np.int64)
+    mark = np.full(nb, -1, np.int64)
+    row = np.empty(nb, np.int64)
+    u_indptr = np.zeros(nb + 1, np.int64)
+    u_indices = np.empty(max(2 * len(indices), nb), np.int64)
+    for k in range(nb):
+        count = 1
+        row[0] = k
+        mark[k] = k
+        for p in range(indptr[k], indptr[k + 1]):
+            j = indices[p]
+            if j > k and mark[j] != k:
+                mark[j] = k
+                row[count] = j
+                count += 1
+        child = head[k]
+        while child != -1:
+            for q in range(u_indptr[child], u_indptr[child + 1]):
+                j = u_indices[q]
+                if j > k and mark[j] != k:
+                    mark[j] = k
+                    row[count] = j
+                    count += 1
+            child = sibling[child]
+        ordered = np.sort(row[:count])
+        start = u_indptr[k]
+        if start + count > len(u_indices):
+            grown = np.empty(2 * (start + count), np.int64)
+            grown[:start] = u_indices[:start]
+            u_indices = grown
+        u_indices[start:start + count] = ordered
+        u_indptr[k + 1] = start + count
+        if count > 1:
+            parent = ordered[1]
+            sibling[k] = head[parent]
+            head[parent] = k
+    return u_indptr, u_indices[:u_indptr[nb]].copy()

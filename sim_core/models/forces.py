@@ -112,17 +112,38 @@ def spring_state(model: Model, positions: np.ndarray) -> tuple[SpringState, np.n
 _CORRECTION_KIND = {None: 0, "projected": 1, "fixed": 2}
 
 
-def hourglass_block_map(matrix):
+def hourglass_block_map(matrix, pattern=None):
     """The node-block (BSR, 3 x 3) layout of a CSR matrix with 3 dofs per node: (block indptr
     (N + 1,), block columns (nb,), positions (9 nb,) int64: the index in ``matrix.data`` of each
     row-major block value, -1 for the zeros a block adds). Values of another matrix of the same
     pattern are ``data[positions]`` where positions >= 0 (``sim_core.solvers.implicit``'s per-copy
-    hourglass values)."""
+    hourglass values). ``pattern``: None, or the model's ``sparse.BlockPattern``: a matrix that holds
+    its first entries (a hexahedral model's hourglass matrix, assembled on it) takes the layout from
+    its blocks, without a BSR conversion (a cut builds two per model)."""
+    layout = None if pattern is None else _pattern_block_map(matrix, pattern)
+    if layout is not None:
+        return layout
     probe = sp.csr_matrix((np.arange(1.0, matrix.nnz + 1.0), matrix.indices, matrix.indptr), shape=matrix.shape)
     blocks = sp.bsr_matrix(probe, blocksize=(3, 3))
     blocks.sort_indices()
     return (blocks.indptr.astype(np.int64), blocks.indices.astype(np.int64),
             blocks.data.reshape(-1).astype(np.int64) - 1)
+
+
+def _pattern_block_map(matrix, pattern):
+    """``hourglass_block_map`` of ``matrix`` when it holds exactly ``pattern``'s entries of its first
+    node rows (the rows after them empty), else None."""
+    indptr, indices, count = matrix.indptr, matrix.indices, matrix.nnz
+    rows = int(np.argmax(indptr == count))
+    if (matrix.shape != (pattern.n_dofs, pattern.n_dofs) or rows % 3 or count > pattern.nnz
+            or int(pattern.indptr[rows]) != count or not np.array_equal(indptr[:rows + 1], pattern.indptr[:rows + 1])
+            or not np.array_equal(indices, pattern.indices[:count])):
+        return None
+    blocks = int(pattern.block_indptr[rows // 3])
+    block_indptr = np.minimum(pattern.block_indptr, blocks).astype(np.int64)
+    node = np.repeat(np.arange(rows // 3), np.diff(block_indptr[:rows // 3 + 1]))
+    positions = pattern.block_positions(node, pattern.block_keys[:blocks] % pattern.n_nodes)
+    return block_indptr, (pattern.block_keys[:blocks] % pattern.n_nodes).astype(np.int64), positions.reshape(-1)
 
 
 def hourglass_blocks(model: Model):
@@ -139,7 +160,7 @@ def hourglass_blocks(model: Model):
 def _hourglass_blocks(model: Model):
     if model.hourglass is None:
         return None
-    indptr, indices, positions = hourglass_block_map(model.hourglass)
+    indptr, indices, positions = hourglass_block_map(model.hourglass, model.__dict__.get("pattern"))
     values = np.zeros(len(positions))
     stored = positions >= 0
     values[stored] = model.hourglass.data[positions[stored]]

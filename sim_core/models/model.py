@@ -143,9 +143,8 @@ class Model:
     def spring_positions(self) -> np.ndarray:
         """(S, 4, 3, 3) the pattern positions of each spring's blocks (a, a), (b, b), (a, b), (b, a)."""
         a, b = self.springs[:, 0], self.springs[:, 1]
-        pattern = self.pattern
-        return np.stack([pattern.block_positions(a, a), pattern.block_positions(b, b),
-                         pattern.block_positions(a, b), pattern.block_positions(b, a)], axis=1)
+        positions = self.pattern.block_positions(np.stack([a, b, a, b], axis=1), np.stack([a, b, b, a], axis=1))
+        return np.ascontiguousarray(positions)
 
     @functools.cached_property
     def element_positions(self) -> np.ndarray:

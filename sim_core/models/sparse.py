@@ -122,10 +122,22 @@ class BlockPattern:
     def _blocks(self, a, b) -> np.ndarray:
         """The index of each node-pair block (a, b) among ``block_keys``; raises if one is outside."""
         keys = a * self.n_nodes + b
-        found = _sorted_index(self.block_keys, keys, self.n_nodes * self.n_nodes)
+        bound = self.n_nodes * self.n_nodes
+        if bound > DENSE_LOOKUP:
+            found = _sorted_index(self.block_keys, keys, bound)
+        else:  # the dense table, built once per pattern (a cut model's pattern is asked 5 times)
+            table = self.__dict__.get("_table")
+            if table is None:
+                table = self._table = _lookup_table(self.block_keys, bound)
+            found = table[np.clip(keys, 0, bound)]
         if not np.array_equal(self.block_keys[found], keys):
             raise ValueError("entry outside the fixed sparsity pattern")
         return found
+
+    def __getstate__(self):  # the lookup table is rebuilt on first use, not copied or pickled
+        state = dict(self.__dict__)
+        state.pop("_table", None)
+        return state
 
     def csr_positions(self, indptr, indices) -> np.ndarray:
         """(nnz,) the positions in ``data`` of the entries of a CSR matrix (``indptr``, ``indices``) of
@@ -252,12 +264,17 @@ def _sorted_index(keys, wanted, bound):
     [0, ``bound``)), clipped to the last key where it is missing (the caller checks): a dense table
     when ``bound`` is small (a cut's small systems: a binary search per entry was a noticeable part
     of a cut's factorisation), else ``np.searchsorted``."""
-    last = max(len(keys) - 1, 0)
     if bound > DENSE_LOOKUP:
-        return np.minimum(np.searchsorted(keys, wanted), last)
-    table = np.full(bound + 1, last, dtype=np.int64)
+        return np.minimum(np.searchsorted(keys, wanted), max(len(keys) - 1, 0))
+    return _lookup_table(keys, bound)[np.clip(wanted, 0, bound)]
+
+
+def _lookup_table(keys, bound):
+    """(bound + 1,) ``_sorted_index``'s dense table: the index of each value in ``keys`` (sorted,
+    distinct, in [0, ``bound``)), the last key's elsewhere."""
+    table = np.full(bound + 1, max(len(keys) - 1, 0), dtype=np.int32 if len(keys) < 2**31 else np.int64)
     table[keys] = np.arange(len(keys))
-    return table[np.clip(wanted, 0, bound)]
+    return table
 
 
 def block_structure(matrix, free, orderings=NODE_ORDERINGS[:1]):
@@ -311,23 +328,16 @@ def _ordered_fill(block_row, block_col, nb, node_order):
     a_indptr = np.zeros(nb + 1, np.int64)
     np.cumsum(np.bincount(keys // nb, minlength=nb), out=a_indptr[1:])
     a_indices = (keys % nb).astype(np.int64)
-    # block fill: a symbolic LU of the permuted node graph (generic values, no cancellation)
-    generic = np.random.default_rng(0).uniform(0.1, 1.0, len(keys))
-    permuted = sp.csr_matrix((generic, a_indices, a_indptr), shape=(nb, nb))
-    permuted = (permuted + permuted.T + sp.diags(np.full(nb, 4.0 * nb))).tocsc()
-    lu = spla.splu(permuted, permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    identity = np.arange(nb)
-    if not (np.array_equal(lu.perm_r, identity) and np.array_equal(lu.perm_c, identity)):
-        raise np.linalg.LinAlgError("the symbolic node-block LU pivoted")
-    lower, upper = lu.L.tocsr(), lu.U.tocsr()
-    lower.sort_indices()
-    upper.sort_indices()
-    if not (np.array_equal(lower.indices[lower.indptr[1:] - 1], identity)
-            and np.array_equal(upper.indices[upper.indptr[:-1]], identity)):
-        raise np.linalg.LinAlgError("node-block LU without its diagonal blocks")
-    l_indptr, l_indices = lower.indptr.astype(np.int64), lower.indices.astype(np.int64)
-    u_indptr, u_indices = upper.indptr.astype(np.int64), upper.indices.astype(np.int64)
+    # block fill: the symbolic factor of the permuted node graph made symmetric (``kernels.symbolic_fill``,
+    # the elimination tree's row unions: the pattern a numeric LU without pivoting fills), L its transpose
+    both = unique_keys(np.concatenate([keys, (keys % nb) * nb + keys // nb]))
+    indptr = np.zeros(nb + 1, np.int64)
+    np.cumsum(np.bincount(both // nb, minlength=nb), out=indptr[1:])
+    u_indptr, u_indices = kernels.symbolic_fill(indptr, both % nb, nb)
     u_row = np.diff(u_indptr)
+    l_indptr = np.zeros(nb + 1, np.int64)
+    np.cumsum(np.bincount(u_indices, minlength=nb), out=l_indptr[1:])
+    l_indices = np.repeat(np.arange(nb, dtype=np.int64), u_row)[np.argsort(u_indices, kind="stable")]
     off_diagonal = np.delete(l_indices, l_indptr[1:] - 1)
     products = int(u_row[off_diagonal].sum())
     return node_order, a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, products

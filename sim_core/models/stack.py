@@ -324,7 +324,8 @@ class StackedForceWorkspace(ForceWorkspace):
             if self._block_map is None:  # the position in the CSR data of each block entry (-1: none)
                 single = stack.reference.hourglass
                 self._block_map = ((np.zeros(stack.n_nodes + 1, np.int64), np.zeros(0, np.int64),
-                                    np.zeros(0, np.int64)) if single is None else hourglass_block_map(single))
+                                    np.zeros(0, np.int64)) if single is None
+                                   else hourglass_block_map(single, stack.reference.__dict__.get("pattern")))
             indptr, indices, positions = self._block_map
             hg_rows = stack.copies_last()["hourglass"].T
             values = np.zeros((len(hg_rows), len(positions)))
