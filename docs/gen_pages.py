@@ -787,7 +787,7 @@ def env_contact_section():
                    + (["refused at reset: " + r["refused"], "", "", "", "", ""] if "refused" in r else
                       [pct(r["share_at_bound"]), f"{r['max_strain_percent']:.0f}", r["unreported_clipped_steps"],
                        num(r["max_abs_reward"]), f"{r['scripted_successes']} / {r['seeds']}",
-                       num(r["scripted_peak_tool_force_N"])])
+                       num(r.get("scripted_peak_tool_force_N"))])
                    for r in load("material_range.json")["results"]]), "\n"]
 
 

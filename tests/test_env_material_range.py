@@ -62,3 +62,20 @@ def test_stiff_tissue_is_held_by_a_retractor_and_the_scripted_retraction_succeed
 def test_an_unknown_instrument_raises_value_error(value):
     with pytest.raises(ValueError, match="grasp_force_limit.*retractor"):
         gym.make("tissue_env/Retraction-v0", grasp_force_limit=value)
+
+
+def test_a_vector_env_gives_each_copy_the_instrument_of_its_own_tissue():
+    """Copies drawing E from 20 to 200 kPa (nu 0.49), their edges pulled straight up at full
+    speed: a copy on tissue stiffer than 100 kPa holds every node with its retractor, a softer one's
+    5 N grasper never reports more than 5 N."""
+    env = gym.make_vec("tissue_env/Retraction-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                       young_modulus_range=(2e4, 2e5), poisson_ratio=0.49)
+    _, info = env.reset(seed=3)
+    stiff = info["young_modulus"] > 1e5
+    assert stiff.any() and not stiff.all()
+    for _ in range(2):
+        _, _, _, _, info = env.step(np.tile([0.0, 1.0, 0.0], (4, 1)).astype(np.float32))
+        assert np.all(info["grasped_nodes"][stiff] == 21)
+        assert np.all(info["tension"][~stiff] <= 5.0 + 1e-9)
+    assert np.any(info["tension"][stiff] > 5.0)
+    env.close()

@@ -180,8 +180,9 @@ class BimanualExposureEnv(RetractionEnv):
 
     Each grasp holds up to ``grasp_force_limit``: by default (``"auto"``) Retraction's instruments,
     a 5 N grasper on tissue up to 100 kPa (``GRASP_SLIP_FORCE``: Heijnsdijk et al. 2004) and a
-    retractor that does not slip on stiffer tissue (``RETRACTOR_MODULUS``). Past the limit, the held nodes slip out of the jaws one after the other, the most loaded
-    first (``Grasper.slip``), so a tool never reports more than the limit while it holds. A lost
+    retractor that does not slip on stiffer tissue (``RETRACTOR_MODULUS``). Past the limit, the
+    held nodes slip out of the jaws one after the other, the most loaded first (``Grasper.slip``),
+    so a tool never reports more than the limit while it holds. A lost
     grasp does not end the episode; with ``grasp_commands=True`` the grasper may close again where
     its jaw is.
 
@@ -292,8 +293,9 @@ class BimanualExposureEnv(RetractionEnv):
     ``target_shift_range`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
     ``tension_weight``, ``grip_weight``, ``grip_margin``, ``success_exposure``, ``success_bonus``,
     ``grasp_force_limit`` (N, not scaled: the instrument's; default "auto", Retraction's choice by
-    E; "grasper": 5 N, Heijnsdijk et al., Surg Endosc 18:974-979, 2004; "retractor" or ``np.inf``: never slips), ``grasp_weight``, ``grasp_commands`` (default False: both grasps
-    closed on the edges from the start; True: they start open and the action ends with a grasp
+    E; "grasper": 5 N, Heijnsdijk et al., Surg Endosc 18:974-979, 2004; "retractor" or ``np.inf``:
+    never slips), ``grasp_weight``, ``grasp_commands`` (default False: both grasps closed on the
+    edges from the start; True: they start open and the action ends with a grasp
     command per tool),
     ``difficulty``; shape ``(nx, ny, nz)`` with an odd nx >= 5 (the middle column is the cleft);
     shared keywords in ``tissue_env.base.TissueEnv``. Domain randomisation: ``young_modulus_range``,

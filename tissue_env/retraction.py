@@ -28,9 +28,10 @@ GRASP_SLIP_FORCE = 5.0
 GRASP_INSTRUMENTS = dict(grasper=GRASP_SLIP_FORCE, retractor=np.inf)
 #: With ``grasp_force_limit="auto"`` (the default) the scene holds tissue up to this Young's modulus
 #: (Pa: soft organs, 1-100 kPa) with the grasper and stiffer tissue (cartilage-like, up to 1 MPa) with
-#: the retractor. Measured (``python -m benchmarks.material_range``): the scripted lift pulls its 6 x
-#: 0.8 x 3 cm flap with up to 7-28 N at 100 kPa (nu 0.3-0.49), where the 5 N grasper loses some of the
-#: edge's nodes but keeps enough to succeed, and with 66-275 N at 1 MPa, where it loses the whole edge.
+#: the retractor. Measured (``python -m benchmarks.material_range``, ``scripted_peak_tool_force_N``):
+#: at 100 kPa the 5 N grasper lets some of the edge's nodes slip but keeps enough for the scripted
+#: lift to succeed on every seed and nu; at 1 MPa the retractor holds 66-275 N (nu 0.3-0.49) in the
+#: scripted lift's first step, where the grasper loses the whole edge (tests/test_env_material_range.py).
 RETRACTOR_MODULUS = 1e5
 #: Where the grasper takes the flap (``grasp_point``): "edge", the whole free edge from the start, or
 #: "chosen", the nodes of the top face around the point the first action picks.
@@ -353,8 +354,9 @@ class RetractionEnv(TissueEnv):
     stiffer tissue (cartilage-like, up to 1 MPa), whose lifted edge pulls far harder than 5 N, a
     retractor, which holds the edge by its shape and does not slip (``episode_grasp_force_limit``:
     ``np.inf``). A number (N), ``"grasper"`` or ``"retractor"`` sets the instrument at every E.
-    Where the force on the grasped nodes passes the grasp's limit, they slip out of the jaws one after the other, the most loaded first, until the force
-    on those left is within the limit (``Grasper.slip``): the tool never reports more than the
+    Where the force on the grasped nodes passes the grasp's limit, they slip out of the jaws one
+    after the other, the most loaded first, until the force on those left is within the limit
+    (``Grasper.slip``): the tool never reports more than the
     limit while it holds, and the edge falls back where the grasp is lost. A lost grasp does not end
     the episode (the tool moves on, holding nothing); it costs ``reward_grasp``.
 
@@ -476,8 +478,9 @@ class RetractionEnv(TissueEnv):
     ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``, ``grasp_force_limit``
     (N, not scaled by E, a property of the instrument: the pull it holds before the edge slips out
     node by node, so a stiff flap pulled far loses it; default "auto": the grasper up to 100 kPa, the
-    retractor above, see the Description; "grasper": 5 N at every E, from Heijnsdijk et al., "Slip and damage properties of jaws of laparoscopic graspers", Surg
-    Endosc 18:974-979, 2004, whose graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
+    retractor above, see the Description; "grasper": 5 N at every E, from Heijnsdijk et al., "Slip
+    and damage properties of jaws of laparoscopic graspers", Surg Endosc 18:974-979, 2004, whose
+    graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
     al., Surg Endosc 18:980-985, 2004: 3.0 N of pinch prevented slip at that pull (at 1 MPa the scripted
     lift loses the whole edge with it: tests/test_env_material_range.py); "retractor" or ``np.inf``: a
     grasp that never slips), ``grasp_weight`` (the penalty of losing the whole grasp), ``grasp_point``
