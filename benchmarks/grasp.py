@@ -106,7 +106,7 @@ def retraction(limits=(0.02, 0.05, 0.2, None), steps=8):
         infos = [info] + [env.step(np.array([0.0, 1.0, 0.0], np.float32))[4] for _ in range(steps)]
         held = [int(i["grasped_nodes"]) for i in infos]
         force = [float(np.linalg.norm(i["tool_forces"][0])) for i in infos]
-        rows.append(dict(grasp_force_limit_N=env.unwrapped.grasp_force_limit, grasped_nodes=held,
+        rows.append(dict(grasp_force_limit_N=env.unwrapped.episode_grasp_force_limit, grasped_nodes=held,
                          tool_force_N=force, reward_grasp=[float(i["reward_grasp"]) for i in infos],
                          max_force_while_grasped_N=max(f for f, i in zip(force, infos) if i["grasped"][0]),
                          unstable=any(bool(i["unstable"]) for i in infos)))

@@ -11,7 +11,8 @@ observation space's bound: OBS_LIMIT, or FEATURE_LIMITS for the maximum spring s
 soft tissue stretched to more than twice its length passes 100% of), the largest maximum spring
 strain, the steps with an entry at its bound that ``info`` does not report as clipped
 (``observation_clipped``), and the largest |reward|; then the task's scripted controller runs one episode on each of
-``--seeds`` seeds (100, 101, ...) and its successes are counted. Written to ``--output`` (JSON,
+``--seeds`` seeds (100, 101, ...): its successes are counted, and the largest force on a tool in them (N,
+``info["tool_forces"]``; what a grasp held, for the tasks whose instrument may slip) recorded. Written to ``--output`` (JSON,
 replaced atomically); with ``--env`` naming some tasks, the other tasks' rows already in
 ``--output`` are kept.
 """
@@ -61,16 +62,18 @@ def measure(env_id, young_modulus, steps, seeds, poisson_ratio=None):
         largest = max(largest, abs(float(reward)))
         if terminated or truncated:
             env.reset()
-    successes = 0
+    successes, peak = 0, 0.0
     for seed in range(100, 100 + seeds):
         env.reset(seed=seed)
         terminated = truncated = False
         while not (terminated or truncated):
             _, _, terminated, truncated, info = env.step(env.unwrapped.scripted_action())
+            peak = max(peak, float(np.max(np.linalg.norm(info["tool_forces"], axis=-1), initial=0.0)))
         successes += bool(info["is_success"])
     env.close()
     return dict(row, share_at_bound=at_bound / entries, max_strain_percent=largest_strain,
-                unreported_clipped_steps=unreported, max_abs_reward=largest, scripted_successes=successes)
+                unreported_clipped_steps=unreported, max_abs_reward=largest, scripted_successes=successes,
+                scripted_peak_tool_force_N=peak)
 
 
 def main(argv=None):

@@ -775,14 +775,19 @@ def env_contact_section():
             "`sim_core.solvers.implicit`). At the soft end of the material range Retraction's flap, lifted by its "
             "clamped edge, stretches its springs beyond 100%, as neo-Hookean FEM on its mesh does: the "
             "maximum-strain entry (%) is bounded at 1000% (`tissue_env.worlds.FEATURE_LIMITS`), every other "
-            "entry at 100, and `info[\"observation_clipped\"]` reports any entry at its bound:\n\n",
+            "entry at 100, and `info[\"observation_clipped\"]` reports any entry at its bound. Retraction and "
+            "BimanualExposure hold tissue stiffer than 100 kPa with a retractor, which does not slip, instead of "
+            "the 5 N laparoscopic grasper (`grasp_force_limit=\"auto\"`, the default): the largest force on a "
+            "tool in the scripted episodes says why (with the grasper, at most its 5 N):\n\n",
             caption(command_for("material_range.py"), "material_range.json"), "\n",
             table(["env", "E (Pa)", "nu", "entries at their bound (%)", "largest max spring strain (%)",
-                   "unreported clipped steps", "largest abs(reward)", "scripted successes"],
+                   "unreported clipped steps", "largest abs(reward)", "scripted successes",
+                   "scripted peak tool force (N)"],
                   [[short_id(r["env_id"]), num(r["young_modulus"]), num(r.get("poisson_ratio", 0.45))]
-                   + (["refused at reset: " + r["refused"], "", "", "", ""] if "refused" in r else
+                   + (["refused at reset: " + r["refused"], "", "", "", "", ""] if "refused" in r else
                       [pct(r["share_at_bound"]), f"{r['max_strain_percent']:.0f}", r["unreported_clipped_steps"],
-                       num(r["max_abs_reward"]), f"{r['scripted_successes']} / {r['seeds']}"])
+                       num(r["max_abs_reward"]), f"{r['scripted_successes']} / {r['seeds']}",
+                       num(r.get("scripted_peak_tool_force_N"))])
                    for r in load("material_range.json")["results"]]), "\n"]
 
 

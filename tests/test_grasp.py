@@ -98,6 +98,23 @@ def test_slip_lets_the_most_loaded_nodes_go_first_until_the_force_is_within_the_
     np.testing.assert_array_equal(Grasper(0.01, 1e3).slip(forces, held), held)
 
 
+def test_one_limit_per_world_applies_to_every_grasp_of_that_world():
+    """Three worlds with two graspers each ((N, T, n) held nodes, the worlds' forces (N, 1, n, 3)) and
+    one limit per world, one of them np.inf (a grasp that never slips): each grasp slips as a
+    grasper with its world's scalar limit does, the unlimited world's not at all."""
+    rng = np.random.default_rng(1)
+    forces = rng.normal(size=(3, 1, 12, 3)) + [0.0, -1.0, 0.0]
+    held = np.stack([rng.random((3, 12)) < 0.5 for _ in range(2)], axis=1)
+    limits = np.array([1.0, np.inf, 2.5])
+    kept = Grasper(0.01, limits).slip(forces, held)
+    for world, limit in enumerate(limits):
+        for tool in range(2):
+            expected = Grasper(0.01, limit).slip(forces[world, 0], held[world, tool])
+            np.testing.assert_array_equal(kept[world, tool], expected)
+    np.testing.assert_array_equal(kept[1], held[1])
+    assert np.any(kept[0] != held[0])
+
+
 def test_pulling_past_the_limit_slips_node_by_node_and_never_holds_more_than_the_limit(block):
     """The patch pulled 1 cm up under a grasp limit of 0.25 N: nodes slip one or a few at a time over
     several steps (not all at once), the force on the nodes still held never passes the limit, and

@@ -8,7 +8,7 @@ from sim_core import HexMesh
 from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, check_range, check_work, difficulty_settings, nonnegative_scalar, positive_scalar
-from .retraction import GRASP_SLIP_FORCE, RetractionEnv, RetractionWorlds, flap_constraint, flap_footprint, grasp_limit
+from .retraction import RetractionEnv, RetractionWorlds, flap_constraint, flap_footprint, grasp_setting
 from .vector import TissueVectorEnv
 from .worlds import TaskWorlds
 
@@ -35,7 +35,8 @@ class BimanualExposureWorlds(RetractionWorlds):
         super().__init__(envs, threads)
         env, count, tools = self.task, self.num_envs, self.task.tool_count
         n = env.mesh.n_nodes
-        self.grasper = Grasper(env.grasp_radius, env.grasp_force_limit)
+        self.grasp_radius = env.grasp_radius
+        self.grasper = Grasper(self.grasp_radius, self.grasp_limits.copy())
         #: (T, n) bool the nodes each grasper may close on: the free edge of its flap
         self.candidates = env.edge_nodes
         #: (N, T, n) bool the nodes each world's graspers hold; (N, T, n, 3) m their anchors (position
@@ -46,7 +47,7 @@ class BimanualExposureWorlds(RetractionWorlds):
         self.held_count = np.zeros((count, tools), dtype=int)
         self.grasp_size = np.zeros((count, tools), dtype=int)
         self.target_points = np.zeros((count, TARGET_GRID[0] * TARGET_GRID[1], 2))
-        for name in ("grip_weight", "grip_margin", "grasp_force_limit"):
+        for name in ("grip_weight", "grip_margin"):
             setattr(self, name, getattr(env, name))
 
     def _load_task(self, index, env):
@@ -57,6 +58,7 @@ class BimanualExposureWorlds(RetractionWorlds):
         self.grasp_anchors[index] = np.where(env.held[..., None], rest[None], 0.0)
         self.held_count[index] = self.grasp_size[index] = env.held.sum(axis=-1)
         self._load_floor_scene(index, env)
+        self._load_grasp_limit(index, env)
 
     def _write_back_task(self, index, env):
         env.contact = self.contact[index].copy()
@@ -146,7 +148,7 @@ class BimanualExposureWorlds(RetractionWorlds):
 
     def _reward_terms(self, measures):
         tension, limit = self._tensions(measures), self._force_limits()[:, None]
-        near_slip = np.maximum(0.0, tension / self.grasp_force_limit - self.grip_margin) / (1.0 - self.grip_margin)
+        near_slip = np.maximum(0.0, tension / self.grasp_limits[:, None] - self.grip_margin) / (1.0 - self.grip_margin)
         terms = dict(
             exposure=measures["exposed_fraction"] - 1.0,
             tension=-self.tension_weight * np.sum(np.maximum(0.0, tension - limit) / limit, axis=1),
@@ -176,9 +178,11 @@ class BimanualExposureEnv(RetractionEnv):
     incision apart. The floor contact is Retraction's active set (a node the tissue pulls up is
     released, a node below the floor is put back on it).
 
-    Each grasp holds up to ``grasp_force_limit`` (default 5 N, ``GRASP_SLIP_FORCE``: Heijnsdijk et
-    al. 2004): past it, the held nodes slip out of the jaws one after the other, the most loaded
-    first (``Grasper.slip``), so a tool never reports more than the limit while it holds. A lost
+    Each grasp holds up to ``grasp_force_limit``: by default (``"auto"``) Retraction's instruments,
+    a 5 N grasper on tissue up to 100 kPa (``GRASP_SLIP_FORCE``: Heijnsdijk et al. 2004) and a
+    retractor that does not slip on stiffer tissue (``RETRACTOR_MODULUS``). Past the limit, the
+    held nodes slip out of the jaws one after the other, the most loaded first (``Grasper.slip``),
+    so a tool never reports more than the limit while it holds. A lost
     grasp does not end the episode; with ``grasp_commands=True`` the grasper may close again where
     its jaw is.
 
@@ -245,7 +249,7 @@ class BimanualExposureEnv(RetractionEnv):
     - ``reward_tension = -tension_weight * sum over tools of max(0, |F| - force_limit) / force_limit``
       (defaults 1 and 0.5 N at E = 5 kPa, scaled with the episode's E: tissue tension)
     - ``reward_grip = -grip_weight * sum over tools of max(0, |F| / grasp_force_limit - grip_margin)
-      / (1 - grip_margin)`` (defaults 1 and 0.8: a grasp pulled near its slip limit)
+      / (1 - grip_margin)`` (defaults 1 and 0.8: a grasp pulled near its slip limit; 0 with a retractor)
     - ``reward_success = success_bonus`` (default 5) on success
     - ``reward_grasp = -grasp_weight * sum over tools of the share of its nodes that slipped out in
       the step`` (default 5: losing a whole grasp costs what a success gains)
@@ -288,9 +292,10 @@ class BimanualExposureEnv(RetractionEnv):
     Task keywords: ``target_width`` (m, the strip's extent across the cleft, default 2 cm),
     ``target_shift_range`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
     ``tension_weight``, ``grip_weight``, ``grip_margin``, ``success_exposure``, ``success_bonus``,
-    ``grasp_force_limit`` (N, not scaled: the grasper's, default 5 N, Heijnsdijk et al., Surg Endosc
-    18:974-979, 2004; ``np.inf``: never slips), ``grasp_weight``, ``grasp_commands`` (default False: both grasps
-    closed on the edges from the start; True: they start open and the action ends with a grasp
+    ``grasp_force_limit`` (N, not scaled: the instrument's; default "auto", Retraction's choice by
+    E; "grasper": 5 N, Heijnsdijk et al., Surg Endosc 18:974-979, 2004; "retractor" or ``np.inf``:
+    never slips), ``grasp_weight``, ``grasp_commands`` (default False: both grasps closed on the
+    edges from the start; True: they start open and the action ends with a grasp
     command per tool),
     ``difficulty``; shape ``(nx, ny, nz)`` with an odd nx >= 5 (the middle column is the cleft);
     shared keywords in ``tissue_env.base.TissueEnv``. Domain randomisation: ``young_modulus_range``,
@@ -321,7 +326,7 @@ class BimanualExposureEnv(RetractionEnv):
 
     def __init__(self, *, target_width=0.02, target_shift_range=(-0.0025, 0.0025), force_limit=None,
                  tension_weight=1.0, grip_weight=1.0, grip_margin=0.8, success_exposure=None, success_bonus=5.0,
-                 grasp_force_limit=GRASP_SLIP_FORCE, grasp_weight=5.0, grasp_commands=False, difficulty="default",
+                 grasp_force_limit="auto", grasp_weight=5.0, grasp_commands=False, difficulty="default",
                  **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(force_limit=force_limit,
                                                                          success_exposure=success_exposure))
@@ -339,7 +344,7 @@ class BimanualExposureEnv(RetractionEnv):
         if self.success_exposure > 1:
             raise ValueError(f"success_exposure must lie in (0, 1], got {success_exposure!r}")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
-        self.grasp_force_limit = grasp_limit(grasp_force_limit)
+        self.grasp_force_limit = grasp_setting(grasp_force_limit)
         self.grasp_weight = nonnegative_scalar("grasp_weight", grasp_weight)
         if not isinstance(grasp_commands, (bool, np.bool_)):
             raise ValueError(f"grasp_commands must be True or False, got {grasp_commands!r}")

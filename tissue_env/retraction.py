@@ -21,6 +21,18 @@ _BOTTOM, _TOP = [0, 1, 5, 4], [3, 2, 6, 7]
 #: pinched 6.8 N against the 3.0 N that prevented slip (Heijnsdijk et al., Surg Endosc 18:980-985, 2004):
 #: 5 N is the pull a grasper is made and used to hold without slipping.
 GRASP_SLIP_FORCE = 5.0
+#: The instruments ``grasp_force_limit`` may name, with the pull (N) each holds before the tissue
+#: slips out: "grasper", the laparoscopic grasper (GRASP_SLIP_FORCE); "retractor", an instrument that
+#: holds the edge by its shape, not by friction between jaws (a retractor blade or hook behind the edge,
+#: a stay suture through it), so nothing slips out of it: np.inf.
+GRASP_INSTRUMENTS = dict(grasper=GRASP_SLIP_FORCE, retractor=np.inf)
+#: With ``grasp_force_limit="auto"`` (the default) the scene holds tissue up to this Young's modulus
+#: (Pa: soft organs, 1-100 kPa) with the grasper and stiffer tissue (cartilage-like, up to 1 MPa) with
+#: the retractor. Measured (``python -m benchmarks.material_range``, ``scripted_peak_tool_force_N``):
+#: at 100 kPa the 5 N grasper lets some of the edge's nodes slip but keeps enough for the scripted
+#: lift to succeed on every seed and nu; at 1 MPa the retractor holds 66-275 N (nu 0.3-0.49) in the
+#: scripted lift's first step, where the grasper loses the whole edge (tests/test_env_material_range.py).
+RETRACTOR_MODULUS = 1e5
 #: Where the grasper takes the flap (``grasp_point``): "edge", the whole free edge from the start, or
 #: "chosen", the nodes of the top face around the point the first action picks.
 GRASP_POINTS = ("edge", "chosen")
@@ -34,6 +46,28 @@ def grasp_limit(value) -> float:
         raise ValueError(f"grasp_force_limit must be a number > 0 in N (np.inf: a grasp that never slips; default "
                          f"{GRASP_SLIP_FORCE} N), got {value!r}")
     return limit
+
+
+def grasp_setting(value):
+    """``grasp_force_limit`` as a task keeps it: "auto" (the instrument chosen by the tissue's
+    stiffness, ``grasp_limits``), or a limit in N: a number > 0, ``np.inf`` or an instrument's name
+    (``GRASP_INSTRUMENTS``)."""
+    if isinstance(value, str):
+        if value != "auto" and value not in GRASP_INSTRUMENTS:
+            raise ValueError(f"grasp_force_limit must be a number > 0 in N, np.inf, 'auto' or an instrument of "
+                             f"{sorted(GRASP_INSTRUMENTS)}, got {value!r}")
+        return GRASP_INSTRUMENTS.get(value, value)
+    return grasp_limit(value)
+
+
+def grasp_limits(setting, young_modulus):
+    """The grasp force limits, N (shape of ``young_modulus``, Pa), of a ``grasp_setting``: with
+    "auto", the grasper's GRASP_SLIP_FORCE on tissue up to RETRACTOR_MODULUS and a retractor's
+    np.inf (no slip) on stiffer tissue."""
+    modulus = np.asarray(young_modulus, dtype=float)
+    if isinstance(setting, str):  # "auto"
+        return np.where(modulus > RETRACTOR_MODULUS, GRASP_INSTRUMENTS["retractor"], GRASP_INSTRUMENTS["grasper"])
+    return np.full(modulus.shape, float(setting))
 
 
 def flap_footprint(elements):
@@ -76,8 +110,11 @@ class RetractionWorlds(TaskWorlds):
         self._footprint = np.ascontiguousarray(env._footprint, dtype=np.int64)
         self._base_fixed = env.base_control.fixed
         self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each world's (size_range)
-        #: the grasper on the free edge: its jaws span the edge (``RetractionEnv.grasp_radius``)
-        self.grasper = Grasper(env.grasp_radius, env.grasp_force_limit)
+        #: the grasper on the free edge: its jaws span the edge (``RetractionEnv.grasp_radius``), each
+        #: world's holding up to its episode's limit (N, ``grasp_limits``: the instrument its tissue gets)
+        self.grasp_radius = env.grasp_radius
+        self.grasp_limits = np.full(count, GRASP_SLIP_FORCE)
+        self.grasper = Grasper(self.grasp_radius, self.grasp_limits.copy())
         #: (N, n) bool the nodes each world's grasper holds; (N, n, 3) m the positions of the nodes it
         #: closed on, when it closed (they follow the jaw's displacement, ``tool_offset``, from there);
         #: (N, 3) m the jaw's rest position; (N,) the nodes held after the last measurement
@@ -111,6 +148,12 @@ class RetractionWorlds(TaskWorlds):
         self.grasp_size[index] = self.held[index].sum()
         self.grasp_reach[index] = env.episode_size[0]
         self._load_floor_scene(index, env)
+        self._load_grasp_limit(index, env)
+
+    def _load_grasp_limit(self, index, env):
+        """World ``index``'s grasp force limit, N: its episode's instrument (``grasp_limits``)."""
+        self.grasp_limits[index] = env.episode_grasp_force_limit
+        self.grasper = Grasper(self.grasp_radius, self.grasp_limits.copy())
 
     def _load_floor_scene(self, index, env):
         """World ``index``'s target on the floor (its x range and grid points) and the nodes its floor holds."""
@@ -305,10 +348,15 @@ class RetractionEnv(TissueEnv):
     lifts it and pulls it back, as a surgeon retracts a liver lobe or a peritoneal flap to expose
     what lies under it, while keeping the tension (the force on the tool) under ``force_limit``.
 
-    The grasp holds up to ``grasp_force_limit`` (default 5 N, what a laparoscopic grasper holds
-    bowel against without slipping: ``GRASP_SLIP_FORCE``). Where the force on the grasped nodes
-    passes it, they slip out of the jaws one after the other, the most loaded first, until the force
-    on those left is within the limit (``Grasper.slip``): the tool never reports more than the
+    The instrument is the scene's, chosen for the tissue it is given (``grasp_force_limit="auto"``,
+    the default): on soft tissue (E up to 100 kPa, ``RETRACTOR_MODULUS``) a laparoscopic grasper,
+    which holds up to 5 N (what it holds bowel against without slipping: ``GRASP_SLIP_FORCE``); on
+    stiffer tissue (cartilage-like, up to 1 MPa), whose lifted edge pulls far harder than 5 N, a
+    retractor, which holds the edge by its shape and does not slip (``episode_grasp_force_limit``:
+    ``np.inf``). A number (N), ``"grasper"`` or ``"retractor"`` sets the instrument at every E.
+    Where the force on the grasped nodes passes the grasp's limit, they slip out of the jaws one
+    after the other, the most loaded first, until the force on those left is within the limit
+    (``Grasper.slip``): the tool never reports more than the
     limit while it holds, and the edge falls back where the grasp is lost. A lost grasp does not end
     the episode (the tool moves on, holding nothing); it costs ``reward_grasp``.
 
@@ -428,12 +476,14 @@ class RetractionEnv(TissueEnv):
 
     Task keywords: ``target_start_range`` (m), ``target_length`` (m), ``force_limit`` (N at E = 5 kPa, scaled by E / 5 kPa),
     ``tension_weight``, ``success_exposure``, ``success_bonus``, ``difficulty``, ``grasp_force_limit``
-    (N, not scaled by E, a property of the grasper: the pull it holds before the edge slips out node
-    by node, so a stiff flap pulled far loses it: at 1 MPa the scripted lift does, at 4.3-4.8 N; default
-    5 N, from Heijnsdijk et al., "Slip and damage properties of jaws of laparoscopic graspers", Surg
-    Endosc 18:974-979, 2004, whose graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
-    al., Surg Endosc 18:980-985, 2004: 3.0 N of pinch prevented slip at that pull; ``np.inf``: a grasp
-    that never slips), ``grasp_weight`` (the penalty of losing the whole grasp), ``grasp_point``
+    (N, not scaled by E, a property of the instrument: the pull it holds before the edge slips out
+    node by node, so a stiff flap pulled far loses it; default "auto": the grasper up to 100 kPa, the
+    retractor above, see the Description; "grasper": 5 N at every E, from Heijnsdijk et al., "Slip
+    and damage properties of jaws of laparoscopic graspers", Surg Endosc 18:974-979, 2004, whose
+    graspers were tested on pig bowel pulled at 5 N, and Heijnsdijk et
+    al., Surg Endosc 18:980-985, 2004: 3.0 N of pinch prevented slip at that pull (at 1 MPa the scripted
+    lift loses the whole edge with it: tests/test_env_material_range.py); "retractor" or ``np.inf``: a
+    grasp that never slips), ``grasp_weight`` (the penalty of losing the whole grasp), ``grasp_point``
     ("edge", the default: the whole free edge held from the start; "chosen": the first action picks
     the grasp point, see the Action Space) and ``jaw_radius`` (m, the chosen grasp's reach); shared keywords in
     ``tissue_env.base.TissueEnv``. Domain randomisation (per episode, ``randomised_parameters``):
@@ -477,7 +527,7 @@ class RetractionEnv(TissueEnv):
     )
 
     def __init__(self, *, target_start_range=(0.03, 0.04), target_length=0.015, force_limit=None,
-                 tension_weight=1.0, success_exposure=None, success_bonus=5.0, grasp_force_limit=GRASP_SLIP_FORCE,
+                 tension_weight=1.0, success_exposure=None, success_bonus=5.0, grasp_force_limit="auto",
                  grasp_weight=5.0, grasp_point="edge", jaw_radius=0.006, difficulty="default", **kwargs):
         settings = difficulty_settings(self.DIFFICULTY, difficulty, dict(force_limit=force_limit,
                                                                          success_exposure=success_exposure))
@@ -493,13 +543,21 @@ class RetractionEnv(TissueEnv):
         if self.success_exposure > 1:
             raise ValueError(f"success_exposure must lie in (0, 1], got {success_exposure!r}")
         self.success_bonus = nonnegative_scalar("success_bonus", success_bonus)
-        self.grasp_force_limit = grasp_limit(grasp_force_limit)
+        self.grasp_force_limit = grasp_setting(grasp_force_limit)
         self.grasp_weight = nonnegative_scalar("grasp_weight", grasp_weight)
         if not isinstance(grasp_point, str) or grasp_point not in GRASP_POINTS:
             raise ValueError(f"grasp_point must be one of {GRASP_POINTS}, got {grasp_point!r}")
         self.grasp_point = grasp_point
         self.jaw_radius = positive_scalar("jaw_radius", jaw_radius, "m")
         super().__init__(difficulty=difficulty, **kwargs)
+
+    @property
+    def episode_grasp_force_limit(self) -> float:
+        """The grasp force limit of this episode's instrument, N (``np.inf``: a retractor, which does
+        not slip): ``grasp_force_limit``, or with "auto" the instrument the episode's tissue gets
+        (``grasp_limits``)."""
+        self._require_reset("episode_grasp_force_limit")
+        return float(grasp_limits(self.grasp_force_limit, self.episode_young_modulus))
 
     @property
     def grasp_radius(self) -> float:

@@ -103,8 +103,9 @@ class Grasper:
         held = np.asarray(held, dtype=bool)
         reaction = self.node_forces(forces, held)
         total = reaction.sum(axis=-2)
-        limit = np.asarray(self.force_limit, dtype=float)
         magnitude = np.linalg.norm(total, axis=-1)
+        limit = np.asarray(self.force_limit, dtype=float)  # one per world: the leading axis of the rest
+        limit = limit.reshape(limit.shape + (1,) * (magnitude.ndim - limit.ndim))
         if not np.any(magnitude > limit):
             return held.copy()
         direction = total / np.maximum(magnitude, np.finfo(float).tiny)[..., None]
