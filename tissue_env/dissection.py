@@ -317,7 +317,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
       in the blade's place): potential-based shaping
       (``tissue_env.cut_tasks``; it sums to the route's net shortening, 6.0-6.4 on the scripted
       dissection), which lets an agent learn the approach before its first cut;
-    - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 0.2): the
+    - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 1): the
       layer's top is midway between the mean heights of the layer's and the flap's centroids in the
       start equilibrium (a soft slab sags under its weight), where a horizontal sweep cuts the layer
       off the flap with the most margin;
@@ -393,7 +393,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
 
     def __init__(self, *, connective_layer=1, flap_layers=2, connective_stiffness_ratio=0.5, blade_length=0.04,
                  blade_start_range=((0.053, 0.012, 0.01), (0.058, 0.016, 0.02)), peel_angle=30.0,
-                 grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=None, approach_weight=None, height_weight=0.2,
+                 grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=None, approach_weight=None, height_weight=1.0,
                  damage_weight=None, success_bonus=None, damage_allowed=None, spare_nodes=None, difficulty="default",
                  **kwargs):
         damage_allowed = difficulty_settings(self.DIFFICULTY, difficulty,
