@@ -56,6 +56,37 @@ def test_the_approach_reward_is_the_route_shortening():
     assert 5.9 < assert_approach_is_the_route_shortening(ENV_ID, {}, 0) < 6.5
 
 
+def test_a_blade_past_a_joined_column_is_pulled_back_to_it():
+    """A blade swept along x above the layer (through the flap) leaves the columns joined: past the
+    first one the route lengthens (each step along x is penalised) and the observed next point lies
+    behind the blade, at that column; back beside the free edge and along the layer's top, the sweep
+    frees the column and the route is shorter than it was (a potential of the blade's place and the
+    columns still joined)."""
+    env = gym.make(ENV_ID, **SMALL, observation_type="dict")
+    env.reset(seed=0)
+    task = env.unwrapped
+    spacing, size_x = task.spacing, task.size[0]
+    entry = task.sweep_entry
+
+    def move(goal, steps):
+        for _ in range(steps):
+            tip = task.tip_rest + task.tool_offset
+            step = env.step(np.clip((np.asarray(goal) - tip) / task.max_step, -1, 1).astype(np.float32))
+        return step
+
+    above = (entry[0], entry[1] + 0.7 * spacing[1], entry[2])  # between the flap's first and second centroids
+    move(above, 8)
+    observation, _, _, _, info = move((size_x - 1.5 * spacing[0], above[1], entry[2]), 3)
+    approach = info["reward_approach"]
+    assert info["cut_progress"] == 0.0 and info["flap_damage"] > 0
+    assert approach < 0.0 and observation["route_offset"][0] > 0.0  # lengthened; the next point behind
+    before = info["route_remaining"]
+    move(above, 4)
+    move(entry, 3)
+    *_, info = move((size_x - 1.5 * spacing[0], entry[1], entry[2]), 3)
+    assert info["cut_progress"] > 0.0 and info["route_remaining"] < before
+
+
 @pytest.mark.parametrize("poisson_ratio", [0.3, 0.45, 0.49])
 def test_the_scripted_dissection_frees_a_soft_flap(poisson_ratio):
     """At E = 1 kPa the slab sags under its weight (the sweep follows the layer's top in the start

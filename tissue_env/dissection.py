@@ -103,18 +103,33 @@ class DissectionWorlds(BladeTaskWorlds):
         freed = self.freed.reshape(self.num_envs, nz, nx)[:, :, ::-1]
         return self.spacing_x * np.cumprod(freed, axis=2).sum(axis=2).min(axis=1)
 
+    def cut_front(self):
+        """(N,) m the x the sweep must pass to cut the next column still joined (``freed`` False): a
+        quarter element past the centre, at rest, of the uncut column nearest the free edge (the blade
+        cuts a column's connective face when it crosses the column's centre); the sweep's end once every
+        column is cut."""
+        nx, nz = self.columns
+        uncut = ~self.freed.reshape(self.num_envs, nz, nx).all(axis=1)  # (N, nx): an x slice with a column joined
+        slice_x = (np.arange(nx) + 0.5) * self.spacing_x
+        front = np.where(uncut, slice_x, -np.inf).max(axis=1) - 0.25 * self.spacing_x
+        return np.maximum(front, self.sweep_end)
+
     def route(self, offsets):
         """Over to beside the free edge at the layer's top (``entry``), then along x through the layer
-        to the sweep's end: a blade past the entry in x counts as on the sweep, its distance from the
-        layer's top and from mid-slab in z added (continuous: a blade that strays from the layer's top
-        meets no jump in the route, only a longer one, and the damage it cuts)."""
+        to the sweep's end. The route's point nearest the blade lies on the sweep between the entry and
+        the cut front (``cut_front``): a blade within that stretch counts as on the sweep, its distance
+        from the layer's top and from mid-slab in z added; a blade past the front, the front still
+        joined (it strayed from the layer's top or in z), has the way back to the front added, so the
+        route pulls it back to what is left to cut. Continuous in the blade's place; a cut moves the
+        front only past a blade that cut it. The next point is the cut front's (at the layer's top, mid-slab):
+        what is left to cut."""
         centre = self.tip_rest + offsets
-        entry = self.entry
-        on_sweep = centre[:, 0] <= entry[:, 0]
-        sweep = centre[:, 0] - self.sweep_end + np.abs(centre[:, 1:] - entry[:, 1:]).sum(axis=1)
-        approach = np.abs(centre - entry).sum(axis=1) + entry[:, 0] - self.sweep_end
-        end = np.column_stack([np.full(self.num_envs, self.sweep_end), entry[:, 1:]])
-        return np.where(on_sweep, sweep, approach), np.where(on_sweep[:, None], end, entry)
+        entry, front = self.entry, self.cut_front()
+        along = np.clip(centre[:, 0], front, entry[:, 0])
+        point = np.column_stack([along, entry[:, 1:]])
+        remaining = np.abs(centre - point).sum(axis=1) + along - self.sweep_end
+        target = np.column_stack([np.minimum(front, entry[:, 0]), entry[:, 1:]])
+        return remaining, np.where((centre[:, 0] > entry[:, 0])[:, None], entry, target)
 
     def _cut_made(self, index, faces):
         first, second = self.labels[faces[:, 0]], self.labels[faces[:, 1]]
@@ -278,7 +293,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     | 15-17 | the jaw's displacement (the peel)                        | cm                   |
     | 18    | cut progress: the share of the layer's columns cut off   | 0-1                  |
     | 19    | flap and bed faces cut so far                            | faces                |
-    | 20-22 | the route's next point from the blade (Rewards)          | cm                   |
+    | 20-22 | the next point to cut at (the entry, then the cut front) | cm from the blade   |
 
     ``"deformation"`` appends the surface-node
     displacements (cm); ``"dict"`` gives the features as a ``Dict`` keyed by name; the visual
@@ -296,11 +311,13 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
     - ``reward_approach = approach_weight * (R_before - R_after) / 1 cm`` (default 1), R the length
       (L1, m) of what remains of the route: over to beside the free edge at the layer's top, mid-slab
       in z (``sweep_entry``), then along x through the layer to a quarter element past the far end,
-      with the blade's distance from the layer's top and from mid-slab in z (``info["route_remaining"]``;
-      continuous in the blade's place): potential-based shaping
+      with the blade's distance from the layer's top and from mid-slab in z, and, for a blade past the
+      cut front (a quarter element past the centre of the uncut column nearest the free edge: it
+      strayed and left a column joined), the way back to it (``info["route_remaining"]``; continuous
+      in the blade's place): potential-based shaping
       (``tissue_env.cut_tasks``; it sums to the route's net shortening, 6.0-6.4 on the scripted
       dissection), which lets an agent learn the approach before its first cut;
-    - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 0.2): the
+    - ``reward_height = -height_weight * |blade height - the layer's top| / 1 cm`` (default 1): the
       layer's top is midway between the mean heights of the layer's and the flap's centroids in the
       start equilibrium (a soft slab sags under its weight), where a horizontal sweep cuts the layer
       off the flap with the most margin;
@@ -376,7 +393,7 @@ class DissectionEnv(BladeTaskEnv, TissueEnv):
 
     def __init__(self, *, connective_layer=1, flap_layers=2, connective_stiffness_ratio=0.5, blade_length=0.04,
                  blade_start_range=((0.053, 0.012, 0.01), (0.058, 0.016, 0.02)), peel_angle=30.0,
-                 grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=None, approach_weight=None, height_weight=0.2,
+                 grasp_force_limit=GRASP_SLIP_FORCE, progress_weight=None, approach_weight=None, height_weight=1.0,
                  damage_weight=None, success_bonus=None, damage_allowed=None, spare_nodes=None, difficulty="default",
                  **kwargs):
         damage_allowed = difficulty_settings(self.DIFFICULTY, difficulty,
