@@ -102,7 +102,7 @@ def rate(env_id, mode, num_envs, steps, seed=0, **kwargs):
     resets) for ``steps`` vector steps of random actions."""
     envs = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode, **kwargs)
     rng = np.random.default_rng(seed)
-    actions = rng.uniform(-1.0, 1.0, (steps, num_envs, 3)).astype(np.float32)
+    actions = rng.uniform(-1.0, 1.0, (steps, num_envs) + envs.single_action_space.shape).astype(np.float32)
     envs.reset(seed=seed)
     for action in actions[:3]:  # warm up: compiled kernels, caches, threads
         envs.step(action)

@@ -259,8 +259,8 @@ def test_grouped_lockstep_solves_equal_the_per_copy_solves():
     """``kernels.solve_copies_grouped`` (chunks of copies in lockstep, one pass over a shared factor
     for all the chunk's copies of it) gives each copy ``solve_copies_lu``'s iterations and solution
     (to rounding), with shared and own factors, capacitance corrections, a copy stopped by its
-    cap, an inactive copy, a zero and a non-finite right-hand side; for a given chunk size, the
-    threaded kernel gives the serial one's floats exactly."""
+    cap, an inactive copy, a zero and a non-finite right-hand side; every chunk size gives the same
+    floats, and the threaded kernel the serial one's exactly."""
     from sim_core import kernels
     envs = _stepped("tissue_env/Palpation-v0", count=6, steps=10, seed=2, model="baudet")
     assert any(len(imposed) for imposed in envs.worlds.integrator.correction_lists[1])  # corrections are exercised
@@ -286,8 +286,11 @@ def test_grouped_lockstep_solves_equal_the_per_copy_solves():
         assert np.isinf(residual[4]) and np.all(np.isnan(expected[4]))
         assert np.all(expected[2] == 0.0) and iterations[5] == 0 and np.all(expected[5] == 0.0)
         scale = np.abs(expected[np.isfinite(expected)]).max()
-        for chunk in (1, 2, 8):
+        first = solve("solve_copies_grouped_serial", 1)
+        for chunk in (1, 2, 6, 8):
             serial = solve("solve_copies_grouped_serial", chunk)
+            for one, two in zip(serial, first):  # a copy's floats do not depend on its chunk
+                np.testing.assert_array_equal(one, two)
             np.testing.assert_array_equal(serial[1], iterations)
             np.testing.assert_allclose(serial[2], residual, rtol=1e-6)
             np.testing.assert_allclose(serial[0], expected, rtol=0, atol=1e-10 * scale)
@@ -295,21 +298,22 @@ def test_grouped_lockstep_solves_equal_the_per_copy_solves():
                 np.testing.assert_array_equal(one, two)  # NaN rows equal too
 
 
-def test_lockstep_chunks_give_two_threads_work_and_depend_on_the_copy_count_only():
-    """Solver "reference" splits the copies into lockstep chunks of ``batched.lockstep_chunk``: at
-    least two chunks from two copies on (one chunk of 4 copies left the second core idle: 7% slower
-    than per copy on 2 threads) and at most ``LOCKSTEP_CHUNK`` copies each (16 copies: 2 chunks of 8).
-    It takes the copy count only, so the thread count cannot change the floats."""
-    import inspect
-
-    from sim_core.solvers.implicit import LOCKSTEP_CHUNK, lockstep_chunk
-    assert list(inspect.signature(lockstep_chunk).parameters) == ["count"]
-    assert lockstep_chunk(1) == 1 and lockstep_chunk(16) == 8 == LOCKSTEP_CHUNK
+def test_lockstep_chunks_give_two_threads_work_and_one_thread_one_pass():
+    """Solver "reference" splits the copies into lockstep chunks of ``lockstep_chunk``: on several
+    threads at least two chunks from two copies on (one chunk of 4 copies left the second core idle:
+    7% slower than per copy on 2 threads) and at most ``LOCKSTEP_CHUNK`` copies each (16 copies: 2
+    chunks of 8); on one thread one chunk, up to ``SERIAL_LOCKSTEP_CHUNK`` copies (16 copies: one
+    pass over a shared factor instead of two). The floats do not depend on the chunks
+    (``test_grouped_lockstep_solves_equal_the_per_copy_solves``)."""
+    from sim_core.solvers.implicit import LOCKSTEP_CHUNK, SERIAL_LOCKSTEP_CHUNK, lockstep_chunk
+    assert lockstep_chunk(1, 2) == 1 and lockstep_chunk(16, 2) == 8 == LOCKSTEP_CHUNK
+    assert lockstep_chunk(16, 1) == 16 == SERIAL_LOCKSTEP_CHUNK and lockstep_chunk(5, 1) == 5
     for count in range(1, 65):
-        chunk = lockstep_chunk(count)
+        chunk = lockstep_chunk(count, 2)
         chunks = -(-count // chunk)
         assert 1 <= chunk <= LOCKSTEP_CHUNK
         assert chunks >= min(count, 2)
+        assert lockstep_chunk(count, 1) == min(count, SERIAL_LOCKSTEP_CHUNK)
 
 
 def test_threaded_measurement_kernels_give_the_serial_floats():

@@ -66,8 +66,8 @@ from .fastmath import (  # noqa: F401
     FAST, FAST_REDUCE,
 )
 from .threads import (  # noqa: F401
-    FORKED, SPIN_COUNT, available_threads, serial_product, start_threads, thread_count, threaded, using_threads,
-    variant,
+    FORKED, SPIN_COUNT, available_threads, running_threads, serial_product, start_threads, thread_count, threaded,
+    using_threads, variant,
 )
 from .measure import (  # noqa: F401
     any_collapsed, any_inverted, element_volumes, element_volumes_copies, health, health_copies, health_copies_serial,

@@ -67,6 +67,12 @@ def variant(kernel, threads: int):
     return getattr(sys.modules[kernel.__module__], kernel.__name__ + "_serial")
 
 
+def running_threads(threads: int) -> int:
+    """The threads a kernel chosen by ``variant`` for ``threads`` runs on now: numba's current
+    count (``thread_count`` may have lowered it for a step) when the parallel kernels run, else 1."""
+    return numba.get_num_threads() if threaded(threads) else 1
+
+
 def available_threads() -> int:
     """The threads the parallel kernels can use: numba's ``NUMBA_NUM_THREADS`` (the cores it found,
     unless the user set it)."""

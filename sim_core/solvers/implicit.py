@@ -46,8 +46,8 @@ Preconditioners (``PRECONDITIONERS``), each copy its own:
   by triangular solves (``sparse.NodeBlockLU`` in node blocks, as above). Copies that start alike
   share one factor (one cache entry) and the copies that share one are solved in lockstep chunks
   (``lockstep_chunk``, ``kernels.solve_copies_grouped``), so that a triangular solve reads a shared
-  factor once for all the chunk's running copies of it; the chunks depend on the copy count
-  only, so any thread count gives the same trajectories. A copy that needed more than
+  factor once for all the chunk's running copies of it; a copy's floats do not depend on its
+  chunk, so any thread count gives the same trajectories. A copy that needed more than
   ``refresh_iterations`` iterations is re-linearised at its new state, and a copy that has not
   converged after ``first_pass`` iterations is re-linearised and solved again; a re-linearised
   copy leaves its group.
@@ -89,17 +89,23 @@ JACOBI_INTS = np.array([0, 1], dtype=np.int64)
 #: coupling and the volume terms) rather than its LU: half the values to store, factorise and read
 #: at every application (``kernels.block_ldl_factor``, ``kernels.block_ldl_solve_one``).
 SYMMETRIC_FACTOR = True
-#: Solver "reference": at most this many copies per lockstep chunk (``lockstep_chunk``).
+#: Solver "reference": at most this many copies per lockstep chunk on several threads, and on one
+#: (``lockstep_chunk``).
 LOCKSTEP_CHUNK = 8
+SERIAL_LOCKSTEP_CHUNK = 16
 
 
-def lockstep_chunk(count: int) -> int:
+def lockstep_chunk(count: int, threads: int = 2) -> int:
     """Copies per lockstep chunk of solver "reference" (``kernels.solve_copies_grouped``) for
-    ``count`` copies: half of them (two chunks, one for each of two threads: a single chunk on two
-    threads is slower than solving per copy), at most ``LOCKSTEP_CHUNK`` (a pass over a shared
-    factor costs about as much for 8 copies as for 16, so 16 copies lose nothing in 2 chunks and
-    more copies give more chunks for more threads). It
-    depends on the copy count only, so the floats do not depend on the thread count."""
+    ``count`` copies solved on ``threads`` threads. Several: half of them (two chunks, one for each
+    of two threads: a single chunk on two threads is slower than solving per copy), at most
+    ``LOCKSTEP_CHUNK`` (more copies give more chunks for more threads). One: all of them, at most
+    ``SERIAL_LOCKSTEP_CHUNK`` (a pass over a shared factor for 16 copies costs less than two for 8:
+    benchmarks/vector_env_speed.py). A copy's floats do not depend on its chunk (the substitutions
+    of every right-hand side are the same arithmetic: tests/test_batched_fused.py), so the thread
+    count does not change the trajectories."""
+    if threads <= 1:
+        return max(1, min(SERIAL_LOCKSTEP_CHUNK, count))
     return max(1, min(LOCKSTEP_CHUNK, (count + 1) // 2))
 
 
@@ -819,7 +825,7 @@ class ImplicitEuler(WorldsSolver):
             stacked, system, hg_rows, hg_group, np.ascontiguousarray(mask.T), np.ascontiguousarray(rhs.T),
             np.ascontiguousarray(guess_rows), active, self.tolerance, limits, lu_int, lu_float, group_of,
             *self._no_corrections, self._group_work, rows, iterations, residual, *self._hourglass_blocks(),
-            lockstep_chunk(self.stack.count))
+            lockstep_chunk(self.stack.count, kernels.running_threads(self.threads)))
         solution[:] = rows.T
 
     # -- step ------------------------------------------------------------------------------------------
