@@ -124,6 +124,12 @@ class CuttingWorlds(TaskWorlds):
     ``blade_edges``; its ``_load_task``, ``_task_info`` and ``_control`` extend this class's
     (``node_origin`` maps a cut world's node rows to the block's nodes, for the controls)."""
 
+    # A world's factor is renewed once its iterations beyond those right after its last
+    # factorisation add up to 6 (``ImplicitEuler``'s ``amortise``): a cut frees tissue that moves
+    # (Dissection's flap), and a factor made during that motion stays poor once it rests (4.1
+    # iterations per step against 1 with a fresh factor, kept under the default rule's max(8, 2 x))
+    refactor_amortise = 6
+
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
         count, env = self.num_envs, self.task
