@@ -1,7 +1,8 @@
 """The layers hold: modules a reader can take in (under 1,000 lines), no import cycles (imports made
 inside functions included), no private name imported from another module, no compiled kernels in
 the environment layer, and the studies (experiments, resolution choice, bench, demo, CLI) above the
-physics: no physics module imports them. Read from the source with ``ast``, nothing imported."""
+physics: no physics module imports them. The scripts beside the packages (docs/, training/,
+benchmarks/) are held to the same size. Read from the source with ``ast``, nothing imported."""
 
 import ast
 from pathlib import Path
@@ -11,6 +12,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("sim_core", "tissue_env")
 MAX_LINES = 1000
+#: folders of scripts and their helper modules whose size is checked (not their imports)
+SCRIPT_FOLDERS = ("docs", "training", "benchmarks")
+#: scripts still over MAX_LINES: a strict xfail each, which fails once the file is split (then drop it here)
+OVERSIZED = {"benchmarks/validation.py"}
 
 
 def _modules():
@@ -60,10 +65,29 @@ def _imports(name, path):
 GRAPH = {name: _imports(name, path) for name, path in MODULES.items()}
 
 
+def _assert_short(path):
+    lines = len(path.read_text().splitlines())
+    assert lines < MAX_LINES, f"{path.relative_to(ROOT)} has {lines} lines: split it along its seams"
+
+
 @pytest.mark.parametrize("name", sorted(MODULES))
 def test_every_module_is_under_a_thousand_lines(name):
-    lines = len(MODULES[name].read_text().splitlines())
-    assert lines < MAX_LINES, f"{MODULES[name].relative_to(ROOT)} has {lines} lines: split it along its seams"
+    _assert_short(MODULES[name])
+
+
+SCRIPTS = sorted(path.relative_to(ROOT).as_posix() for folder in SCRIPT_FOLDERS
+                 for path in (ROOT / folder).rglob("*.py"))
+
+
+@pytest.mark.parametrize("script", [
+    pytest.param(script, marks=pytest.mark.xfail(strict=True, reason="over the limit, still to be split"))
+    if script in OVERSIZED else script for script in SCRIPTS])
+def test_every_script_is_under_a_thousand_lines(script):
+    _assert_short(ROOT / script)
+
+
+def test_the_oversized_list_names_scripts_that_exist():
+    assert OVERSIZED <= set(SCRIPTS), sorted(OVERSIZED - set(SCRIPTS))
 
 
 def test_no_import_cycles_between_modules():
