@@ -1,7 +1,8 @@
 """Session hooks: the longest test files first (``LONGEST_FIRST``); a selected test whose module
-defines ``start_in_background`` gets its slow, self-contained work (test_numba_cache.py: processes compiling every kernel; test_training.py: its
-training runs) started as soon as the tests are collected, beside the other tests; the module's
-``stop_background`` ends what is still running when the session ends and cleans up."""
+defines ``start_in_background`` gets its slow, self-contained work (test_numba_cache.py: processes
+compiling every kernel; test_training.py: its training runs) started as soon as the tests are
+collected, beside the other tests (in a run on one process; a pytest-xdist worker runs it in the
+test); the module's ``stop_background`` ends what is still running when the session ends."""
 
 _started = []
 
