@@ -727,6 +727,19 @@ def set_list_items(first, second, index, first_value, second_value):
 
 
 @njit(cache=True, nogil=True)
+def _add_right_of(k, columns, start, stop, mark, row, count):
+    """``symbolic_fill``'s union: append to ``row[:count]`` the ``columns[start:stop]`` right of ``k``
+    not yet in it (``mark[j] == k``); returns the new count."""
+    for p in range(start, stop):
+        j = columns[p]
+        if j > k and mark[j] != k:
+            mark[j] = k
+            row[count] = j
+            count += 1
+    return count
+
+
+@njit(cache=True, nogil=True)
 def symbolic_fill(indptr, indices, nb):
     """The block fill pattern of a symbolic LU (or Cholesky) factor without pivoting of a structurally
     symmetric matrix of ``nb`` block rows (CSR ``indptr``, ``indices``; the diagonal is taken as
@@ -740,23 +753,12 @@ def symbolic_fill(indptr, indices, nb):
     u_indptr = np.zeros(nb + 1, np.int64)
     u_indices = np.empty(max(2 * len(indices), nb), np.int64)
     for k in range(nb):
-        count = 1
         row[0] = k
         mark[k] = k
-        for p in range(indptr[k], indptr[k + 1]):
-            j = indices[p]
-            if j > k and mark[j] != k:
-                mark[j] = k
-                row[count] = j
-                count += 1
+        count = _add_right_of(k, indices, indptr[k], indptr[k + 1], mark, row, 1)
         child = head[k]
         while child != -1:
-            for q in range(u_indptr[child], u_indptr[child + 1]):
-                j = u_indices[q]
-                if j > k and mark[j] != k:
-                    mark[j] = k
-                    row[count] = j
-                    count += 1
+            count = _add_right_of(k, u_indices, u_indptr[child], u_indptr[child + 1], mark, row, count)
             child = sibling[child]
         ordered = np.sort(row[:count])
         start = u_indptr[k]

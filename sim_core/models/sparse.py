@@ -123,13 +123,12 @@ class BlockPattern:
         """The index of each node-pair block (a, b) among ``block_keys``; raises if one is outside."""
         keys = a * self.n_nodes + b
         bound = self.n_nodes * self.n_nodes
-        if bound > DENSE_LOOKUP:
-            found = _sorted_index(self.block_keys, keys, bound)
-        else:  # the dense table, built once per pattern (a cut model's pattern is asked 5 times)
+        table = None
+        if bound <= DENSE_LOOKUP:  # the dense table, built once per pattern (a cut model's pattern is asked 5 times)
             table = self.__dict__.get("_table")
             if table is None:
                 table = self._table = _lookup_table(self.block_keys, bound)
-            found = table[np.clip(keys, 0, bound)]
+        found = _sorted_index(self.block_keys, keys, bound, table)
         if not np.array_equal(self.block_keys[found], keys):
             raise ValueError("entry outside the fixed sparsity pattern")
         return found
@@ -259,14 +258,15 @@ class NodeBlockLU:
 DENSE_LOOKUP = 1 << 20
 
 
-def _sorted_index(keys, wanted, bound):
+def _sorted_index(keys, wanted, bound, table=None):
     """(W,) for each of ``wanted`` the index of the same value in ``keys`` (sorted, distinct, all in
     [0, ``bound``)), clipped to the last key where it is missing (the caller checks): a dense table
     when ``bound`` is small (a cut's small systems: a binary search per entry was a noticeable part
-    of a cut's factorisation), else ``np.searchsorted``."""
+    of a cut's factorisation; ``table``: that table, ``_lookup_table``, if the caller keeps one),
+    else ``np.searchsorted``."""
     if bound > DENSE_LOOKUP:
         return np.minimum(np.searchsorted(keys, wanted), max(len(keys) - 1, 0))
-    return _lookup_table(keys, bound)[np.clip(wanted, 0, bound)]
+    return (_lookup_table(keys, bound) if table is None else table)[np.clip(wanted, 0, bound)]
 
 
 def _lookup_table(keys, bound):
