@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from sim_core import HexMesh
-from sim_core.solvers.grasp import Grasper
 
 from .base import TissueEnv, check_range, check_work, difficulty_settings, nonnegative_scalar, positive_scalar
 from .retraction import RetractionEnv, RetractionWorlds, flap_constraint, flap_footprint, grasp_setting
@@ -35,8 +34,6 @@ class BimanualExposureWorlds(RetractionWorlds):
         super().__init__(envs, threads)
         env, count, tools = self.task, self.num_envs, self.task.tool_count
         n = env.mesh.n_nodes
-        self.grasp_radius = env.grasp_radius
-        self.grasper = Grasper(self.grasp_radius, self.grasp_limits.copy())
         #: (T, n) bool the nodes each grasper may close on: the free edge of its flap
         self.candidates = env.edge_nodes
         #: (N, T, n) bool the nodes each world's graspers hold; (N, T, n, 3) m their anchors (position
@@ -148,7 +145,7 @@ class BimanualExposureWorlds(RetractionWorlds):
 
     def _reward_terms(self, measures):
         tension, limit = self._tensions(measures), self._force_limits()[:, None]
-        near_slip = np.maximum(0.0, tension / self.grasp_limits[:, None] - self.grip_margin) / (1.0 - self.grip_margin)
+        near_slip = np.maximum(0.0, tension / self.grasper.force_limit[:, None] - self.grip_margin) / (1.0 - self.grip_margin)
         terms = dict(
             exposure=measures["exposed_fraction"] - 1.0,
             tension=-self.tension_weight * np.sum(np.maximum(0.0, tension - limit) / limit, axis=1),

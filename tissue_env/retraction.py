@@ -112,9 +112,7 @@ class RetractionWorlds(TaskWorlds):
         self._base_target = np.repeat(env.base_control.target[None], count, axis=0)  # each world's (size_range)
         #: the grasper on the free edge: its jaws span the edge (``RetractionEnv.grasp_radius``), each
         #: world's holding up to its episode's limit (N, ``grasp_limits``: the instrument its tissue gets)
-        self.grasp_radius = env.grasp_radius
-        self.grasp_limits = np.full(count, GRASP_SLIP_FORCE)
-        self.grasper = Grasper(self.grasp_radius, self.grasp_limits.copy())
+        self.grasper = Grasper(env.grasp_radius, np.full(count, GRASP_SLIP_FORCE))
         #: (N, n) bool the nodes each world's grasper holds; (N, n, 3) m the positions of the nodes it
         #: closed on, when it closed (they follow the jaw's displacement, ``tool_offset``, from there);
         #: (N, 3) m the jaw's rest position; (N,) the nodes held after the last measurement
@@ -152,8 +150,9 @@ class RetractionWorlds(TaskWorlds):
 
     def _load_grasp_limit(self, index, env):
         """World ``index``'s grasp force limit, N: its episode's instrument (``grasp_limits``)."""
-        self.grasp_limits[index] = env.episode_grasp_force_limit
-        self.grasper = Grasper(self.grasp_radius, self.grasp_limits.copy())
+        limits = self.grasper.force_limit.copy()  # (N,) N; a Grasper is immutable: a new one holds them
+        limits[index] = env.episode_grasp_force_limit
+        self.grasper = Grasper(self.grasper.radius, limits)
 
     def _load_floor_scene(self, index, env):
         """World ``index``'s target on the floor (its x range and grid points) and the nodes its floor holds."""
