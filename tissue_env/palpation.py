@@ -370,7 +370,8 @@ class PalpationEnv(TissueEnv):
     (``apparent_modulus``; F the probe's vertical force, d its depth under the start surface),
     which reads the same tissue nearly alike at any depth (held 4 and 8 mm deep over three cells of
     the homogeneous slab: 7.01-7.54 and 6.96-7.56 kPa, where F / d rises from 42-46 to 69-75 N/m;
-    E* = E / (1 - nu^2) = 6.3 kPa for a half-space, the 3 cm slab on its attached base is stiffer; ``benchmarks/palpation_map.py``, which also
+    E* = E / (1 - nu^2) = 6.3 kPa for a half-space, the 3 cm slab on its attached base is stiffer;
+    ``benchmarks/palpation_map.py``, which also
     shows finer meshes reading the 8 mm press higher), so a press 8 mm deep reads the same tissue
     19% above one 4 mm deep (tests/test_env_palpation.py's cell), less than the inclusion's
     1.24-1.33x; and a press held still replaces the first step of a press at full speed, which

@@ -48,8 +48,8 @@ def inversion_gradients(model) -> np.ndarray | None:
     strongly compressed element fold a corner while its mean volume stays positive, and the
     equilibrium it reaches is the right one (a cantilever hanging 1.14 m under its own weight lands
     on converged neo-Hookean FEM with one corner folded: tests/test_hyperelastic_floors.py), so the
-    corner test would reject a valid state. Every other model, and every tetrahedron (whose one frame is its F), keeps
-    the corner test: the small-strain corrections of "baudet" assume unfolded elements."""
+    corner test would reject a valid state. Every other model, and every tetrahedron (whose one
+    frame is its F), keeps the corner test: the small-strain corrections of "baudet" assume unfolded elements."""
     correction = model.stress_correction
     if (correction is None or correction.law != "neo-hookean" or model.mesh.elements.shape[1] != 8
             or len(correction.mean_gradient) != len(model.mesh.elements)):

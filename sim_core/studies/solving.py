@@ -176,8 +176,8 @@ def solve_with_contact(solve, control, initial, obstacle, candidates, tip=None, 
     from above) by an active set: the candidate nodes (n,) bool on or through its surface get
     their height imposed on it at their (x, z), the nodes it would pull are released, and the
     heights follow the nodes' horizontal sliding (read at ``contact.relaxed_positions``); repeated
-    until no node goes through the surface by more than ``tolerance`` (m) and the held heights are within ``slide_tolerance`` (m) of the
-    surface under the nodes. Returns (positions, reaction, converged, lowest eigenvalue, control, contact (n,) bool)."""
+    until no node goes through the surface by more than ``tolerance`` (m) and the held heights are
+    within ``slide_tolerance`` (m) of the surface under the nodes. Returns (positions, reaction, converged, lowest eigenvalue, control, contact (n,) bool)."""
     if obstacle is None:
         positions, reaction, converged, lowest = solve(control, initial)
         return positions, reaction, converged, lowest, control, np.zeros(len(control.fixed), bool)
