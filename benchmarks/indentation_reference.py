@@ -50,7 +50,7 @@ from training.common import write_json
 MM = 1e-3
 #: Palpation's defaults (``PalpationEnv``): slab, probe radius, tissue
 SIZE, RADIUS, YOUNG, DENSITY = (0.06, 0.03, 0.06), 0.009, 5e3, 1060.0
-DEPTHS_MM = (0.5, 1.0, 2.0, 4.0, 6.0, 8.0)
+DEPTHS_MM = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
 
 
 def hertz(depth, radius, young_modulus, poisson_ratio):
