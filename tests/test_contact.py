@@ -264,16 +264,17 @@ def test_axisymmetric_reference_reads_hertz_on_a_wide_bonded_layer():
 def test_indentation_at_palpation_resolution_against_the_axisymmetric_reference(position, poisson_ratio,
                                                                                 young_modulus):
     """Palpation's slab (6 x 3 x 6 cm, bottom attached, no gravity) on its 6 mm cubes, its 9 mm sphere
-    pressed 2, 4 and 8 mm over a node, over a cell's side and over a cell's centre (static, active set
+    pressed 2 to 8 mm over a node, over a cell's side and over a cell's centre (static, active set
     converged), against the independent axisymmetric reference on the cylinder of the slab's top area:
-    within 11% at 2 mm, where the contact (4.2 mm across its radius) is smaller than a cell, and 8% from
-    4 mm (measured +3.6 to +10.4% at 2 mm, -7.5 to +3.4% deeper; the first-order projection read
-    25-42% under at 2-8 mm, the nodes on the sphere alone 6-19%: benchmarks/indentation_reference.py)."""
+    within 11% at 2 mm, where the contact (4.2 mm across its radius) is smaller than a cell, 9% at 3 and
+    5 mm (the cell centre's low side) and 8% at 4 and 8 mm (benchmarks/indentation_reference.py: +3.6 to
+    +10.4% at 2 mm; the cell centre at nu 0.49 -8.2 / -7.5 / -8.5% at 3 / 4 / 5 mm, the worst deeper; the
+    first-order projection read 25-42% under at 2-8 mm, the nodes on the sphere alone 6-19%)."""
     from benchmarks.indentation_reference import CYLINDERS, POSITIONS, axisymmetric_forces
     from sim_core.studies.scenes import Scene
     from sim_core.studies.solving import solve_scene
 
-    depths, cell = np.array([0.002, 0.004, 0.008]), 0.006
+    depths, cell = np.array([0.002, 0.003, 0.004, 0.005, 0.008]), 0.006
     x, z = (0.03 + cell * offset for offset in POSITIONS[position])
     scene = Scene(size=(0.06, 0.03, 0.06), young_modulus=young_modulus, poisson_ratio=poisson_ratio, gravity=0.0,
                   tool_low=(x, 0.03, z), tool_high=(x, 0.03, z), tool_radius=0.009, tool_components=(1,),
@@ -282,4 +283,4 @@ def test_indentation_at_palpation_resolution_against_the_axisymmetric_reference(
     assert solution.converged.all()
     error = -solution.force[:, 1] / axisymmetric_forces(depths, 0.009, 0.03, CYLINDERS["equal_area"], young_modulus,
                                                         poisson_ratio) - 1.0
-    assert abs(error[0]) < 0.11 and np.all(np.abs(error[1:]) < 0.08), error
+    assert np.all(np.abs(error) < [0.11, 0.09, 0.08, 0.09, 0.08]), error
