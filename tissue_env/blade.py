@@ -125,10 +125,12 @@ class CuttingWorlds(TaskWorlds):
     (``node_origin`` maps a cut world's node rows to the block's nodes, for the controls)."""
 
     # A world's factor is renewed once its iterations beyond those right after its last
-    # factorisation add up to 6 (``ImplicitEuler``'s ``amortise``): a cut frees tissue that moves
-    # (Dissection's flap), and a factor made during that motion stays poor once it rests (4.1
-    # iterations per step against 1 with a fresh factor, kept under the default rule's max(8, 2 x))
-    refactor_amortise = 6
+    # factorisation add up to more than 3 (``ImplicitEuler``'s ``amortise``): a cut frees tissue that
+    # moves (Incision's slit settling, Dissection's flap), a factor made during that motion keeps
+    # costing iterations (it does not recover as the tissue rests), and the excess persists step
+    # after step, so renewing early costs the least: iterations x an iteration's time + renewals x a
+    # refactorisation's, counted over the steps after the cut (benchmarks/cutting.py's solver_costs)
+    refactor_amortise = 3
 
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
