@@ -1,6 +1,6 @@
 """The cost of cutting in the environments (issue 44's floors) and the memory of many cut episodes.
 
-Usage: python -m benchmarks.cutting [--episodes 220] [--repeats 3] [--output benchmarks/results/cutting.json]
+Usage: python -m benchmarks.cutting [--episodes 220] [--repeats 5] [--output benchmarks/results/cutting.json]
        [--env tissue_env/Incision-v0]
 
 On Incision-v0 (or ``--env``, a cutting task with a scripted controller: Dissection-v0 writes
@@ -13,9 +13,15 @@ benchmarks/results/cutting_dissection.json; single env, default keywords, one th
   model with copied nodes (stepped on its own model), against the median of the same steps of an
   uncut twin (the same env and seed, its blade held above the tissue) taken in alternation with them,
   so that a shared machine's load weighs on both alike;
-- why a step after a cut costs more: the linear solver's iterations per step (``solver_iterations``)
-  and the largest node speed of the cut world in those steps, against the twin's; and the same
-  ratio, iterations and speed after ``SETTLE`` more held steps (the cut tissue at rest);
+- why a step after a cut costs more: the linear solver's iterations and factorisations per step
+  (``solver_iterations``, ``factorisations``) and the largest node speed of the cut world in those
+  steps, against the twin's; the median CPU time of one BiCGSTAB iteration and of one numeric
+  refactorisation of the cut world's system (``solver_costs``), and from them the linear solver's
+  extra work per step after the cut ((iterations - the twin's) x an iteration + factorisations x a
+  refactorisation) as a ratio to the twin's step (``solver_work_ratio``: what the solver's work alone
+  makes of the ratio); the ratio of the mean step times (``mean_ratio``: the median leaves out the
+  steps that refactorise); and the same ratio, iterations and speed after ``SETTLE`` more held steps
+  (the cut tissue at rest);
 - memory: the scripted incision (every episode cuts, copies nodes and resets) ``--episodes``
   times in one process; the peak resident set size (VmHWM of /proc/self/status) after 20 episodes
   and at the end, and their ratio (the floor: less than 10% growth from 20 to 220 episodes).
@@ -24,6 +30,8 @@ Each timing is the median over ``--repeats`` episodes' steps. Results to ``--out
 """
 
 import argparse
+import copy
+import gc
 import os
 import platform
 import time
@@ -32,6 +40,7 @@ import gymnasium as gym
 import numpy as np
 
 import tissue_env  # noqa: F401  (registers the envs)
+from sim_core import kernels
 from benchmarks.memory_soak import rss_mb
 from training.common import write_json
 
@@ -61,10 +70,60 @@ def solver_iterations(env) -> int:
     return int(np.ravel((integrator if own is None else own).last_iterations)[0])
 
 
+def factorisations(env) -> int:
+    """The implicit solver's factorisations so far in ``env``'s world (a cut world's own solver's: since its
+    last cut)."""
+    integrator = env.unwrapped.worlds.integrator
+    own = integrator.own_solver(0)
+    return (integrator if own is None else own).factorisations
+
+
+def solver_costs(env, repeats=200):
+    """(s per BiCGSTAB iteration, s per numeric refactorisation): median CPU times on the cut world's own
+    implicit solver at its current state (the same compiled calls as a step: ``kernels.solve_copies_lu``
+    on one thread with its factor; ``ImplicitEuler.rebuild_factor`` less its force pass), on a deep copy
+    of ``env`` (``env`` is left as it is)."""
+    env = copy.deepcopy(env)
+    worlds = env.unwrapped.worlds
+    solver = worlds.integrator.own_solver(0)
+    dt, rows = worlds.dt, solver.stack.n_nodes
+    system = solver.scales(1.0, dt, dt * dt)
+    free = ~worlds.fixed[0, :rows].reshape(1, -1)
+    stacked, hg_rows, hg_group = solver.copies_first()
+    rhs = np.where(free, np.random.default_rng(0).normal(size=free.shape), 0.0)
+    solution, iterations, residual = np.zeros_like(rhs), np.zeros(1, dtype=np.int64), np.zeros(1)
+    arguments = (stacked, system, hg_rows, hg_group, free.astype(float), rhs, np.zeros_like(rhs), np.ones(1, dtype=bool),
+                 0.0)  # tolerance 0: every allowed iteration runs
+    after = (*solver.factor_lists, np.zeros(1, dtype=np.int64), *solver.correction_lists, np.empty((8, rhs.shape[1])),
+             solution, iterations, residual, *solver.workspace.hourglass_blocks())
+
+    def solve(limit):
+        start = time.process_time()
+        kernels.solve_copies_lu_serial(*arguments, np.array([limit], dtype=np.int64), *after)
+        return time.process_time() - start, int(iterations[0])
+
+    short, long = ([solve(limit) for _ in range(repeats)] for limit in (1, 4))
+    more = long[0][1] - short[0][1]
+    iteration = (np.median([t for t, _ in long]) - np.median([t for t, _ in short])) / max(more, 1)
+    positions = np.array(worlds.positions[0, :rows], dtype=float)
+    source = ("linearised", positions, tuple(system), free[0])
+    rebuilds, passes = [], []
+    for _ in range(max(repeats // 10, 5)):
+        start = time.process_time()
+        solver.rebuild_factor(0, source)  # its force pass at these positions, then the factorisation
+        rebuilds.append(time.process_time() - start)
+        start = time.process_time()
+        solver.linearise(positions)  # the force pass alone (rebuild_factor dropped the kept one)
+        passes.append(time.process_time() - start)
+    return float(iteration), float(np.median(rebuilds) - np.median(passes))
+
+
 def held_steps(env, twin, held, still):
-    """(CPU times, s, iterations, largest node speeds, m/s) of ``held`` steps of ``env`` with the blade
-    held still, and of ``twin``'s (None: none) in alternation with them: lists (env's, twin's)."""
+    """(CPU times, s, iterations, largest node speeds, m/s, factorisations) of ``held`` steps of ``env`` with
+    the blade held still, and of ``twin``'s (None: none) in alternation with them: lists (env's, twin's),
+    the factorisations the two made in those steps."""
     times, iterations, speeds = ([], []), ([], []), ([], [])
+    made = [factorisations(stepped) if stepped is not None else 0 for stepped in (env, twin)]
     for _ in range(held):
         for side, stepped in enumerate((env, twin)):
             if stepped is None:
@@ -72,7 +131,8 @@ def held_steps(env, twin, held, still):
             times[side].append(timed(stepped, still)[0])
             iterations[side].append(solver_iterations(stepped))
             speeds[side].append(float(np.abs(stepped.unwrapped.worlds.velocities[0]).max()))
-    return times, iterations, speeds
+    made = [factorisations(stepped) - count if stepped is not None else 0 for stepped, count in zip((env, twin), made)]
+    return times, iterations, speeds, made
 
 
 def episode_times(env, seed, held=10, twin=None, details=None):
@@ -98,20 +158,25 @@ def episode_times(env, seed, held=10, twin=None, details=None):
         twin.reset(seed=seed)
         for _ in range(3):
             twin.step(still)
-    (after, uncut), iterations, speeds = held_steps(env, twin, held, still)
+    (after, uncut), iterations, speeds, made = held_steps(env, twin, held, still)
     if details is not None and twin is not None:
-        keep(details, "", iterations, speeds)
+        keep(details, "", iterations, speeds, made=made)
         for _ in range(SETTLE):
             env.step(still)
             twin.step(still)
-        times, iterations, speeds = held_steps(env, twin, held, still)
-        keep(details, "settled_", iterations, speeds, times)
+        times, iterations, speeds, made = held_steps(env, twin, held, still)
+        keep(details, "settled_", iterations, speeds, times, made)
+        iteration, refactorisation = solver_costs(env)  # last, and its deep copy's garbage collected now:
+        gc.collect()  # not in the next timed steps
+        details.setdefault("iteration_s", []).append(iteration)
+        details.setdefault("refactorisation_s", []).append(refactorisation)
     return before, cutting, after, uncut
 
 
-def keep(details, prefix, iterations, speeds, times=None):
-    """Add ``held_steps``' lists (env's, twin's) to ``details`` under ``prefix``."""
+def keep(details, prefix, iterations, speeds, times=None, made=(0, 0)):
+    """Add ``held_steps``' lists (env's, twin's) and factorisation counts to ``details`` under ``prefix``."""
     for side, name in enumerate(("after", "uncut")):
+        details.setdefault(f"{prefix}{name}_factorisations", []).append(made[side])
         details.setdefault(f"{prefix}{name}_iterations", []).extend(iterations[side])
         details.setdefault(f"{prefix}{name}_speed", []).extend(speeds[side])
         if times is not None:
@@ -135,7 +200,11 @@ def memory(env, episodes):
 
 def details_line(after_cut) -> str:
     """The after-cut diagnosis in one line."""
-    return (f"{after_cut['iterations']:.1f} vs {after_cut['uncut_twin_iterations']:.1f} iterations, node speed "
+    return (f"{after_cut['iterations']:.1f} vs {after_cut['uncut_twin_iterations']:.1f} iterations and "
+            f"{after_cut['factorisations_per_step']:.2f} vs {after_cut['uncut_twin_factorisations_per_step']:.2f} "
+            f"factorisations per step, an iteration {after_cut['iteration_s'] * 1e3:.3f} ms and a refactorisation "
+            f"{after_cut['refactorisation_s'] * 1e3:.2f} ms: the solver's extra work alone "
+            f"{after_cut['solver_work_ratio']:.2f}x, mean ratio {after_cut['mean_ratio']:.2f}x; node speed "
             f"{after_cut['max_node_speed']:.2g} m/s; after {after_cut['settled_after_steps']} more steps "
             f"{after_cut['settled_ratio']:.2f}x, {after_cut['settled_iterations']:.1f} vs "
             f"{after_cut['settled_uncut_twin_iterations']:.1f} iterations, {after_cut['settled_max_node_speed']:.2g} m/s")
@@ -144,7 +213,7 @@ def details_line(after_cut) -> str:
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=220)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--output", default="benchmarks/results/cutting.json")
     parser.add_argument("--env", default=ENV_ID)
     args = parser.parse_args(argv)
@@ -161,6 +230,9 @@ def main(argv=None):
         after += a
         uncut += u
     step, cut, later, twin_step = (float(np.median(values)) for values in (before, cutting, after, uncut))
+    extra_iterations = float(np.mean(details["after_iterations"]) - np.mean(details["uncut_iterations"]))
+    made = float(np.sum(details["after_factorisations"]) / len(after))
+    iteration, refactorisation = (float(np.median(details[name])) for name in ("iteration_s", "refactorisation_s"))
     start = time.perf_counter()
     first, last, successes = memory(gym.make(env_id), args.episodes)
     result = dict(
@@ -171,6 +243,12 @@ def main(argv=None):
         after_cut=dict(
             iterations=float(np.mean(details["after_iterations"])),
             uncut_twin_iterations=float(np.mean(details["uncut_iterations"])),
+            factorisations_per_step=made,
+            uncut_twin_factorisations_per_step=float(np.sum(details["uncut_factorisations"]) / len(uncut)),
+            iteration_s=iteration, refactorisation_s=refactorisation,
+            refactorisation_in_iterations=refactorisation / iteration,
+            solver_work_ratio=(twin_step + extra_iterations * iteration + made * refactorisation) / twin_step,
+            mean_ratio=float(np.mean(after) / np.mean(uncut)),
             max_node_speed=float(np.median(details["after_speed"])),
             uncut_twin_max_node_speed=float(np.median(details["uncut_speed"])),
             settled_after_steps=SETTLE,

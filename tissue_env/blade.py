@@ -125,10 +125,12 @@ class CuttingWorlds(TaskWorlds):
     (``node_origin`` maps a cut world's node rows to the block's nodes, for the controls)."""
 
     # A world's factor is renewed once its iterations beyond those right after its last
-    # factorisation add up to 6 (``ImplicitEuler``'s ``amortise``): a cut frees tissue that moves
-    # (Dissection's flap), and a factor made during that motion stays poor once it rests (4.1
-    # iterations per step against 1 with a fresh factor, kept under the default rule's max(8, 2 x))
-    refactor_amortise = 6
+    # factorisation add up to more than 3 (``ImplicitEuler``'s ``amortise``): a cut frees tissue that
+    # moves (Incision's slit settling, Dissection's flap), a factor made during that motion keeps
+    # costing iterations (it does not recover as the tissue rests), and the excess persists step
+    # after step, so renewing early costs the least: iterations x an iteration's time + renewals x a
+    # refactorisation's, counted over the steps after the cut (benchmarks/cutting.py's solver_costs)
+    refactor_amortise = 3
 
     def __init__(self, envs, threads=1):
         super().__init__(envs, threads)
@@ -226,19 +228,19 @@ class CuttingWorlds(TaskWorlds):
     # -- measurements on a cut world's own model ------------------------------------------------------
     def _measure(self, tool_mask):
         measures = super()._measure(tool_mask)
+        forces, reaction = measures["forces"], measures["reaction_force"]
         for index in np.flatnonzero(~self.stack.shared):
             model = self.stack.given[index]
-            rows = model.n_nodes
-            positions, velocities = self.positions[index, :rows], self.velocities[index, :rows]
+            rows, one = model.n_nodes, slice(index, index + 1)
+            positions = np.ascontiguousarray(self.positions[index, :rows])
             with np.errstate(all="ignore"):
-                forces = (self._force_workspace(index, model).compute(np.ascontiguousarray(positions),
-                                                                      np.ascontiguousarray(velocities))
-                          + model.gravity_force.reshape(-1, 3))
-                measures["forces"][index] = 0.0
-                measures["forces"][index, :rows] = forces
-                measures["reaction_force"][index] = (forces * tool_mask[index, :rows]).sum(axis=0)
+                forces[index, rows:] = 0.0
+                np.add(self._force_workspace(index, model).compute(
+                    positions, np.ascontiguousarray(self.velocities[index, :rows])),
+                    model.gravity_force.reshape(-1, 3), out=forces[index, :rows])
+                kernels.masked_reaction(forces[one], tool_mask[one], reaction[one])  # as the stacked worlds'
                 length = np.empty(len(model.springs))
-                kernels.spring_lengths(np.ascontiguousarray(positions), model.springs, length)
+                kernels.spring_lengths(positions, model.springs, length)
                 measures["max_strain"][index] = np.max(np.abs(length / model.rest_length - 1.0))
                 ratio = model.mesh.element_volumes(positions) / model.rest_volume
                 volume = float((ratio * model.rest_volume).sum())

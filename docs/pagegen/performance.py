@@ -282,13 +282,22 @@ def cutting_section():
                          num(d["step_after_cut_ratio"]), d["memory"]["episodes"], num(d["memory"]["peak_rss_mb_after_20"]),
                          num(d["memory"]["peak_rss_mb_at_end"]), pct(d["memory"]["growth"])] for d, _, _ in data]), "\n"]
     diagnosed = [d for d, _, _ in data if "after_cut" in d]
-    if diagnosed:  # why a step after a cut costs more: the solver's iterations and the tissue's motion
-        out += ["Why a step after a cut costs more (the same runs): the implicit solver's iterations per step "
-                "after the cut and the cut world's largest node speed, against the uncut twin's, in the timed "
-                "steps and again after more held steps (the cut tissue at rest).\n\n",
-                table(["env", "iterations after / twin", "node speed after (m/s)", "held steps more",
-                       "then after / twin", "then iterations after / twin", "then node speed (m/s)"],
+    if diagnosed:  # why a step after a cut costs more: the solver's work and the tissue's motion
+        out += ["Why a step after a cut costs more (the same runs): the implicit solver's iterations and "
+                "factorisations per step after the cut and the cut world's largest node speed, against the uncut "
+                "twin's; the CPU time of one BiCGSTAB iteration and of one numeric refactorisation of the cut "
+                "world's system, and from them the ratio the solver's extra work alone makes ((iterations - the "
+                "twin's) x an iteration + factorisations x a refactorisation, over the twin's step); the ratio of "
+                "the mean step times (the median leaves out the steps that refactorise); and the ratio again after "
+                "more held steps (the cut tissue at rest).\n\n",
+                table(["env", "iterations after / twin", "factorisations per step after / twin", "iteration (ms)",
+                       "refactorisation (ms)", "solver's extra work alone", "mean after / twin",
+                       "node speed after (m/s)", "held steps more", "then after / twin",
+                       "then iterations after / twin", "then node speed (m/s)"],
                       [[short_id(d["env_id"]), f"{num(a['iterations'])} / {num(a['uncut_twin_iterations'])}",
+                        f"{num(a['factorisations_per_step'])} / {num(a['uncut_twin_factorisations_per_step'])}",
+                        num(1e3 * a["iteration_s"]), num(1e3 * a["refactorisation_s"]),
+                        f"{num(a['solver_work_ratio'])}x", f"{num(a['mean_ratio'])}x",
                         f"{a['max_node_speed']:.2g}", a["settled_after_steps"], num(a["settled_ratio"]),
                         f"{num(a['settled_iterations'])} / {num(a['settled_uncut_twin_iterations'])}",
                         f"{a['settled_max_node_speed']:.2g}"] for d in diagnosed for a in [d["after_cut"]]]), "\n"]

@@ -428,6 +428,12 @@ class WorldsSolver(OneWorldSolver):
         force = control.force
         if force is not None and np.shape(force) != shape:
             raise ValueError(f"control.force must be None or of shape {shape} in N, got {np.shape(force)}")
+        return self._step_checked(state_in, state_out, control, dt, active)
+
+    def _step_checked(self, state_in: State, state_out: State, control: Control, dt: float, active) -> StepReport:
+        """``step`` of arguments it checked (``dt`` a float, ``active`` an (N,) bool mask, the shapes): a
+        cut world's own solver is stepped through here by the solver that checked them."""
+        stack, count, force = self.stack, self.stack.count, control.force
         for index in np.flatnonzero(active):
             if self._prepared[index] is not stack.models[index]:
                 self.prepare(index, stack.models[index], np.asarray(state_in.positions[index], dtype=float), dt,
@@ -447,9 +453,9 @@ class WorldsSolver(OneWorldSolver):
         for index in np.flatnonzero(active & ~stack.shared):
             one = slice(index, index + 1)
             out = State(positions[one], velocities[one])
-            report = self._own[index].step(
+            report = self._own[index]._step_checked(
                 State(state_in.positions[one], state_in.velocities[one], state_in.time), out,
-                Control(control.fixed[one], control.target[one], None if force is None else force[one]), dt)
+                Control(control.fixed[one], control.target[one], None if force is None else force[one]), dt, _ONE)
             positions[index], velocities[index] = out.positions[0], out.velocities[0]
             iterations[index], residual[index] = report.iterations[0], report.residual[0]
             reasons[index] = report.unstable_reason[0]
