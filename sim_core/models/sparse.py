@@ -60,21 +60,15 @@ class BlockPattern:
     def __init__(self, n_nodes: int, elements: np.ndarray, extra_pairs: np.ndarray | None = None):
         self.n_nodes = n_nodes
         self.n_dofs = 3 * n_nodes
-        n = elements.shape[1]
-        pairs = np.stack(
-            [np.repeat(elements, n, axis=1).ravel(), np.tile(elements, (1, n)).ravel()], axis=1
-        )
-        own = np.repeat(np.arange(n_nodes), 2).reshape(-1, 2)
-        extra = np.zeros((0, 2), dtype=pairs.dtype) if extra_pairs is None else np.asarray(extra_pairs, pairs.dtype)
-        # unique on one int64 key per pair (row-major, the order of unique(axis=0)): several times
-        # faster than unique over rows, which sorts structured views
-        keys = unique_keys(np.concatenate([pairs, own, extra]).astype(np.int64) @ np.array([n_nodes, 1], np.int64))
+        as_int = lambda array: kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))  # noqa: E731
+        extra = np.zeros((0, 2), np.int64) if extra_pairs is None else np.asarray(extra_pairs).reshape(-1, 2)
+        # each node's partners through its elements (a compiled pass, no sort of every element pair)
+        self.block_indptr, self._block_columns = kernels.node_pair_blocks(as_int(elements), as_int(extra),
+                                                                          int(n_nodes))
+        degree = np.diff(self.block_indptr)
         #: the node-pair blocks, sorted (a * n_nodes + b): every entry is found through its block, a
         #: search among 9 times fewer keys than the entries (a cut rebuilds these patterns)
-        self.block_keys = keys
-        degree = np.bincount(keys // n_nodes, minlength=n_nodes)
-        self.block_indptr = np.zeros(n_nodes + 1, np.int64)
-        np.cumsum(degree, out=self.block_indptr[1:])
+        keys = self.block_keys = np.repeat(np.arange(n_nodes, dtype=np.int64), degree) * n_nodes + self._block_columns
         # CSR of the dofs, block by block: dof row 3 a + i holds, for each block (a, b) in order, the
         # columns 3 b, 3 b + 1, 3 b + 2; it starts at 9 block_indptr[a] + 3 i degree(a)
         index_type = np.int32 if 9 * len(keys) < 2**31 else np.int64  # scipy's choice for a CSR matrix
@@ -102,6 +96,7 @@ class BlockPattern:
         pattern.block_keys = np.concatenate([old_rows * n_nodes + old_columns, new * n_nodes + new])
         pattern._degree = np.concatenate([self._degree, np.ones(extra, np.int64)])
         pattern.block_indptr = np.concatenate([self.block_indptr, self.block_indptr[-1] + 1 + np.arange(extra)])
+        pattern._block_columns = np.concatenate([self._block_columns, new])
         pattern.nnz = self.nnz + 9 * extra
         index_type = np.int32 if pattern.nnz < 2**31 else np.int64
         pattern.indptr = np.concatenate([self.indptr, self.indptr[-1] + 3 + 3 * np.arange(3 * extra)]
@@ -162,12 +157,15 @@ class BlockPattern:
         return np.asarray(positions.tocsc().data, dtype=np.int64)
 
     def block_positions(self, node_rows: np.ndarray, node_cols: np.ndarray) -> np.ndarray:
-        """Positions of the 3x3 blocks (node_rows[..., None], node_cols) -> shape (..., 3, 3)."""
+        """Positions of the 3x3 blocks (node_rows[..., None], node_cols) -> shape (..., 3, 3)
+        (``kernels.block_data_positions``); raises if one is outside the pattern."""
         a, b = np.broadcast_arrays(np.asarray(node_rows, dtype=np.int64), np.asarray(node_cols, dtype=np.int64))
-        block = self._blocks(a, b)
-        start = 9 * self.block_indptr[a] + 3 * (block - self.block_indptr[a])
-        return (start[..., None, None] + 3 * self._degree[a][..., None, None] * np.arange(3)[:, None]
-                + np.arange(3)[None, :])
+        out = np.empty(a.shape + (3, 3), np.int64)
+        if a.size and not kernels.block_data_positions(self.block_indptr, self._block_columns,
+                                                       np.ascontiguousarray(a.ravel()),
+                                                       np.ascontiguousarray(b.ravel()), out.reshape(-1, 3, 3)):
+            raise ValueError("entry outside the fixed sparsity pattern")
+        return out
 
     def assemble(self, positions: np.ndarray, values: np.ndarray) -> np.ndarray:
         """``data`` array of the sum of ``values`` at ``positions`` (same shapes)."""
