@@ -96,9 +96,10 @@ from .operator import (  # noqa: F401
 )
 from .factor import (  # noqa: F401
     block_ldl_factor, block_ldl_solve, block_ldl_solve_one, block_lu_apply, block_lu_factor, block_lu_solve,
-    capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply,
+    capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply, entry_blocks,
+    entry_positions,
     factor_copies, factor_copies_serial, inverse_columns_copies, inverse_columns_copies_serial, lu_apply,
-    lu_columns, set_list_items, symbolic_fill,
+    lu_columns, ordered_fill, set_list_items, symbolic_fill,
 )
 from .pattern import (  # noqa: F401
     block_data_positions, node_pair_blocks,

@@ -773,3 +773,136 @@ def symbolic_fill(indptr, indices, nb):
             sibling[k] = head[parent]
             head[parent] = k
     return u_indptr, u_indices[:u_indptr[nb]].copy()
+
+
+@njit(cache=True, nogil=True)
+def ordered_fill(block_row, block_col, nb, node_order):
+    """``sparse.block_structure``'s symbolic factor under a node ordering, in one compiled pass: the
+    node blocks (``block_row``, ``block_col``) (B,) of a matrix of ``nb`` block rows (distinct),
+    permuted by ``node_order`` (the node at each position): (the permuted block pattern's CSR indptr
+    and indices (each row sorted), each block's rank in it (B,), the block fill patterns of L (CSC
+    by rows ascending: U's transpose) and U (``symbolic_fill`` of the pattern made symmetric), the
+    3 x 3 block products of the numeric factorisation: for each block of L off the diagonal, the
+    blocks of U's row it multiplies)."""
+    count = len(block_row)
+    position = np.empty(nb, np.int64)
+    for p in range(nb):
+        position[node_order[p]] = p
+    a_indptr = np.zeros(nb + 1, np.int64)
+    t_indptr = np.zeros(nb + 1, np.int64)  # the transpose's rows (the permuted columns)
+    for q in range(count):
+        a_indptr[position[block_row[q]] + 1] += 1
+        t_indptr[position[block_col[q]] + 1] += 1
+    for r in range(nb):
+        a_indptr[r + 1] += a_indptr[r]
+        t_indptr[r + 1] += t_indptr[r]
+    slot = np.empty(count, np.int64)  # the blocks by permuted row
+    t_indices = np.empty(count, np.int64)
+    fill = a_indptr[:nb].copy()
+    t_fill = t_indptr[:nb].copy()
+    for q in range(count):
+        r, c = position[block_row[q]], position[block_col[q]]
+        slot[fill[r]] = q
+        fill[r] += 1
+        t_indices[t_fill[c]] = r
+        t_fill[c] += 1
+    a_indices = np.empty(count, np.int64)
+    rank = np.empty(count, np.int64)
+    columns = np.empty(nb, np.int64)
+    for r in range(nb):
+        low, size = a_indptr[r], a_indptr[r + 1] - a_indptr[r]
+        for p in range(size):
+            columns[p] = position[block_col[slot[low + p]]]
+        order = np.argsort(columns[:size])
+        for p in range(size):
+            a_indices[low + p] = columns[order[p]]
+            rank[slot[low + order[p]]] = low + p
+    # the pattern made symmetric: row r holds A's row r and A's column r
+    mark = np.full(nb, -1, np.int64)
+    indptr = np.zeros(nb + 1, np.int64)
+    indices = np.empty(2 * count, np.int64)
+    for r in range(nb):
+        size = 0
+        for p in range(a_indptr[r], a_indptr[r + 1]):
+            mark[a_indices[p]] = r
+            columns[size] = a_indices[p]
+            size += 1
+        for p in range(t_indptr[r], t_indptr[r + 1]):
+            if mark[t_indices[p]] != r:
+                mark[t_indices[p]] = r
+                columns[size] = t_indices[p]
+                size += 1
+        indices[indptr[r]:indptr[r] + size] = np.sort(columns[:size])
+        indptr[r + 1] = indptr[r] + size
+    u_indptr, u_indices = symbolic_fill(indptr, indices[:indptr[nb]], nb)
+    l_indptr = np.zeros(nb + 1, np.int64)
+    for p in range(len(u_indices)):
+        l_indptr[u_indices[p] + 1] += 1
+    for r in range(nb):
+        l_indptr[r + 1] += l_indptr[r]
+    l_indices = np.empty(len(u_indices), np.int64)
+    fill = l_indptr[:nb].copy()
+    for i in range(nb):  # rows ascending within each column
+        for p in range(u_indptr[i], u_indptr[i + 1]):
+            j = u_indices[p]
+            l_indices[fill[j]] = i
+            fill[j] += 1
+    products = 0
+    for j in range(nb):  # each column's last entry is its diagonal
+        for p in range(l_indptr[j], l_indptr[j + 1] - 1):
+            i = l_indices[p]
+            products += u_indptr[i + 1] - u_indptr[i]
+    return a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, products
+
+
+@njit(cache=True, nogil=True)
+def entry_blocks(indptr, indices, nb):
+    """The 3 x 3 node blocks of a CSC matrix's stored entries (``indptr``, ``indices``; 3 nb rows and
+    columns): (block rows, block columns) (B,) of its distinct blocks sorted by (row, column), and
+    the block of each stored entry (nnz,), in storage order."""
+    mark = np.full(nb, -1, np.int64)
+    local = np.empty(nb, np.int64)
+    found_row = np.empty(len(indices), np.int64)  # the blocks as found, column by column
+    found_col = np.empty(len(indices), np.int64)
+    entry = np.empty(len(indices), np.int64)
+    count = 0
+    for b in range(nb):
+        for column in range(3 * b, 3 * b + 3):
+            for p in range(indptr[column], indptr[column + 1]):
+                a = indices[p] // 3
+                if mark[a] != b:
+                    mark[a] = b
+                    local[a] = count
+                    found_row[count] = a
+                    found_col[count] = b
+                    count += 1
+                entry[p] = local[a]
+    start = np.zeros(nb + 1, np.int64)  # by row, columns ascending (found in that order)
+    for q in range(count):
+        start[found_row[q] + 1] += 1
+    for a in range(nb):
+        start[a + 1] += start[a]
+    final = np.empty(count, np.int64)
+    block_row = np.empty(count, np.int64)
+    block_col = np.empty(count, np.int64)
+    for q in range(count):
+        a = found_row[q]
+        final[q] = start[a]
+        block_row[start[a]] = a
+        block_col[start[a]] = found_col[q]
+        start[a] += 1
+    for p in range(len(indices)):
+        entry[p] = final[entry[p]]
+    return block_row, block_col, entry
+
+
+@njit(cache=True, nogil=True)
+def entry_positions(indptr, indices, entry_block, rank):
+    """(nnz,) the position of each stored entry of a CSC matrix (``indptr``, ``indices``) in its
+    node-block factor's block values: 9 rank[block] + 3 (row % 3) + column % 3 (``entry_blocks``'
+    block of each entry, ``rank`` each block's place in the permuted pattern)."""
+    out = np.empty(len(indices), np.int64)
+    for column in range(len(indptr) - 1):
+        for p in range(indptr[column], indptr[column + 1]):
+            out[p] = 9 * rank[entry_block[p]] + 3 * (indices[p] % 3) + column % 3
+    return out

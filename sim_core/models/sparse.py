@@ -282,19 +282,10 @@ def block_structure(matrix, free, orderings=NODE_ORDERINGS[:1]):
     its blocks, the block fill patterns of L and U, and the packed integer header."""
     k = matrix.shape[0]
     nb = k // 3
-    coo = matrix.tocoo()
-    node_row, node_col = (coo.row // 3).astype(np.int64), (coo.col // 3).astype(np.int64)
-    # the node blocks, found from their (0, 0) entries (a model's pattern on whole nodes has full
-    # blocks: nine times fewer keys to sort), or from every entry where a block lacks that entry
-    entry_keys = node_row * nb + node_col
-    corner = (coo.row % 3 == 0) & (coo.col % 3 == 0)
-    blocks = unique_keys(entry_keys[corner])
-    entry_block = _sorted_index(blocks, entry_keys, nb * nb)
-    if not (len(blocks) and np.array_equal(blocks[entry_block], entry_keys)):
-        blocks = unique_keys(entry_keys)
-        entry_block = np.searchsorted(blocks, entry_keys)
-    block_row, block_col = blocks // nb, blocks % nb
-    graph = sp.csc_matrix((np.ones(len(blocks)), (block_row, block_col)), shape=(nb, nb))
+    indptr, indices = (kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))
+                       for array in (matrix.indptr, matrix.indices))
+    block_row, block_col, entry_block = kernels.entry_blocks(indptr, indices, nb)  # its node blocks
+    graph = sp.csc_matrix((np.ones(len(block_row)), (block_row, block_col)), shape=(nb, nb))
     graph = (graph + graph.T + sp.diags(np.full(nb, float(nb)))).tocsc()
     best = None
     for spec in orderings:
@@ -303,7 +294,7 @@ def block_structure(matrix, free, orderings=NODE_ORDERINGS[:1]):
         if best is None or candidate[-1] < best[-1]:
             best = candidate
     node_order, a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, _ = best
-    a_map = 9 * rank[entry_block] + 3 * (coo.row % 3) + coo.col % 3
+    a_map = kernels.entry_positions(indptr, indices, entry_block, rank)
     order = (3 * node_order[:, None] + np.arange(3)).ravel()
     ints = np.concatenate([[-k, nb, len(l_indices), len(u_indices)], l_indptr, l_indices, u_indptr, u_indices,
                            np.asarray(free)[order]]).astype(np.int64)
@@ -315,30 +306,13 @@ def _ordered_fill(block_row, block_col, nb, node_order):
     ordering ``node_order`` (the node at each position): (node_order, the permuted block pattern
     (CSR indptr, indices), each block's rank in it, the block fill patterns of L and U (CSR
     indptr, indices), the 3 x 3 block products of the numeric factorisation: for each block (i, k)
-    of L off the diagonal, the blocks of U's row k, ``kernels.block_lu_factor``'s work)."""
-    position = np.empty(nb, np.int64)
-    position[node_order] = np.arange(nb)
-    permuted = position[block_row] * nb + position[block_col]
-    sort = np.argsort(permuted)
-    keys = permuted[sort]
-    rank = np.empty(len(keys), np.int64)
-    rank[sort] = np.arange(len(keys))
-    a_indptr = np.zeros(nb + 1, np.int64)
-    np.cumsum(np.bincount(keys // nb, minlength=nb), out=a_indptr[1:])
-    a_indices = (keys % nb).astype(np.int64)
-    # block fill: the symbolic factor of the permuted node graph made symmetric (``kernels.symbolic_fill``,
-    # the elimination tree's row unions: the pattern a numeric LU without pivoting fills), L its transpose
-    both = unique_keys(np.concatenate([keys, (keys % nb) * nb + keys // nb]))
-    indptr = np.zeros(nb + 1, np.int64)
-    np.cumsum(np.bincount(both // nb, minlength=nb), out=indptr[1:])
-    u_indptr, u_indices = kernels.symbolic_fill(indptr, both % nb, nb)
-    u_row = np.diff(u_indptr)
-    l_indptr = np.zeros(nb + 1, np.int64)
-    np.cumsum(np.bincount(u_indices, minlength=nb), out=l_indptr[1:])
-    l_indices = np.repeat(np.arange(nb, dtype=np.int64), u_row)[np.argsort(u_indices, kind="stable")]
-    off_diagonal = np.delete(l_indices, l_indptr[1:] - 1)
-    products = int(u_row[off_diagonal].sum())
-    return node_order, a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, products
+    of L off the diagonal, the blocks of U's row k, ``kernels.block_lu_factor``'s work). The block
+    fill is the symbolic factor of the permuted node graph made symmetric (``kernels.ordered_fill``,
+    ``kernels.symbolic_fill``: the elimination tree's row unions, the pattern a numeric LU without
+    pivoting fills), L its transpose."""
+    as_int = lambda array: kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))  # noqa: E731
+    node_order = as_int(node_order)
+    return (node_order,) + tuple(kernels.ordered_fill(as_int(block_row), as_int(block_col), int(nb), node_order))
 
 
 def symmetric_structure(structure):
