@@ -99,7 +99,7 @@ from .factor import (  # noqa: F401
     capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply, entry_blocks,
     entry_positions,
     factor_copies, factor_copies_serial, inverse_columns_copies, inverse_columns_copies_serial, lu_apply,
-    lu_columns, ordered_fill, set_list_items, symbolic_fill,
+    lu_columns, node_graph, ordered_fill, set_list_items, symbolic_fill,
 )
 from .pattern import (  # noqa: F401
     block_data_positions, node_pair_blocks,

@@ -906,3 +906,60 @@ def entry_positions(indptr, indices, entry_block, rank):
         for p in range(indptr[column], indptr[column + 1]):
             out[p] = 9 * rank[entry_block[p]] + 3 * (indices[p] % 3) + column % 3
     return out
+
+
+@njit(cache=True, nogil=True)
+def node_graph(block_row, block_col, nb):
+    """The node graph SuperLU orders (``sparse.block_structure``): G + G^T + nb I of the blocks'
+    pattern G (``block_row``, ``block_col`` (B,), distinct, sorted by row then column), in CSC form
+    (indptr, indices, data; symmetric, each column sorted): an entry counts its block and its
+    transpose, the diagonal adds nb."""
+    start = np.zeros(nb + 1, np.int64)  # the transpose's rows
+    for q in range(len(block_row)):
+        start[block_col[q] + 1] += 1
+    for r in range(nb):
+        start[r + 1] += start[r]
+    t_indices = np.empty(len(block_row), np.int64)
+    fill = start[:nb].copy()
+    for q in range(len(block_row)):
+        t_indices[fill[block_col[q]]] = block_row[q]
+        fill[block_col[q]] += 1
+    indptr = np.zeros(nb + 1, np.int64)
+    indices = np.empty(2 * len(block_row) + nb, np.int64)
+    data = np.empty(2 * len(block_row) + nb)
+    value = np.zeros(nb)
+    mark = np.full(nb, -1, np.int64)
+    columns = np.empty(nb, np.int64)
+    q = 0
+    for r in range(nb):
+        size = 0
+        while q < len(block_row) and block_row[q] == r:
+            c = block_col[q]
+            if mark[c] != r:
+                mark[c] = r
+                value[c] = 0.0
+                columns[size] = c
+                size += 1
+            value[c] += 1.0
+            q += 1
+        for p in range(start[r], start[r + 1]):
+            c = t_indices[p]
+            if mark[c] != r:
+                mark[c] = r
+                value[c] = 0.0
+                columns[size] = c
+                size += 1
+            value[c] += 1.0
+        if mark[r] != r:
+            mark[r] = r
+            value[r] = 0.0
+            columns[size] = r
+            size += 1
+        value[r] += nb
+        ordered = np.sort(columns[:size])
+        first = indptr[r]
+        for p in range(size):
+            indices[first + p] = ordered[p]
+            data[first + p] = value[ordered[p]]
+        indptr[r + 1] = first + size
+    return indptr, indices[:indptr[nb]].copy(), data[:indptr[nb]].copy()

@@ -285,8 +285,7 @@ def block_structure(matrix, free, orderings=NODE_ORDERINGS[:1]):
     indptr, indices = (kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))
                        for array in (matrix.indptr, matrix.indices))
     block_row, block_col, entry_block = kernels.entry_blocks(indptr, indices, nb)  # its node blocks
-    graph = sp.csc_matrix((np.ones(len(block_row)), (block_row, block_col)), shape=(nb, nb))
-    graph = (graph + graph.T + sp.diags(np.full(nb, float(nb)))).tocsc()
+    graph = sp.csc_matrix(kernels.node_graph(block_row, block_col, nb)[::-1], shape=(nb, nb))  # G + G^T + nb I
     best = None
     for spec in orderings:
         ordering = spla.splu(graph, permc_spec=spec, diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
