@@ -102,7 +102,7 @@ from .factor import (  # noqa: F401
     lu_columns, node_graph, ordered_fill, set_list_items, symbolic_fill,
 )
 from .pattern import (  # noqa: F401
-    block_data_positions, node_pair_blocks,
+    block_data_positions, free_entries, node_pair_blocks,
 )
 from .krylov_copies import (  # noqa: F401
     bsr3_matvec_add_rows, inverse_diagonal, jacobi_copies, jacobi_copies_serial, solve_copies_grouped,

@@ -88,3 +88,57 @@ def block_data_positions(block_indptr, block_columns, rows, cols, out):
             for c in range(3):
                 out[k, r, c] = first + stride * r + c
     return True
+
+
+@njit(cache=True, nogil=True)
+def free_entries(block_indptr, block_columns, free):
+    """The CSC structure of a ``BlockPattern``'s matrix (node-pair blocks ``block_indptr``,
+    ``block_columns``: symmetric, rows sorted) restricted to the dofs ``free`` (3 n,) bool, column
+    by column, rows ascending: (take (E,) int64, the position in the pattern's CSR data of each
+    entry (row, column); indices (E,) int32, its row among the free dofs; indptr (k + 1,) int32;
+    columns (E,) int64, its column among the free dofs)."""
+    n_dofs = len(free)
+    number = np.empty(n_dofs, np.int64)
+    count = 0
+    for d in range(n_dofs):
+        number[d] = count
+        if free[d]:
+            count += 1
+    size = 0  # entries: a free column c of node b meets the free rows of every block (a, b)
+    for c in range(n_dofs):
+        if free[c]:
+            b = c // 3
+            for q in range(block_indptr[b], block_indptr[b + 1]):
+                a = block_columns[q]
+                for i in range(3):
+                    if free[3 * a + i]:
+                        size += 1
+    take = np.empty(size, np.int64)
+    indices = np.empty(size, np.int32)
+    columns = np.empty(size, np.int64)
+    indptr = np.zeros(count + 1, np.int32)
+    e = 0
+    for c in range(n_dofs):
+        if not free[c]:
+            continue
+        b, j = c // 3, c % 3
+        for q in range(block_indptr[b], block_indptr[b + 1]):
+            a = block_columns[q]
+            low, high = block_indptr[a], block_indptr[a + 1]
+            left, right = low, high
+            while left < right:  # block (a, b) in row a
+                middle = (left + right) // 2
+                if block_columns[middle] < b:
+                    left = middle + 1
+                else:
+                    right = middle
+            first = 9 * low + 3 * (left - low) + j
+            for i in range(3):
+                r = 3 * a + i
+                if free[r]:
+                    take[e] = first + 3 * (high - low) * i
+                    indices[e] = number[r]
+                    columns[e] = number[c]
+                    e += 1
+        indptr[number[c] + 1] = e
+    return take, indices, indptr, columns

@@ -63,12 +63,12 @@ class BlockPattern:
         as_int = lambda array: kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))  # noqa: E731
         extra = np.zeros((0, 2), np.int64) if extra_pairs is None else np.asarray(extra_pairs).reshape(-1, 2)
         # each node's partners through its elements (a compiled pass, no sort of every element pair)
-        self.block_indptr, self._block_columns = kernels.node_pair_blocks(as_int(elements), as_int(extra),
+        self.block_indptr, self.block_columns = kernels.node_pair_blocks(as_int(elements), as_int(extra),
                                                                           int(n_nodes))
         degree = np.diff(self.block_indptr)
         #: the node-pair blocks, sorted (a * n_nodes + b): every entry is found through its block, a
         #: search among 9 times fewer keys than the entries (a cut rebuilds these patterns)
-        keys = self.block_keys = np.repeat(np.arange(n_nodes, dtype=np.int64), degree) * n_nodes + self._block_columns
+        keys = self.block_keys = np.repeat(np.arange(n_nodes, dtype=np.int64), degree) * n_nodes + self.block_columns
         # CSR of the dofs, block by block: dof row 3 a + i holds, for each block (a, b) in order, the
         # columns 3 b, 3 b + 1, 3 b + 2; it starts at 9 block_indptr[a] + 3 i degree(a)
         index_type = np.int32 if 9 * len(keys) < 2**31 else np.int64  # scipy's choice for a CSR matrix
@@ -96,7 +96,7 @@ class BlockPattern:
         pattern.block_keys = np.concatenate([old_rows * n_nodes + old_columns, new * n_nodes + new])
         pattern._degree = np.concatenate([self._degree, np.ones(extra, np.int64)])
         pattern.block_indptr = np.concatenate([self.block_indptr, self.block_indptr[-1] + 1 + np.arange(extra)])
-        pattern._block_columns = np.concatenate([self._block_columns, new])
+        pattern.block_columns = np.concatenate([self.block_columns, new])
         pattern.nnz = self.nnz + 9 * extra
         index_type = np.int32 if pattern.nnz < 2**31 else np.int64
         pattern.indptr = np.concatenate([self.indptr, self.indptr[-1] + 3 + 3 * np.arange(3 * extra)]
@@ -161,7 +161,7 @@ class BlockPattern:
         (``kernels.block_data_positions``); raises if one is outside the pattern."""
         a, b = np.broadcast_arrays(np.asarray(node_rows, dtype=np.int64), np.asarray(node_cols, dtype=np.int64))
         out = np.empty(a.shape + (3, 3), np.int64)
-        if a.size and not kernels.block_data_positions(self.block_indptr, self._block_columns,
+        if a.size and not kernels.block_data_positions(self.block_indptr, self.block_columns,
                                                        np.ascontiguousarray(a.ravel()),
                                                        np.ascontiguousarray(b.ravel()), out.reshape(-1, 3, 3)):
             raise ValueError("entry outside the fixed sparsity pattern")
