@@ -776,6 +776,36 @@ def symbolic_fill(indptr, indices, nb):
 
 
 @njit(cache=True, nogil=True)
+def _count_entry(c, r, amount, mark, value, columns, size):
+    """Row ``r`` of a symmetric union (``ordered_fill``, ``node_graph``): add ``amount`` to its entry
+    ``c`` (a new entry joins ``columns[:size]``, marked ``mark[c] == r``); returns the new count."""
+    if mark[c] != r:
+        mark[c] = r
+        value[c] = 0.0
+        columns[size] = c
+        size += 1
+    value[c] += amount
+    return size
+
+
+@njit(cache=True, nogil=True)
+def _bucket(keys, items, nb):
+    """(indptr (nb + 1,), ``items`` grouped by their ``keys`` in [0, nb), each group in the items'
+    order): a stable counting sort, the CSR rows of (key, item) pairs."""
+    indptr = np.zeros(nb + 1, np.int64)
+    for q in range(len(keys)):
+        indptr[keys[q] + 1] += 1
+    for r in range(nb):
+        indptr[r + 1] += indptr[r]
+    grouped = np.empty(len(keys), np.int64)
+    fill = indptr[:nb].copy()
+    for q in range(len(keys)):
+        grouped[fill[keys[q]]] = items[q]
+        fill[keys[q]] += 1
+    return indptr, grouped
+
+
+@njit(cache=True, nogil=True)
 def ordered_fill(block_row, block_col, nb, node_order):
     """``sparse.block_structure``'s symbolic factor under a node ordering, in one compiled pass: the
     node blocks (``block_row``, ``block_col``) (B,) of a matrix of ``nb`` block rows (distinct),
@@ -788,24 +818,11 @@ def ordered_fill(block_row, block_col, nb, node_order):
     position = np.empty(nb, np.int64)
     for p in range(nb):
         position[node_order[p]] = p
-    a_indptr = np.zeros(nb + 1, np.int64)
-    t_indptr = np.zeros(nb + 1, np.int64)  # the transpose's rows (the permuted columns)
+    rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
     for q in range(count):
-        a_indptr[position[block_row[q]] + 1] += 1
-        t_indptr[position[block_col[q]] + 1] += 1
-    for r in range(nb):
-        a_indptr[r + 1] += a_indptr[r]
-        t_indptr[r + 1] += t_indptr[r]
-    slot = np.empty(count, np.int64)  # the blocks by permuted row
-    t_indices = np.empty(count, np.int64)
-    fill = a_indptr[:nb].copy()
-    t_fill = t_indptr[:nb].copy()
-    for q in range(count):
-        r, c = position[block_row[q]], position[block_col[q]]
-        slot[fill[r]] = q
-        fill[r] += 1
-        t_indices[t_fill[c]] = r
-        t_fill[c] += 1
+        rows[q], cols[q] = position[block_row[q]], position[block_col[q]]
+    a_indptr, slot = _bucket(rows, np.arange(count), nb)  # the blocks by permuted row
+    t_indptr, t_indices = _bucket(cols, rows, nb)  # the transpose's rows (the permuted columns)
     a_indices = np.empty(count, np.int64)
     rank = np.empty(count, np.int64)
     columns = np.empty(nb, np.int64)
@@ -819,34 +836,22 @@ def ordered_fill(block_row, block_col, nb, node_order):
             rank[slot[low + order[p]]] = low + p
     # the pattern made symmetric: row r holds A's row r and A's column r
     mark = np.full(nb, -1, np.int64)
+    value = np.zeros(nb)  # (counts, unused here)
     indptr = np.zeros(nb + 1, np.int64)
     indices = np.empty(2 * count, np.int64)
     for r in range(nb):
         size = 0
         for p in range(a_indptr[r], a_indptr[r + 1]):
-            mark[a_indices[p]] = r
-            columns[size] = a_indices[p]
-            size += 1
+            size = _count_entry(a_indices[p], r, 1.0, mark, value, columns, size)
         for p in range(t_indptr[r], t_indptr[r + 1]):
-            if mark[t_indices[p]] != r:
-                mark[t_indices[p]] = r
-                columns[size] = t_indices[p]
-                size += 1
+            size = _count_entry(t_indices[p], r, 1.0, mark, value, columns, size)
         indices[indptr[r]:indptr[r] + size] = np.sort(columns[:size])
         indptr[r + 1] = indptr[r] + size
     u_indptr, u_indices = symbolic_fill(indptr, indices[:indptr[nb]], nb)
-    l_indptr = np.zeros(nb + 1, np.int64)
-    for p in range(len(u_indices)):
-        l_indptr[u_indices[p] + 1] += 1
-    for r in range(nb):
-        l_indptr[r + 1] += l_indptr[r]
-    l_indices = np.empty(len(u_indices), np.int64)
-    fill = l_indptr[:nb].copy()
-    for i in range(nb):  # rows ascending within each column
-        for p in range(u_indptr[i], u_indptr[i + 1]):
-            j = u_indices[p]
-            l_indices[fill[j]] = i
-            fill[j] += 1
+    u_rows = np.empty(len(u_indices), np.int64)
+    for i in range(nb):
+        u_rows[u_indptr[i]:u_indptr[i + 1]] = i
+    l_indptr, l_indices = _bucket(u_indices, u_rows, nb)  # U's transpose: rows ascending in each column
     products = 0
     for j in range(nb):  # each column's last entry is its diagonal
         for p in range(l_indptr[j], l_indptr[j + 1] - 1):
@@ -877,20 +882,10 @@ def entry_blocks(indptr, indices, nb):
                     found_col[count] = b
                     count += 1
                 entry[p] = local[a]
-    start = np.zeros(nb + 1, np.int64)  # by row, columns ascending (found in that order)
-    for q in range(count):
-        start[found_row[q] + 1] += 1
-    for a in range(nb):
-        start[a + 1] += start[a]
+    order = _bucket(found_row[:count], np.arange(count), nb)[1]  # by row, columns ascending (found so)
     final = np.empty(count, np.int64)
-    block_row = np.empty(count, np.int64)
-    block_col = np.empty(count, np.int64)
-    for q in range(count):
-        a = found_row[q]
-        final[q] = start[a]
-        block_row[start[a]] = a
-        block_col[start[a]] = found_col[q]
-        start[a] += 1
+    final[order] = np.arange(count)
+    block_row, block_col = found_row[order], found_col[order]
     for p in range(len(indices)):
         entry[p] = final[entry[p]]
     return block_row, block_col, entry
@@ -914,16 +909,7 @@ def node_graph(block_row, block_col, nb):
     pattern G (``block_row``, ``block_col`` (B,), distinct, sorted by row then column), in CSC form
     (indptr, indices, data; symmetric, each column sorted): an entry counts its block and its
     transpose, the diagonal adds nb."""
-    start = np.zeros(nb + 1, np.int64)  # the transpose's rows
-    for q in range(len(block_row)):
-        start[block_col[q] + 1] += 1
-    for r in range(nb):
-        start[r + 1] += start[r]
-    t_indices = np.empty(len(block_row), np.int64)
-    fill = start[:nb].copy()
-    for q in range(len(block_row)):
-        t_indices[fill[block_col[q]]] = block_row[q]
-        fill[block_col[q]] += 1
+    start, t_indices = _bucket(block_col, block_row, nb)  # the transpose's rows
     indptr = np.zeros(nb + 1, np.int64)
     indices = np.empty(2 * len(block_row) + nb, np.int64)
     data = np.empty(2 * len(block_row) + nb)
@@ -934,28 +920,11 @@ def node_graph(block_row, block_col, nb):
     for r in range(nb):
         size = 0
         while q < len(block_row) and block_row[q] == r:
-            c = block_col[q]
-            if mark[c] != r:
-                mark[c] = r
-                value[c] = 0.0
-                columns[size] = c
-                size += 1
-            value[c] += 1.0
+            size = _count_entry(block_col[q], r, 1.0, mark, value, columns, size)
             q += 1
         for p in range(start[r], start[r + 1]):
-            c = t_indices[p]
-            if mark[c] != r:
-                mark[c] = r
-                value[c] = 0.0
-                columns[size] = c
-                size += 1
-            value[c] += 1.0
-        if mark[r] != r:
-            mark[r] = r
-            value[r] = 0.0
-            columns[size] = r
-            size += 1
-        value[r] += nb
+            size = _count_entry(t_indices[p], r, 1.0, mark, value, columns, size)
+        size = _count_entry(r, r, float(nb), mark, value, columns, size)
         ordered = np.sort(columns[:size])
         first = indptr[r]
         for p in range(size):
