@@ -148,14 +148,6 @@ class BlockPattern:
             return np.arange(count, dtype=np.int64)
         return self.positions(np.repeat(np.arange(len(indptr) - 1), np.diff(indptr)), indices)
 
-    def transpose_positions(self) -> np.ndarray:
-        """(nnz,) for each stored entry (r, c), in ``data`` order, the position of (c, r) (the pattern is
-        symmetric: every block (a, b) has its (b, a), and its rows are sorted): the positions
-        ``arange(nnz)`` as a matrix, transposed (its CSC form: the same pattern, entry by entry)."""
-        positions = sp.csr_matrix((np.arange(self.nnz, dtype=np.int64), self.indices, self.indptr),
-                                  shape=(self.n_dofs, self.n_dofs))
-        return np.asarray(positions.tocsc().data, dtype=np.int64)
-
     def block_positions(self, node_rows: np.ndarray, node_cols: np.ndarray) -> np.ndarray:
         """Positions of the 3x3 blocks (node_rows[..., None], node_cols) -> shape (..., 3, 3)
         (``kernels.block_data_positions``); raises if one is outside the pattern."""
