@@ -22,6 +22,10 @@ benchmarks/results/cutting_dissection.json; single env, default keywords, one th
   makes of the ratio); the ratio of the mean step times (``mean_ratio``: the median leaves out the
   steps that refactorise); and the same ratio, iterations and speed after ``SETTLE`` more held steps
   (the cut tissue at rest);
+- a cut's parts: each cut of the timed episodes made again outside the env, CPU medians of its
+  separation (``sim_core.cutting.separation``: the cut model), its one-world stack on the world's node
+  rows (``stack.with_spare_nodes``, ``ModelStack``) and its factor's symbolic structure
+  (``solvers.factors.copies_structure`` on every node row);
 - memory: the scripted incision (every episode cuts, copies nodes and resets) ``--episodes``
   times in one process; the peak resident set size (VmHWM of /proc/self/status) after 20 episodes
   and at the end, and their ratio (the floor: less than 10% growth from 20 to 220 episodes).
@@ -42,6 +46,9 @@ import numpy as np
 import tissue_env  # noqa: F401  (registers the envs)
 from sim_core import kernels
 from benchmarks.memory_soak import rss_mb
+from sim_core.cutting import separation
+from sim_core.models.stack import ModelStack, with_spare_nodes
+from sim_core.solvers.factors import copies_structure
 from training.common import write_json
 
 ENV_ID = "tissue_env/Incision-v0"
@@ -149,6 +156,8 @@ def episode_times(env, seed, held=10, twin=None, details=None):
         seconds, (_, _, terminated, truncated, info) = timed(env, env.unwrapped.scripted_action())
         if info["faces_cut"]:
             cutting.append(seconds)
+            if details is not None:  # the union of the cuts so far (the world holds the uncut model cut along it)
+                details.setdefault("cuts", []).append(np.concatenate(env.unwrapped.worlds.cuts[0]))
         if terminated or truncated:
             break
     if env.unwrapped.worlds.stack.shared[0]:
@@ -181,6 +190,25 @@ def keep(details, prefix, iterations, speeds, times=None, made=(0, 0)):
         details.setdefault(f"{prefix}{name}_speed", []).extend(speeds[side])
         if times is not None:
             details.setdefault(f"{prefix}{name}_s", []).extend(times[side])
+
+
+def cut_parts(env, cuts) -> dict:
+    """The median CPU time, s, of each part of a cut (module docstring), made again on ``env``'s uncut
+    model along each of ``cuts`` (the unions of faces of the timed cutting steps)."""
+    uncut, rows = env.unwrapped.model, env.unwrapped.worlds.stack.n_nodes
+    times = {"separation_s": [], "one_world_stack_s": [], "factor_structure_s": []}
+    for faces in cuts:
+        start = time.process_time()
+        model = separation(uncut, faces).model
+        separated = time.process_time()
+        padded = with_spare_nodes(model, rows)
+        ModelStack(padded, 1)
+        stacked = time.process_time()
+        copies_structure(padded, np.ones(rows, dtype=bool))
+        done = time.process_time()
+        for name, seconds in zip(times, (separated - start, stacked - separated, done - stacked)):
+            times[name].append(seconds)
+    return {name: float(np.median(values)) for name, values in times.items()}
 
 
 def memory(env, episodes):
@@ -233,6 +261,7 @@ def main(argv=None):
     extra_iterations = float(np.mean(details["after_iterations"]) - np.mean(details["uncut_iterations"]))
     made = float(np.sum(details["after_factorisations"]) / len(after))
     iteration, refactorisation = (float(np.median(details[name])) for name in ("iteration_s", "refactorisation_s"))
+    parts = cut_parts(env, details["cuts"])
     start = time.perf_counter()
     first, last, successes = memory(gym.make(env_id), args.episodes)
     result = dict(
@@ -240,6 +269,7 @@ def main(argv=None):
         step_s=step, cutting_step_s=cut, step_after_cut_s=later, uncut_twin_step_s=twin_step,
         cutting_step_in_env_steps=cut / step, step_after_cut_ratio=later / twin_step,
         steps_timed=dict(before=len(before), cutting=len(cutting), after=len(after), uncut_twin=len(uncut)),
+        cut_parts=parts,
         after_cut=dict(
             iterations=float(np.mean(details["after_iterations"])),
             uncut_twin_iterations=float(np.mean(details["uncut_iterations"])),
@@ -265,7 +295,8 @@ def main(argv=None):
     write_json(args.output, result)
     print(f"env step {step * 1e3:.2f} ms; cutting step {cut * 1e3:.1f} ms = {cut / step:.1f} env steps; "
           f"after a cut {later * 1e3:.2f} ms = {later / twin_step:.2f}x the uncut twin's {twin_step * 1e3:.2f} ms; "
-          f"({details_line(result['after_cut'])}); peak RSS {first:.0f} MB after "
+          f"({details_line(result['after_cut'])}); a cut's separation, one-world stack, factor structure "
+          f"{', '.join(f'{seconds * 1e3:.2f}' for seconds in parts.values())} ms; peak RSS {first:.0f} MB after "
           f"{MEMORY_FIRST} episodes, {last:.0f} MB after {args.episodes} ({100 * (last / first - 1):+.1f}%)")
     return result
 

@@ -216,11 +216,27 @@ def blade_faces(model: Model, positions, edge_from, edge_to) -> np.ndarray:
     pairs = model_shared_faces(model)
     centres = positions[model.mesh.elements].mean(axis=1)
     start, end = centres[pairs[:, 0]], centres[pairs[:, 1]]
+    # only a segment that meets the swept surface's bounding box (widened by a margin far above
+    # rounding) can cross it: the test runs on those few, with the same floats per segment
+    corners = np.concatenate([edge_from, edge_to])
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    margin = 1e-6 * (float(np.max(high - low)) + float(np.max(np.abs(corners))))
+    near = np.flatnonzero(np.all((np.minimum(start, end) <= high + margin)
+                                 & (np.maximum(start, end) >= low - margin), axis=1))
+    start, end = start[near], end[near]
     (a, b), (a_to, b_to) = edge_from, edge_to
-    crossed = np.zeros(len(pairs), dtype=bool)
+    crossed = np.zeros(len(near), dtype=bool)
     for triangle in ((a, b, b_to), (a, b_to, a_to)):
         crossed |= _segments_cross_triangle(start, end, *triangle)
-    return pairs[crossed]
+    return pairs[near[crossed]]
+
+
+def _cross(u, v):
+    """u x v for (S, 3) or (3,) arrays (broadcast): ``np.cross``'s products and differences, without
+    its axis handling (a blade's every step asks it)."""
+    u, v = np.asarray(u), np.asarray(v)
+    return np.stack([u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1], u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2],
+                     u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]], axis=-1)
 
 
 def _segments_cross_triangle(start, end, p0, p1, p2, tolerance=1e-12):
@@ -228,14 +244,14 @@ def _segments_cross_triangle(start, end, p0, p1, p2, tolerance=1e-12):
     the segment's parameter in [0, 1]; a degenerate triangle is crossed by none)."""
     direction = end - start
     e1, e2 = p1 - p0, p2 - p0
-    h = np.cross(direction, e2)
+    h = _cross(direction, e2)
     det = h @ e1
     with np.errstate(divide="ignore", invalid="ignore"):
         inverse = np.where(np.abs(det) > tolerance * np.linalg.norm(e1) * np.linalg.norm(e2) * np.linalg.norm(
             direction, axis=1), 1.0 / det, 0.0)
         s = start - p0
         u = inverse * np.einsum("ij,ij->i", s, h)
-        q = np.cross(s, e1)
+        q = _cross(s, e1)
         v = inverse * np.einsum("ij,ij->i", direction, q)
         t = inverse * (q @ e2)
     return (inverse != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)

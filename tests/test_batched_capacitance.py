@@ -1,6 +1,6 @@
 """The batched factorised solver (sim_core.solvers.implicit, solver "factorised") keeps each copy's
 node-block LU when a contact imposes more dofs, and restricts it exactly to the free dofs by a
-capacitance correction (``_CopyFactor.correction``, ``kernels.corrected_lu_apply``)."""
+capacitance correction (``factors.CopyFactor.correction``, ``kernels.corrected_lu_apply``)."""
 
 import numpy as np
 import pytest

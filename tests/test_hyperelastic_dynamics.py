@@ -36,7 +36,7 @@ def _perturbed(model, scale, seed=0):
 def _assembled(workspace, model, scales):
     values = np.empty(model.pattern.nnz)
     kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
-                                 pattern_arrays(model)[3], model.pattern.diagonal_positions, values)
+                                 pattern_arrays(model)[0], model.pattern.diagonal_positions, values)
     return model.pattern.matrix(values).tocsr()
 
 

@@ -301,4 +301,14 @@ def cutting_section():
                         f"{a['max_node_speed']:.2g}", a["settled_after_steps"], num(a["settled_ratio"]),
                         f"{num(a['settled_iterations'])} / {num(a['settled_uncut_twin_iterations'])}",
                         f"{a['settled_max_node_speed']:.2g}"] for d in diagnosed for a in [d["after_cut"]]]), "\n"]
+    parted = [d for d, _, _ in data if "cut_parts" in d]
+    if parted:  # where a cutting step's time goes (the same runs)
+        out += ["Where a cutting step's time goes (the same runs): each cut made again outside the env, CPU "
+                "medians of its parts: the cut model (`sim_core.cutting.separation`), its world's one-world stack "
+                "on the node rows, and the symbolic structure of its factor (`solvers.factors.copies_structure`); "
+                "the rest of a cutting step is its numeric factorisation and the step itself.\n\n",
+                table(["env", "separation (ms)", "one-world stack (ms)", "factor structure (ms)"],
+                      [[short_id(d["env_id"])] + [num(1e3 * d["cut_parts"][name]) for name in
+                                                  ("separation_s", "one_world_stack_s", "factor_structure_s")]
+                       for d in parted]), "\n"]
     return out

@@ -13,7 +13,8 @@ between a kernel and its ``_serial`` twin), ``measure`` (lengths, volumes, healt
 reaction), ``update`` (the integrators' per-dof state updates), ``forces`` (the force passes),
 ``stress`` (the finite-strain stress correction), ``operator`` (the implicit step's matrix-free
 operator products and its assembled matrix), ``factor`` (block LU / LDL^T factors and their
-solves), ``krylov_copies`` (the implicit step's Krylov solves, per copy: N = 1 is one world), ``contact`` (the probe's projected
+solves), ``pattern`` (a mesh's node-pair block pattern),
+``krylov_copies`` (the implicit step's Krylov solves, per copy: N = 1 is one world), ``contact`` (the probe's projected
 surface), ``geometry`` (points covered by quads seen from above). Every public name is re-exported
 here: ``kernels.model_forces(...)``.
 
@@ -95,9 +96,13 @@ from .operator import (  # noqa: F401
 )
 from .factor import (  # noqa: F401
     block_ldl_factor, block_ldl_solve, block_ldl_solve_one, block_lu_apply, block_lu_factor, block_lu_solve,
-    capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply,
+    capacitance_corrections, capacitance_corrections_serial, correct_masked, corrected_lu_apply, entry_blocks,
+    entry_positions,
     factor_copies, factor_copies_serial, inverse_columns_copies, inverse_columns_copies_serial, lu_apply,
-    lu_columns, set_list_items, symbolic_fill,
+    lu_columns, node_graph, ordered_fill, set_list_items, symbolic_fill,
+)
+from .pattern import (  # noqa: F401
+    block_data_positions, free_entries, node_pair_blocks,
 )
 from .krylov_copies import (  # noqa: F401
     bsr3_matvec_add_rows, inverse_diagonal, jacobi_copies, jacobi_copies_serial, solve_copies_grouped,

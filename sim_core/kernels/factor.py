@@ -773,3 +773,162 @@ def symbolic_fill(indptr, indices, nb):
             sibling[k] = head[parent]
             head[parent] = k
     return u_indptr, u_indices[:u_indptr[nb]].copy()
+
+
+@njit(cache=True, nogil=True)
+def _count_entry(c, r, amount, mark, value, columns, size):
+    """Row ``r`` of a symmetric union (``ordered_fill``, ``node_graph``): add ``amount`` to its entry
+    ``c`` (a new entry joins ``columns[:size]``, marked ``mark[c] == r``); returns the new count."""
+    if mark[c] != r:
+        mark[c] = r
+        value[c] = 0.0
+        columns[size] = c
+        size += 1
+    value[c] += amount
+    return size
+
+
+@njit(cache=True, nogil=True)
+def _bucket(keys, items, nb):
+    """(indptr (nb + 1,), ``items`` grouped by their ``keys`` in [0, nb), each group in the items'
+    order): a stable counting sort, the CSR rows of (key, item) pairs."""
+    indptr = np.zeros(nb + 1, np.int64)
+    for q in range(len(keys)):
+        indptr[keys[q] + 1] += 1
+    for r in range(nb):
+        indptr[r + 1] += indptr[r]
+    grouped = np.empty(len(keys), np.int64)
+    fill = indptr[:nb].copy()
+    for q in range(len(keys)):
+        grouped[fill[keys[q]]] = items[q]
+        fill[keys[q]] += 1
+    return indptr, grouped
+
+
+@njit(cache=True, nogil=True)
+def ordered_fill(block_row, block_col, nb, node_order):
+    """``sparse.block_structure``'s symbolic factor under a node ordering, in one compiled pass: the
+    node blocks (``block_row``, ``block_col``) (B,) of a matrix of ``nb`` block rows (distinct),
+    permuted by ``node_order`` (the node at each position): (the permuted block pattern's CSR indptr
+    and indices (each row sorted), each block's rank in it (B,), the block fill patterns of L (CSC
+    by rows ascending: U's transpose) and U (``symbolic_fill`` of the pattern made symmetric), the
+    3 x 3 block products of the numeric factorisation: for each block of L off the diagonal, the
+    blocks of U's row it multiplies)."""
+    count = len(block_row)
+    position = np.empty(nb, np.int64)
+    for p in range(nb):
+        position[node_order[p]] = p
+    rows, cols = np.empty(count, np.int64), np.empty(count, np.int64)
+    for q in range(count):
+        rows[q], cols[q] = position[block_row[q]], position[block_col[q]]
+    a_indptr, slot = _bucket(rows, np.arange(count), nb)  # the blocks by permuted row
+    t_indptr, t_indices = _bucket(cols, rows, nb)  # the transpose's rows (the permuted columns)
+    a_indices = np.empty(count, np.int64)
+    rank = np.empty(count, np.int64)
+    columns = np.empty(nb, np.int64)
+    for r in range(nb):
+        low, size = a_indptr[r], a_indptr[r + 1] - a_indptr[r]
+        for p in range(size):
+            columns[p] = position[block_col[slot[low + p]]]
+        order = np.argsort(columns[:size])
+        for p in range(size):
+            a_indices[low + p] = columns[order[p]]
+            rank[slot[low + order[p]]] = low + p
+    # the pattern made symmetric: row r holds A's row r and A's column r
+    mark = np.full(nb, -1, np.int64)
+    value = np.zeros(nb)  # (counts, unused here)
+    indptr = np.zeros(nb + 1, np.int64)
+    indices = np.empty(2 * count, np.int64)
+    for r in range(nb):
+        size = 0
+        for p in range(a_indptr[r], a_indptr[r + 1]):
+            size = _count_entry(a_indices[p], r, 1.0, mark, value, columns, size)
+        for p in range(t_indptr[r], t_indptr[r + 1]):
+            size = _count_entry(t_indices[p], r, 1.0, mark, value, columns, size)
+        indices[indptr[r]:indptr[r] + size] = np.sort(columns[:size])
+        indptr[r + 1] = indptr[r] + size
+    u_indptr, u_indices = symbolic_fill(indptr, indices[:indptr[nb]], nb)
+    u_rows = np.empty(len(u_indices), np.int64)
+    for i in range(nb):
+        u_rows[u_indptr[i]:u_indptr[i + 1]] = i
+    l_indptr, l_indices = _bucket(u_indices, u_rows, nb)  # U's transpose: rows ascending in each column
+    products = 0
+    for j in range(nb):  # each column's last entry is its diagonal
+        for p in range(l_indptr[j], l_indptr[j + 1] - 1):
+            i = l_indices[p]
+            products += u_indptr[i + 1] - u_indptr[i]
+    return a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, products
+
+
+@njit(cache=True, nogil=True)
+def entry_blocks(indptr, indices, nb):
+    """The 3 x 3 node blocks of a CSC matrix's stored entries (``indptr``, ``indices``; 3 nb rows and
+    columns): (block rows, block columns) (B,) of its distinct blocks sorted by (row, column), and
+    the block of each stored entry (nnz,), in storage order."""
+    mark = np.full(nb, -1, np.int64)
+    local = np.empty(nb, np.int64)
+    found_row = np.empty(len(indices), np.int64)  # the blocks as found, column by column
+    found_col = np.empty(len(indices), np.int64)
+    entry = np.empty(len(indices), np.int64)
+    count = 0
+    for b in range(nb):
+        for column in range(3 * b, 3 * b + 3):
+            for p in range(indptr[column], indptr[column + 1]):
+                a = indices[p] // 3
+                if mark[a] != b:
+                    mark[a] = b
+                    local[a] = count
+                    found_row[count] = a
+                    found_col[count] = b
+                    count += 1
+                entry[p] = local[a]
+    order = _bucket(found_row[:count], np.arange(count), nb)[1]  # by row, columns ascending (found so)
+    final = np.empty(count, np.int64)
+    final[order] = np.arange(count)
+    block_row, block_col = found_row[order], found_col[order]
+    for p in range(len(indices)):
+        entry[p] = final[entry[p]]
+    return block_row, block_col, entry
+
+
+@njit(cache=True, nogil=True)
+def entry_positions(indptr, indices, entry_block, rank):
+    """(nnz,) the position of each stored entry of a CSC matrix (``indptr``, ``indices``) in its
+    node-block factor's block values: 9 rank[block] + 3 (row % 3) + column % 3 (``entry_blocks``'
+    block of each entry, ``rank`` each block's place in the permuted pattern)."""
+    out = np.empty(len(indices), np.int64)
+    for column in range(len(indptr) - 1):
+        for p in range(indptr[column], indptr[column + 1]):
+            out[p] = 9 * rank[entry_block[p]] + 3 * (indices[p] % 3) + column % 3
+    return out
+
+
+@njit(cache=True, nogil=True)
+def node_graph(block_row, block_col, nb):
+    """The node graph SuperLU orders (``sparse.block_structure``): G + G^T + nb I of the blocks'
+    pattern G (``block_row``, ``block_col`` (B,), distinct, sorted by row then column), in CSC form
+    (indptr, indices, data; symmetric, each column sorted): an entry counts its block and its
+    transpose, the diagonal adds nb."""
+    start, t_indices = _bucket(block_col, block_row, nb)  # the transpose's rows
+    indptr = np.zeros(nb + 1, np.int64)
+    indices = np.empty(2 * len(block_row) + nb, np.int64)
+    data = np.empty(2 * len(block_row) + nb)
+    value = np.zeros(nb)
+    mark = np.full(nb, -1, np.int64)
+    columns = np.empty(nb, np.int64)
+    q = 0
+    for r in range(nb):
+        size = 0
+        while q < len(block_row) and block_row[q] == r:
+            size = _count_entry(block_col[q], r, 1.0, mark, value, columns, size)
+            q += 1
+        for p in range(start[r], start[r + 1]):
+            size = _count_entry(t_indices[p], r, 1.0, mark, value, columns, size)
+        size = _count_entry(r, r, float(nb), mark, value, columns, size)
+        ordered = np.sort(columns[:size])
+        first = indptr[r]
+        for p in range(size):
+            indices[first + p] = ordered[p]
+            data[first + p] = value[ordered[p]]
+        indptr[r + 1] = first + size
+    return indptr, indices[:indptr[nb]].copy(), data[:indptr[nb]].copy()

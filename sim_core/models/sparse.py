@@ -60,21 +60,15 @@ class BlockPattern:
     def __init__(self, n_nodes: int, elements: np.ndarray, extra_pairs: np.ndarray | None = None):
         self.n_nodes = n_nodes
         self.n_dofs = 3 * n_nodes
-        n = elements.shape[1]
-        pairs = np.stack(
-            [np.repeat(elements, n, axis=1).ravel(), np.tile(elements, (1, n)).ravel()], axis=1
-        )
-        own = np.repeat(np.arange(n_nodes), 2).reshape(-1, 2)
-        extra = np.zeros((0, 2), dtype=pairs.dtype) if extra_pairs is None else np.asarray(extra_pairs, pairs.dtype)
-        # unique on one int64 key per pair (row-major, the order of unique(axis=0)): several times
-        # faster than unique over rows, which sorts structured views
-        keys = unique_keys(np.concatenate([pairs, own, extra]).astype(np.int64) @ np.array([n_nodes, 1], np.int64))
+        as_int = lambda array: kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))  # noqa: E731
+        extra = np.zeros((0, 2), np.int64) if extra_pairs is None else np.asarray(extra_pairs).reshape(-1, 2)
+        # each node's partners through its elements (a compiled pass, no sort of every element pair)
+        self.block_indptr, self.block_columns = kernels.node_pair_blocks(as_int(elements), as_int(extra),
+                                                                          int(n_nodes))
+        degree = np.diff(self.block_indptr)
         #: the node-pair blocks, sorted (a * n_nodes + b): every entry is found through its block, a
         #: search among 9 times fewer keys than the entries (a cut rebuilds these patterns)
-        self.block_keys = keys
-        degree = np.bincount(keys // n_nodes, minlength=n_nodes)
-        self.block_indptr = np.zeros(n_nodes + 1, np.int64)
-        np.cumsum(degree, out=self.block_indptr[1:])
+        keys = self.block_keys = np.repeat(np.arange(n_nodes, dtype=np.int64), degree) * n_nodes + self.block_columns
         # CSR of the dofs, block by block: dof row 3 a + i holds, for each block (a, b) in order, the
         # columns 3 b, 3 b + 1, 3 b + 2; it starts at 9 block_indptr[a] + 3 i degree(a)
         index_type = np.int32 if 9 * len(keys) < 2**31 else np.int64  # scipy's choice for a CSR matrix
@@ -102,6 +96,7 @@ class BlockPattern:
         pattern.block_keys = np.concatenate([old_rows * n_nodes + old_columns, new * n_nodes + new])
         pattern._degree = np.concatenate([self._degree, np.ones(extra, np.int64)])
         pattern.block_indptr = np.concatenate([self.block_indptr, self.block_indptr[-1] + 1 + np.arange(extra)])
+        pattern.block_columns = np.concatenate([self.block_columns, new])
         pattern.nnz = self.nnz + 9 * extra
         index_type = np.int32 if pattern.nnz < 2**31 else np.int64
         pattern.indptr = np.concatenate([self.indptr, self.indptr[-1] + 3 + 3 * np.arange(3 * extra)]
@@ -153,21 +148,16 @@ class BlockPattern:
             return np.arange(count, dtype=np.int64)
         return self.positions(np.repeat(np.arange(len(indptr) - 1), np.diff(indptr)), indices)
 
-    def transpose_positions(self) -> np.ndarray:
-        """(nnz,) for each stored entry (r, c), in ``data`` order, the position of (c, r) (the pattern is
-        symmetric: every block (a, b) has its (b, a), and its rows are sorted): the positions
-        ``arange(nnz)`` as a matrix, transposed (its CSC form: the same pattern, entry by entry)."""
-        positions = sp.csr_matrix((np.arange(self.nnz, dtype=np.int64), self.indices, self.indptr),
-                                  shape=(self.n_dofs, self.n_dofs))
-        return np.asarray(positions.tocsc().data, dtype=np.int64)
-
     def block_positions(self, node_rows: np.ndarray, node_cols: np.ndarray) -> np.ndarray:
-        """Positions of the 3x3 blocks (node_rows[..., None], node_cols) -> shape (..., 3, 3)."""
+        """Positions of the 3x3 blocks (node_rows[..., None], node_cols) -> shape (..., 3, 3)
+        (``kernels.block_data_positions``); raises if one is outside the pattern."""
         a, b = np.broadcast_arrays(np.asarray(node_rows, dtype=np.int64), np.asarray(node_cols, dtype=np.int64))
-        block = self._blocks(a, b)
-        start = 9 * self.block_indptr[a] + 3 * (block - self.block_indptr[a])
-        return (start[..., None, None] + 3 * self._degree[a][..., None, None] * np.arange(3)[:, None]
-                + np.arange(3)[None, :])
+        out = np.empty(a.shape + (3, 3), np.int64)
+        if a.size and not kernels.block_data_positions(self.block_indptr, self.block_columns,
+                                                       np.ascontiguousarray(a.ravel()),
+                                                       np.ascontiguousarray(b.ravel()), out.reshape(-1, 3, 3)):
+            raise ValueError("entry outside the fixed sparsity pattern")
+        return out
 
     def assemble(self, positions: np.ndarray, values: np.ndarray) -> np.ndarray:
         """``data`` array of the sum of ``values`` at ``positions`` (same shapes)."""
@@ -284,20 +274,10 @@ def block_structure(matrix, free, orderings=NODE_ORDERINGS[:1]):
     its blocks, the block fill patterns of L and U, and the packed integer header."""
     k = matrix.shape[0]
     nb = k // 3
-    coo = matrix.tocoo()
-    node_row, node_col = (coo.row // 3).astype(np.int64), (coo.col // 3).astype(np.int64)
-    # the node blocks, found from their (0, 0) entries (a model's pattern on whole nodes has full
-    # blocks: nine times fewer keys to sort), or from every entry where a block lacks that entry
-    entry_keys = node_row * nb + node_col
-    corner = (coo.row % 3 == 0) & (coo.col % 3 == 0)
-    blocks = unique_keys(entry_keys[corner])
-    entry_block = _sorted_index(blocks, entry_keys, nb * nb)
-    if not (len(blocks) and np.array_equal(blocks[entry_block], entry_keys)):
-        blocks = unique_keys(entry_keys)
-        entry_block = np.searchsorted(blocks, entry_keys)
-    block_row, block_col = blocks // nb, blocks % nb
-    graph = sp.csc_matrix((np.ones(len(blocks)), (block_row, block_col)), shape=(nb, nb))
-    graph = (graph + graph.T + sp.diags(np.full(nb, float(nb)))).tocsc()
+    indptr, indices = (kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))
+                       for array in (matrix.indptr, matrix.indices))
+    block_row, block_col, entry_block = kernels.entry_blocks(indptr, indices, nb)  # its node blocks
+    graph = sp.csc_matrix(kernels.node_graph(block_row, block_col, nb)[::-1], shape=(nb, nb))  # G + G^T + nb I
     best = None
     for spec in orderings:
         ordering = spla.splu(graph, permc_spec=spec, diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
@@ -305,7 +285,7 @@ def block_structure(matrix, free, orderings=NODE_ORDERINGS[:1]):
         if best is None or candidate[-1] < best[-1]:
             best = candidate
     node_order, a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, _ = best
-    a_map = 9 * rank[entry_block] + 3 * (coo.row % 3) + coo.col % 3
+    a_map = kernels.entry_positions(indptr, indices, entry_block, rank)
     order = (3 * node_order[:, None] + np.arange(3)).ravel()
     ints = np.concatenate([[-k, nb, len(l_indices), len(u_indices)], l_indptr, l_indices, u_indptr, u_indices,
                            np.asarray(free)[order]]).astype(np.int64)
@@ -317,30 +297,13 @@ def _ordered_fill(block_row, block_col, nb, node_order):
     ordering ``node_order`` (the node at each position): (node_order, the permuted block pattern
     (CSR indptr, indices), each block's rank in it, the block fill patterns of L and U (CSR
     indptr, indices), the 3 x 3 block products of the numeric factorisation: for each block (i, k)
-    of L off the diagonal, the blocks of U's row k, ``kernels.block_lu_factor``'s work)."""
-    position = np.empty(nb, np.int64)
-    position[node_order] = np.arange(nb)
-    permuted = position[block_row] * nb + position[block_col]
-    sort = np.argsort(permuted)
-    keys = permuted[sort]
-    rank = np.empty(len(keys), np.int64)
-    rank[sort] = np.arange(len(keys))
-    a_indptr = np.zeros(nb + 1, np.int64)
-    np.cumsum(np.bincount(keys // nb, minlength=nb), out=a_indptr[1:])
-    a_indices = (keys % nb).astype(np.int64)
-    # block fill: the symbolic factor of the permuted node graph made symmetric (``kernels.symbolic_fill``,
-    # the elimination tree's row unions: the pattern a numeric LU without pivoting fills), L its transpose
-    both = unique_keys(np.concatenate([keys, (keys % nb) * nb + keys // nb]))
-    indptr = np.zeros(nb + 1, np.int64)
-    np.cumsum(np.bincount(both // nb, minlength=nb), out=indptr[1:])
-    u_indptr, u_indices = kernels.symbolic_fill(indptr, both % nb, nb)
-    u_row = np.diff(u_indptr)
-    l_indptr = np.zeros(nb + 1, np.int64)
-    np.cumsum(np.bincount(u_indices, minlength=nb), out=l_indptr[1:])
-    l_indices = np.repeat(np.arange(nb, dtype=np.int64), u_row)[np.argsort(u_indices, kind="stable")]
-    off_diagonal = np.delete(l_indices, l_indptr[1:] - 1)
-    products = int(u_row[off_diagonal].sum())
-    return node_order, a_indptr, a_indices, rank, l_indptr, l_indices, u_indptr, u_indices, products
+    of L off the diagonal, the blocks of U's row k, ``kernels.block_lu_factor``'s work). The block
+    fill is the symbolic factor of the permuted node graph made symmetric (``kernels.ordered_fill``,
+    ``kernels.symbolic_fill``: the elimination tree's row unions, the pattern a numeric LU without
+    pivoting fills), L its transpose."""
+    as_int = lambda array: kernels.writeable(np.ascontiguousarray(array, dtype=np.int64))  # noqa: E731
+    node_order = as_int(node_order)
+    return (node_order,) + tuple(kernels.ordered_fill(as_int(block_row), as_int(block_col), int(nb), node_order))
 
 
 def symmetric_structure(structure):

@@ -63,18 +63,17 @@ import hashlib
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from numba.typed import List as TypedList
 
 from .. import kernels
 from ..caches import BudgetCache
-from ..models.forces import stiffness_data
 from ..models.model import Model
 from .schemes import check_scheme, damping_groups, scheme_advance, stage_dt
 from .solver import WorldsSolver
-from .preconditioners import (AUTO_MAX_DOFS, CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure, InverseColumns,
-                              auto_switch_iterations, free_structure, node_block_factor)
-from ..models.sparse import NodeBlockLU, block_structure, edge_incidence, symmetric_structure
+from .factors import SYMMETRIC_FACTOR, CopyFactor, copies_structure, system_factor
+from .preconditioners import (AUTO_MAX_DOFS, CAPACITANCE_MAX, REFACTOR_MIN, FreeStructure,
+                              auto_switch_iterations, node_block_factor)
+from ..models.sparse import edge_incidence
 from ..models.stack import ModelStack, StackedForceWorkspace
 
 #: Start-of-episode preconditioners an integrator keeps, keyed by the content of (model, reference
@@ -84,11 +83,6 @@ PRECONDITIONER_CACHE_SIZE = 64
 PRECONDITIONERS = ("auto", "factorised", "jacobi", "reference")
 #: ``lu_apply``'s packed form of a Jacobi preconditioner (its floats: the copy's inverse diagonal)
 JACOBI_INTS = np.array([0, 1], dtype=np.int64)
-#: Solver "factorised": each copy's preconditioner is the node-block LDL^T of its system matrix's
-#: symmetric part (the matrix is symmetric up to about 1e-4 of its entries, from the corrections'
-#: coupling and the volume terms) rather than its LU: half the values to store, factorise and read
-#: at every application (``kernels.block_ldl_factor``, ``kernels.block_ldl_solve_one``).
-SYMMETRIC_FACTOR = True
 #: Solver "reference": at most this many copies per lockstep chunk on several threads, and on one
 #: (``lockstep_chunk``).
 LOCKSTEP_CHUNK = 8
@@ -124,108 +118,6 @@ def _mapped(value, memo, kind, make):
         items = [_mapped(item, memo, kind, make) for item in value]
         return type(value)(*items) if hasattr(value, "_fields") else tuple(items)
     return value
-
-
-def _system_factor(model, positions, dt, fixed):
-    """The packed sparse LU (``_CopyFactor``) of the implicit system matrix M + dt D + dt^2 K (K at
-    ``positions`` (n, 3) m, geometric terms clamped as the integrator does) on the dofs not in
-    ``fixed`` (n, 3); the identity (no factor) when the matrix is singular (a diverging state)."""
-    factor = _system_factor_of(model, positions, dt, fixed)
-    # what it was computed from: a pickled snapshot of a world carries this, not the factor
-    factor.source = ("system", np.array(positions, dtype=float), float(dt), np.array(fixed, dtype=bool))
-    return factor
-
-
-def _system_factor_of(model, positions, dt, fixed):
-    free = np.flatnonzero(~np.asarray(fixed, dtype=bool).ravel())
-    alpha, beta = model.rayleigh  # the material's damping enters as the step's mass and stiffness do
-    data = stiffness_data(model, positions, volume=False, clamp=True, stiffness_scale=dt * dt + dt * beta,
-                          damping_scale=dt, mass_scale=1.0 + dt * alpha)
-    matrix = model.pattern.matrix(data).tocsr()[free][:, free].tocsc()
-    if NodeBlockLU.applies(free):
-        try:
-            with np.errstate(all="ignore"):
-                factor = NodeBlockLU(matrix, free, symmetric=SYMMETRIC_FACTOR, orderings=model.node_orderings)
-            if np.all(np.isfinite(factor.floats)):
-                return factor
-        except (RuntimeError, ValueError, np.linalg.LinAlgError):
-            pass
-    try:
-        with np.errstate(all="ignore"):
-            factor = _CopyFactor(matrix, free)
-    except (RuntimeError, ValueError, np.linalg.LinAlgError):
-        return _CopyFactor()
-    if not np.all(np.isfinite(factor.floats)):
-        return _CopyFactor()
-    factor.lu = factor.lower = factor.upper = None  # only the packed arrays are used
-    return factor
-
-
-class _CopyFactor:
-    """A sparse LU (SuperLU, as ``ImplicitEuler``'s factorised preconditioner, or a node-block LU
-    with ``refactored``) of one copy's free-dof system matrix, packed for
-    ``kernels.solve_copies_lu`` (``ints``, ``floats``). Shared by the copies and episodes that start
-    alike (``ImplicitEuler._kept_first``): what decides its renewal (the iterations right after the factorisation)
-    is each copy's own (``ImplicitEuler._set_baseline``)."""
-
-    #: what it was computed from (``ImplicitEuler.rebuild_factor``), None if unknown
-    source = None
-
-    def __init__(self, matrix=None, free=None):
-        self._inverse, self._corrections = None, {}
-        if matrix is None:
-            self.ints, self.floats = np.zeros(1, dtype=np.int64), np.zeros(1)
-            self.lu = self.lower = self.upper = None
-            return
-        lu = spla.splu(matrix, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-        lower, upper = lu.L.tocsc(), lu.U.tocsc()
-        lower.sort_indices()
-        upper.sort_indices()
-        k = matrix.shape[0]
-        columns = np.arange(k)
-        if not (np.array_equal(lower.indices[lower.indptr[:-1]], columns)
-                and np.array_equal(upper.indices[upper.indptr[1:] - 1], columns)):
-            raise np.linalg.LinAlgError("LU factor without its diagonal")
-        gather = np.empty(k, dtype=np.int64)
-        gather[lu.perm_r] = free  # (Pr b)[perm_r[j]] = b[j]
-        self.ints = np.concatenate([[k, lower.nnz, upper.nnz], lower.indptr, lower.indices, upper.indptr,
-                                    upper.indices, gather, free, lu.perm_c]).astype(np.int64)
-        self.floats = np.concatenate([lower.data, upper.data])
-        self.lu, self.lower, self.upper = lu, lower, upper
-
-    @classmethod
-    def refactored(cls, ints, floats):
-        """A node-block LU's packed ``ints`` and ``floats`` as a factor."""
-        factor = cls.__new__(cls)
-        factor._inverse, factor._corrections = None, {}
-        factor.ints, factor.floats = ints, floats
-        return factor
-
-    def inverse(self, n_dofs: int) -> InverseColumns:
-        """The columns of its inverse kept so far (``preconditioners.InverseColumns``)."""
-        if self._inverse is None:
-            self._inverse = InverseColumns(self.ints, self.floats, n_dofs)
-        return self._inverse
-
-    def has_correction(self, imposed: np.ndarray) -> bool:
-        """Whether the correction for ``imposed`` is kept (``correction`` solves nothing)."""
-        return imposed.tobytes() in self._corrections
-
-    def correction(self, imposed: np.ndarray, n_dofs: int):
-        """A node-block LU's capacitance correction for the dofs ``imposed`` (k,) sorted, free in the
-        factor but imposed now: (W, imposed) for ``kernels.corrected_lu_apply``, W from
-        ``preconditioners.InverseColumns.correction`` (its columns kept per dof); None where it is
-        singular. Kept per imposed set (8 per factor)."""
-        key = imposed.tobytes()
-        if key not in self._corrections:
-            self.keep_correction(imposed, self.inverse(n_dofs).correction(imposed))
-        return self._corrections[key]
-
-    def keep_correction(self, imposed: np.ndarray, correction):
-        """Keep W (or None: singular) as the correction for ``imposed`` (8 per factor)."""
-        if len(self._corrections) >= 8:
-            self._corrections.clear()
-        self._corrections[imposed.tobytes()] = None if correction is None else (correction, imposed)
 
 
 class ImplicitEuler(WorldsSolver):
@@ -304,7 +196,7 @@ class ImplicitEuler(WorldsSolver):
                                     TypedList([np.zeros(0, dtype=np.int64)] * count))
             return
         self._row_work = np.empty((8, dofs))  # solve_copies_lu's scratch
-        identity = _CopyFactor()
+        identity = CopyFactor()
         self._factors = [None] * count
         self._pending = [None] * count  # (cache key, free dofs) of a copy's episode start
         self._factor_free = np.zeros((count, dofs), dtype=bool)  # the free set of each factor
@@ -325,7 +217,7 @@ class ImplicitEuler(WorldsSolver):
         self._lu_int = TypedList([identity.ints] * count)
         self._lu_float = TypedList([identity.floats] * count)
         self._factor_of = np.arange(count, dtype=np.int64)
-        #: each copy's capacitance correction (``_CopyFactor.correction``) as the kernel takes it
+        #: each copy's capacitance correction (``CopyFactor.correction``) as the kernel takes it
         self._no_correction = (np.zeros((0, 0)), np.zeros(0, dtype=np.int64))
         self._correction_of = [self._no_correction] * count
         self._corrections = TypedList([self._no_correction[0]] * count)
@@ -369,7 +261,7 @@ class ImplicitEuler(WorldsSolver):
         """Start an episode of copy ``index``: clear its warm start and (solver "reference") set its
         preconditioner, the sparse LU of its system matrix M + dt D + dt^2 K (K at ``positions``
         (n, 3) m, the episode's start; geometric terms clamped as the integrator does) on the dofs
-        not in ``fixed`` (n, 3) (``_system_factor``). Shared (cached) between copies and episodes that
+        not in ``fixed`` (n, 3) (``factors.system_factor``). Shared (cached) between copies and episodes that
         start alike: the copies holding the same factor form one group, solved together."""
         super()._prepare_shared(index, model, positions, dt, fixed)
         dt = stage_dt(self.scheme, dt)  # the scheme's solves are implicit Euler solves of this step
@@ -399,7 +291,7 @@ class ImplicitEuler(WorldsSolver):
             return
         entry = self._kept_starts.get(key)
         if entry is None:
-            entry = self._kept_starts.put(key, _system_factor(model, positions, dt, fixed))
+            entry = self._kept_starts.put(key, system_factor(model, positions, dt, fixed))
         self._use(index, entry)
 
     def _use(self, index, entry):
@@ -412,7 +304,7 @@ class ImplicitEuler(WorldsSolver):
         tool motions the start matrix is a poorer approximation and its solver needs more
         iterations, which all copies wait for (without refreshes the iteration count of random
         steps grows several-fold). The copy gets a factor of its own (it leaves its group)."""
-        self._use(index, _system_factor(self.stack.models[index], positions, dt, fixed))
+        self._use(index, system_factor(self.stack.models[index], positions, dt, fixed))
         self.refreshes += 1
 
     def _group(self):
@@ -465,7 +357,7 @@ class ImplicitEuler(WorldsSolver):
                                      self._hg_positions, reference.pattern.diagonal_positions, values)
         block = node_block_factor(self.stack.models[index], values, free, symmetric=self.symmetric)
         if block is not None:  # the node-block LU, its structure kept per node set
-            factor = _CopyFactor.refactored(block.ints, block.floats)
+            factor = CopyFactor.refactored(block.ints, block.floats)
         else:
             factor = self._scalar_factor(values, free)
         self._factorisations += 1
@@ -503,7 +395,7 @@ class ImplicitEuler(WorldsSolver):
             for t, done in zip(members, ok):
                 index = int(indices[t])
                 if done:  # the kernel set the copy's entries of _lu_int and _lu_float
-                    factor = _CopyFactor.refactored(ints, self._lu_float[index])
+                    factor = CopyFactor.refactored(ints, self._lu_float[index])
                     self._jacobi[index] = False
                     self._factors[index] = factor
                     self._factor_free[index] = covers[t]
@@ -526,7 +418,7 @@ class ImplicitEuler(WorldsSolver):
         copy ``index``'s factor, as ``_factorise_copies`` does (the caller then restores the copy's
         state)."""
         if source[0] == "system":
-            return _system_factor(self.stack.models[index], *source[1:])
+            return system_factor(self.stack.models[index], *source[1:])
         _, positions, system, covers = source
         flat = np.array(self.stack.model.rest_positions, dtype=float)
         flat.reshape(self.stack.count, -1, 3)[index] = positions
@@ -537,29 +429,11 @@ class ImplicitEuler(WorldsSolver):
 
     def _block_structure(self, key, nodes):
         """``kernels.factor_copies``' structure for the whole nodes ``nodes`` (n,) bool (``key`` their
-        bytes), kept per node set; None where it has no node or its symbolic factor fails."""
+        bytes; ``factors.copies_structure``), kept per node set; None where it has no node or its
+        symbolic factor fails."""
         if key in self._structures:
             return self._structures[key]
-        node_dofs = np.flatnonzero(np.repeat(nodes, 3))
-        structure = None
-        if len(node_dofs):
-            whole = free_structure(self.stack.reference, node_dofs)
-            matrix = sp.csc_matrix((np.ones(len(whole.take)), whole.indices, whole.indptr), shape=whole.shape)
-            try:
-                symbolic = block_structure(matrix, node_dofs, self.stack.reference.node_orderings)
-                a_indptr, a_indices, a_map, l_indptr, l_indices, u_indptr, u_indices, ints = symbolic
-                a_transpose, l_to_u = np.zeros(0, np.int64), np.zeros(0, np.int64)
-                if self.symmetric:
-                    a_transpose, l_to_u, ints = symmetric_structure(symbolic)
-            except (RuntimeError, ValueError, np.linalg.LinAlgError):
-                pass
-            else:
-                as_int = lambda array: np.ascontiguousarray(array, dtype=np.int64)  # noqa: E731
-                ints = as_int(ints)
-                structure = (as_int(node_dofs), as_int(whole.take), as_int(whole.indices), as_int(whole.columns),
-                             as_int(a_map), as_int(a_indptr), as_int(a_indices), as_int(l_indptr), as_int(l_indices),
-                             as_int(u_indptr), as_int(u_indices), as_int(a_transpose), as_int(l_to_u), ints,
-                             np.empty(9 * len(a_indices)), np.empty(9 * (len(a_indptr) - 1)))
+        structure = copies_structure(self.stack.reference, nodes, self.symmetric)
         if len(self._structures) >= 4 * self.stack.count:
             self._structures.clear()
         self._structures[key] = structure
@@ -652,10 +526,10 @@ class ImplicitEuler(WorldsSolver):
         matrix = sp.csc_matrix((values[pattern.take], pattern.indices, pattern.indptr), shape=pattern.shape)
         try:
             with np.errstate(all="ignore"):
-                factor = _CopyFactor(matrix, pattern.free)
+                factor = CopyFactor(matrix, pattern.free)
             factor.lu = factor.lower = factor.upper = None
         except (RuntimeError, ValueError, np.linalg.LinAlgError):
-            factor = _CopyFactor()  # singular (a diverging state): no preconditioner
+            factor = CopyFactor()  # singular (a diverging state): no preconditioner
         return factor
 
     def world_restored(self, index: int):
@@ -671,7 +545,7 @@ class ImplicitEuler(WorldsSolver):
         if self._jacobi[index]:
             kernels.set_list_items(self._lu_int, self._lu_float, index, JACOBI_INTS, self._diagonal[index])
         else:
-            factor = self._factors[index] if self._factors[index] is not None else _CopyFactor()
+            factor = self._factors[index] if self._factors[index] is not None else CopyFactor()
             kernels.set_list_items(self._lu_int, self._lu_float, index, factor.ints, factor.floats)
         self._correction_of[index] = self._no_correction
         kernels.set_list_items(self._corrections, self._imposed, index, *self._no_correction)

@@ -34,40 +34,32 @@ REFACTOR_MIN = 8
 class FreeStructure:
     """The CSC structure of the system matrix restricted to the free dofs (``free``), with the
     positions of its entries in the model's ``BlockPattern`` data: a factorisation only gathers
-    values, nothing is re-sliced. Built from ``pattern_arrays`` by masks (O(nnz) numpy, once per
-    imposed set: a contact makes many)."""
+    values, nothing is re-sliced. Built from the pattern's node-pair blocks in one compiled pass
+    (``kernels.free_entries``, once per imposed set: a contact makes many); ``columns`` is each
+    entry's column."""
 
     def __init__(self, model: Model, free: np.ndarray):
         # no reference to the model: this structure lives in the model's derived data, and a cycle
         # would keep every evicted model (and its arrays) alive until a full garbage collection
-        column, rows, transpose, self.hg_positions, _ = pattern_arrays(model)
+        pattern = model.pattern
+        self.hg_positions = pattern_arrays(model)[0]
         self.free = free
-        mask = np.zeros(model.pattern.n_dofs, bool)
+        mask = np.zeros(pattern.n_dofs, bool)
         mask[free] = True
-        keep = mask[column] & mask[rows]
-        number = np.cumsum(mask) - 1
-        self.take = transpose[keep]
-        self.indices = number[rows[keep]].astype(np.int32)
-        self.indptr = np.zeros(len(free) + 1, np.int32)
-        np.cumsum(np.bincount(number[column[keep]], minlength=len(free)), out=self.indptr[1:])
+        self.take, self.indices, self.indptr, self.columns = kernels.free_entries(pattern.block_indptr,
+                                                                                 pattern.block_columns, mask)
         self.shape = (len(free), len(free))
 
 
 def pattern_arrays(model: Model):
-    """The model's symmetric block pattern read as CSC, column by column (column of each entry, its
-    row, the position in the CSR data of the entry (row, column)), the pattern positions of the
-    hourglass matrix's entries, and the mass per dof (kg); computed once, kept in ``model.derived``."""
+    """(the pattern positions of the hourglass matrix's entries, the mass per dof (kg)) of the
+    model, computed once, kept in ``model.derived``."""
     return model.derived.get("pattern_arrays", lambda: _build_pattern_arrays(model))
 
 
 def _build_pattern_arrays(model: Model):
-    pattern = model.pattern
-    column = np.repeat(np.arange(pattern.n_dofs), np.diff(pattern.indptr))  # CSR row c = CSC column c
-    rows = pattern.indices.astype(np.int64)
-    transpose = pattern.transpose_positions()  # data position of (row, column): the pattern is symmetric
     hg_indptr, hg_indices, _ = model.hourglass_arrays
-    hg_positions = pattern.csr_positions(hg_indptr, hg_indices)
-    return column, rows, transpose, hg_positions, np.repeat(model.mass, 3)
+    return model.pattern.csr_positions(hg_indptr, hg_indices), np.repeat(model.mass, 3)
 
 
 class InverseColumns:
@@ -170,8 +162,7 @@ def node_block_factor(model: Model, values: np.ndarray, free: np.ndarray, symmet
 
 
 def free_structure(model: Model, dofs: np.ndarray) -> FreeStructure:
-    """``FreeStructure`` of the dofs ``dofs`` (sorted), with each entry's column (``columns``),
-    cached per model (a few dof sets each)."""
+    """``FreeStructure`` of the dofs ``dofs`` (sorted), cached per model (a few dof sets each)."""
     cache = model.derived.get("free_structures", dict)
     key = dofs.tobytes()
     structure = cache.get(key)
@@ -179,5 +170,4 @@ def free_structure(model: Model, dofs: np.ndarray) -> FreeStructure:
         if len(cache) >= 8:
             cache.clear()
         structure = cache[key] = FreeStructure(model, dofs)
-        structure.columns = np.repeat(np.arange(len(dofs)), np.diff(structure.indptr))
     return structure

@@ -554,7 +554,7 @@ def _tangent_data(model, positions):
               1.0 if model.hourglass is not None else 0.0)
     values = np.empty(model.pattern.nnz)
     kernels.operator_matrix_data(workspace.operator_data, scales, model.spring_positions, model.element_positions,
-                                 pattern_arrays(model)[3], model.pattern.diagonal_positions, values)
+                                 pattern_arrays(model)[0], model.pattern.diagonal_positions, values)
     return values
 
 
