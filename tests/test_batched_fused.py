@@ -200,7 +200,8 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
         out = {}
         for name in ("apply_copies", "apply_copies_serial"):
             out[name] = np.empty_like(vector)
-            getattr(kernels, name)(stacked, system, hg_rows, hg_group, vector, out[name], *blocks)
+            getattr(kernels, name)(stacked, system, hg_rows, hg_group, vector, np.ones(len(vector), dtype=bool),
+                                   out[name], *blocks)
         np.testing.assert_array_equal(out["apply_copies"], out["apply_copies_serial"])
 
 
@@ -221,7 +222,7 @@ def test_per_copy_solves_scale_their_guess_to_the_least_residual():
     system = _system(integrator, envs.worlds.dt)
     exact = np.random.default_rng(2).normal(size=(count, dofs))
     rhs = np.empty_like(exact)
-    kernels.apply_copies_serial(stacked, system, hg_rows, hg_group, exact, rhs, *blocks)
+    kernels.apply_copies_serial(stacked, system, hg_rows, hg_group, exact, np.ones(count, dtype=bool), rhs, *blocks)
     identity = np.zeros(1, dtype=np.int64)  # k = 0: no preconditioner
     lists = (TypedList([identity]), TypedList([np.zeros(1)]), np.zeros(count, dtype=np.int64),
              TypedList([np.zeros((0, 0))] * count), TypedList([np.zeros(0, dtype=np.int64)] * count))

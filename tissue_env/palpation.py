@@ -193,8 +193,8 @@ class PalpationWorlds(TaskWorlds):
     def _contact_passes(self):
         return super()._contact_passes() if self.static else (CONTACT_PASSES, CONTACT_HEIGHT_TOLERANCE)
 
-    def _contact_forces(self, tool_mask):
-        self._node_forces = self.net_forces()  # at the solve's end: the nodes the tissue pulls
+    def _contact_forces(self, tool_mask, rows):
+        self._node_forces = self.net_forces(rows)  # at the solve's end: the nodes the tissue pulls
 
     def _after_substep(self, positions, velocities, rows):
         # a free top node that went into the probe is put back on its surface and joins the contact (a
