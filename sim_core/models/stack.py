@@ -388,14 +388,13 @@ class StackedForceWorkspace(ForceWorkspace):
         model, reference = self.model, self.stack.reference
         use_velocity = velocities is not None
         rows = np.ones(self.stack.count, dtype=bool) if rows is None else np.ascontiguousarray(rows, dtype=bool)
-        kernels.variant(kernels.model_forces_copies, self.threads)(
-            self.stack.count, rows, positions, velocities if use_velocity else positions, use_velocity,
-            reference.springs,
+        kernels.variant(kernels.model_forces_copies, self.threads)(self.stack.count, rows, (
+            positions, velocities if use_velocity else positions, use_velocity, reference.springs,
             model.stiffness, model.rest_length, model.damping, reference.mesh.elements, reference.edge_spring,
             model.correction_matrix, model.axis_rest_length, self.correction_kind, model.rest_edge_direction,
             model.rest_volume, model.volume_stiffness, self.has_volume, self.length, self.unit, self.tension,
             self.push, self.forces, geometric, self.geometric, volume_jacobian and self.has_volume,
-            self.volume_coefficient, self.volume_direction, self.volume_gradient)
+            self.volume_coefficient, self.volume_direction, self.volume_gradient))
         correction = model.stress_correction
         if correction is not None:  # the stress correction, copy by copy (kernels.stress_correction_add's floats)
             arguments = (self.stack.count, positions, *stress_arguments(model, elements_of=reference))

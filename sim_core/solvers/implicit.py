@@ -848,31 +848,22 @@ class ImplicitEuler(WorldsSolver):
         """The step's force pass over the stacked model at ``positions`` (N n, 3) m: internal forces
         without damping (N n, 3) N, with the clamped geometric stiffness and volume terms of the
         implicit system in ``self.workspace``. ``rows``: None (every copy) or the copies (N,) bool
-        whose entries are wanted (the others' may be those of another state). Computed once per
-        state and copy: a copy whose positions were already linearised (by the vector env's
-        measurement of the previous step) reuses it, and only the others are computed (a contact
-        pass that solves some worlds again passes only those)."""
-        stack = self.stack
-        count = stack.count
+        whose entries are wanted (the others' may be another state's). Once per state and copy: a
+        copy whose positions were linearised last (by the vector env's measurement of the previous
+        step) is reused, the others alone computed (a contact pass that solves some copies again)."""
+        count, version = self.stack.count, self.stack.version
         wanted = np.ones(count, dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
-        cached = self._linearised
-        if cached is not None and cached[0] == stack.version:
-            done = cached[2] & np.all(cached[1].reshape(count, -1) == positions.reshape(count, -1), axis=1)
-            needed = wanted & ~done
-        else:
-            cached = self._linearised = (stack.version, positions.copy(), np.zeros(count, dtype=bool))
-            needed = wanted
+        if self._linearised is None or self._linearised[0] != version:
+            self._linearised = (version, positions.copy(), np.zeros(count, dtype=bool))
+        _, kept, done = self._linearised
+        needed = wanted & ~(done & np.all(kept.reshape(count, -1) == positions.reshape(count, -1), axis=1))
         if needed.any():
-            forces = self.workspace.compute(positions, None, geometric=True,
-                                            volume_jacobian=stack.model.has_volume_forces, rows=needed)
-            if needed.all() or not self.workspace.partial_pass(geometric=True):
-                cached[1][:] = positions
-                cached[2][:] = True
-            else:
-                view = cached[1].reshape(count, -1)
-                view[needed] = positions.reshape(count, -1)[needed]
-                cached[2][needed] = True
-            return forces
+            self.workspace.compute(positions, None, geometric=True, volume_jacobian=self.stack.model.has_volume_forces,
+                                   rows=needed)
+            if not self.workspace.partial_pass(geometric=True):
+                needed[:] = True  # (every copy was computed)
+            kept.reshape(count, -1)[needed] = positions.reshape(count, -1)[needed]
+            done |= needed
         return self.workspace.forces
 
     def advance(self, positions, velocities, fixed, target, dt, active, force=None):
