@@ -25,8 +25,8 @@ After its rounds, each task is run once more in sync and in the vector env on on
 ``KernelClock`` on (the same steps, outside the timed rounds: its wrappers cost a little per call): the
 share of each mode's CPU time spent inside the compiled kernels and SuperLU's factorisations (the
 per-copy arithmetic: solves, factorisations, force passes, goal solves) and ``one_thread_bound``,
-sync's CPU time over the one-thread vector env's kernel time: the one-thread ratio the vector env
-would reach if everything outside its kernels cost nothing. A task whose bound is near 2 cannot be
+the one-thread CPU ratio over the one-thread vector env's kernel share: the ratio it would reach if
+everything outside its kernels cost nothing. A task whose bound is near 2 cannot be
 batched to 2x sync on one thread: its per-copy arithmetic is what batching cannot share.
 
 ``--busy-core`` measures every mode twice per round, side by side in one run: on the machine as it
@@ -135,14 +135,14 @@ class KernelClock:
 
 
 def kernel_shares(env_id, num_envs, steps, **kwargs):
-    """(sync's CPU s, its kernel share, the one-thread vector env's CPU s, its kernel share) of one
-    run each of ``steps`` vector steps (``rate``'s actions) under ``KernelClock``."""
-    out = []
-    for mode, extra in (("sync", {}), ("vector_entry_point", dict(threads=1))):
+    """{mode label: the share of its CPU time inside the kernels} of sync and the one-thread vector
+    env, one run each of ``steps`` vector steps (``rate``'s actions) under ``KernelClock``."""
+    shares = {}
+    for label, mode, extra in MODES[:2]:
         clock = KernelClock()
         cpu = num_envs * steps / rate(env_id, mode, num_envs, steps, clock=clock, **extra, **kwargs)[1]
-        out += [cpu, clock.seconds / cpu]
-    return out
+        shares[label] = clock.seconds / cpu
+    return shares
 
 
 def _timed_reset(reset):
@@ -240,22 +240,21 @@ def main():
                            cpu_ratio_one_thread=float(np.median(single[:, 1] / sync[:, 1])))
                 if args.with_async:
                     row["async_wall_ratio"] = float(np.median(vector[:, 0] / runs["async"][:, 0]))
-                sync_cpu, sync_share, single_cpu, single_share = kernel_shares(env_id, num_envs, args.steps,
-                                                                               **regime_kwargs)
-                row.update(kernel_share={"sync": sync_share, "vector 1 thread": single_share},
-                           one_thread_bound=sync_cpu / (single_share * single_cpu))
+                shares = kernel_shares(env_id, num_envs, args.steps, **regime_kwargs)
+                row.update(kernel_share=shares, one_thread_bound=row["cpu_ratio_one_thread"] / shares["vector 1 thread"])
                 rows.append(row)
                 cells = " | ".join(_cell(row["modes"][label]) for label, _, _ in modes)
                 print(f"{env_id:32s} {num_envs:3d} {regime:>10s} | {cells} | {row['wall_ratio']:4.1f}x,"
-                      f" {row['cpu_ratio_one_thread']:4.2f}x (kernels {100 * sync_share:.0f}% of sync's CPU, "
-                      f"{100 * single_share:.0f}% of 1 thread's: bound {row['one_thread_bound']:.2f}x)", flush=True)
+                      f" {row['cpu_ratio_one_thread']:4.2f}x (kernels {100 * shares['sync']:.0f}% of sync's CPU, "
+                      f"{100 * shares['vector 1 thread']:.0f}% of 1 thread's: bound {row['one_thread_bound']:.2f}x)",
+                      flush=True)
                 write_json(args.output, dict(
                     benchmark="vector_env_speed",
                     unit="env steps per wall second and per CPU second of the process (medians of interleaved rounds)",
                     kernel_share="share of a mode's CPU time inside sim_core's compiled kernels and SuperLU's "
                                  "factorisations (KernelClock, one more run of each mode after the rounds)",
-                    one_thread_bound="sync's CPU time over the one-thread vector env's CPU time inside those kernels "
-                                     "(same steps): its one-thread ratio if nothing outside the kernels cost time",
+                    one_thread_bound="cpu_ratio_one_thread over the one-thread vector env's kernel share: its "
+                                     "one-thread ratio if nothing outside its kernels cost time",
                     machine=dict(cpus=os.cpu_count(), platform=platform.platform()),
                     load_average=os.getloadavg(), results=rows))
 

@@ -598,7 +598,7 @@ class TaskWorlds:
         hourglass, damping and the tissue's damping law, gravity), the imposed components' constraint
         forces left out. ``rows``: None (every world), or the worlds (N,) bool wanted: a task that
         shares the implicit step's force pass (``share_force_pass``) computes only theirs, and the
-        others' forces read 0."""
+        others' hold gravity alone."""
         flat = np.ascontiguousarray(self.positions.reshape(-1, 3), dtype=float)
         flat_velocities = np.ascontiguousarray(self.velocities.reshape(-1, 3), dtype=float)
         with np.errstate(all="ignore"):

@@ -262,7 +262,7 @@ def env_vector_section():
            "its resets (TumorPositioning's and LiverNeedleAlignment's are static solves for the goal, SuperLU "
            "factorisations, the same code in every mode). The table gives the share of each mode's CPU time "
            "inside the compiled kernels and SuperLU's factorisations (that arithmetic) and the one-thread "
-           "bound: sync's CPU time over the one-thread vector env's time in those kernels, the ratio it would "
+           "bound: the one-thread CPU ratio over the one-thread vector env's kernel share, the ratio it would "
            "reach if nothing outside its kernels cost time. Where the bound is near 2, 2x sync on one thread "
            "is out of reach by batching. The [performance page]"
            "(performance.md#vector-environments) has the speeds of every mode.\n\n",
