@@ -22,12 +22,12 @@ wall ratios against sync for the threaded vector env, CPU ratios for ``threads=1
 written to ``--output`` (JSON, replaced atomically).
 
 After its rounds, each task is run once more in sync and in the vector env on one thread with
-``KernelClock`` on (the same steps, outside the timed rounds: its wrappers cost a little per call): the
-share of each mode's CPU time spent inside the compiled kernels and SuperLU's factorisations (the
-per-copy arithmetic: solves, factorisations, force passes, goal solves) and ``one_thread_bound``,
-the one-thread CPU ratio over the one-thread vector env's kernel share: the ratio it would reach if
-everything outside its kernels cost nothing. A task whose bound is near 2 cannot be
-batched to 2x sync on one thread: its per-copy arithmetic is what batching cannot share.
+``KernelClock`` on (the same steps, outside the timed rounds: its wrappers cost a little per
+call): the share of each mode's CPU time spent inside the compiled kernels and SuperLU's
+factorisations (the per-copy arithmetic: solves, factorisations, force passes, goal solves) and
+``one_thread_bound``, the one-thread CPU ratio over the one-thread vector env's kernel share: the
+ratio it would reach if everything outside its kernels cost nothing. A task whose bound is near 2
+cannot be batched to 2x sync on one thread: its per-copy arithmetic is what batching cannot share.
 
 ``--busy-core`` measures every mode twice per round, side by side in one run: on the machine as it
 is ("idle") and with a CPU burner started by this benchmark (a Python busy loop in its own process,

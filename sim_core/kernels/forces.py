@@ -178,7 +178,8 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
 def _model_forces_copy(c, count, arrays):
-    """Copy ``c``'s ``model_forces`` (without the hourglass term) of ``model_forces_copies``' ``arrays``."""
+    """Copy ``c``'s ``model_forces`` (without the hourglass term) of ``model_forces_copies``'
+    ``arrays``."""
     (positions, velocities, use_velocity, springs, stiffness, rest_length, damping, elements, edge_spring,
      correction_matrix, axis_rest_length, correction_kind, rest_edge_direction, rest_volume, kappa, has_volume, length,
      unit, tension, push, forces, want_geometric, geometric, want_volume_jacobian, volume_coefficient, volume_direction,
@@ -220,7 +221,7 @@ def model_forces_copies(count, active, arrays):
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
 def model_forces_copies_serial(count, active, arrays):
-    """``model_forces_copies`` in this thread only (a pass over some of the copies on one thread)."""
+    """``model_forces_copies`` in this thread only (some of the copies on one thread)."""
     for c in range(count):
         if active[c]:
             _model_forces_copy(c, count, arrays)

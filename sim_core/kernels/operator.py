@@ -471,10 +471,10 @@ def apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_ind
 @njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
 def apply_copies(stacked, scales, hg_rows, hg_group, vector, active, out, hg_block_indptr, hg_block_indices,
                  hg_block_rows):
-    """out (N, 3 n) = each ``active`` (N,) bool copy's operator A_c (``apply_operator``'s, the hourglass
-    term in node blocks) times its row of ``vector`` (N, 3 n), the copies shared among numba's threads
-    (``solve_copies_lu``'s arguments: copy c's per-spring and per-element scratch are its own slices);
-    the other rows of ``out`` are left as they are."""
+    """out (N, 3 n) = each ``active`` (N,) bool copy's operator A_c (``apply_operator``'s, the
+    hourglass term in node blocks) times its row of ``vector`` (N, 3 n), the copies shared among
+    numba's threads (``solve_copies_lu``'s arguments: copy c's per-spring and per-element scratch
+    are its own slices); the other rows of ``out`` are left as they are."""
     ones = np.ones(vector.shape[1])
     for c in prange(vector.shape[0]):
         if active[c]:

@@ -662,7 +662,8 @@ def stress_correction_add_copies(count, positions, elements, gradient, volume, m
 def _stress_tangent_copy(copy, count, positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
                          spring_stiffness, linear, indptr, cell_nodes, entry_gradient, root, root_inverse, clamp,
                          forces, tangent):
-    """Copy ``copy``'s pass of ``stress_correction_tangent_add_copies``; returns its clamped elements."""
+    """Copy ``copy``'s pass of ``stress_correction_tangent_add_copies``; returns its clamped
+    elements."""
     n = positions.shape[0] // count
     n_elements = indptr.shape[0] - 1 if indptr.shape[0] > 0 else elements.shape[1]
     nnz = indptr[-1] if indptr.shape[0] > 0 else 0
@@ -677,9 +678,9 @@ def _stress_tangent_copy(copy, count, positions, elements, gradient, volume, mu,
 def stress_correction_tangent_add_copies(count, active, positions, elements, gradient, volume, mu, lam, spring_vector,
                                          spring_length, spring_stiffness, linear, indptr, cell_nodes, entry_gradient,
                                          root, root_inverse, clamp, forces, tangent):
-    """``stress_correction_tangent_add`` of the copies ``active`` (count,) bool, one per numba thread
-    at a time (``stress_correction_add_copies``' layout; the same floats as the stacked pass; the
-    other copies' forces and tangents are left as they are)."""
+    """``stress_correction_tangent_add`` of the copies ``active`` (count,) bool, one per numba
+    thread at a time (``stress_correction_add_copies``' layout; the same floats as the stacked
+    pass; the other copies' forces and tangents are left as they are)."""
     clamped = np.zeros(count, dtype=np.int64)
     for copy in prange(count):
         if active[copy]:

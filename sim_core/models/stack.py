@@ -337,9 +337,10 @@ class StackedForceWorkspace(ForceWorkspace):
 
     def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False, rows=None):
         """``ForceWorkspace.compute``; ``rows``: None (every copy), or the copies (N,) bool whose
-        forces (and implicit data) are computed, one copy after the other, the others' entries left
-        as they are (a contact pass that solves some worlds again: the same floats per copy). Only an
-        implicit pass (``geometric``) takes some of the copies; any other computes them all."""
+        forces (and implicit data) are computed, one copy after the other, the others' entries
+        left as they are (a contact pass that solves some worlds again: the same floats per
+        copy). Only an implicit pass (``geometric``) takes some of the copies; any other computes
+        them all."""
         if rows is not None and (rows.all() or not self.partial_pass(geometric)):
             rows = None
         if kernels.threaded(self.threads) or rows is not None:  # copy by copy: the same floats
@@ -383,8 +384,8 @@ class StackedForceWorkspace(ForceWorkspace):
         return forces
 
     def _compute_copies(self, positions, velocities, geometric, volume_jacobian, rows):
-        """``ForceWorkspace.compute`` without the hourglass term of the copies ``rows`` (None: all), by
-        ``kernels.model_forces_copies`` (its serial twin on one thread)."""
+        """``ForceWorkspace.compute`` without the hourglass term of the copies ``rows`` (None:
+        all), by ``kernels.model_forces_copies`` (its serial twin on one thread)."""
         model, reference = self.model, self.stack.reference
         use_velocity = velocities is not None
         rows = np.ones(self.stack.count, dtype=bool) if rows is None else np.ascontiguousarray(rows, dtype=bool)

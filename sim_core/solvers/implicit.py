@@ -848,9 +848,10 @@ class ImplicitEuler(WorldsSolver):
         """The step's force pass over the stacked model at ``positions`` (N n, 3) m: internal forces
         without damping (N n, 3) N, with the clamped geometric stiffness and volume terms of the
         implicit system in ``self.workspace``. ``rows``: None (every copy) or the copies (N,) bool
-        whose entries are wanted (the others' may be another state's). Once per state and copy: a
-        copy whose positions were linearised last (by the vector env's measurement of the previous
-        step) is reused, the others alone computed (a contact pass that solves some copies again)."""
+        whose entries are wanted (the others' may be another state's). Once per state and copy:
+        a copy whose positions were linearised last (by the vector env's measurement of the
+        previous step) is reused, the others alone computed (a contact pass that solves some
+        copies again)."""
         count, version = self.stack.count, self.stack.version
         wanted = np.ones(count, dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
         if self._linearised is None or self._linearised[0] != version:
