@@ -21,6 +21,14 @@ and the table gives the medians over ``--rounds`` rounds and the medians of the 
 wall ratios against sync for the threaded vector env, CPU ratios for ``threads=1``. Results are
 written to ``--output`` (JSON, replaced atomically).
 
+After its rounds, each task is run once more in sync and in the vector env on one thread with
+``KernelClock`` on (the same steps, outside the timed rounds: its wrappers cost a little per
+call): the share of each mode's CPU time spent inside the compiled kernels and SuperLU's
+factorisations (the per-copy arithmetic: solves, factorisations, force passes, goal solves) and
+``one_thread_bound``, the one-thread CPU ratio over the one-thread vector env's kernel share: the
+ratio it would reach if everything outside its kernels cost nothing. A task whose bound is near 2
+cannot be batched to 2x sync on one thread: its per-copy arithmetic is what batching cannot share.
+
 ``--busy-core`` measures every mode twice per round, side by side in one run: on the machine as it
 is ("idle") and with a CPU burner started by this benchmark (a Python busy loop in its own process,
 pinned with ``os.sched_setaffinity`` to the last core this process may use: "busy"), as when a policy
@@ -44,6 +52,8 @@ import time
 import gymnasium as gym
 import numba
 import numpy as np
+import scipy.sparse.linalg as spla
+from numba.core.registry import CPUDispatcher
 
 import tissue_env
 from training.common import write_json
@@ -81,6 +91,60 @@ class Burner:
         self.process.wait()
 
 
+class KernelClock:
+    """This process's CPU seconds inside sim_core's compiled kernels and SuperLU's factorisations
+    while the block runs (``seconds``): every numba dispatcher that a sim_core or tissue_env module
+    holds by name, and ``scipy.sparse.linalg.splu``, is wrapped for the block and restored after it
+    (the serial twins too: ``kernels.variant`` finds them by module and name). One thread only."""
+
+    def __enter__(self):
+        self.seconds = 0.0
+        self._inside = False
+        self._patched = []
+        wrappers = {}
+        for name, module in list(sys.modules.items()):
+            if module is None or not name.startswith(("sim_core", "tissue_env")):
+                continue
+            for attribute, value in list(vars(module).items()):
+                if isinstance(value, CPUDispatcher):
+                    if id(value) not in wrappers:
+                        wrappers[id(value)] = self._timed(value, value.py_func)
+                    self._patched.append((module, attribute, value))
+                    setattr(module, attribute, wrappers[id(value)])
+        self._patched.append((spla, "splu", spla.splu))
+        spla.splu = self._timed(spla.splu, spla.splu)
+        return self
+
+    def _timed(self, function, source):
+        def timed(*args, **kwargs):
+            if self._inside:
+                return function(*args, **kwargs)
+            self._inside = True
+            start = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.seconds += time.process_time() - start
+                self._inside = False
+        timed.__module__, timed.__name__ = source.__module__, source.__name__
+        return timed
+
+    def __exit__(self, *exc):
+        for module, attribute, value in reversed(self._patched):
+            setattr(module, attribute, value)
+
+
+def kernel_shares(env_id, num_envs, steps, **kwargs):
+    """{mode label: the share of its CPU time inside the kernels} of sync and the one-thread vector
+    env, one run each of ``steps`` vector steps (``rate``'s actions) under ``KernelClock``."""
+    shares = {}
+    for label, mode, extra in MODES[:2]:
+        clock = KernelClock()
+        cpu = num_envs * steps / rate(env_id, mode, num_envs, steps, clock=clock, **extra, **kwargs)[1]
+        shares[label] = clock.seconds / cpu
+    return shares
+
+
 def _timed_reset(reset):
     @functools.wraps(reset)
     def wrapper(self, *args, **kwargs):
@@ -97,9 +161,10 @@ def _timed_reset(reset):
 TissueEnv._reset_episode = _timed_reset(TissueEnv._reset_episode)  # the episode draw, every mode's
 
 
-def rate(env_id, mode, num_envs, steps, seed=0, **kwargs):
+def rate(env_id, mode, num_envs, steps, seed=0, clock=None, **kwargs):
     """(env steps per wall second, per CPU second of this process, share of the CPU time spent in
-    resets) for ``steps`` vector steps of random actions."""
+    resets) for ``steps`` vector steps of random actions; ``clock``: None or a ``KernelClock`` that
+    runs over those steps."""
     envs = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode=mode, **kwargs)
     rng = np.random.default_rng(seed)
     actions = rng.uniform(-1.0, 1.0, (steps, num_envs) + envs.single_action_space.shape).astype(np.float32)
@@ -108,10 +173,11 @@ def rate(env_id, mode, num_envs, steps, seed=0, **kwargs):
         envs.step(action)
     envs.reset(seed=seed)
     RESET_SECONDS[0] = 0.0
-    start, wall = time.process_time(), time.perf_counter()
-    for action in actions:
-        envs.step(action)
-    elapsed, wall = time.process_time() - start, time.perf_counter() - wall
+    with clock if clock is not None else contextlib.nullcontext():
+        start, wall = time.process_time(), time.perf_counter()
+        for action in actions:
+            envs.step(action)
+        elapsed, wall = time.process_time() - start, time.perf_counter() - wall
     resets = RESET_SECONDS[0]
     envs.close()
     return num_envs * steps / wall, num_envs * steps / elapsed, resets / elapsed
@@ -174,13 +240,21 @@ def main():
                            cpu_ratio_one_thread=float(np.median(single[:, 1] / sync[:, 1])))
                 if args.with_async:
                     row["async_wall_ratio"] = float(np.median(vector[:, 0] / runs["async"][:, 0]))
+                shares = kernel_shares(env_id, num_envs, args.steps, **regime_kwargs)
+                row.update(kernel_share=shares, one_thread_bound=row["cpu_ratio_one_thread"] / shares["vector 1 thread"])
                 rows.append(row)
                 cells = " | ".join(_cell(row["modes"][label]) for label, _, _ in modes)
                 print(f"{env_id:32s} {num_envs:3d} {regime:>10s} | {cells} | {row['wall_ratio']:4.1f}x,"
-                      f" {row['cpu_ratio_one_thread']:4.1f}x", flush=True)
+                      f" {row['cpu_ratio_one_thread']:4.2f}x (kernels {100 * shares['sync']:.0f}% of sync's CPU, "
+                      f"{100 * shares['vector 1 thread']:.0f}% of 1 thread's: bound {row['one_thread_bound']:.2f}x)",
+                      flush=True)
                 write_json(args.output, dict(
                     benchmark="vector_env_speed",
                     unit="env steps per wall second and per CPU second of the process (medians of interleaved rounds)",
+                    kernel_share="share of a mode's CPU time inside sim_core's compiled kernels and SuperLU's "
+                                 "factorisations (KernelClock, one more run of each mode after the rounds)",
+                    one_thread_bound="cpu_ratio_one_thread over the one-thread vector env's kernel share: its "
+                                     "one-thread ratio if nothing outside its kernels cost time",
                     machine=dict(cpus=os.cpu_count(), platform=platform.platform()),
                     load_average=os.getloadavg(), results=rows))
 

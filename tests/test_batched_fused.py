@@ -200,8 +200,39 @@ def test_threaded_force_pass_and_products_give_the_serial_floats():
         out = {}
         for name in ("apply_copies", "apply_copies_serial"):
             out[name] = np.empty_like(vector)
-            getattr(kernels, name)(stacked, system, hg_rows, hg_group, vector, out[name], *blocks)
+            getattr(kernels, name)(stacked, system, hg_rows, hg_group, vector, np.ones(len(vector), dtype=bool),
+                                   out[name], *blocks)
         np.testing.assert_array_equal(out["apply_copies"], out["apply_copies_serial"])
+
+
+def test_a_force_pass_of_some_copies_gives_their_floats_and_leaves_the_others():
+    """``StackedForceWorkspace.compute(rows=...)`` (a contact pass that solves some copies again)
+    computes the asked copies alone, copy by copy, on one thread or two: their forces and implicit
+    data are those of the pass over every copy, bit for bit, and the other copies' entries are left
+    as they were."""
+    from sim_core.models.stack import StackedForceWorkspace
+    for env_id in ("tissue_env/Palpation-v0", "tissue_env/TumorPositioning-v0"):
+        envs = _stepped(env_id, count=4, steps=6, seed=0)
+        stack = envs.worlds.stack
+        positions = np.ascontiguousarray(envs.worlds.positions.reshape(-1, 3))
+        args = dict(velocities=None, geometric=True, volume_jacobian=stack.model.has_volume_forces)
+        every = StackedForceWorkspace(stack, implicit=True, threads=1)
+        every.compute(positions, **args)
+        rows = np.array([True, False, False, True])
+        node_rows = np.repeat(rows, stack.n_nodes)
+        for threads in (1, 2):
+            some = StackedForceWorkspace(stack, implicit=True, threads=threads)
+            some.forces[:] = 7.0
+            some.stress_tangent[:] = 7.0
+            some.compute(positions, rows=rows, **args)
+            np.testing.assert_array_equal(some.forces[node_rows], every.forces[node_rows])
+            assert np.all(some.forces[~node_rows] == 7.0)
+            if len(every.stress_tangent):  # a hyperelastic stress correction's tangent
+                cells = np.repeat(rows, len(every.stress_tangent) // len(rows))
+                np.testing.assert_array_equal(some.stress_tangent[cells], every.stress_tangent[cells])
+                assert np.all(some.stress_tangent[~cells] == 7.0)
+            springs = np.repeat(rows, len(every.geometric) // len(rows))
+            np.testing.assert_array_equal(some.geometric[springs], every.geometric[springs])
 
 
 def test_per_copy_solves_scale_their_guess_to_the_least_residual():
@@ -221,7 +252,7 @@ def test_per_copy_solves_scale_their_guess_to_the_least_residual():
     system = _system(integrator, envs.worlds.dt)
     exact = np.random.default_rng(2).normal(size=(count, dofs))
     rhs = np.empty_like(exact)
-    kernels.apply_copies_serial(stacked, system, hg_rows, hg_group, exact, rhs, *blocks)
+    kernels.apply_copies_serial(stacked, system, hg_rows, hg_group, exact, np.ones(count, dtype=bool), rhs, *blocks)
     identity = np.zeros(1, dtype=np.int64)  # k = 0: no preconditioner
     lists = (TypedList([identity]), TypedList([np.zeros(1)]), np.zeros(count, dtype=np.int64),
              TypedList([np.zeros((0, 0))] * count), TypedList([np.zeros(0, dtype=np.int64)] * count))

@@ -117,6 +117,7 @@ class PalpationWorlds(TaskWorlds):
         self._node_forces = None  # (N, n, 3) net forces of the last measurement
         self._sampled = None  # (N, n, 3) m: within a step, where its last contact pass read the held heights
         self._tool_mask = None  # (N, n, 3) the step's contact dofs (projected nodes join after the step)
+        self._formed = None  # within a step: the last (fixed, target, tool mask) formed by ``_control``
         self.palpation_map = np.zeros((count, len(env.cell_centres)))
         self.distance = np.zeros(count)
         for name in ("success_depth", "success_radius", "hold_steps", "success_bonus", "time_penalty", "force_limit",
@@ -150,25 +151,42 @@ class PalpationWorlds(TaskWorlds):
         """The attached bottom face and the probe contact (``sim_core.solvers.contact``): the top nodes on
         or under the probe's surface have their height imposed on it (frictionless: x and z stay
         free), so the implicit step solves with the contact in place; a node the tissue pulls away
-        from the probe (net force on it downward, measured at the current state) is released."""
+        from the probe (net force on it downward, measured at the current state) is released.
+        ``rows``: None (every world), or the worlds (N,) bool still solving a step's contact passes,
+        whose contact alone is formed again (the others keep the control they were solved with)."""
         count, tips, positions = self.num_envs, self._tips(), self.positions  # the state before the step
         forces = np.zeros_like(positions) if self._node_forces is None else self._node_forces
-        if self._sampled is not None:  # a step's next contact pass: the held heights read nearer where they were
-            positions = self._sampled = contact.relaxed_positions(self._sampled, positions, self.contact)
+        if rows is None or rows.all():
+            index, probe = slice(None), self.probe
+            fixed = np.repeat(self._base_fixed[None], count, axis=0)
+            target = self._base_target.copy()
+            tool_mask = np.zeros_like(fixed)
+        else:  # only the solving worlds' geometry: a world's floats do not depend on the others
+            index, probe = np.flatnonzero(rows), self._probe_rows(rows)
+            fixed, target, tool_mask = (array.copy() for array in self._formed)
+            fixed[index], target[index], tool_mask[index] = self._base_fixed, self._base_target[index], False
+        positions, tips, sampled = positions[index], tips[index], self._sampled
+        if sampled is not None:  # a step's next contact pass: the held heights read nearer where they were
+            positions = sampled[index] = contact.relaxed_positions(sampled[index], positions, self.contact[index])
         # once for the contact update and its targets, the copies on the kernels' threads when threaded
-        surface = self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads))
-        held = contact.update(self.probe, self.contact, positions, forces, self._probe_candidates, tips,
-                              surface=surface)
-        self.contact = held if rows is None else np.where(rows[:, None], held, self.contact)
-        fixed = np.repeat(self._base_fixed[None], count, axis=0)
-        target = self._base_target.copy()
-        fixed[..., 1] |= self.contact
-        target[..., 1] = np.where(self.contact,
-                                  contact.targets(self.probe, positions, self.contact, tips, surface=surface),
-                                  target[..., 1])
-        self._tool_mask = tool_mask = np.zeros_like(fixed)
-        tool_mask[..., 1] = self.contact
+        surface = probe.surface(positions, tips, parallel=kernels.threaded(self.threads))
+        held = self.contact[index] = contact.update(probe, self.contact[index], positions, forces[index],
+                                                    self._probe_candidates, tips, surface=surface)
+        fixed[index, :, 1] |= held
+        target[index, :, 1] = np.where(held, contact.targets(probe, positions, held, tips, surface=surface),
+                                       target[index, :, 1])
+        tool_mask[index, :, 1] = held
+        self._tool_mask = tool_mask
+        self._formed = (fixed, target, tool_mask)
         return fixed, target, tool_mask
+
+    def _probe_rows(self, rows):
+        """The probe of the worlds ``rows`` (N,) bool alone: their radii and projection rows."""
+        projection = self._projection
+        if projection is not None:
+            projection = contact.SurfaceProjection(projection.offsets[rows], projection.weights,
+                                                   projection.reference[rows], projection.reach[rows])
+        return contact.Probe(self.probe.radius[rows], self.probe.tip, projection)
 
     def _advance(self, fixed, target, tool_mask, active):
         """The implicit step with the probe's contact set solved within the step (``TaskWorlds._advance``,
@@ -188,23 +206,27 @@ class PalpationWorlds(TaskWorlds):
         try:
             return super()._advance(fixed, target, tool_mask, active)
         finally:
-            self._sampled = None
+            self._sampled = self._formed = None
 
     def _contact_passes(self):
         return super()._contact_passes() if self.static else (CONTACT_PASSES, CONTACT_HEIGHT_TOLERANCE)
 
-    def _contact_forces(self, tool_mask):
-        self._node_forces = self.net_forces()  # at the solve's end: the nodes the tissue pulls
+    def _contact_forces(self, tool_mask, rows):
+        self._node_forces = self.net_forces(rows)  # at the solve's end: the nodes the tissue pulls
 
     def _after_substep(self, positions, velocities, rows):
         # a free top node that went into the probe is put back on its surface and joins the contact (a
-        # held one is where its imposed height put it: the next pass reads its height again)
-        tips = self._tips()
-        through = contact.project(self.probe, positions, velocities, self._probe_candidates & rows[:, None] & ~self.contact,
-                                  tips,
-                                  surface=self.probe.surface(positions, tips, parallel=kernels.threaded(self.threads)))
-        self.contact |= through
-        self._tool_mask[..., 1] |= through
+        # held one is where its imposed height put it: the next pass reads its height again); the
+        # surface of the worlds ``rows`` alone
+        if not rows.any():
+            return
+        index, probe = (slice(None), self.probe) if rows.all() else (np.flatnonzero(rows), self._probe_rows(rows))
+        tips, moved, moving = self._tips()[index], positions[index], velocities[index]
+        through = contact.project(probe, moved, moving, self._probe_candidates & ~self.contact[index], tips,
+                                  surface=probe.surface(moved, tips, parallel=kernels.threaded(self.threads)))
+        positions[index], velocities[index] = moved, moving
+        self.contact[index] |= through
+        self._tool_mask[index, :, 1] |= through
 
     def _tool_position(self, positions):
         return self._tips()

@@ -472,7 +472,7 @@ class TaskWorlds:
                 solving &= ~failed
                 if attempt + 1 == passes or not solving.any():
                     break
-                self._contact_forces(tool_mask)
+                self._contact_forces(tool_mask, solving)
                 previous_fixed, previous_target = fixed, target
                 fixed, target, tool_mask = self._control(solving)
                 solving &= ~same_contacts(previous_fixed, previous_target, fixed, target, tolerance=tolerance)
@@ -490,9 +490,10 @@ class TaskWorlds:
         the set to count as settled (``same_contacts``)."""
         return (STATIC_CONTACT_PASSES if self.static else 1), STATIC_SLIDE_TOLERANCE
 
-    def _contact_forces(self, tool_mask):
+    def _contact_forces(self, tool_mask, rows):
         """Between two contact passes of ``_advance``: the measurement the next ``_control`` reads
-        (the forces that release contact nodes; a grasp judged at them, ``Grasper.slip``)."""
+        (the forces that release contact nodes; a grasp judged at them, ``Grasper.slip``), of the
+        worlds ``rows`` (N,) bool still solving at least."""
         self._measure(tool_mask)
 
     def _explicit_step_cause(self, index):
@@ -592,18 +593,22 @@ class TaskWorlds:
         measures.update(self._task_measures(positions))
         return measures
 
-    def net_forces(self):
+    def net_forces(self, rows=None):
         """(N, n, 3) N: the net nodal forces at the worlds' state (elastic, corrections, volume,
         hourglass, damping and the tissue's damping law, gravity), the imposed components' constraint
-        forces left out."""
+        forces left out. ``rows``: None (every world), or the worlds (N,) bool wanted: a task that
+        shares the implicit step's force pass (``share_force_pass``) computes only theirs, and the
+        others' hold gravity alone."""
         flat = np.ascontiguousarray(self.positions.reshape(-1, 3), dtype=float)
         flat_velocities = np.ascontiguousarray(self.velocities.reshape(-1, 3), dtype=float)
         with np.errstate(all="ignore"):
             if not self.stack.shared.any():  # every world cut: each is measured on its own model (tissue_env.blade)
                 forces = np.zeros_like(flat)
             elif self.share_force_pass and isinstance(self.integrator, ImplicitEuler):
-                forces = self.integrator.linearise(flat).copy()  # elastic, corrections, volume, hourglass
+                forces = self.integrator.linearise(flat, rows).copy()  # elastic, corrections, volume, hourglass
                 self.integrator.workspace.add_damping(flat_velocities, forces)
+                if rows is not None:
+                    forces.reshape(self.num_envs, -1)[~rows] = 0.0
             else:
                 forces = self._forces.compute(flat, flat_velocities)
             if self.task.damping_ratio is not None and isinstance(self.integrator, ImplicitEuler):

@@ -253,17 +253,29 @@ def env_vector_section():
            "of Python threads for the resets, whose solves release the GIL), and numba's idle threads spin "
            "briefly before they sleep, since a vector step runs a dozen parallel regions;\n"
            "* every env measures with the next step's force pass (`share_force_pass`): one force pass per env "
-           "step instead of two.\n\n"
-           "What it cannot share is each copy's own sparse algebra (Retraction's floor contact changes often, "
-           "and each change re-factorises that copy) and the resets (TumorPositioning's is a static solve for "
-           "the goal, the same code in every mode). The [performance page](performance.md#vector-environments) "
-           "has the speeds of every mode; the share of resets:\n\n",
+           "step instead of two;\n"
+           "* a step's contact passes (Palpation's probe) force-pass, assemble and solve again only the copies "
+           "whose contact set changed (`ImplicitEuler.linearise(positions, rows)`), as a single env solves "
+           "again only itself.\n\n"
+           "What it cannot share is each copy's own arithmetic: its sparse solves and factorisations "
+           "(BimanualExposure's and Retraction's grasps re-factorise a copy most steps), its force passes and "
+           "its resets (TumorPositioning's and LiverNeedleAlignment's are static solves for the goal, SuperLU "
+           "factorisations, the same code in every mode). The table gives the share of each mode's CPU time "
+           "inside the compiled kernels and SuperLU's factorisations (that arithmetic) and the one-thread "
+           "bound: the one-thread CPU ratio over the one-thread vector env's kernel share, the ratio it would "
+           "reach if nothing outside its kernels cost time. Where the bound is near 2, 2x sync on one thread "
+           "is out of reach by batching. The [performance page]"
+           "(performance.md#vector-environments) has the speeds of every mode.\n\n",
            f"Unit: {data['unit']}.\n\n", caption(command_for("vector_env_speed.py"), "vector_env_speed.json"), "\n"]
     modes = list(data["results"][0]["modes"])
+    shares = list(data["results"][0].get("kernel_share", {}))
     out += [table(["env", "copies"] + [f"{mode}: resets' share of the time (%)" for mode in modes]
-                  + ["vector / sync (wall)", "vector 1 thread / sync (CPU)"],
+                  + [f"{mode}: kernels' share of the CPU (%)" for mode in shares]
+                  + ["vector / sync (wall)", "vector 1 thread / sync (CPU)", "one-thread bound"],
                   [[short_id(r["env_id"]), r["num_envs"]] + [pct(r["modes"][m]["reset_share"], 2) for m in modes]
-                   + [num(r["wall_ratio"]), num(r.get("cpu_ratio_one_thread"))] for r in data["results"]]), "\n"]
+                   + [pct(r["kernel_share"][m], 2) for m in shares]
+                   + [num(r["wall_ratio"]), num(r.get("cpu_ratio_one_thread")), num(r.get("one_thread_bound"))]
+                   for r in data["results"]]), "\n"]
     return out
 
 

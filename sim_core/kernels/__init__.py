@@ -80,14 +80,15 @@ from .update import (  # noqa: F401
     implicit_rows_update, implicit_rows_update_serial, symplectic_update,
 )
 from .forces import (  # noqa: F401
-    correction_pass, fixed_direction_corrections, model_forces, model_forces_copies, scatter_springs,
+    correction_pass, fixed_direction_corrections, model_forces, model_forces_copies, model_forces_copies_serial,
+    scatter_springs,
     scatter_springs_copies, spring_pass, stacked_hourglass_subtract_groups,
     stacked_hourglass_subtract_groups_serial, subtract_pushes,
     volume_forces_add, volume_forces_jacobian_add, volume_jacobian_terms, volume_pass,
 )
 from .stress import (  # noqa: F401
     stress_correction_add, stress_correction_add_copies, stress_correction_tangent_add,
-    stress_correction_tangent_add_copies,
+    stress_correction_tangent_add_copies, stress_correction_tangent_add_copies_serial,
 )
 from .operator import (  # noqa: F401
     apply_blocks, apply_copies, apply_copies_serial, apply_copy, apply_operator, apply_operator_blocks,

@@ -176,34 +176,55 @@ def model_forces(positions, velocities, use_velocity, springs, stiffness, rest_l
             flat[dof] -= total
 
 
-@njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
-def model_forces_copies(count, positions, velocities, use_velocity, springs, stiffness, rest_length, damping,
-                        elements, edge_spring, correction_matrix, axis_rest_length, correction_kind,
-                        rest_edge_direction, rest_volume, kappa, has_volume, length, unit, tension, push, forces,
-                        want_geometric, geometric, want_volume_jacobian, volume_coefficient, volume_direction,
-                        volume_gradient):
-    """``model_forces`` (without the hourglass term) of a stacked model of ``count`` equal copies
-    (copies first: copy c's nodes, springs and elements are the c-th equal slices), one copy per
-    numba thread at a time: ``springs``, ``elements`` and ``edge_spring`` are ONE copy's topology
-    (local indices); every other array is the stacked model's. The copies are disjoint, so each
-    writes only its own slices, in the stacked pass's order: the same floats as ``model_forces`` on
-    the stacked model."""
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST, inline="always")
+def _model_forces_copy(c, count, arrays):
+    """Copy ``c``'s ``model_forces`` (without the hourglass term) of ``model_forces_copies``'
+    ``arrays``."""
+    (positions, velocities, use_velocity, springs, stiffness, rest_length, damping, elements, edge_spring,
+     correction_matrix, axis_rest_length, correction_kind, rest_edge_direction, rest_volume, kappa, has_volume, length,
+     unit, tension, push, forces, want_geometric, geometric, want_volume_jacobian, volume_coefficient, volume_direction,
+     volume_gradient) = arrays
     n = positions.shape[0] // count
     n_springs, n_elements = springs.shape[0], elements.shape[0]
     g = geometric.shape[0] // count  # 0 for a forces-only workspace
     v = volume_coefficient.shape[0] // count
     no_int = np.zeros(1, dtype=np.int64)
     no_float = np.zeros(1)
+    a, b = c * n_springs, (c + 1) * n_springs
+    e0, e1 = c * n_elements, (c + 1) * n_elements
+    model_forces(positions[c * n:(c + 1) * n], velocities[c * n:(c + 1) * n], use_velocity, springs,
+                 stiffness[a:b], rest_length[a:b], damping[a:b], elements, edge_spring, correction_matrix[e0:e1],
+                 axis_rest_length[e0:e1], correction_kind, rest_edge_direction[e0:e1], rest_volume[e0:e1],
+                 kappa[e0:e1], has_volume, no_int, no_int, no_float, positions[c * n:(c + 1) * n], np.bool_(False),
+                 length[a:b], unit[a:b], tension[a:b], push[e0:e1], forces[c * n:(c + 1) * n], want_geometric,
+                 geometric[c * g:(c + 1) * g], want_volume_jacobian, volume_coefficient[c * v:(c + 1) * v],
+                 volume_direction[c * v:(c + 1) * v], volume_gradient[c * v:(c + 1) * v])
+
+
+@njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
+def model_forces_copies(count, active, arrays):
+    """``model_forces`` (without the hourglass term) of the copies ``active`` (count,) bool of a
+    stacked model of ``count`` equal copies (copies first: copy c's nodes, springs and elements are
+    the c-th equal slices), one copy per numba thread at a time. ``arrays``: the tuple (positions,
+    velocities, use_velocity, springs, stiffness, rest_length, damping, elements, edge_spring,
+    correction_matrix, axis_rest_length, correction_kind, rest_edge_direction, rest_volume, kappa,
+    has_volume, length, unit, tension, push, forces, want_geometric, geometric, want_volume_jacobian,
+    volume_coefficient, volume_direction, volume_gradient) of ``model_forces``' arguments, where
+    ``springs``, ``elements`` and ``edge_spring`` are ONE copy's topology (local indices) and every
+    other array is the stacked model's. The copies are disjoint, so each writes only its own slices,
+    in the stacked pass's order: the same floats as ``model_forces`` on the stacked model (the other
+    copies' slices are left as they are)."""
     for c in prange(count):
-        a, b = c * n_springs, (c + 1) * n_springs
-        e0, e1 = c * n_elements, (c + 1) * n_elements
-        model_forces(positions[c * n:(c + 1) * n], velocities[c * n:(c + 1) * n], use_velocity, springs,
-                     stiffness[a:b], rest_length[a:b], damping[a:b], elements, edge_spring, correction_matrix[e0:e1],
-                     axis_rest_length[e0:e1], correction_kind, rest_edge_direction[e0:e1], rest_volume[e0:e1],
-                     kappa[e0:e1], has_volume, no_int, no_int, no_float, positions[c * n:(c + 1) * n], np.bool_(False),
-                     length[a:b], unit[a:b], tension[a:b], push[e0:e1], forces[c * n:(c + 1) * n], want_geometric,
-                     geometric[c * g:(c + 1) * g], want_volume_jacobian, volume_coefficient[c * v:(c + 1) * v],
-                     volume_direction[c * v:(c + 1) * v], volume_gradient[c * v:(c + 1) * v])
+        if active[c]:
+            _model_forces_copy(c, count, arrays)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
+def model_forces_copies_serial(count, active, arrays):
+    """``model_forces_copies`` in this thread only (some of the copies on one thread)."""
+    for c in range(count):
+        if active[c]:
+            _model_forces_copy(c, count, arrays)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)

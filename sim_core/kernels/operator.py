@@ -469,21 +469,25 @@ def apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_ind
 
 
 @njit(cache=True, error_model="numpy", fastmath=FAST, parallel=True)
-def apply_copies(stacked, scales, hg_rows, hg_group, vector, out, hg_block_indptr, hg_block_indices, hg_block_rows):
-    """out (N, 3 n) = each copy's operator A_c (``apply_operator``'s, the hourglass term in node blocks)
-    times its row of ``vector`` (N, 3 n), the copies shared among numba's threads (``solve_copies_lu``'s
-    arguments: copy c's per-spring and per-element scratch are its own slices)."""
+def apply_copies(stacked, scales, hg_rows, hg_group, vector, active, out, hg_block_indptr, hg_block_indices,
+                 hg_block_rows):
+    """out (N, 3 n) = each ``active`` (N,) bool copy's operator A_c (``apply_operator``'s, the
+    hourglass term in node blocks) times its row of ``vector`` (N, 3 n), the copies shared among
+    numba's threads (``solve_copies_lu``'s arguments: copy c's per-spring and per-element scratch
+    are its own slices); the other rows of ``out`` are left as they are."""
     ones = np.ones(vector.shape[1])
     for c in prange(vector.shape[0]):
-        apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones, ones,
-                    vector[c], out[c], np.int64(c))
+        if active[c]:
+            apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones,
+                        ones, vector[c], out[c], np.int64(c))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST)
-def apply_copies_serial(stacked, scales, hg_rows, hg_group, vector, out, hg_block_indptr, hg_block_indices,
+def apply_copies_serial(stacked, scales, hg_rows, hg_group, vector, active, out, hg_block_indptr, hg_block_indices,
                         hg_block_rows):
     """``apply_copies`` in this thread only (one thread, a forked process): the same floats."""
     ones = np.ones(vector.shape[1])
     for c in range(vector.shape[0]):
-        apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones, ones,
-                    vector[c], out[c], c)
+        if active[c]:
+            apply_copy(stacked, scales, hg_rows, hg_group, hg_block_indptr, hg_block_indices, hg_block_rows, ones,
+                        ones, vector[c], out[c], c)

@@ -658,20 +658,48 @@ def stress_correction_add_copies(count, positions, elements, gradient, volume, m
                                 entry_gradient[copy * nnz:(copy + 1) * nnz])
 
 
-@njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
-def stress_correction_tangent_add_copies(count, positions, elements, gradient, volume, mu, lam, spring_vector,
-                                         spring_length, spring_stiffness, linear, indptr, cell_nodes, entry_gradient,
-                                         root, root_inverse, clamp, forces, tangent):
-    """``stress_correction_tangent_add`` per copy on numba's threads (``stress_correction_add_copies``'
-    layout; the same floats as the stacked pass)."""
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT, inline="always")
+def _stress_tangent_copy(copy, count, positions, elements, gradient, volume, mu, lam, spring_vector, spring_length,
+                         spring_stiffness, linear, indptr, cell_nodes, entry_gradient, root, root_inverse, clamp,
+                         forces, tangent):
+    """Copy ``copy``'s pass of ``stress_correction_tangent_add_copies``; returns its clamped
+    elements."""
     n = positions.shape[0] // count
     n_elements = indptr.shape[0] - 1 if indptr.shape[0] > 0 else elements.shape[1]
     nnz = indptr[-1] if indptr.shape[0] > 0 else 0
+    return stress_correction_range(
+        positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu, lam, spring_vector,
+        spring_length, spring_stiffness, linear, root, root_inverse, clamp, np.bool_(True),
+        forces[copy * n:(copy + 1) * n],
+        tangent, indptr, cell_nodes, entry_gradient[copy * nnz:(copy + 1) * nnz])
+
+
+@njit(cache=True, error_model="numpy", fastmath=FAST_EXACT, parallel=True)
+def stress_correction_tangent_add_copies(count, active, positions, elements, gradient, volume, mu, lam, spring_vector,
+                                         spring_length, spring_stiffness, linear, indptr, cell_nodes, entry_gradient,
+                                         root, root_inverse, clamp, forces, tangent):
+    """``stress_correction_tangent_add`` of the copies ``active`` (count,) bool, one per numba
+    thread at a time (``stress_correction_add_copies``' layout; the same floats as the stacked
+    pass; the other copies' forces and tangents are left as they are)."""
     clamped = np.zeros(count, dtype=np.int64)
     for copy in prange(count):
-        clamped[copy] = stress_correction_range(
-            positions[copy * n:(copy + 1) * n], elements, copy * n_elements, gradient, volume, mu, lam, spring_vector,
-            spring_length, spring_stiffness, linear, root, root_inverse, clamp, np.bool_(True),
-            forces[copy * n:(copy + 1) * n],
-            tangent, indptr, cell_nodes, entry_gradient[copy * nnz:(copy + 1) * nnz])
+        if active[copy]:
+            clamped[copy] = _stress_tangent_copy(copy, count, positions, elements, gradient, volume, mu, lam,
+                                                 spring_vector, spring_length, spring_stiffness, linear, indptr,
+                                                 cell_nodes, entry_gradient, root, root_inverse, clamp, forces, tangent)
     return clamped.sum()
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=FAST_EXACT)
+def stress_correction_tangent_add_copies_serial(count, active, positions, elements, gradient, volume, mu, lam,
+                                                spring_vector, spring_length, spring_stiffness, linear, indptr,
+                                                cell_nodes, entry_gradient, root, root_inverse, clamp, forces,
+                                                tangent):
+    """``stress_correction_tangent_add_copies`` in this thread only."""
+    clamped = 0
+    for copy in range(count):
+        if active[copy]:
+            clamped += _stress_tangent_copy(copy, count, positions, elements, gradient, volume, mu, lam, spring_vector,
+                                            spring_length, spring_stiffness, linear, indptr, cell_nodes,
+                                            entry_gradient, root, root_inverse, clamp, forces, tangent)
+    return clamped

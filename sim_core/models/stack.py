@@ -335,9 +335,16 @@ class StackedForceWorkspace(ForceWorkspace):
             self._blocks = (stack.version, (indptr, indices, values))
         return self._blocks[1]
 
-    def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False):
-        if kernels.threaded(self.threads):  # one copy per thread at a time: the same floats
-            forces = self._compute_copies(positions, velocities, geometric, volume_jacobian)
+    def compute(self, positions, velocities, hourglass=True, geometric=False, volume_jacobian=False, rows=None):
+        """``ForceWorkspace.compute``; ``rows``: None (every copy), or the copies (N,) bool whose
+        forces (and implicit data) are computed, one copy after the other, the others' entries
+        left as they are (a contact pass that solves some worlds again: the same floats per
+        copy). Only an implicit pass (``geometric``) takes some of the copies; any other computes
+        them all."""
+        if rows is not None and (rows.all() or not self.partial_pass(geometric)):
+            rows = None
+        if kernels.threaded(self.threads) or rows is not None:  # copy by copy: the same floats
+            forces = self._compute_copies(positions, velocities, geometric, volume_jacobian, rows)
         else:
             forces = super().compute(positions, velocities, hourglass=False, geometric=geometric,
                                      volume_jacobian=volume_jacobian)
@@ -350,6 +357,8 @@ class StackedForceWorkspace(ForceWorkspace):
             # copy whatever the other copies hold (one world equals its copy in N worlds)
             group = values["hourglass_group"]
             order = np.argsort(group, kind="stable").astype(np.int64)
+            if rows is not None:
+                order = order[rows[order]]
             group_start = np.searchsorted(group[order], np.arange(values["hourglass"].shape[1] + 1))
             indptr, indices, block_rows = self.hourglass_blocks()
             args = (indptr, indices, block_rows, order, group_start.astype(np.int64), positions,
@@ -361,6 +370,11 @@ class StackedForceWorkspace(ForceWorkspace):
         return forces
 
 
+    def partial_pass(self, geometric):
+        """Whether ``compute`` with ``geometric`` computes only the copies its ``rows`` asks for (an
+        implicit pass), rather than all of them."""
+        return geometric and (self.model.stress_correction is None or len(self.stress_tangent) > 0)
+
     def add_damping(self, velocities, forces):
         """``ForceWorkspace.add_damping``, one copy per thread when threaded (the same floats)."""
         if not kernels.threaded(self.threads):
@@ -369,24 +383,26 @@ class StackedForceWorkspace(ForceWorkspace):
                                        self.model.damping, velocities, True, forces)
         return forces
 
-    def _compute_copies(self, positions, velocities, geometric, volume_jacobian):
-        """``ForceWorkspace.compute`` without the hourglass term, by ``kernels.model_forces_copies``."""
+    def _compute_copies(self, positions, velocities, geometric, volume_jacobian, rows):
+        """``ForceWorkspace.compute`` without the hourglass term of the copies ``rows`` (None:
+        all), by ``kernels.model_forces_copies`` (its serial twin on one thread)."""
         model, reference = self.model, self.stack.reference
         use_velocity = velocities is not None
-        kernels.model_forces_copies(
-            self.stack.count, positions, velocities if use_velocity else positions, use_velocity, reference.springs,
+        rows = np.ones(self.stack.count, dtype=bool) if rows is None else np.ascontiguousarray(rows, dtype=bool)
+        kernels.variant(kernels.model_forces_copies, self.threads)(self.stack.count, rows, (
+            positions, velocities if use_velocity else positions, use_velocity, reference.springs,
             model.stiffness, model.rest_length, model.damping, reference.mesh.elements, reference.edge_spring,
             model.correction_matrix, model.axis_rest_length, self.correction_kind, model.rest_edge_direction,
             model.rest_volume, model.volume_stiffness, self.has_volume, self.length, self.unit, self.tension,
             self.push, self.forces, geometric, self.geometric, volume_jacobian and self.has_volume,
-            self.volume_coefficient, self.volume_direction, self.volume_gradient)
+            self.volume_coefficient, self.volume_direction, self.volume_gradient))
         correction = model.stress_correction
         if correction is not None:  # the stress correction, copy by copy (kernels.stress_correction_add's floats)
             arguments = (self.stack.count, positions, *stress_arguments(model, elements_of=reference))
             if geometric and len(self.stress_tangent):
-                self.clamped_elements = kernels.stress_correction_tangent_add_copies(
-                    *arguments, correction.metric_root, correction.metric_root_inverse, True, self.forces,
-                    self.stress_tangent)
-            else:
+                self.clamped_elements = kernels.variant(kernels.stress_correction_tangent_add_copies, self.threads)(
+                    arguments[0], rows, *arguments[1:], correction.metric_root, correction.metric_root_inverse, True,
+                    self.forces, self.stress_tangent)
+            else:  # every copy (``compute``)
                 kernels.stress_correction_add_copies(*arguments, self.forces)
         return self.forces

@@ -718,19 +718,28 @@ class ImplicitEuler(WorldsSolver):
             self._packed_groups = groups
         return self._packed
 
-    def linearise(self, positions):
+    def linearise(self, positions, rows=None):
         """The step's force pass over the stacked model at ``positions`` (N n, 3) m: internal forces
         without damping (N n, 3) N, with the clamped geometric stiffness and volume terms of the
-        implicit system in ``self.workspace``. Computed once per state: a step from positions that
-        were already linearised (by the vector env's measurement of the previous step) reuses it."""
-        stack = self.stack
-        cached = self._linearised
-        if cached is not None and cached[0] == stack.version and np.array_equal(cached[1], positions):
-            return self.workspace.forces
-        forces = self.workspace.compute(positions, None, geometric=True,
-                                        volume_jacobian=stack.model.has_volume_forces)
-        self._linearised = (stack.version, positions.copy())
-        return forces
+        implicit system in ``self.workspace``. ``rows``: None (every copy) or the copies (N,) bool
+        whose entries are wanted (the others' may be another state's). Once per state and copy:
+        a copy whose positions were linearised last (by the vector env's measurement of the
+        previous step) is reused, the others alone computed (a contact pass that solves some
+        copies again)."""
+        count, version = self.stack.count, self.stack.version
+        wanted = np.ones(count, dtype=bool) if rows is None else np.asarray(rows, dtype=bool)
+        if self._linearised is None or self._linearised[0] != version:
+            self._linearised = (version, positions.copy(), np.zeros(count, dtype=bool))
+        _, kept, done = self._linearised
+        needed = wanted & ~(done & np.all(kept.reshape(count, -1) == positions.reshape(count, -1), axis=1))
+        if needed.any():
+            self.workspace.compute(positions, None, geometric=True, volume_jacobian=self.stack.model.has_volume_forces,
+                                   rows=needed)
+            if not self.workspace.partial_pass(geometric=True):
+                needed[:] = True  # (every copy was computed)
+            kept.reshape(count, -1)[needed] = positions.reshape(count, -1)[needed]
+            done |= needed
+        return self.workspace.forces
 
     def advance(self, positions, velocities, fixed, target, dt, active, force=None):
         """One step of the scheme (``self.scheme``) of every copy in ``active`` (N,) bool; the others
@@ -757,7 +766,7 @@ class ImplicitEuler(WorldsSolver):
         v0 = np.ascontiguousarray(velocities.reshape(-1, 3), dtype=float)
         # one fused pass over the stacked model: forces without damping, clamped geometric stiffness,
         # volume terms
-        forces = self.linearise(x0) + model.gravity_force
+        forces = self.linearise(x0, active) + model.gravity_force
         if force is not None and np.any(force):  # (zero forces add nothing: the floats stay the same)
             forces += np.asarray(force, dtype=float).reshape(-1, 3)
         alpha, beta = rayleigh
@@ -776,9 +785,10 @@ class ImplicitEuler(WorldsSolver):
         target_velocity, moved = np.empty((count, dofs)), np.empty((count, dofs))
         kernels.variant(kernels.implicit_rows_start, self.threads)(x_rows, v_rows, target_rows, imposed, dt,
                                                                    target_velocity, moved)
-        product = np.empty((count, dofs))
+        product = np.zeros((count, dofs))  # (the inactive copies' rows stay 0)
         stacked, hg_rows, hg_group = self._copies_first()
-        kernels.variant(kernels.apply_copies, self.threads)(stacked, system, hg_rows, hg_group, moved, product,
+        kernels.variant(kernels.apply_copies, self.threads)(stacked, system, hg_rows, hg_group, moved,
+                                                            np.ascontiguousarray(active, dtype=bool), product,
                                                             *self._hourglass_blocks())
         rhs = np.empty((count, dofs))
         kernels.variant(kernels.implicit_rows_rhs, self.threads)(forces.reshape(count, dofs), self._dof_mass(), v_rows,
@@ -850,7 +860,8 @@ class ImplicitEuler(WorldsSolver):
             product = np.empty_like(rows)
             for (alpha, beta), group in laws:
                 kernels.variant(kernels.apply_copies, self.threads)(stacked, self.scales(alpha, 0.0, beta), hg_rows,
-                                                                    hg_group, rows, product, *self._hourglass_blocks())
+                                                                    hg_group, rows, group, product,
+                                                                    *self._hourglass_blocks())
                 forces[group] = -product[group]
         return forces.reshape(-1, 3)
 
