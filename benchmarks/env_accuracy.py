@@ -25,10 +25,6 @@ neither: Retraction, whose elements are boxes), and reports
     with tests running on the other core), Retraction at (12, 2, 6) measured 356 and 257 steps/s
     and at (10, 2, 5) 532 and 427, TumorPositioning at (7, 7, 7) 322 (and 283 in another
     measurement), so a shape measured just over 300 falls under it in another period.
-    Palpation's candidates must also meet issue 42's indentation floor (``meets_indentation_floor``:
-    its probe force within 10% of the axisymmetric reference from 2 mm deep,
-    benchmarks/indentation_reference.py), and the env's default shape is evaluated beside the
-    scan's (Palpation's (11, 5, 11) is not one of its n x n/2 x n shapes: n = 11 gives (11, 6, 11)).
 (b) constitutive accuracy: the chosen mesh and the env's default mesh against the
     ``fem-neohookean`` reference on a finer mesh (relative errors and per-case absolute errors in
     N, mm and percentage points). The mass-spring law departs from neo-Hookean at these strains,
@@ -232,57 +228,13 @@ def env_speeds(env_id, shapes, rounds=SPEED_ROUNDS, steps=300, seed=0, **keyword
     return {key: None if rates is None else float(np.median(rates)) for key, rates in samples.items()}
 
 
-def budget_choice(candidates, speeds, floor=SPEED_FLOOR * SPEED_MARGIN, accepts=None):
+def budget_choice(candidates, speeds, floor=SPEED_FLOOR * SPEED_MARGIN):
     """The most accurate candidate (smallest worst error against the fine model; converged and
     stable) whose env keeps ``floor`` steps/s: how the defaults are chosen ("model no more than a
-    scene needs" under a speed budget). ``speeds``: {shape string: steps/s or None}; ``accepts``:
-    the task's further criterion, shape -> bool (``CRITERIA``), or None. The criterion comes first:
-    when no accepted candidate keeps ``floor``, the fastest accepted one (its speed below the floor
-    is then reported, not hidden by a shape that fails the criterion)."""
-    sound = [c for c in candidates if c.converged and c.stable and c.errors is not None
-             and (accepts is None or accepts(tuple(c.shape)))]
-
-    def speed(c):
-        return speeds.get("x".join(map(str, c.shape))) or 0.0
-
-    fast = [c for c in sound if speed(c) >= floor]
-    if fast:
-        return min(fast, key=lambda c: max(c.errors.values()))
-    return max(sound, key=speed) if accepts is not None and sound else None
-
-
-#: the indentation floor (issue 42): the probe force within this share of the axisymmetric reference
-INDENTATION_FLOOR, INDENTATION_FROM_MM = 0.10, 2.0
-INDENTATION_RESULTS = ("indentation_reference.json", "indentation_reference_nu049.json")
-
-
-def indentation_errors(results=ROOT / "benchmarks" / "results"):
-    """{n: worst |error|} of Palpation's probe force against the axisymmetric reference at depths
-    from INDENTATION_FROM_MM over every position and both Poisson ratios, for the resolutions n
-    (n x n/2 x n) that benchmarks/indentation_reference.py's committed runs measured (the env's and
-    the one below it)."""
-    worst = {}
-    for name in INDENTATION_RESULTS:
-        data = json.loads((results / name).read_text())
-        for n, key in ((data["env_resolution"], "env_error_axisymmetric"),
-                       (data["below_resolution"], "below_error_axisymmetric")):
-            errors = [abs(e) for row in data["rows"] if row["depth_mm"] >= INDENTATION_FROM_MM - 1e-9
-                      for e in row[key].values()]
-            worst[n] = max(worst.get(n, 0.0), *errors)
-    return worst
-
-
-def meets_indentation_floor(shape, errors=None):
-    """Whether Palpation at ``shape`` meets the indentation floor: at least as many cells across as
-    the coarsest measured resolution within INDENTATION_FLOOR (``indentation_errors``), so the
-    probe's 4.2-9 mm contact radius spans enough nodes."""
-    errors = indentation_errors() if errors is None else errors
-    passing = [n for n, error in errors.items() if error <= INDENTATION_FLOOR]
-    return bool(passing) and min(shape[0], shape[2]) >= min(passing)
-
-
-#: a task's criterion on its default shape beyond accuracy and speed
-CRITERIA = {"Palpation": meets_indentation_floor}
+    scene needs" under a speed budget). ``speeds``: {shape string: steps/s or None}."""
+    fast = [c for c in candidates if c.converged and c.stable and c.errors is not None
+            and (speeds.get("x".join(map(str, c.shape))) or 0.0) >= floor]
+    return min(fast, key=lambda c: max(c.errors.values())) if fast else None
 
 
 def _pick(candidates, tolerance, reference_nodes=None):
@@ -370,14 +322,13 @@ def _task_accuracy(name, quick):
         fem_resolution, fine_resolution, resolutions = QUICK[name]
     scenes = make()
     clock = time.perf_counter()
-    choice, chosen, discretisation = _discretisation(scenes, model, alpha, kappa, fine_resolution, resolutions,
-                                                     () if quick else (default_shape,))
+    choice, chosen, discretisation = _discretisation(scenes, model, alpha, kappa, fine_resolution, resolutions)
     # env speed at every candidate shape, and the budgeted choice (the most accurate that keeps
     # SPEED_FLOOR steps/s with SPEED_MARGIN): how the env defaults are chosen
     shapes = list(dict.fromkeys(tuple(c.shape) for c in choice.candidates if c.errors is not None))
     speeds = ({"x".join(map(str, shape)): None for shape in shapes} if quick
               else env_speeds(ENV_IDS[name], shapes))
-    budget = budget_choice(choice.candidates, speeds, accepts=None if quick else CRITERIA.get(name))
+    budget = budget_choice(choice.candidates, speeds)
     # stepping on the chosen meshes and on the env's default mesh
     shapes = ({tuple(default_shape)} | {tuple(c.shape) for c in chosen.values() if c is not None}
               | ({tuple(budget.shape)} if budget is not None else set()))
@@ -389,10 +340,7 @@ def _task_accuracy(name, quick):
     env_dt = next(c for c in default_step["candidates"] if c["dt"] == default_dt and c["substeps"] == ENV_SUBSTEPS)
     budget_summary = None if budget is None else dict(
         budget.summary(), steps_per_s=speeds["x".join(map(str, budget.shape))], floor=SPEED_FLOOR * SPEED_MARGIN, issue_floor=SPEED_FLOOR,
-        is_env_default=tuple(budget.shape) == tuple(default_shape),
-        keeps_floor=speeds["x".join(map(str, budget.shape))] is not None
-        and speeds["x".join(map(str, budget.shape))] >= SPEED_FLOOR * SPEED_MARGIN,
-        criterion=None if name not in CRITERIA else CRITERIA[name].__name__)
+        is_env_default=tuple(budget.shape) == tuple(default_shape))
     default_disc = next((c.summary() for c in choice.candidates if tuple(c.shape) == tuple(default_shape)), None)
     entry = dict(
         scenes=[s.name for s in scenes], displacements_m=[[p.tolist() for p in s.displacements] for s in scenes],
@@ -415,19 +363,13 @@ def _reference_values(scenes, solutions):
                  volume=r.volume.tolist(), stable=[bool(v) for v in r.stable]) for s, r in zip(scenes, solutions)]
 
 
-def _discretisation(scenes, model, alpha, kappa, fine_resolution, resolutions, shapes=()):
+def _discretisation(scenes, model, alpha, kappa, fine_resolution, resolutions):
     """(a) discretisation against the fine mass-spring model: (the ``choose_resolution`` full scan,
-    with ``shapes`` the scan's resolutions do not give evaluated beside them, the coarsest candidate
-    per tolerance of TOLERANCES, the task's "discretisation" entry)."""
+    the coarsest candidate per tolerance of TOLERANCES, the task's "discretisation" entry)."""
     fine = reference_solutions(scenes, reference_resolution=fine_resolution, model=model,
                                hourglass_control=alpha, volume_stiffness=kappa)
     choice = choose_resolution(scenes, TOLERANCE, resolutions=resolutions, hourglass_controls=(alpha,),
                                volume_stiffnesses=(kappa,), references=fine, full_scan=True, model=model)
-    scanned = {tuple(c.shape) for c in choice.candidates}
-    for shape in (s for s in shapes if tuple(s) not in scanned):
-        choice.candidates.append(evaluate(scenes, tuple(shape), fine[0], TOLERANCE, hourglass_control=alpha,
-                                          volume_stiffness=kappa, resolution=round(max(scenes[0].size) / max(
-                                              np.asarray(scenes[0].size) / np.asarray(shape))), model=model))
     fine_nodes = int(np.prod(np.asarray(fine[1][0]) + 1))
     chosen = {f"{int(t * 100)}pct": _pick(choice.candidates, {q: t for q in ("force", "target", "volume")}, fine_nodes)
               for t in TOLERANCES}

@@ -1,18 +1,16 @@
 """Env steps per second of every tissue_env task at its defaults, and the time split.
 
 Usage: python -m benchmarks.env_speed [--steps 300] [--rounds 1] [--integrator static]
-       [--envs ID ...] [--output benchmarks/results/env_speed.json].
+       [--output benchmarks/results/env_speed.json].
 Random actions, resets included in the total rate (per wall-clock second and per CPU second of
 this process, which counts other jobs on a shared machine less); the split (physics = integrator
 substeps and contact, observation = measurements and features, reward = reward terms and
 success) is from the step calls alone. With several rounds the tasks alternate within each round
 and every figure is the median over rounds. One process, one core. Results are written to
-``--output`` (JSON, replaced atomically) with the machine's description; with ``--envs`` the
-other tasks keep their rows from ``--output`` (measured in their own run).
+``--output`` (JSON, replaced atomically) with the machine's description.
 """
 
 import argparse
-import json
 import os
 import platform
 import time
@@ -96,12 +94,10 @@ def main():
     parser.add_argument("--rounds", type=int, default=1)
     parser.add_argument("--integrator", choices=("implicit", "static", "explicit"), default=None,
                         help="the envs' integrator keyword (default: theirs, implicit)")
-    parser.add_argument("--envs", nargs="+", default=None, choices=sorted(tissue_env.ENV_IDS),
-                        help="measure these tasks only (default: every one)")
     parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results", "env_speed.json"))
     args = parser.parse_args()
     kwargs = {} if args.integrator is None else dict(integrator=args.integrator)
-    env_ids = sorted(args.envs or tissue_env.ENV_IDS)
+    env_ids = sorted(tissue_env.ENV_IDS)
     rounds = {env_id: [] for env_id in env_ids}
     for _ in range(max(args.rounds, 1)):
         for env_id in env_ids:
@@ -115,10 +111,6 @@ def main():
               f"{r['physics_ms']:6.2f}ms {r['observation_ms']:4.2f}ms {r['reward_ms']:4.2f}ms {r['render_fps']:5.1f}fps")
     machine = dict(platform=platform.platform(), processor=platform.processor(), cpus=os.cpu_count(),
                    python=platform.python_version(), numpy=np.__version__, load_average=list(os.getloadavg()))
-    if args.envs and os.path.exists(args.output):  # the tasks not measured this time keep their rows
-        with open(args.output) as stream:
-            kept = [row for row in json.load(stream)["results"] if row["env_id"] not in env_ids]
-        results = sorted(kept + results, key=lambda row: row["env_id"])
     payload = dict(steps=args.steps, rounds=args.rounds, integrator=args.integrator or "implicit", machine=machine,
                    results=results)
     write_json(args.output, payload)

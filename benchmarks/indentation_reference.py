@@ -2,14 +2,14 @@
 
 Usage: python -m benchmarks.indentation_reference [--resolutions 10 16 20] [--poisson-ratio 0.45]
        [--output benchmarks/results/indentation_reference.json]
-       (nu 0.49: --poisson-ratio 0.49 --resolutions 11 --output benchmarks/results/indentation_reference_nu049.json)
+       (nu 0.49: --poisson-ratio 0.49 --resolutions 10 --output benchmarks/results/indentation_reference_nu049.json)
 
 The scene is Palpation's at its defaults without gravity and without the inclusion: a 6 x 3 x 6 cm
 slab of E = 5 kPa attached by its bottom face, the 9 mm sphere-ended probe pressed frictionlessly
 into its top face (``sim_core.studies.solving.solve_scene``: static equilibrium, the active set
 solved to convergence), depths 0.5-8 mm by continuation, with the env's model
 (``PalpationEnv.default_model``) and probe sampling ("projected"), on meshes of n x n/2 x n cubes
-(``PalpationEnv.default_shape``: n = 11, 5.5 mm cells). The probe force at each depth:
+(n = 10 is the env's 6 mm). The probe force at each depth:
 
 - **axisymmetric**: an independent reference, none of sim_core (``axisymmetric_forces``: scikit-fem,
   quadratic triangles, linear elasticity, frictionless active set) on the cylinder of the slab's
@@ -23,10 +23,9 @@ solved to convergence), depths 0.5-8 mm by continuation, with the env's model
   thickness t bonded to a rigid base (Dimitriadis et al., Biophys. J. 82 (2002) 2798, their eq. 12
   with their nu-dependent alpha0, beta0): the same times a polynomial in chi = sqrt(R d) / t; closed
   forms valid while the contact radius stays small against R and t;
-- the env's force at its resolution and at the one below it (n - 1: the floor's margin, why the
-  default is no coarser), the probe over a node, over the middle of a cell's side and over a cell's
-  centre (the nearest such place to the slab's centre: with n odd the centre is a cell's centre),
-  and its errors against the references.
+- the env's force at its 6 mm cubes, the probe over a node (the centre), over the middle of a cell's
+  side (3 mm off in x) and over a cell's centre (3 mm off in x and z), and its errors against the
+  references.
 
 Written to ``--output`` (JSON, replaced atomically). ``--summarise`` recomputes the summary from the
 forces already in ``--output`` (no solve).
@@ -173,14 +172,6 @@ def indentation_forces(resolution, poisson_ratio, model, sampling="projected", o
 #: Where the env's probe is pressed, in cells off a node: over a node, over the middle of a cell's
 #: side (an edge), over a cell's centre
 POSITIONS = {"node": (0.0, 0.0), "edge": (0.5, 0.0), "cell_centre": (0.5, 0.5)}
-
-
-def position_offset(name, resolution):
-    """The probe's offset (m, in x and z) from the slab's centre at ``POSITIONS[name]`` on the
-    nearest node of the n x n/2 x n mesh (``resolution`` n; with n odd the centre is a cell's centre,
-    its nearest node half a cell off in x and z)."""
-    cell, shift = SIZE[0] / resolution, 0.5 * (resolution % 2)
-    return tuple(((p + shift) % 1.0) * cell for p in POSITIONS[name])
 #: The cylinder of the slab's top area (its equal-area radius) and the one inscribed in it (m)
 CYLINDERS = {"equal_area": float(np.sqrt(SIZE[0] * SIZE[2] / np.pi)), "inscribed": 0.5 * SIZE[0]}
 
@@ -188,17 +179,13 @@ CYLINDERS = {"equal_area": float(np.sqrt(SIZE[0] * SIZE[2] / np.pi)), "inscribed
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolutions", type=int, nargs="*", default=[10, 16, 20],
-                        help="meshes (cubes across), the probe at the centre, for the extrapolated reference: three "
-                             "or more, or one")
+                        help="meshes (cubes across) for the extrapolated reference: three or more, or only the env's")
     parser.add_argument("--poisson-ratio", type=float, default=0.45)
     parser.add_argument("--output", default=os.path.join(os.path.dirname(__file__), "results",
                                                          "indentation_reference.json"))
     parser.add_argument("--summarise", action="store_true", help="recompute the summary from --output's forces")
     args = parser.parse_args(argv)
     model, env_resolution = PalpationEnv.default_model, PalpationEnv.default_shape[0]
-    if tuple(PalpationEnv.default_shape) != (env_resolution, env_resolution // 2, env_resolution):
-        raise SystemExit(f"PalpationEnv.default_shape {PalpationEnv.default_shape} is not n x n/2 x n")
-    below = env_resolution - 1
     nu = args.poisson_ratio
     depths = np.array(DEPTHS_MM) * MM
     if args.summarise:
@@ -206,27 +193,22 @@ def main(argv=None):
             stored = json.load(stream)
         model, nu, resolutions = stored["model"], stored["poisson_ratio"], stored["resolutions"]
         meshes = {n: np.array([row["meshes_n"][str(n)] for row in stored["rows"]]) for n in resolutions}
-        env_resolution, below = stored["env_resolution"], stored["below_resolution"]
         env = {name: np.array([row["env_n"][name] for row in stored["rows"]]) for name in POSITIONS}
-        env_below = {name: np.array([row["below_n"][name] for row in stored["rows"]]) for name in POSITIONS}
         cylinders = {name: np.array([row["axisymmetric_n"][name] for row in stored["rows"]]) for name in CYLINDERS}
     else:
-        resolutions = sorted(set(args.resolutions))
+        resolutions = sorted(set(args.resolutions) | {env_resolution})
         if len(resolutions) == 2:
-            raise SystemExit("the extrapolated reference needs three resolutions (or give one)")
+            raise SystemExit("the extrapolated reference needs three resolutions (or give only the env's)")
         meshes = {}
         for n in resolutions:
             forces, seconds = indentation_forces(n, nu, model)
             meshes[n] = forces
             print(f"n = {n} ({1e3 * SIZE[0] / n:g} mm cubes): F = {np.round(forces, 4).tolist()} N ({seconds:.0f} s)",
                   flush=True)
-
-        def at_positions(n):
-            offsets = {name: position_offset(name, n) for name in POSITIONS}
-            return {name: meshes[n] if n in meshes and offset == (0.0, 0.0) else
-                    indentation_forces(n, nu, model, offset=offset)[0] for name, offset in offsets.items()}
-
-        env, env_below = at_positions(env_resolution), at_positions(below)
+        cell = SIZE[0] / env_resolution
+        env = {name: meshes[env_resolution] if offset == (0.0, 0.0) else
+               indentation_forces(env_resolution, nu, model, offset=(offset[0] * cell, offset[1] * cell))[0]
+               for name, offset in POSITIONS.items()}
         cylinders = {name: axisymmetric_forces(depths, RADIUS, SIZE[1], radius, YOUNG, nu)
                      for name, radius in CYLINDERS.items()}
     axisymmetric = cylinders["equal_area"]
@@ -248,9 +230,7 @@ def main(argv=None):
                    hertz_n=float(closed[i]), hertz_bonded_layer_n=float(layer[i]),
                    meshes_n={str(n): float(meshes[n][i]) for n in resolutions},
                    env_n={name: float(f[i]) for name, f in env.items()},
-                   env_error_axisymmetric={name: float(f[i] / axisymmetric[i] - 1.0) for name, f in env.items()},
-                   below_n={name: float(f[i]) for name, f in env_below.items()},
-                   below_error_axisymmetric={name: float(f[i] / axisymmetric[i] - 1.0) for name, f in env_below.items()})
+                   env_error_axisymmetric={name: float(f[i] / axisymmetric[i] - 1.0) for name, f in env.items()})
         if extrapolated:
             row.update(reference_n=float(reference[i]), first_order_extrapolation_n=float(first_order[i]),
                        richardson_n=float(richardson_force[i]), richardson_order=float(orders[i]),
@@ -258,7 +238,6 @@ def main(argv=None):
                        reference_over_axisymmetric=float(reference[i] / axisymmetric[i]))
         rows.append(row)
         against = "".join(f", {name} {100 * row['env_error_axisymmetric'][name]:+.1f}%" for name in env)
-        against += f" (n = {below}:" + ",".join(f" {100 * row['below_error_axisymmetric'][n]:+.1f}%" for n in env) + ")"
         print(f"{depth:4g} mm: axisymmetric {axisymmetric[i]:.4f} N (inscribed {cylinders['inscribed'][i]:.4f})"
               + (f", extrapolated {reference[i]:.4f} (first order {first_order[i]:.4f})" if extrapolated else "")
               + f", Hertz {closed[i]:.4f}, bonded layer {layer[i]:.4f}; env against the axisymmetric{against}"
@@ -270,8 +249,7 @@ def main(argv=None):
                                                                  + " ".join(map(str, resolutions))
                                                                  + f" --output {os.path.relpath(args.output)}"),
         model=model, poisson_ratio=nu, young_modulus=YOUNG, size_m=list(SIZE), probe_radius_m=RADIUS,
-        env_resolution=env_resolution, below_resolution=below, resolutions=resolutions, positions_cells=POSITIONS,
-        cylinders_m=CYLINDERS,
+        env_resolution=env_resolution, resolutions=resolutions, positions_cells=POSITIONS, cylinders_m=CYLINDERS,
         rows=rows, machine=dict(platform=platform.platform(), cpus=os.cpu_count(), python=platform.python_version())))
     return 0
 

@@ -9,9 +9,9 @@ what the palpation map records): the first step at least ``map_depth`` (4 mm) de
 held two steps (what the map holds once a press is held). For each probe sampling
 (``probe_sampling`` "projected", the default, and "node", earlier versions'):
 
-1. a homogeneous slab (``inclusion_ratio=1``) on a 4 x 4 grid over one node period (5.5 mm at
-   the default (11, 5, 11)) around the slab's centre: how the reading varies with where the nodes
-   fall under the probe;
+1. a homogeneous slab (``inclusion_ratio=1``) on a 4 x 4 grid over one node period (6 mm at the
+   default (10, 5, 10)) around the slab's centre: how the reading varies with where the nodes fall
+   under the probe;
 2. the same slab at the 9 candidate cell centres;
 3. the inclusion at each cell in turn (the default 10x stiffer box): the reading of the
    inclusion's cell over the stiffest other cell. Below 1, the map points to a wrong cell.

@@ -243,7 +243,7 @@ def test_per_copy_solves_scale_their_guess_to_the_least_residual():
     from numba.typed import List as TypedList
 
     from sim_core import kernels
-    # (8, 4, 8): unpreconditioned, the former default (10, 5, 10) needed about 3000 iterations from zero
+    # (8, 4, 8): unpreconditioned, the default (10, 5, 10) needs about 3000 iterations from zero
     envs = _stepped("tissue_env/Palpation-v0", count=3, steps=4, seed=1, shape=(8, 4, 8), model="baudet")
     integrator = envs.worlds.integrator
     stacked, hg_rows, hg_group = integrator.copies_first()

@@ -5,8 +5,6 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
-import pytest
-
 from benchmarks import env_accuracy
 
 
@@ -28,30 +26,6 @@ def test_budget_choice_is_the_most_accurate_shape_that_keeps_the_floor():
     assert env_accuracy.budget_choice(candidates, speeds).shape == (8, 2, 4)
     speeds.update({"8x2x4": None, "10x2x5": 10.0, "12x2x6": 10.0})  # an unstable candidate never wins
     assert env_accuracy.budget_choice(candidates, speeds, floor=300.0) is None
-
-
-def test_a_task_criterion_excludes_shapes_the_budget_would_choose():
-    """Palpation's indentation floor (issue 42): a shape coarser across than the coarsest measured
-    resolution within 10% is not a candidate, however accurate and fast; the committed
-    benchmarks/indentation_reference*.json pass Palpation's default and not the shape below it."""
-    candidates = [_candidate((10, 5, 10), 0.2), _candidate((11, 5, 11), 0.3), _candidate((12, 6, 12), 0.1)]
-    speeds = {"10x5x10": 500.0, "11x5x11": 400.0, "12x6x12": 300.0}
-    errors = {10: 0.104, 11: 0.076}
-    assert not env_accuracy.meets_indentation_floor((10, 5, 10), errors)
-    assert env_accuracy.meets_indentation_floor((11, 5, 11), errors)
-    assert not env_accuracy.meets_indentation_floor((11, 5, 11), {10: 0.2, 11: 0.15})
-    assert env_accuracy.budget_choice(candidates, speeds).shape == (10, 5, 10)
-    floor = lambda shape: env_accuracy.meets_indentation_floor(shape, errors)  # noqa: E731
-    assert env_accuracy.budget_choice(candidates, speeds, accepts=floor).shape == (11, 5, 11)
-    # the criterion first: below the speed floor, the fastest accepted candidate (none without one)
-    speeds.update({"11x5x11": 200.0, "12x6x12": 150.0})
-    assert env_accuracy.budget_choice(candidates, speeds, accepts=floor).shape == (11, 5, 11)
-    assert env_accuracy.budget_choice(candidates, {"10x5x10": 200.0}) is None
-    from tissue_env import PalpationEnv
-
-    shape = PalpationEnv.default_shape
-    assert env_accuracy.meets_indentation_floor(shape)
-    assert not env_accuracy.meets_indentation_floor((shape[0] - 1, shape[1], shape[2] - 1))
 
 
 def test_env_speeds_interleaves_rounds_and_takes_medians(monkeypatch):
@@ -100,23 +74,15 @@ def test_env_speed_measures_cpu_time_and_rejects_an_impossible_shape(monkeypatch
     assert end > start and rate == 5 / (end - start)
 
 
-STALE = ("the committed Palpation entry was measured at (10, 5, 10); re-run at the current code "
-         "(python -m benchmarks.env_accuracy --task Palpation) its scenes' static solves do not converge or are "
-         "saddles at every candidate but 6x3x6 (the fine model (12, 6, 12) too), so it is not re-committed")
-
-
-@pytest.mark.parametrize("task", [pytest.param(task, marks=pytest.mark.xfail(strict=True, reason=STALE))
-                                  if task == "Palpation" else task for task in env_accuracy.TASKS])
-def test_the_env_defaults_are_the_committed_budget_choices(task):
+def test_the_env_defaults_are_the_committed_budget_choices():
     """Issue 6 section 3: each env's default shape is what ``benchmarks/env_accuracy.py`` chose (the
-    most accurate shape at >= 375 steps/s, Palpation's among the shapes that meet issue 42's
-    indentation floor) in its committed run, benchmarks/results/env_accuracy.json (Palpation's
-    (11, 5, 11): (10, 5, 10), its choice before the floor, reads the probe force up to 10.4% over)."""
+    most accurate shape at >= 375 steps/s) in its committed run, benchmarks/results/env_accuracy.json
+    (Palpation's (10, 5, 10) since it moved from (8, 4, 8))."""
     import json
 
     results = json.loads((Path(__file__).resolve().parents[1] / "benchmarks" / "results"
                           / "env_accuracy.json").read_text())
     assert set(results["tasks"]) == set(env_accuracy.TASKS)
-    entry = results["tasks"][task]
-    assert tuple(entry["budget_choice"]["shape"]) == env_accuracy.env_default_shape(task), task
-    assert tuple(entry["env_default"]["shape"]) == env_accuracy.env_default_shape(task), task
+    for task, entry in results["tasks"].items():
+        assert tuple(entry["budget_choice"]["shape"]) == env_accuracy.env_default_shape(task), task
+        assert tuple(entry["env_default"]["shape"]) == env_accuracy.env_default_shape(task), task

@@ -108,7 +108,7 @@ def test_inclusion_is_stiffer_under_the_probe():
     assert np.argmax(stiffness) == inclusion and stiffness[inclusion] > 1.05 * np.median(stiffness)
 
 
-@pytest.mark.parametrize("shape, drift", [(None, 0.1), ((8, 4, 8), 0.15)])
+@pytest.mark.parametrize("shape, drift", [(None, 0.25), ((8, 4, 8), 0.15)])
 def test_palpation_map_records_the_latest_press_and_rewards_the_first_once(shape, drift):
     env = gym.make("tissue_env/Palpation-v0", **({} if shape is None else dict(shape=shape)))
     env.reset(seed=3)
@@ -141,8 +141,8 @@ def test_palpation_map_records_the_latest_press_and_rewards_the_first_once(shape
     np.testing.assert_allclose(obs[15:15 + n_cells], unwrapped.palpation_map / tissue, rtol=1e-6)
     np.testing.assert_allclose(obs[15 + n_cells:17 + n_cells], 0.0, atol=1e-5)  # stiffest = here
     # pressing deeper on the same cell does not reward again; its depth-normalised reading moves
-    # by less than ``drift`` (F / d rises by 1.5x from 4 to 8 mm): measured +4.2% at the default
-    # (11, 5, 11) (bound 10%; +19% at (10, 5, 10)), -11.8% at (8, 4, 8) (bound 15%); finer meshes stiffen the 8 mm press
+    # by less than ``drift`` (F / d rises by 1.5x from 4 to 8 mm): measured +19% at the default
+    # (10, 5, 10) (bound 25%), +12% at (8, 4, 8) (bound 15%); finer meshes stiffen the 8 mm press
     # (0.9 probe radii, a quarter of the slab: no longer Hertz's half-space) more: +43% at
     # (12, 6, 12), +53% at (14, 7, 14)
     held = unwrapped.palpation_map[0]
@@ -307,11 +307,11 @@ def held_reading(env, x, z, seed):
 def test_the_same_tissue_reads_alike_wherever_the_nodes_fall_under_the_probe(sampling, shape, low, high):
     """Homogeneous slab, held presses on a 3 x 3 grid over one node period p at the centre (offsets
     0, p / 3, 2 p / 3 along x and 0, p / 2, 0.73 p along z): with the projected probe the readings'
-    max/min is below 1.2 at the default (11, 5, 11) (measured 1.04, p = 5.45 mm) and at (8, 4, 8)
+    max/min is below 1.2 at the default (10, 5, 10) (measured 1.13, p = 6 mm) and at (8, 4, 8)
     (1.10, p = 7.5 mm; 1.11 on the map's 4 x 4 grid); sampled at the nodes, (8, 4, 8) reads 1.3 or
-    more (1.54, and 2.05 for the first step of a press, which is why the map keeps the latest
-    reading). At the default the node sampling reads 1.18 on the map's 4 x 4 grid
-    (benchmarks/palpation_map.py): 5.45 mm elements under a 9 mm probe average the nodes better."""
+    more (1.34, and 2.05 for the first step of a press, which is why the map keeps the latest
+    reading). At (10, 5, 10) the node sampling reads 1.09: 6 mm elements under a 9 mm probe
+    average the nodes well enough."""
     kwargs = {} if shape is None else dict(shape=shape)
     env = gym.make(ENV_ID, inclusion_ratio=1.0, probe_sampling=sampling, max_episode_steps=400, **kwargs).unwrapped
     centre, period = env.centre, env.spacing[0]
@@ -324,7 +324,7 @@ def test_the_same_tissue_reads_alike_wherever_the_nodes_fall_under_the_probe(sam
 def test_a_held_press_over_the_inclusion_reads_stiffest_in_every_placement():
     """The inclusion in each of the 9 candidate cells in turn, a held press over every cell centre:
     the inclusion's cell reads at least 1.1x the stiffest other cell in all 9 placements (measured
-    at the default (11, 5, 11): 1.22-1.32, and 1.29-1.34 sampled at the nodes,
+    at the default (10, 5, 10): 1.24-1.29, and 1.27-1.35 sampled at the nodes,
     benchmarks/palpation_map.py; at (8, 4, 8) 1.15-1.26, and 0.75-1.80 sampled at the nodes, below
     1 in 5 placements)."""
     env = gym.make(ENV_ID, max_episode_steps=400).unwrapped
@@ -338,29 +338,23 @@ def test_a_held_press_over_the_inclusion_reads_stiffest_in_every_placement():
     assert min(ratios) >= 1.1, np.round(ratios, 3)
 
 
-@pytest.mark.parametrize("place, first", [("node", 0.1), ("cell_centre", None)])
-def test_a_press_at_nu_049_reads_its_equilibrium_after_one_held_step(place, first, young_modulus=1e5):
-    """Pressed 4 mm in one step at full speed over a node next to the slab's centre (``first``: 10%)
-    or over the centre, a cell's centre at the default (11, 5, 11), and held, as the scripted sweep
-    records, the homogeneous slab at nu 0.49 reads what the static contact equilibrium reads there
-    (integrator="static"), and the press step holds the equilibrium's contact set. With the set
-    formed once per step the press held all 21 top nodes the probe's bound passed (9 at
-    equilibrium, (10, 5, 10)) and the held step read 1.7x the equilibrium at 100 kPa. The press
-    rings (inertia; implicit Euler damps it over a few 40 ms steps): over the node the first held
-    step reads within 10% of the equilibrium and the fifth within 1% (measured +9.0% and -0.1% at
-    100 kPa); over the cell's centre the first held step reads 2.7x the equilibrium at 100 kPa and
-    2.3x at 10 kPa (1.06x and 1.04x the next step: an open issue, not bounded here), the fifth
-    within 0.1%. At (10, 5, 10), whose centre is a node, +2.7% and 0.0%; over its cell centre +11%."""
+def test_a_press_at_nu_049_reads_its_equilibrium_after_one_held_step(young_modulus=1e5):
+    """Pressed 4 mm in one step at full speed over the slab's centre and held one step, as the
+    scripted sweep records, the homogeneous slab at nu 0.49 reads what the static contact
+    equilibrium reads there (integrator="static"), and the press step holds the equilibrium's
+    contact set. With the set formed once per step the press held all 21 top nodes the probe's
+    bound passed (9 at equilibrium) and the held step read 1.7x the equilibrium at 100 kPa. The
+    press rings (inertia; implicit Euler damps it over a few 40 ms steps): the first held step reads
+    within 10% of the equilibrium and the fifth within 1% (measured +6.9% and +0.3% at 100 kPa,
+    +3.9% and +0.3% at 10 kPa; before the cubes' bending took off the face diagonals' share, +1.4%
+    and +0.3%: the first held step falls at another phase of the ringing)."""
     readings, sets, settled = {}, {}, {}
     for integrator in ("implicit", "static"):
         env = gym.make(ENV_ID, young_modulus=young_modulus, poisson_ratio=0.49, inclusion_ratio=1.0,
                        integrator=integrator, max_episode_steps=400).unwrapped
         env.reset(seed=0)
-        spacing = env.spacing[0]
-        at = 0.03 if place == "cell_centre" else np.floor(0.03 / spacing + 1e-9) * spacing
-        assert place == "node" or abs(0.03 / spacing % 1 - 0.5) < 1e-6  # the centre is a cell's centre
-        centre = np.array([at, env.top_y, at])
-        for _ in range(20):  # over the place, the tip on the undeformed surface
+        centre = np.array([0.03, env.top_y, 0.03])
+        for _ in range(20):  # over the centre, the tip on the undeformed surface
             move = (centre - tip_of(env)) / env.max_step
             if np.abs(move).max() < 1e-9:
                 break
@@ -374,7 +368,7 @@ def test_a_press_at_nu_049_reads_its_equilibrium_after_one_held_step(place, firs
         settled[integrator] = env.measures["apparent_modulus"]
         env.close()
     assert np.array_equal(sets["implicit"], sets["static"])
-    assert first is None or readings["implicit"] == pytest.approx(readings["static"], rel=first)
+    assert readings["implicit"] == pytest.approx(readings["static"], rel=0.1)
     assert settled["implicit"] == pytest.approx(settled["static"], rel=0.01)
 
 

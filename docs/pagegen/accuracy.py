@@ -4,8 +4,8 @@ rejected alternatives sections; the constitutive sections are in ``constitutive`
 
 from __future__ import annotations
 
-from .common import (HEADER, QUANTITIES, RESULTS, caption, command_for, figure, load, num, pct, shape_label,
-                     short_id, table, task_classes, triple)
+from .common import (HEADER, QUANTITIES, caption, command_for, figure, load, num, pct, shape_label, short_id,
+                     table, task_classes, triple)
 from .constitutive import (env_constitutive_section, env_contact_section, env_model_choice_section,
                            organ_accuracy_section)
 
@@ -90,27 +90,6 @@ def env_defaults_section(accuracy):
     return out
 
 
-def indentation_floor_paragraph(entry):
-    """Why Palpation's default shape is what it is: its worst probe force error from 2 mm deep in
-    benchmarks/results/indentation_reference*.json at its resolution and the one below, and whether
-    its budgeted choice (env_accuracy.json ``entry``) keeps the speed floor."""
-    from benchmarks.env_accuracy import indentation_errors
-
-    worst = indentation_errors(RESULTS)
-    env, below = max(worst), min(worst)
-    return ["**Palpation's candidates must also meet issue 42's indentation floor**: its probe force within "
-            "10% of an independent axisymmetric indentation reference at every depth from 2 mm, over a node, an "
-            "edge and a cell's centre, at nu 0.45 and 0.49 (`benchmarks/indentation_reference.py`, "
-            "[physics](../physics.md) section 16). At n = " + str(below) + " cells across the slab the worst "
-            "error is " + pct(worst[below], 3) + "%; at the default's n = " + str(env) + ", " + pct(worst[env], 3)
-            + "%, so the default is the coarsest shape within the floor (evaluated beside the scan's "
-            "n x n/2 x n shapes, whose n = 11 is 11x6x11). The floor comes first: when no shape that meets it "
-            "keeps the speed floor, the budgeted choice is the fastest shape that meets it"
-            + ("" if not entry or entry["budget_choice"] is None or entry["budget_choice"].get("keeps_floor", True)
-               else f" (in this run {shape_label(entry['budget_choice']['shape'])} at "
-                    f"{num(entry['budget_choice']['steps_per_s'])} steps/s, under the floor)") + ".\n\n"]
-
-
 def env_resolution_section(accuracy):
     tasks = accuracy["tasks"]
     first = next(iter(tasks.values()))["budget_choice"]
@@ -127,7 +106,6 @@ def env_resolution_section(accuracy):
            "shape measured just over the floor would fall under it in a slower period (the last table of "
            "this section compares two runs). `choose_resolution` at a tolerance gives the coarsest shape "
            "within it instead; neither tolerance needs to be met by the default.\n\n",
-           *indentation_floor_paragraph(accuracy["tasks"].get("Palpation")),
            caption(command, "env_accuracy.json"), "\n"]
     rows = []
     for task, entry in tasks.items():

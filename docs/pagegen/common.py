@@ -121,13 +121,6 @@ def shape_label(shape):
     return "x".join(map(str, shape))
 
 
-def keywords_label(env_kwargs):
-    """An env-keyword setting as shown in the tables: ``key=value, ...`` (a shape as 11x5x11), ""
-    for none."""
-    return ", ".join(f"{key}={shape_label(value) if isinstance(value, (list, tuple)) else value}"
-                     for key, value in (env_kwargs or {}).items())
-
-
 def triple(errors):
     """'force / target / volume' errors in %."""
     return " / ".join(pct(errors.get(q), 2) for q in QUANTITIES) if errors else "-"

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .common import ROOT, keywords_label, load, short_id, table
+from .common import ROOT, load, short_id, table
 
 
 #: Units of the ``{keyword:unit}`` fields of a task's ``summary`` / ``success_summary``: name -> (factor, suffix)
@@ -76,7 +76,7 @@ def readme_training_table():
     for env_id in dict.fromkeys(entry["env"] for entry in entries):
         task, settings = short_id(env_id).removesuffix("-v0"), {}
         for entry in (e for e in entries if e["env"] == env_id):
-            setting = keywords_label(entry.get("env_kwargs")) or "default"
+            setting = ", ".join(f"{k}={v}" for k, v in (entry.get("env_kwargs") or {}).items()) or "default"
             settings.setdefault(setting, entry)
             rows.append([task, entry["algo"].upper(), shown(setting), entry["timesteps"],
                          ", ".join(str(s) for s in entry["seeds"]), ", ".join(f"{s:g}" for s in entry["agent_success"]),

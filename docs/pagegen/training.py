@@ -4,8 +4,7 @@ rllib_throughput*.json."""
 
 from __future__ import annotations
 
-from .common import (DOCS, HEADER, RESULTS, caption, command_for, figure, keywords_label, load, num, pct, runnable,
-                     short_id, table)
+from .common import DOCS, HEADER, RESULTS, caption, command_for, figure, load, num, pct, runnable, short_id, table
 
 
 def training_page():
@@ -25,13 +24,13 @@ def training_page():
         commands = []
         for entry in data.values():
             success = entry["agent_success"]
-            setting = keywords_label(entry.get("env_kwargs"))
+            setting = ", ".join(f"{key}={value}" for key, value in (entry.get("env_kwargs") or {}).items())
             rows.append([short_id(entry["env"]), entry["algo"], setting or "default", entry["vec_env"], entry["timesteps"],
                          " ".join(str(seed) for seed in entry["seeds"]),
                          ", ".join(pct(s, 3) for s in success), pct(sum(success) / len(success)),
                          pct(entry["random"]["success_rate"]), pct(entry["scripted"]["success_rate"]),
                          num(entry["train_wall_clock_s"])])
-            commands.append(entry["command"] + (f"  # {entry['note']}" if entry.get("note") else ""))
+            commands.append(entry["command"])
         out += [f"*Regenerate `benchmarks/results/{name}`, one command per row:*\n\n"]
         out += ["```\n" + "\n".join(commands) + "\n```\n\n"]
         out += [table(["env", "algo", "env keywords", "vec env", "timesteps", "seeds", "agent success per seed (%)", "mean (%)",
