@@ -369,7 +369,6 @@ class StackedForceWorkspace(ForceWorkspace):
                 kernels.stacked_hourglass_subtract_groups_serial(*args)
         return forces
 
-
     def partial_pass(self, geometric):
         """Whether ``compute`` with ``geometric`` computes only the copies its ``rows`` asks for (an
         implicit pass), rather than all of them."""
